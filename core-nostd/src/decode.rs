@@ -1,0 +1,299 @@
+//! Per-texel decoding (docs/FORMAT.md §6): address the texel, gather the level's input features,
+//! run the MLP in float or integer arithmetic, scale the outputs. Every function here is total for
+//! a parsed material: any coordinate, mip and mask gives a value or a `BadArgument` error.
+
+use crate::error::{Argument, Error};
+use crate::latents::{Footprint, LatentGrid, address, footprint};
+use crate::limits::{MAX_CHAIN, MAX_WIDTH};
+use crate::material::{Material, TermMode};
+use crate::mlp::{forward_float, forward_int, saturate_i16};
+use crate::posenc::triangle_q;
+
+/// Which output channels to decode: bit `c` selects channel `c`. Only the selected output rows of
+/// the last layer are computed; outputs are written packed, in ascending channel order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct ChannelMask(pub u16);
+
+impl ChannelMask {
+    /// Every channel the material has, whatever their number.
+    pub const ALL: ChannelMask = ChannelMask(u16::MAX);
+
+    /// Channel `c` alone (`c` < 16).
+    pub const fn single(c: u32) -> ChannelMask {
+        ChannelMask(1u16.wrapping_shl(c))
+    }
+}
+
+/// Raw features are kept in units of 2^-(16 + f): bilinear sums carry 16 extra fraction bits
+/// (their weights sum to 2^16), every other feature is an exact multiple of 2^16.
+const RAW_SHIFT: u32 = 16;
+
+impl<'a> Material<'a> {
+    /// The mask with every bit naming a real channel, or `BadArgument` (empty mask, or a bit at or
+    /// beyond `channel_count` other than in [`ChannelMask::ALL`]).
+    pub fn resolve_channels(&self, channels: ChannelMask) -> Result<u16, Error> {
+        let all = if self.channel_count() >= 16 {
+            u16::MAX
+        } else {
+            (1u16 << self.channel_count()) - 1
+        };
+        let mask = if channels == ChannelMask::ALL {
+            all
+        } else {
+            channels.0
+        };
+        if mask == 0 || mask & !all != 0 {
+            return Err(Error::BadArgument {
+                argument: Argument::Channels,
+                value: u64::from(channels.0),
+                limit: u64::from(all),
+            });
+        }
+        Ok(mask)
+    }
+
+    /// How many values a decode with `channels` writes.
+    pub fn required_len(&self, channels: ChannelMask) -> Result<usize, Error> {
+        Ok(self.resolve_channels(channels)?.count_ones() as usize)
+    }
+
+    fn check_out(&self, channels: ChannelMask, out_len: usize) -> Result<u16, Error> {
+        let mask = self.resolve_channels(channels)?;
+        let needed = mask.count_ones() as usize;
+        if out_len < needed {
+            return Err(Error::BadArgument {
+                argument: Argument::Output,
+                value: out_len as u64,
+                limit: needed as u64,
+            });
+        }
+        Ok(mask)
+    }
+
+    /// The mip (clamped to the chain) and the texel (wrapped or clamped into that mip, §6.1).
+    pub fn address_texel(&self, x: i64, y: i64, mip: u32) -> (u32, u32, u32) {
+        let mip = mip.min(self.mip_count() - 1);
+        let (w, h) = self.mip_size(mip);
+        (
+            address(x, w, self.address_mode),
+            address(y, h, self.address_mode),
+            mip,
+        )
+    }
+
+    /// Input features of texel (x, y) of `mip` (already addressed) in units of 2^-(16+f).
+    fn gather(&self, x: u32, y: u32, mip: u32, raw: &mut [i64; MAX_WIDTH]) {
+        let mip_size = self.mip_size(mip);
+        let mode = self.address_mode;
+        let mut slots = raw.iter_mut();
+        let mut push = |v: i64| {
+            if let Some(slot) = slots.next() {
+                *slot = v;
+            }
+        };
+        let Some(level) = self.levels.get(self.level_for_mip(mip)) else {
+            return;
+        };
+        for term in &level.terms {
+            let mut chain: [Option<(&LatentGrid<'a>, Footprint)>; MAX_CHAIN] = [None; MAX_CHAIN];
+            for (slot, &g) in chain.iter_mut().zip(&term.grids) {
+                *slot = self
+                    .grids
+                    .get(usize::from(g))
+                    .map(|grid| (grid, footprint(grid, x, y, mip_size, mode)));
+            }
+            let Some((first, fp)) = chain.first().copied().flatten() else {
+                continue;
+            };
+            match term.mode {
+                TermMode::Nearest4 => {
+                    for (cx, cy) in [
+                        (fp.x0, fp.y0),
+                        (fp.x1, fp.y0),
+                        (fp.x0, fp.y1),
+                        (fp.x1, fp.y1),
+                    ] {
+                        for c in 0..first.channels() {
+                            push(i64::from(first.value(cx, cy, c)) << RAW_SHIFT);
+                        }
+                    }
+                }
+                TermMode::Bilinear => {
+                    for c in 0..first.channels() {
+                        push(
+                            chain
+                                .iter()
+                                .flatten()
+                                .map(|(grid, fp)| i64::from(bilinear(grid, fp, c)))
+                                .sum(),
+                        );
+                    }
+                }
+            }
+        }
+        let f = self.mlp.input_frac_bits;
+        for k in 0..self.mlp.pe_frequencies {
+            for v in [
+                triangle_q(x, k, 0, f),
+                triangle_q(x, k, 1, f),
+                triangle_q(y, k, 0, f),
+                triangle_q(y, k, 1, f),
+            ] {
+                push(i64::from(v) << RAW_SHIFT);
+            }
+        }
+        if self.mlp.lod_input {
+            // mip / 16 in Q.f (f ≥ 4, mip ≤ 14).
+            push(i64::from(mip << (f - 4)) << RAW_SHIFT);
+        }
+    }
+
+    /// The integer network's outputs (Q.`out_frac_bits` of the last layer) for the rows in `rows`.
+    fn run_int(&self, x: i64, y: i64, mip: u32, rows: u16) -> [i16; MAX_WIDTH] {
+        let (x, y, mip) = self.address_texel(x, y, mip);
+        let mut raw = [0i64; MAX_WIDTH];
+        self.gather(x, y, mip, &mut raw);
+        let mut io = [0i16; MAX_WIDTH];
+        for (v, r) in io.iter_mut().zip(&raw) {
+            // Round half up onto the input grid, then saturate (§6.3).
+            *v = saturate_i16((r + (1 << (RAW_SHIFT - 1))) >> RAW_SHIFT);
+        }
+        forward_int(&self.mlp.layers, &mut io, rows);
+        io
+    }
+
+    /// The float network's outputs for the rows in `rows`, in unit scale (1.0 = top of range).
+    fn run_float(&self, x: i64, y: i64, mip: u32, rows: u16) -> [f32; MAX_WIDTH] {
+        let (x, y, mip) = self.address_texel(x, y, mip);
+        let mut raw = [0i64; MAX_WIDTH];
+        self.gather(x, y, mip, &mut raw);
+        let lo = i64::from(i16::MIN) << RAW_SHIFT;
+        let hi = i64::from(i16::MAX) << RAW_SHIFT;
+        let scale = 1.0 / (1u64 << (RAW_SHIFT + u32::from(self.mlp.input_frac_bits))) as f32;
+        let mut io = [0f32; MAX_WIDTH];
+        for (v, r) in io.iter_mut().zip(&raw) {
+            *v = (*r).clamp(lo, hi) as f32 * scale;
+        }
+        forward_float(&self.mlp.layers, &mut io, rows);
+        io
+    }
+
+    fn last_frac_bits(&self) -> u32 {
+        self.mlp
+            .layers
+            .last()
+            .map_or(1, |l| u32::from(l.out_frac_bits))
+    }
+
+    /// Float reference decode: values in each channel's range (§6.8), for the channels in
+    /// `channels`, packed into `out`. Returns how many were written.
+    pub fn decode_texel(
+        &self,
+        x: i64,
+        y: i64,
+        mip: u32,
+        channels: ChannelMask,
+        out: &mut [f32],
+    ) -> Result<usize, Error> {
+        let n = self.decode_texel_unit(x, y, mip, channels, out)?;
+        let rows = self.resolve_channels(channels)?;
+        for (v, ch) in out.iter_mut().zip(selected(&self.channels, rows)) {
+            *v = ch.range_min * (1.0 - *v) + ch.range_max * *v;
+        }
+        Ok(n)
+    }
+
+    /// Float reference decode in unit scale: each value is the network output clamped to [0, 1].
+    pub fn decode_texel_unit(
+        &self,
+        x: i64,
+        y: i64,
+        mip: u32,
+        channels: ChannelMask,
+        out: &mut [f32],
+    ) -> Result<usize, Error> {
+        let rows = self.check_out(channels, out.len())?;
+        let y_out = self.run_float(x, y, mip, rows);
+        Ok(write_selected(rows, &y_out, out, |v| unit(*v)))
+    }
+
+    /// Integer decode to 8-bit codes: `clamp((y·255 + 2^(f−1)) >> f, 0, 255)` (§6.7).
+    pub fn decode_texel_u8(
+        &self,
+        x: i64,
+        y: i64,
+        mip: u32,
+        channels: ChannelMask,
+        out: &mut [u8],
+    ) -> Result<usize, Error> {
+        let rows = self.check_out(channels, out.len())?;
+        let f = self.last_frac_bits();
+        let y_out = self.run_int(x, y, mip, rows);
+        Ok(write_selected(rows, &y_out, out, |&v| {
+            code(v, f, 255) as u8
+        }))
+    }
+
+    /// Integer decode to 16-bit codes: `clamp((y·65535 + 2^(f−1)) >> f, 0, 65535)` (§6.7).
+    pub fn decode_texel_u16(
+        &self,
+        x: i64,
+        y: i64,
+        mip: u32,
+        channels: ChannelMask,
+        out: &mut [u16],
+    ) -> Result<usize, Error> {
+        let rows = self.check_out(channels, out.len())?;
+        let f = self.last_frac_bits();
+        let y_out = self.run_int(x, y, mip, rows);
+        Ok(write_selected(rows, &y_out, out, |&v| {
+            code(v, f, 65535) as u16
+        }))
+    }
+}
+
+/// Exact bilinear sum Σ wᵢ·vᵢ of channel `c`, weights in 1/65536 summing to 65536. With vᵢ an i16
+/// the sum lies in [−2^31, 2^31 − 2^16], so the i32 cannot overflow.
+fn bilinear(grid: &LatentGrid<'_>, fp: &Footprint, c: usize) -> i32 {
+    let (fx, fy) = (fp.fx, fp.fy);
+    let (gx, gy) = (256 - fx, 256 - fy);
+    let v = |x, y| grid.value(x, y, c);
+    gx * gy * v(fp.x0, fp.y0)
+        + fx * gy * v(fp.x1, fp.y0)
+        + gx * fy * v(fp.x0, fp.y1)
+        + fx * fy * v(fp.x1, fp.y1)
+}
+
+/// Unit-scale clamp; NaN (impossible for validated weights, but cheap to rule out) maps to 0.
+fn unit(v: f32) -> f32 {
+    if v >= 1.0 {
+        1.0
+    } else if v > 0.0 {
+        v
+    } else {
+        0.0
+    }
+}
+
+/// Output code of a Q.`f` value for a full scale of `max` (255 or 65535). |y·max| < 2^31.
+pub fn code(y: i16, f: u32, max: i32) -> i32 {
+    let half = 1i32 << (f.clamp(1, 14) - 1);
+    ((i32::from(y) * max + half) >> f.clamp(1, 14)).clamp(0, max)
+}
+
+fn selected<T>(items: &[T], rows: u16) -> impl Iterator<Item = &T> {
+    items
+        .iter()
+        .enumerate()
+        .filter(move |(i, _)| *i < 16 && rows & (1 << i) != 0)
+        .map(|(_, t)| t)
+}
+
+fn write_selected<S, T>(rows: u16, values: &[S], out: &mut [T], map: impl Fn(&S) -> T) -> usize {
+    let mut n = 0;
+    for (slot, v) in out.iter_mut().zip(selected(values, rows)) {
+        *slot = map(v);
+        n += 1;
+    }
+    n
+}

@@ -1,0 +1,216 @@
+//! Typed errors. Every variant names the field (or argument) at fault and carries the offending
+//! value, so a user can tell a corrupt file from an unsupported one from a bad call.
+
+use core::fmt;
+
+/// A field of the container, as named in `docs/FORMAT.md`.
+#[non_exhaustive]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Field {
+    Magic,
+    VersionMajor,
+    Flags,
+    FileLength,
+    HeaderReserved,
+    Checksum,
+    SectionCount,
+    SectionKind,
+    SectionFlags,
+    SectionOffset,
+    SectionLength,
+    /// A required section (named by its kind in `index`) is missing.
+    MissingSection,
+    Width,
+    Height,
+    MipCount,
+    ChannelCount,
+    AddressMode,
+    MaterialReserved,
+    ChannelName,
+    ChannelColorSpace,
+    ChannelRange,
+    ChannelReserved,
+    LevelCount,
+    GridCount,
+    LevelsReserved,
+    MipToLevel,
+    GridWidth,
+    GridHeight,
+    GridChannels,
+    GridBits,
+    GridReserved,
+    GridDataOffset,
+    GridDataLength,
+    LatentQuantization,
+    TermCount,
+    LevelReserved,
+    TermMode,
+    TermChainLength,
+    TermReserved,
+    TermGrid,
+    /// The terms of a level produce a different number of features than the MLP takes.
+    LevelFeatureWidth,
+    LayerCount,
+    InputFracBits,
+    PeFrequencies,
+    LodInput,
+    InputWidth,
+    MlpReserved,
+    LayerInputs,
+    LayerOutputs,
+    LayerOutFracBits,
+    LayerActivation,
+    LayerReserved,
+    WeightInt8,
+    WeightScale,
+    Bias,
+    FloatWeight,
+    FloatBias,
+}
+
+/// An argument of a decode call.
+#[non_exhaustive]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Argument {
+    /// The channel mask is empty or names a channel the material does not have.
+    Channels,
+    /// The output slice is shorter than the number of channels asked for.
+    Output,
+    /// A `MaterialSpec` vector whose length contradicts the sizes it declares.
+    Spec,
+}
+
+/// Everything that can go wrong, split by cause.
+#[non_exhaustive]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Error {
+    /// The bytes contradict the format (corrupt or hostile data). `index` says which element of a
+    /// repeated structure (section, channel, grid, level, layer, row…), 0 for single fields.
+    Malformed {
+        field: Field,
+        index: u32,
+        value: i64,
+    },
+    /// The file is larger or denser than this decoder's named limits allow.
+    LimitExceeded {
+        field: Field,
+        index: u32,
+        value: u64,
+        limit: u64,
+    },
+    /// The data needs more bytes than the file (or section) has.
+    Truncated {
+        field: Field,
+        index: u32,
+        needed: u64,
+        available: u64,
+    },
+    /// A version, flag, code or mode this decoder does not know.
+    Unsupported {
+        field: Field,
+        index: u32,
+        value: u64,
+    },
+    /// The stored checksum does not match the bytes: the file was corrupted.
+    ChecksumMismatch { stored: u32, computed: u32 },
+    /// The caller passed an argument that cannot be served.
+    BadArgument {
+        argument: Argument,
+        value: u64,
+        limit: u64,
+    },
+}
+
+impl fmt::Display for Field {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        // The Debug names are the FORMAT.md field names in CamelCase; reuse them.
+        fmt::Debug::fmt(self, f)
+    }
+}
+
+impl fmt::Display for Error {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            Error::Malformed {
+                field,
+                index,
+                value,
+            } => {
+                write!(
+                    f,
+                    "malformed .nmat: field {field}[{index}] has invalid value {value}"
+                )
+            }
+            Error::LimitExceeded {
+                field,
+                index,
+                value,
+                limit,
+            } => write!(
+                f,
+                "limit exceeded: field {field}[{index}] is {value}, this decoder allows at most {limit}"
+            ),
+            Error::Truncated {
+                field,
+                index,
+                needed,
+                available,
+            } => write!(
+                f,
+                "truncated .nmat: {field}[{index}] needs {needed} bytes but only {available} are there"
+            ),
+            Error::Unsupported {
+                field,
+                index,
+                value,
+            } => {
+                write!(
+                    f,
+                    "unsupported .nmat: field {field}[{index}] has unknown value {value}"
+                )
+            }
+            Error::ChecksumMismatch { stored, computed } => write!(
+                f,
+                "corrupt .nmat: checksum is {stored:#010x} but the bytes give {computed:#010x}"
+            ),
+            Error::BadArgument {
+                argument,
+                value,
+                limit,
+            } => {
+                write!(f, "bad argument {argument:?}: value {value}, limit {limit}")
+            }
+        }
+    }
+}
+
+impl core::error::Error for Error {}
+
+pub(crate) fn malformed(field: Field, index: usize, value: impl TryInto<i64>) -> Error {
+    Error::Malformed {
+        field,
+        index: index as u32,
+        value: value.try_into().unwrap_or(i64::MAX),
+    }
+}
+
+pub(crate) fn unsupported(field: Field, index: usize, value: impl Into<u64>) -> Error {
+    Error::Unsupported {
+        field,
+        index: index as u32,
+        value: value.into(),
+    }
+}
+
+/// Checks `value <= limit`, naming the field otherwise.
+pub(crate) fn at_most(field: Field, index: usize, value: u64, limit: u64) -> Result<(), Error> {
+    if value > limit {
+        return Err(Error::LimitExceeded {
+            field,
+            index: index as u32,
+            value,
+            limit,
+        });
+    }
+    Ok(())
+}

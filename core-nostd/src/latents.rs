@@ -1,0 +1,125 @@
+//! Latent grids: bit-packed codes, their dequantization, and where a texel lands on a grid
+//! (docs/FORMAT.md §4 and §6.2).
+
+use crate::bytes::{i16_at, u32_at};
+use crate::material::AddressMode;
+
+/// A validated view of one latent grid inside the file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LatentGrid<'a> {
+    pub(crate) width: u16,
+    pub(crate) height: u16,
+    pub(crate) channels: u8,
+    pub(crate) bits: u8,
+    /// `channels` × (offset: i16, step: i16), little-endian.
+    pub(crate) quant: &'a [u8],
+    /// The packed 32-bit words, exactly `packed_len` bytes.
+    pub(crate) data: &'a [u8],
+}
+
+/// Bytes of the packed data of a grid: whole 32-bit words (FORMAT.md §4). `None` on overflow.
+pub fn packed_len(width: u32, height: u32, channels: u32, bits: u32) -> Option<usize> {
+    let total_bits = u64::from(width)
+        .checked_mul(u64::from(height))?
+        .checked_mul(u64::from(channels))?
+        .checked_mul(u64::from(bits))?;
+    let words = total_bits.checked_add(31)? / 32;
+    usize::try_from(words.checked_mul(4)?).ok()
+}
+
+impl<'a> LatentGrid<'a> {
+    pub fn width(&self) -> u32 {
+        u32::from(self.width)
+    }
+    pub fn height(&self) -> u32 {
+        u32::from(self.height)
+    }
+    pub fn channels(&self) -> usize {
+        usize::from(self.channels)
+    }
+    pub fn bits_per_latent(&self) -> u32 {
+        u32::from(self.bits)
+    }
+    /// The packed words as stored (little-endian u32s), ready to upload to a GPU buffer.
+    pub fn packed_data(&self) -> &'a [u8] {
+        self.data
+    }
+    /// `(offset, step)` of channel `c` in input Q-format units: value = offset + code · step.
+    pub fn quantization(&self, c: usize) -> (i16, i16) {
+        (i16_at(self.quant, 4 * c), i16_at(self.quant, 4 * c + 2))
+    }
+
+    /// The stored code of cell (x, y), channel c. Out-of-range arguments read as 0.
+    pub fn code(&self, x: u32, y: u32, c: usize) -> u8 {
+        if x >= self.width() || y >= self.height() || c >= self.channels() {
+            return 0;
+        }
+        let index = (u64::from(y) * u64::from(self.width) + u64::from(x))
+            * u64::from(self.channels)
+            + c as u64;
+        let bit = index * u64::from(self.bits);
+        let word = (bit / 32) as usize;
+        // A latent may straddle two words; the second read is past the end only when it does not.
+        let lo = u64::from(u32_at(self.data, word * 4));
+        let hi = u64::from(u32_at(self.data, word * 4 + 4));
+        let both = (hi << 32) | lo;
+        let mask = (1u64 << self.bits) - 1;
+        ((both >> (bit % 32)) & mask) as u8
+    }
+
+    /// The dequantized value `offset + code · step`; parse guarantees it fits an i16.
+    pub fn value(&self, x: u32, y: u32, c: usize) -> i32 {
+        let (offset, step) = self.quantization(c);
+        i32::from(offset) + i32::from(self.code(x, y, c)) * i32::from(step)
+    }
+}
+
+/// Where a texel of a `mip_w × mip_h` image falls on a grid: the 2×2 cells around it (already
+/// wrapped or clamped) and the bilinear fractions in 1/256 (FORMAT.md §6.2).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Footprint {
+    pub x0: u32,
+    pub x1: u32,
+    pub y0: u32,
+    pub y1: u32,
+    pub fx: i32,
+    pub fy: i32,
+}
+
+/// One axis of the footprint: the first cell index (−1 ≤ i0 < grid_size) and the fraction in
+/// 1/256. `x < mip_size` and both sizes are in 1..=16384, so the numerator is below 2^38.
+fn axis(x: u32, mip_size: u32, grid_size: u32) -> (i64, i32) {
+    let num = (2 * u64::from(x) + 1) * u64::from(grid_size) * 256;
+    let den = 2 * u64::from(mip_size.max(1));
+    let pos = (num / den) as i64 - 128;
+    (pos >> 8, (pos & 255) as i32)
+}
+
+/// Brings index `i` into `[0, size)` by the address mode (FORMAT.md §6.1); `size` ≥ 1.
+pub fn address(i: i64, size: u32, mode: AddressMode) -> u32 {
+    let size = i64::from(size.max(1));
+    match mode {
+        AddressMode::Wrap => i.rem_euclid(size) as u32,
+        AddressMode::Clamp => i.clamp(0, size - 1) as u32,
+    }
+}
+
+pub(crate) fn footprint(
+    grid: &LatentGrid<'_>,
+    x: u32,
+    y: u32,
+    mip_size: (u32, u32),
+    mode: AddressMode,
+) -> Footprint {
+    let (gw, gh) = (grid.width(), grid.height());
+    let (i, fx) = axis(x, mip_size.0, gw);
+    let (j, fy) = axis(y, mip_size.1, gh);
+    Footprint {
+        x0: address(i, gw, mode),
+        x1: address(i + 1, gw, mode),
+        y0: address(j, gh, mode),
+        y1: address(j + 1, gh, mode),
+        fx,
+        fy,
+    }
+}

@@ -1,0 +1,210 @@
+//! The parsed, validated material: borrowed views into the file plus small fixed-size
+//! descriptors. Built only by `Container::parse`, so every value here is within the limits of
+//! docs/FORMAT.md and decoding it cannot fail or panic.
+
+use crate::bytes::{f32_at, u8_at};
+use crate::latents::LatentGrid;
+use crate::limits::{
+    MAX_CHAIN, MAX_CHANNELS, MAX_GRIDS, MAX_LAYERS, MAX_LEVELS, MAX_MIPS, MAX_TERMS,
+};
+use crate::mlp::Layer;
+
+/// How texel and grid coordinates outside the image are brought back in (FORMAT.md §6.1).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AddressMode {
+    /// `x mod size`: tiling materials.
+    Wrap = 0,
+    /// `min(max(x, 0), size - 1)`: decals, atlases.
+    Clamp = 1,
+}
+
+/// What a channel means. Descriptive only: an unknown value is kept, not rejected.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Semantic(pub u8);
+
+impl Semantic {
+    pub const UNKNOWN: Semantic = Semantic(0);
+    pub const ALBEDO: Semantic = Semantic(1);
+    pub const NORMAL: Semantic = Semantic(2);
+    pub const ROUGHNESS: Semantic = Semantic(3);
+    pub const GLOSS: Semantic = Semantic(4);
+    pub const HEIGHT: Semantic = Semantic(5);
+    pub const AMBIENT_OCCLUSION: Semantic = Semantic(6);
+    pub const METALLIC: Semantic = Semantic(7);
+    pub const EMISSIVE: Semantic = Semantic(8);
+    pub const OPACITY: Semantic = Semantic(9);
+    pub const SPECULAR: Semantic = Semantic(10);
+}
+
+/// Colour space of a channel's values (FORMAT.md §3). Decoding returns stored values; converting
+/// sRGB to linear is the renderer's business, as with any sRGB texture.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ColorSpace {
+    Linear = 0,
+    Srgb = 1,
+}
+
+/// One output channel of the material.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Channel<'a> {
+    pub name: &'a str,
+    pub semantic: Semantic,
+    /// Which component of a multi-channel map this is (0 = R/X, 1 = G/Y, …).
+    pub component: u8,
+    pub color_space: ColorSpace,
+    /// Decoded value = `range_min + unit · (range_max - range_min)`, unit ∈ [0, 1].
+    pub range_min: f32,
+    pub range_max: f32,
+}
+
+/// How a term of a feature level reads its grids (FORMAT.md §6.3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TermMode {
+    /// The 4 nearest cells of one grid, concatenated (NTC's high-resolution grid): 4·c features.
+    Nearest4 = 0,
+    /// Bilinear samples of a chain of grids, summed (NTC's low-resolution grid when the chain has
+    /// one grid; NBC's residual fusion when it has several): c features.
+    Bilinear = 1,
+}
+
+/// One sampling term: a mode and the grids it reads (a chain of one for `Nearest4`).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Term {
+    pub mode: TermMode,
+    pub grids: heapless::Vec<u8, MAX_CHAIN>,
+}
+
+/// The sampling graph of one feature level: its terms, in input order.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct FeatureLevel {
+    pub terms: heapless::Vec<Term, MAX_TERMS>,
+}
+
+/// The decoder network (FORMAT.md §5).
+#[derive(Clone, Debug)]
+pub struct Mlp<'a> {
+    pub(crate) input_frac_bits: u8,
+    pub(crate) pe_frequencies: u8,
+    pub(crate) lod_input: bool,
+    pub(crate) input_width: u16,
+    pub(crate) layers: heapless::Vec<Layer<'a>, MAX_LAYERS>,
+}
+
+impl<'a> Mlp<'a> {
+    /// Fraction bits of the input vector's Q-format (latents, positional encoding, LOD).
+    pub fn input_frac_bits(&self) -> u8 {
+        self.input_frac_bits
+    }
+    /// Number of triangle-wave frequencies of the positional encoding (4 features each).
+    pub fn pe_frequencies(&self) -> u8 {
+        self.pe_frequencies
+    }
+    /// Whether the mip level is an input feature.
+    pub fn lod_input(&self) -> bool {
+        self.lod_input
+    }
+    /// Number of input features.
+    pub fn input_width(&self) -> usize {
+        usize::from(self.input_width)
+    }
+    pub fn layers(&self) -> &[Layer<'a>] {
+        &self.layers
+    }
+    /// Multiply-adds per texel with all outputs (the cost model of the benchmarks).
+    pub fn macs_per_texel(&self) -> usize {
+        self.layers.iter().map(|l| l.inputs() * l.outputs()).sum()
+    }
+}
+
+/// A parsed `.nmat` material. Cheap to copy around by reference; immutable, so one instance can be
+/// decoded from many threads at once.
+#[derive(Clone, Debug)]
+pub struct Material<'a> {
+    pub(crate) version_minor: u16,
+    pub(crate) width: u32,
+    pub(crate) height: u32,
+    pub(crate) mip_count: u8,
+    pub(crate) address_mode: AddressMode,
+    pub(crate) channels: heapless::Vec<Channel<'a>, MAX_CHANNELS>,
+    pub(crate) mip_to_level: [u8; MAX_MIPS],
+    pub(crate) grids: heapless::Vec<LatentGrid<'a>, MAX_GRIDS>,
+    pub(crate) levels: heapless::Vec<FeatureLevel, MAX_LEVELS>,
+    pub(crate) mlp: Mlp<'a>,
+    pub(crate) file_len: usize,
+}
+
+impl<'a> Material<'a> {
+    /// Minor format version of the file (readers accept any minor of major 1).
+    pub fn version_minor(&self) -> u16 {
+        self.version_minor
+    }
+    /// Width of mip 0 in texels.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+    /// Height of mip 0 in texels.
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+    pub fn mip_count(&self) -> u32 {
+        u32::from(self.mip_count)
+    }
+    /// Size of `mip` (clamped to the chain): `max(1, size >> mip)` on each axis.
+    pub fn mip_size(&self, mip: u32) -> (u32, u32) {
+        let m = mip.min(self.mip_count().saturating_sub(1));
+        ((self.width >> m).max(1), (self.height >> m).max(1))
+    }
+    pub fn address_mode(&self) -> AddressMode {
+        self.address_mode
+    }
+    pub fn channel_count(&self) -> usize {
+        self.channels.len()
+    }
+    pub fn channels(&self) -> &[Channel<'a>] {
+        &self.channels
+    }
+    /// The feature level that decodes `mip` (clamped to the chain).
+    pub fn level_for_mip(&self, mip: u32) -> usize {
+        let m = mip.min(self.mip_count().saturating_sub(1)) as usize;
+        usize::from(self.mip_to_level.get(m).copied().unwrap_or(0))
+    }
+    pub fn levels(&self) -> &[FeatureLevel] {
+        &self.levels
+    }
+    pub fn grids(&self) -> &[LatentGrid<'a>] {
+        &self.grids
+    }
+    pub fn mlp(&self) -> &Mlp<'a> {
+        &self.mlp
+    }
+    /// Size of the file this material was parsed from, in bytes.
+    pub fn file_len(&self) -> usize {
+        self.file_len
+    }
+    /// Bits per pixel per channel: file bits / (width · height · channels) of mip 0.
+    pub fn bppc(&self) -> f64 {
+        let denom = f64::from(self.width) * f64::from(self.height) * self.channels.len() as f64;
+        (self.file_len as f64 * 8.0) / denom
+    }
+}
+
+/// Reads channel `i` of a 32-byte channel record (FORMAT.md §3).
+pub(crate) fn channel_range(rec: &[u8]) -> (f32, f32) {
+    (f32_at(rec, 20), f32_at(rec, 24))
+}
+
+/// The name bytes of a channel record, up to the first NUL.
+pub(crate) fn channel_name_bytes(rec: &[u8]) -> &[u8] {
+    let name = rec.get(..16).unwrap_or(&[]);
+    let end = name.iter().position(|&b| b == 0).unwrap_or(name.len());
+    name.get(..end).unwrap_or(&[])
+}
+
+pub(crate) fn channel_codes(rec: &[u8]) -> (u8, u8, u8, u8) {
+    (
+        u8_at(rec, 16),
+        u8_at(rec, 17),
+        u8_at(rec, 18),
+        u8_at(rec, 19),
+    )
+}
