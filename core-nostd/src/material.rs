@@ -10,6 +10,7 @@ use crate::limits::{
 use crate::mlp::Layer;
 
 /// How texel and grid coordinates outside the image are brought back in (FORMAT.md §6.1).
+#[non_exhaustive]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum AddressMode {
     /// `x mod size`: tiling materials.
@@ -38,6 +39,7 @@ impl Semantic {
 
 /// Colour space of a channel's values (FORMAT.md §3). Decoding returns stored values; converting
 /// sRGB to linear is the renderer's business, as with any sRGB texture.
+#[non_exhaustive]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ColorSpace {
     Linear = 0,
@@ -58,6 +60,7 @@ pub struct Channel<'a> {
 }
 
 /// How a term of a feature level reads its grids (FORMAT.md §6.3).
+#[non_exhaustive]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum TermMode {
     /// The 4 nearest cells of one grid, concatenated (NTC's high-resolution grid): 4·c features.

@@ -9,6 +9,7 @@ use crate::limits::MAX_WIDTH;
 use half::f16;
 
 /// Activation after a layer.
+#[non_exhaustive]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Activation {
     /// Identity (the output layer).
