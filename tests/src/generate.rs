@@ -39,11 +39,19 @@ impl Rng {
 pub enum Layout {
     /// NTC: level k covers mips 2k and 2k+1 with a high-res grid (1/4 of mip 2k, sampled by its 4
     /// nearest cells) and a low-res grid (1/8, bilinear).
-    Ntc { hi_channels: u8, lo_channels: u8, hi_bits: u8, lo_bits: u8 },
+    Ntc {
+        hi_channels: u8,
+        lo_channels: u8,
+        hi_bits: u8,
+        lo_bits: u8,
+    },
     /// NBC: one residual grid per level with its own bit depth (given coarse → fine); level l reads
     /// its fused features (bilinear sum of its residual and every coarser one) and, as its low-res
     /// input, the fused next-coarser level. Level l covers mip l; the coarsest covers the rest.
-    Nbc { channels: u8, bits_coarse_to_fine: Vec<u8> },
+    Nbc {
+        channels: u8,
+        bits_coarse_to_fine: Vec<u8>,
+    },
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -67,7 +75,13 @@ pub struct FixtureConfig {
 
 impl FixtureConfig {
     /// A small NTC material with sensible defaults, to be adjusted field by field.
-    pub fn ntc(name: &'static str, seed: u64, width: u32, height: u32, channels: u8) -> FixtureConfig {
+    pub fn ntc(
+        name: &'static str,
+        seed: u64,
+        width: u32,
+        height: u32,
+        channels: u8,
+    ) -> FixtureConfig {
         FixtureConfig {
             name,
             seed,
@@ -75,7 +89,12 @@ impl FixtureConfig {
             height,
             mip_count: 0,
             channels,
-            layout: Layout::Ntc { hi_channels: 4, lo_channels: 4, hi_bits: 4, lo_bits: 4 },
+            layout: Layout::Ntc {
+                hi_channels: 4,
+                lo_channels: 4,
+                hi_bits: 4,
+                lo_bits: 4,
+            },
             address_mode: AddressMode::Wrap,
             hidden: vec![32, 32],
             pe_frequencies: 2,
@@ -86,9 +105,18 @@ impl FixtureConfig {
         }
     }
 
-    pub fn nbc(name: &'static str, seed: u64, width: u32, height: u32, channels: u8) -> FixtureConfig {
+    pub fn nbc(
+        name: &'static str,
+        seed: u64,
+        width: u32,
+        height: u32,
+        channels: u8,
+    ) -> FixtureConfig {
         FixtureConfig {
-            layout: Layout::Nbc { channels: 6, bits_coarse_to_fine: vec![8, 4, 2, 1] },
+            layout: Layout::Nbc {
+                channels: 6,
+                bits_coarse_to_fine: vec![8, 4, 2, 1],
+            },
             ..FixtureConfig::ntc(name, seed, width, height, channels)
         }
     }
@@ -96,61 +124,100 @@ impl FixtureConfig {
 
 /// The golden fixtures of `tests/fixtures/` (see `tests/fixtures/README.md`).
 pub fn golden_configs() -> Vec<FixtureConfig> {
-    let mut v = Vec::new();
-    // The NTC paper's shape: 2 hidden layers of 64, 4-cell high-res + bilinear low-res grids.
-    v.push(FixtureConfig {
-        hidden: vec![64, 64],
-        layout: Layout::Ntc { hi_channels: 8, lo_channels: 8, hi_bits: 4, lo_bits: 4 },
-        ..FixtureConfig::ntc("ntc_rgb_64", 1, 64, 64, 3)
-    });
-    // Non-power-of-two, clamp addressing, a PBR set of 10 channels.
-    v.push(FixtureConfig {
-        address_mode: AddressMode::Clamp,
-        ..FixtureConfig::ntc("ntc_pbr10_96x80_clamp", 2, 96, 80, 10)
-    });
-    // Every channel the format allows; 8-bit latents on both grids.
-    v.push(FixtureConfig {
-        layout: Layout::Ntc { hi_channels: 4, lo_channels: 4, hi_bits: 8, lo_bits: 8 },
-        ..FixtureConfig::ntc("ntc_16ch_8bit_32", 3, 32, 32, 16)
-    });
-    // 1-bit latents on the high-res grid, other Q-formats.
-    v.push(FixtureConfig {
-        layout: Layout::Ntc { hi_channels: 6, lo_channels: 2, hi_bits: 1, lo_bits: 2 },
-        input_frac_bits: 10,
-        hidden_frac_bits: 11,
-        output_frac_bits: 13,
-        pe_frequencies: 3,
-        ..FixtureConfig::ntc("ntc_1bit_q10_40x24", 4, 40, 24, 4)
-    });
-    // NBC: 8-4-2-1 bits coarse → fine, residual fusion and feature reuse.
-    v.push(FixtureConfig { hidden: vec![64, 64], ..FixtureConfig::nbc("nbc_8421_64", 5, 64, 64, 4) });
-    v.push(FixtureConfig {
-        address_mode: AddressMode::Clamp,
-        lod_input: false,
-        pe_frequencies: 0,
-        layout: Layout::Nbc { channels: 4, bits_coarse_to_fine: vec![8, 1, 1] },
-        hidden_frac_bits: 10, // three fused grids reach beyond the ±8 of Q.12 (FORMAT.md §6.6)
-        ..FixtureConfig::nbc("nbc_clamp_nolod_48x36", 6, 48, 36, 3)
-    });
-    // Degenerate sizes: one texel; a 1×N strip; a single hidden layer.
-    v.push(FixtureConfig { hidden: vec![8], ..FixtureConfig::ntc("tiny_1x1", 7, 1, 1, 1) });
-    v.push(FixtureConfig { hidden: vec![16, 16, 16], ..FixtureConfig::ntc("strip_1x37", 8, 1, 37, 2) });
-    v
+    vec![
+        // The NTC paper's shape: 2 hidden layers of 64, 4-cell high-res + bilinear low-res grids.
+        FixtureConfig {
+            hidden: vec![64, 64],
+            layout: Layout::Ntc {
+                hi_channels: 8,
+                lo_channels: 8,
+                hi_bits: 4,
+                lo_bits: 4,
+            },
+            ..FixtureConfig::ntc("ntc_rgb_64", 1, 64, 64, 3)
+        },
+        // Non-power-of-two, clamp addressing, a PBR set of 10 channels.
+        FixtureConfig {
+            address_mode: AddressMode::Clamp,
+            ..FixtureConfig::ntc("ntc_pbr10_96x80_clamp", 2, 96, 80, 10)
+        },
+        // Every channel the format allows; 8-bit latents on both grids.
+        FixtureConfig {
+            layout: Layout::Ntc {
+                hi_channels: 4,
+                lo_channels: 4,
+                hi_bits: 8,
+                lo_bits: 8,
+            },
+            ..FixtureConfig::ntc("ntc_16ch_8bit_32", 3, 32, 32, 16)
+        },
+        // 1-bit latents on the high-res grid, other Q-formats.
+        FixtureConfig {
+            layout: Layout::Ntc {
+                hi_channels: 6,
+                lo_channels: 2,
+                hi_bits: 1,
+                lo_bits: 2,
+            },
+            input_frac_bits: 10,
+            hidden_frac_bits: 11,
+            output_frac_bits: 13,
+            pe_frequencies: 3,
+            ..FixtureConfig::ntc("ntc_1bit_q10_40x24", 4, 40, 24, 4)
+        },
+        // NBC: 8-4-2-1 bits coarse → fine, residual fusion and feature reuse.
+        FixtureConfig {
+            hidden: vec![64, 64],
+            ..FixtureConfig::nbc("nbc_8421_64", 5, 64, 64, 4)
+        },
+        FixtureConfig {
+            address_mode: AddressMode::Clamp,
+            lod_input: false,
+            pe_frequencies: 0,
+            layout: Layout::Nbc {
+                channels: 4,
+                bits_coarse_to_fine: vec![8, 1, 1],
+            },
+            hidden_frac_bits: 10, // three fused grids reach beyond the ±8 of Q.12 (FORMAT.md §6.6)
+            ..FixtureConfig::nbc("nbc_clamp_nolod_48x36", 6, 48, 36, 3)
+        },
+        // Degenerate sizes: one texel; a 1×N strip; a single hidden layer.
+        FixtureConfig {
+            hidden: vec![8],
+            ..FixtureConfig::ntc("tiny_1x1", 7, 1, 1, 1)
+        },
+        FixtureConfig {
+            hidden: vec![16, 16, 16],
+            ..FixtureConfig::ntc("strip_1x37", 8, 1, 37, 2)
+        },
+    ]
 }
 
 fn full_chain(width: u32, height: u32) -> u8 {
     (32 - width.max(height).leading_zeros()) as u8
 }
 
-fn random_grid(rng: &mut Rng, width: u32, height: u32, channels: u8, bits: u8, frac_bits: u8) -> GridSpec {
+fn random_grid(
+    rng: &mut Rng,
+    width: u32,
+    height: u32,
+    channels: u8,
+    bits: u8,
+    frac_bits: u8,
+) -> GridSpec {
     let max_code = (1i32 << bits) - 1;
     let one = 1i32 << frac_bits;
     let quantization = (0..channels)
         .map(|_| {
             // Latents spread over about ±2 (asymmetric: a random offset), exact in Q.frac_bits.
-            let span = one * 4 * (75 + rng.range(0, 50) as i32) / 100;
-            let step = (span / max_code).max(1);
-            let offset = -(step * max_code) / 2 + rng.range(-(one as i64) / 4, one as i64 / 4) as i32;
+            // Capped so that every dequantized value stays an i16 at high fraction bits.
+            let span = (one * 4 * (75 + rng.range(0, 50) as i32) / 100).min(60000);
+            let step = (span / max_code).clamp(1, 32767);
+            let half = step * max_code / 2;
+            let jitter = (one / 4)
+                .min(32767 - (step * max_code - half))
+                .min(32768 - half);
+            let offset = -half + rng.range(-i64::from(jitter), i64::from(jitter)) as i32;
             (offset as i16, step as i16)
         })
         .collect();
@@ -161,18 +228,30 @@ fn random_grid(rng: &mut Rng, width: u32, height: u32, channels: u8, bits: u8, f
         channels,
         bits,
         quantization,
-        codes: (0..cells).map(|_| rng.range(0, i64::from(max_code)) as u8).collect(),
+        codes: (0..cells)
+            .map(|_| rng.range(0, i64::from(max_code)) as u8)
+            .collect(),
     }
 }
 
 /// A layer with int8 codes, per-row scales and the matching float weights (see module docs).
 /// `gain` sets the output spread; `center` the real value the outputs are centred on.
-fn random_layer(rng: &mut Rng, inputs: u16, outputs: u16, frac: (u8, u8), activation: Activation, gain: f64, center: f64) -> LayerSpec {
+fn random_layer(
+    rng: &mut Rng,
+    inputs: u16,
+    outputs: u16,
+    frac: (u8, u8),
+    activation: Activation,
+    gain: f64,
+    center: f64,
+) -> LayerSpec {
     let (in_frac, out_frac) = frac;
     let n = usize::from(inputs) * usize::from(outputs);
     let weights_i8: Vec<i8> = (0..n).map(|_| rng.range(-127, 127) as i8).collect();
     let base = gain / (127.0 * (f64::from(inputs)).sqrt() * 0.577);
-    let scales: Vec<f32> = (0..outputs).map(|_| (base * (0.75 + 0.5 * rng.unit())) as f32).collect();
+    let scales: Vec<f32> = (0..outputs)
+        .map(|_| (base * (0.75 + 0.5 * rng.unit())) as f32)
+        .collect();
     let in_lsb = 1.0 / f64::from(1u32 << in_frac);
     let bias: Vec<i32> = scales
         .iter()
@@ -186,8 +265,22 @@ fn random_layer(rng: &mut Rng, inputs: u16, outputs: u16, frac: (u8, u8), activa
             f16::from_f64(f64::from(w) * f64::from(s))
         })
         .collect();
-    let float_bias = bias.iter().zip(&scales).map(|(&b, &s)| (f64::from(b) * f64::from(s) * in_lsb) as f32).collect();
-    LayerSpec { inputs, outputs, out_frac_bits: out_frac, activation, weights_i8, scales, bias, weights_f16, float_bias }
+    let float_bias = bias
+        .iter()
+        .zip(&scales)
+        .map(|(&b, &s)| (f64::from(b) * f64::from(s) * in_lsb) as f32)
+        .collect();
+    LayerSpec {
+        inputs,
+        outputs,
+        out_frac_bits: out_frac,
+        activation,
+        weights_i8,
+        scales,
+        bias,
+        weights_f16,
+        float_bias,
+    }
 }
 
 const CHANNEL_NAMES: [(&str, Semantic, ColorSpace); 16] = [
@@ -212,40 +305,89 @@ const CHANNEL_NAMES: [(&str, Semantic, ColorSpace); 16] = [
 /// Builds the material a config describes. Same config → same spec → same bytes.
 pub fn generate(cfg: &FixtureConfig) -> MaterialSpec {
     let mut rng = Rng::new(cfg.seed);
-    let mip_count = if cfg.mip_count == 0 { full_chain(cfg.width, cfg.height) } else { cfg.mip_count };
+    let mip_count = if cfg.mip_count == 0 {
+        full_chain(cfg.width, cfg.height)
+    } else {
+        cfg.mip_count
+    };
     let f = cfg.input_frac_bits;
     let (mut grids, mut levels, mut mip_to_level) = (Vec::new(), Vec::new(), Vec::new());
     let scaled = |size: u32, shift: u32| (size >> shift.min(31)).max(1);
     match &cfg.layout {
-        Layout::Ntc { hi_channels, lo_channels, hi_bits, lo_bits } => {
+        Layout::Ntc {
+            hi_channels,
+            lo_channels,
+            hi_bits,
+            lo_bits,
+        } => {
             let level_count = usize::from(mip_count).div_ceil(2);
             for k in 0..level_count as u32 {
                 let hi = grids.len() as u8;
-                grids.push(random_grid(&mut rng, scaled(cfg.width, 2 * k + 2), scaled(cfg.height, 2 * k + 2), *hi_channels, *hi_bits, f));
-                grids.push(random_grid(&mut rng, scaled(cfg.width, 2 * k + 3), scaled(cfg.height, 2 * k + 3), *lo_channels, *lo_bits, f));
+                grids.push(random_grid(
+                    &mut rng,
+                    scaled(cfg.width, 2 * k + 2),
+                    scaled(cfg.height, 2 * k + 2),
+                    *hi_channels,
+                    *hi_bits,
+                    f,
+                ));
+                grids.push(random_grid(
+                    &mut rng,
+                    scaled(cfg.width, 2 * k + 3),
+                    scaled(cfg.height, 2 * k + 3),
+                    *lo_channels,
+                    *lo_bits,
+                    f,
+                ));
                 levels.push(LevelSpec {
                     terms: vec![
-                        TermSpec { mode: TermMode::Nearest4, grids: vec![hi] },
-                        TermSpec { mode: TermMode::Bilinear, grids: vec![hi + 1] },
+                        TermSpec {
+                            mode: TermMode::Nearest4,
+                            grids: vec![hi],
+                        },
+                        TermSpec {
+                            mode: TermMode::Bilinear,
+                            grids: vec![hi + 1],
+                        },
                     ],
                 });
             }
             mip_to_level.extend((0..mip_count).map(|m| m / 2));
         }
-        Layout::Nbc { channels, bits_coarse_to_fine } => {
+        Layout::Nbc {
+            channels,
+            bits_coarse_to_fine,
+        } => {
             let level_count = bits_coarse_to_fine.len().min(usize::from(mip_count));
             // Grid l is level l's residual; l = 0 is the finest.
             for l in 0..level_count {
                 let bits = bits_coarse_to_fine[bits_coarse_to_fine.len() - 1 - l];
-                grids.push(random_grid(&mut rng, scaled(cfg.width, l as u32 + 2), scaled(cfg.height, l as u32 + 2), *channels, bits, f));
+                grids.push(random_grid(
+                    &mut rng,
+                    scaled(cfg.width, l as u32 + 2),
+                    scaled(cfg.height, l as u32 + 2),
+                    *channels,
+                    bits,
+                    f,
+                ));
             }
             for l in 0..level_count {
                 let fused: Vec<u8> = (l..level_count).map(|g| g as u8).collect();
-                let coarser: Vec<u8> = if l + 1 < level_count { fused[1..].to_vec() } else { fused.clone() };
+                let coarser: Vec<u8> = if l + 1 < level_count {
+                    fused[1..].to_vec()
+                } else {
+                    fused.clone()
+                };
                 levels.push(LevelSpec {
                     terms: vec![
-                        TermSpec { mode: TermMode::Bilinear, grids: fused },
-                        TermSpec { mode: TermMode::Bilinear, grids: coarser },
+                        TermSpec {
+                            mode: TermMode::Bilinear,
+                            grids: fused,
+                        },
+                        TermSpec {
+                            mode: TermMode::Bilinear,
+                            grids: coarser,
+                        },
                     ],
                 });
             }
@@ -257,17 +399,38 @@ pub fn generate(cfg: &FixtureConfig) -> MaterialSpec {
         .iter()
         .map(|t| {
             let c = usize::from(grids[usize::from(t.grids[0])].channels);
-            if t.mode == TermMode::Nearest4 { 4 * c } else { c }
+            if t.mode == TermMode::Nearest4 {
+                4 * c
+            } else {
+                c
+            }
         })
         .sum();
-    let input_width = (level_width + 4 * usize::from(cfg.pe_frequencies) + usize::from(cfg.lod_input)) as u16;
+    let input_width =
+        (level_width + 4 * usize::from(cfg.pe_frequencies) + usize::from(cfg.lod_input)) as u16;
     let mut layers = Vec::new();
     let mut prev = (input_width, f);
     for &h in &cfg.hidden {
-        layers.push(random_layer(&mut rng, prev.0, h, (prev.1, cfg.hidden_frac_bits), Activation::HardGelu, 1.0, 0.0));
+        layers.push(random_layer(
+            &mut rng,
+            prev.0,
+            h,
+            (prev.1, cfg.hidden_frac_bits),
+            Activation::HardGelu,
+            1.0,
+            0.0,
+        ));
         prev = (h, cfg.hidden_frac_bits);
     }
-    layers.push(random_layer(&mut rng, prev.0, u16::from(cfg.channels), (prev.1, cfg.output_frac_bits), Activation::None, 0.35, 0.5));
+    layers.push(random_layer(
+        &mut rng,
+        prev.0,
+        u16::from(cfg.channels),
+        (prev.1, cfg.output_frac_bits),
+        Activation::None,
+        0.35,
+        0.5,
+    ));
     let channels = (0..usize::from(cfg.channels))
         .map(|c| {
             let (name, semantic, color_space) = CHANNEL_NAMES[c];
@@ -275,7 +438,9 @@ pub fn generate(cfg: &FixtureConfig) -> MaterialSpec {
             ChannelSpec {
                 name: name.to_string(),
                 semantic,
-                component: name.ends_with(".g") as u8 + name.ends_with(".y") as u8 + 2 * (name.ends_with(".b") || name.ends_with(".z")) as u8,
+                component: name.ends_with(".g") as u8
+                    + name.ends_with(".y") as u8
+                    + 2 * (name.ends_with(".b") || name.ends_with(".z")) as u8,
                 color_space,
                 range_min: if ranged { -1.0 } else { 0.0 },
                 range_max: 1.0,
@@ -291,6 +456,11 @@ pub fn generate(cfg: &FixtureConfig) -> MaterialSpec {
         mip_to_level,
         grids,
         levels,
-        mlp: MlpSpec { input_frac_bits: f, pe_frequencies: cfg.pe_frequencies, lod_input: cfg.lod_input, layers },
+        mlp: MlpSpec {
+            input_frac_bits: f,
+            pe_frequencies: cfg.pe_frequencies,
+            lod_input: cfg.lod_input,
+            layers,
+        },
     }
 }

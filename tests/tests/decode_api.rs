@@ -1,0 +1,236 @@
+//! The decode API: channel subsets, filters, bad arguments, threads.
+
+use nmat_core::{
+    Argument, ChannelMask, Container, Error, Filter, Material, Precision, SampleRequest,
+};
+use nmat_tests::generate::{FixtureConfig, Rng, generate, golden_configs};
+
+fn fixture(i: usize) -> Vec<u8> {
+    generate(&golden_configs()[i]).to_bytes().unwrap()
+}
+
+#[test]
+fn channel_subsets_equal_the_same_channels_of_a_full_decode() {
+    let bytes = fixture(1); // 10 channels
+    let m = Container::parse(&bytes).unwrap();
+    let mut r = Rng::new(5);
+    for _ in 0..200 {
+        let (x, y, mip) = (r.range(-50, 150), r.range(-50, 150), r.range(0, 8) as u32);
+        let mask = r.range(1, (1 << 10) - 1) as u16;
+        let (mut full8, mut sub8) = ([0u8; 16], [0u8; 16]);
+        let (mut fullf, mut subf) = ([0f32; 16], [0f32; 16]);
+        m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut full8)
+            .unwrap();
+        m.decode_texel(x, y, mip, ChannelMask::ALL, &mut fullf)
+            .unwrap();
+        let n = m
+            .decode_texel_u8(x, y, mip, ChannelMask(mask), &mut sub8)
+            .unwrap();
+        m.decode_texel(x, y, mip, ChannelMask(mask), &mut subf)
+            .unwrap();
+        assert_eq!(n, mask.count_ones() as usize);
+        let picked: Vec<usize> = (0..10).filter(|c| mask & (1 << c) != 0).collect();
+        for (k, &c) in picked.iter().enumerate() {
+            assert_eq!(sub8[k], full8[c]);
+            assert_eq!(subf[k], fullf[c]);
+        }
+    }
+}
+
+#[test]
+fn float_values_are_mapped_into_each_channel_range() {
+    let bytes = fixture(1);
+    let m = Container::parse(&bytes).unwrap();
+    let (mut unit, mut val) = ([0f32; 16], [0f32; 16]);
+    m.decode_texel_unit(4, 4, 0, ChannelMask::ALL, &mut unit)
+        .unwrap();
+    m.decode_texel(4, 4, 0, ChannelMask::ALL, &mut val).unwrap();
+    for (c, ch) in m.channels().iter().enumerate() {
+        let expected = ch.range_min + unit[c] * (ch.range_max - ch.range_min);
+        assert!(
+            (val[c] - expected).abs() < 1e-6,
+            "{}: {} vs {expected}",
+            ch.name,
+            val[c]
+        );
+        assert!((ch.range_min..=ch.range_max).contains(&val[c]));
+    }
+    assert!(
+        m.channels().iter().any(|c| c.range_min < 0.0),
+        "fixture has a signed (normal) channel"
+    );
+}
+
+#[test]
+fn bad_arguments_are_typed_errors() {
+    let bytes = fixture(0); // 3 channels
+    let m = Container::parse(&bytes).unwrap();
+    let mut out = [0u8; 3];
+    for mask in [0u16, 0b1000, 0x8001] {
+        assert!(matches!(
+            m.decode_texel_u8(0, 0, 0, ChannelMask(mask), &mut out),
+            Err(Error::BadArgument {
+                argument: Argument::Channels,
+                ..
+            })
+        ));
+    }
+    let mut short = [0u8; 2];
+    assert_eq!(
+        m.decode_texel_u8(0, 0, 0, ChannelMask::ALL, &mut short),
+        Err(Error::BadArgument {
+            argument: Argument::Output,
+            value: 2,
+            limit: 3
+        })
+    );
+    let mut shortf = [0f32; 1];
+    let req = SampleRequest {
+        u: 0.5,
+        v: 0.5,
+        lod: 0.0,
+        filter: Filter::Bilinear,
+        precision: Precision::Float,
+        random: [0.0; 3],
+        channels: ChannelMask::ALL,
+    };
+    assert!(matches!(
+        m.sample(&req, &mut shortf),
+        Err(Error::BadArgument {
+            argument: Argument::Output,
+            ..
+        })
+    ));
+    assert_eq!(m.required_len(ChannelMask(0b101)), Ok(2));
+    let msg = m
+        .decode_texel_u8(0, 0, 0, ChannelMask(0), &mut out)
+        .unwrap_err()
+        .to_string();
+    assert!(msg.contains("Channels"), "{msg}");
+}
+
+fn sample(
+    m: &Material<'_>,
+    u: f32,
+    v: f32,
+    lod: f32,
+    filter: Filter,
+    precision: Precision,
+    random: [f32; 3],
+) -> Vec<f32> {
+    let mut out = [0f32; 16];
+    let n = m
+        .sample(
+            &SampleRequest {
+                u,
+                v,
+                lod,
+                filter,
+                precision,
+                random,
+                channels: ChannelMask::ALL,
+            },
+            &mut out,
+        )
+        .unwrap();
+    out[..n].to_vec()
+}
+
+#[test]
+fn filters_agree_with_texel_decodes_where_they_must() {
+    let bytes = fixture(0);
+    let m = Container::parse(&bytes).unwrap();
+    let (w, h) = (m.width() as f32, m.height() as f32);
+    for precision in [Precision::Float, Precision::Integer] {
+        for (x, y) in [(0u32, 0u32), (5, 9), (63, 63)] {
+            // At a texel centre, nearest and bilinear are that texel.
+            let (u, v) = ((x as f32 + 0.5) / w, (y as f32 + 0.5) / h);
+            let mut texel = [0f32; 3];
+            match precision {
+                Precision::Float => {
+                    m.decode_texel(i64::from(x), i64::from(y), 0, ChannelMask::ALL, &mut texel)
+                        .unwrap();
+                }
+                _ => {
+                    let mut c = [0u8; 3];
+                    m.decode_texel_u8(i64::from(x), i64::from(y), 0, ChannelMask::ALL, &mut c)
+                        .unwrap();
+                    texel = c.map(|c| f32::from(c) / 255.0);
+                }
+            }
+            for filter in [Filter::Nearest, Filter::Bilinear, Filter::Stochastic] {
+                let got = sample(&m, u, v, 0.0, filter, precision, [0.99, 0.99, 0.99]);
+                for (a, b) in got.iter().zip(texel) {
+                    assert!(
+                        (a - b).abs() < 1e-6,
+                        "{filter:?} {precision:?} at ({x},{y}): {a} vs {b}"
+                    );
+                }
+            }
+            // Trilinear at an integer LOD is bilinear at that mip.
+            assert_eq!(
+                sample(&m, u, v, 1.0, Filter::Trilinear, precision, [0.0; 3]),
+                sample(&m, u, v, 1.0, Filter::Bilinear, precision, [0.0; 3])
+            );
+        }
+    }
+}
+
+#[test]
+fn stochastic_filtering_averages_to_trilinear() {
+    let bytes = fixture(0);
+    let m = Container::parse(&bytes).unwrap();
+    let (u, v, lod) = (0.37, 0.61, 1.3);
+    let target = sample(&m, u, v, lod, Filter::Trilinear, Precision::Float, [0.0; 3]);
+    let mut r = Rng::new(17);
+    let trials = 4000;
+    let mut mean = vec![0f64; target.len()];
+    for _ in 0..trials {
+        let rnd = [r.unit() as f32, r.unit() as f32, r.unit() as f32];
+        for (acc, v) in mean.iter_mut().zip(sample(
+            &m,
+            u,
+            v,
+            lod,
+            Filter::Stochastic,
+            Precision::Float,
+            rnd,
+        )) {
+            *acc += f64::from(v) / f64::from(trials);
+        }
+    }
+    for (a, b) in mean.iter().zip(&target) {
+        // 8 texels with values spread over ~0.3: the standard error of 4000 draws is ~0.003.
+        assert!((a - f64::from(*b)).abs() < 0.015, "{a} vs {b}");
+    }
+    // And it is a selection, not a blend: every draw equals one of the 8 footprint texels.
+    let one = sample(
+        &m,
+        u,
+        v,
+        lod,
+        Filter::Stochastic,
+        Precision::Float,
+        [0.1, 0.9, 0.2],
+    );
+    assert_ne!(one, target);
+}
+
+#[test]
+fn a_material_is_shared_across_threads() {
+    fn assert_sync<T: Sync + Send>(_: &T) {}
+    let bytes = generate(&FixtureConfig::ntc("threads", 9, 32, 32, 4))
+        .to_bytes()
+        .unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    assert_sync(&m);
+    let single = nmat_tests::decode_all_u8(&m);
+    std::thread::scope(|s| {
+        let handles: Vec<_> = (0..4)
+            .map(|_| s.spawn(|| nmat_tests::decode_all_u8(&m)))
+            .collect();
+        for h in handles {
+            assert_eq!(h.join().unwrap(), single);
+        }
+    });
+}
