@@ -9,11 +9,7 @@ const TABLES: [[u32; 256]; 8] = {
         let mut c = i as u32;
         let mut k = 0;
         while k < 8 {
-            c = if c & 1 != 0 {
-                0xEDB8_8320 ^ (c >> 1)
-            } else {
-                c >> 1
-            };
+            c = if c & 1 != 0 { 0xEDB8_8320 ^ (c >> 1) } else { c >> 1 };
             k += 1;
         }
         t[0][i] = c;
@@ -35,11 +31,7 @@ const TABLES: [[u32; 256]; 8] = {
 
 fn entry(table: usize, index: u32) -> u32 {
     // `index` is masked to a byte and `table` < 8 at every call site.
-    TABLES
-        .get(table)
-        .and_then(|t| t.get((index & 0xFF) as usize))
-        .copied()
-        .unwrap_or(0)
+    TABLES.get(table).and_then(|t| t.get((index & 0xFF) as usize)).copied().unwrap_or(0)
 }
 
 /// Running CRC-32 state.

@@ -85,9 +85,7 @@ pub struct ParseOptions {
 
 impl Default for ParseOptions {
     fn default() -> Self {
-        ParseOptions {
-            verify_checksum: true,
-        }
+        ParseOptions { verify_checksum: true }
     }
 }
 
@@ -106,10 +104,7 @@ impl Container {
         if options.verify_checksum {
             let computed = file_checksum(bytes);
             if computed != header.checksum {
-                return Err(Error::ChecksumMismatch {
-                    stored: header.checksum,
-                    computed,
-                });
+                return Err(Error::ChecksumMismatch { stored: header.checksum, computed });
             }
         }
         let sections = read_section_table(bytes, &header)?;
@@ -141,9 +136,7 @@ impl Container {
 }
 
 fn read_header(bytes: &[u8]) -> Result<Header, Error> {
-    let Some(head) = bytes
-        .get(..HEADER_LEN)
-        .and_then(|h| <&[u8; HEADER_LEN]>::try_from(h).ok())
+    let Some(head) = bytes.get(..HEADER_LEN).and_then(|h| <&[u8; HEADER_LEN]>::try_from(h).ok())
     else {
         let prefix = bytes.len().min(MAGIC.len());
         if bytes.get(..prefix) != MAGIC.get(..prefix) {
@@ -202,12 +195,7 @@ fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'
     if count == 0 {
         return Err(malformed(Field::SectionCount, 0, 0));
     }
-    at_most(
-        Field::SectionCount,
-        0,
-        u64::from(header.section_count),
-        MAX_SECTIONS as u64,
-    )?;
+    at_most(Field::SectionCount, 0, u64::from(header.section_count), MAX_SECTIONS as u64)?;
     let table_end = HEADER_LEN + SECTION_ENTRY_LEN * count;
     if table_end > bytes.len() {
         return Err(Error::Truncated {
@@ -266,12 +254,7 @@ fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'
             (k + 1) as i64,
         ))
     };
-    Ok(Sections {
-        material: need(0)?,
-        levels: need(1)?,
-        mlp: need(2)?,
-        latents: need(3)?,
-    })
+    Ok(Sections { material: need(0)?, levels: need(1)?, mlp: need(2)?, latents: need(3)? })
 }
 
 fn exact_length(section: &[u8], needed: usize, field: Field) -> Result<(), Error> {
@@ -297,13 +280,7 @@ fn dimension(field: Field, value: u32, limit: u32) -> Result<u32, Error> {
     Ok(value)
 }
 
-type MaterialParts<'a> = (
-    u32,
-    u32,
-    u8,
-    AddressMode,
-    heapless::Vec<Channel<'a>, MAX_CHANNELS>,
-);
+type MaterialParts<'a> = (u32, u32, u8, AddressMode, heapless::Vec<Channel<'a>, MAX_CHANNELS>);
 
 fn parse_material(s: &[u8]) -> Result<MaterialParts<'_>, Error> {
     if s.len() < MATERIAL_HEADER_LEN {
@@ -325,12 +302,7 @@ fn parse_material(s: &[u8]) -> Result<MaterialParts<'_>, Error> {
     if channel_count == 0 {
         return Err(malformed(Field::ChannelCount, 0, 0));
     }
-    at_most(
-        Field::ChannelCount,
-        0,
-        channel_count as u64,
-        MAX_CHANNELS as u64,
-    )?;
+    at_most(Field::ChannelCount, 0, channel_count as u64, MAX_CHANNELS as u64)?;
     let address_mode = match u8_at(s, 10) {
         0 => AddressMode::Wrap,
         1 => AddressMode::Clamp,
@@ -339,19 +311,11 @@ fn parse_material(s: &[u8]) -> Result<MaterialParts<'_>, Error> {
     if u8_at(s, 11) != 0 {
         return Err(malformed(Field::MaterialReserved, 0, u8_at(s, 11)));
     }
-    exact_length(
-        s,
-        MATERIAL_HEADER_LEN + CHANNEL_RECORD_LEN * channel_count,
-        Field::ChannelCount,
-    )?;
+    exact_length(s, MATERIAL_HEADER_LEN + CHANNEL_RECORD_LEN * channel_count, Field::ChannelCount)?;
     let mut channels = heapless::Vec::new();
     for c in 0..channel_count {
-        let rec = slice(
-            s,
-            MATERIAL_HEADER_LEN + CHANNEL_RECORD_LEN * c,
-            CHANNEL_RECORD_LEN,
-        )
-        .unwrap_or(&[]);
+        let rec = slice(s, MATERIAL_HEADER_LEN + CHANNEL_RECORD_LEN * c, CHANNEL_RECORD_LEN)
+            .unwrap_or(&[]);
         channels
             .push(parse_channel(rec, c)?)
             .map_err(|_| malformed(Field::ChannelCount, c, c as i64))?;
@@ -378,20 +342,9 @@ fn parse_channel(rec: &[u8], c: usize) -> Result<Channel<'_>, Error> {
     }
     let (range_min, range_max) = channel_range(rec);
     if !range_min.is_finite() || !range_max.is_finite() || range_min > range_max {
-        return Err(malformed(
-            Field::ChannelRange,
-            c,
-            i64::from(range_min.to_bits()),
-        ));
+        return Err(malformed(Field::ChannelRange, c, i64::from(range_min.to_bits())));
     }
-    Ok(Channel {
-        name,
-        semantic: Semantic(semantic),
-        component,
-        color_space,
-        range_min,
-        range_max,
-    })
+    Ok(Channel { name, semantic: Semantic(semantic), component, color_space, range_min, range_max })
 }
 
 struct Levels<'a> {
@@ -432,11 +385,8 @@ fn parse_levels<'a>(s: &'a [u8], latents: &'a [u8], mip_count: u8) -> Result<Lev
     let mut mip_to_level = [0u8; MAX_MIPS];
     for m in 0..MIP_TABLE_LEN {
         let level = u8_at(s, 4 + m);
-        let valid = if m < usize::from(mip_count) {
-            usize::from(level) < level_count
-        } else {
-            level == 0
-        };
+        let valid =
+            if m < usize::from(mip_count) { usize::from(level) < level_count } else { level == 0 };
         if !valid {
             return Err(malformed(Field::MipToLevel, m, level));
         }
@@ -450,9 +400,7 @@ fn parse_levels<'a>(s: &'a [u8], latents: &'a [u8], mip_count: u8) -> Result<Lev
         need_bytes(s, pos, GRID_RECORD_LEN, Field::GridWidth, g)?;
         let grid = parse_grid(s, pos, g, latents)?;
         pos += GRID_RECORD_LEN + 4 * grid.channels();
-        grids
-            .push(grid)
-            .map_err(|_| malformed(Field::GridCount, g, g as i64))?;
+        grids.push(grid).map_err(|_| malformed(Field::GridCount, g, g as i64))?;
     }
     let mut levels = heapless::Vec::new();
     let mut widths = heapless::Vec::new();
@@ -463,9 +411,7 @@ fn parse_levels<'a>(s: &'a [u8], latents: &'a [u8], mip_count: u8) -> Result<Lev
             return Err(malformed(Field::TermCount, l, 0));
         }
         at_most(Field::TermCount, l, term_count as u64, MAX_TERMS as u64)?;
-        if s.get(pos + 1..pos + 4)
-            .is_some_and(|r| r.iter().any(|&b| b != 0))
-        {
+        if s.get(pos + 1..pos + 4).is_some_and(|r| r.iter().any(|&b| b != 0)) {
             return Err(malformed(Field::LevelReserved, l, 0));
         }
         pos += LEVEL_HEADER_LEN;
@@ -476,27 +422,18 @@ fn parse_levels<'a>(s: &'a [u8], latents: &'a [u8], mip_count: u8) -> Result<Lev
             let rec = slice(s, pos, TERM_RECORD_LEN).unwrap_or(&[]);
             let (term, term_width) = parse_term(rec, l * MAX_TERMS + t, &grids)?;
             width += term_width;
-            terms
-                .push(term)
-                .map_err(|_| malformed(Field::TermCount, l, t as i64))?;
+            terms.push(term).map_err(|_| malformed(Field::TermCount, l, t as i64))?;
             pos += TERM_RECORD_LEN;
         }
         levels
             .push(FeatureLevel { terms })
             .map_err(|_| malformed(Field::LevelCount, l, l as i64))?;
-        widths
-            .push(width)
-            .map_err(|_| malformed(Field::LevelCount, l, l as i64))?;
+        widths.push(width).map_err(|_| malformed(Field::LevelCount, l, l as i64))?;
     }
     if pos != s.len() {
         return Err(malformed(Field::SectionLength, 0, s.len() as i64));
     }
-    Ok(Levels {
-        mip_to_level,
-        grids,
-        levels,
-        widths,
-    })
+    Ok(Levels { mip_to_level, grids, levels, widths })
 }
 
 fn parse_grid<'a>(
@@ -517,12 +454,7 @@ fn parse_grid<'a>(
     if channels == 0 {
         return Err(malformed(Field::GridChannels, g, 0));
     }
-    at_most(
-        Field::GridChannels,
-        g,
-        u64::from(channels),
-        MAX_GRID_CHANNELS as u64,
-    )?;
+    at_most(Field::GridChannels, g, u64::from(channels), MAX_GRID_CHANNELS as u64)?;
     let bits = u8_at(s, pos + 5);
     if bits == 0 || bits > MAX_LATENT_BITS {
         return Err(malformed(Field::GridBits, g, bits));
@@ -532,12 +464,8 @@ fn parse_grid<'a>(
     }
     let offset = u32_at(s, pos + 8) as usize;
     let length = u32_at(s, pos + 12) as usize;
-    let expected = packed_len(
-        u32::from(width),
-        u32::from(height),
-        u32::from(channels),
-        u32::from(bits),
-    );
+    let expected =
+        packed_len(u32::from(width), u32::from(height), u32::from(channels), u32::from(bits));
     if expected != Some(length) {
         return Err(malformed(Field::GridDataLength, g, length as i64));
     }
@@ -553,13 +481,7 @@ fn parse_grid<'a>(
         });
     };
     let quant_len = 4 * usize::from(channels);
-    need_bytes(
-        s,
-        pos + GRID_RECORD_LEN,
-        quant_len,
-        Field::LatentQuantization,
-        g,
-    )?;
+    need_bytes(s, pos + GRID_RECORD_LEN, quant_len, Field::LatentQuantization, g)?;
     let quant = slice(s, pos + GRID_RECORD_LEN, quant_len).unwrap_or(&[]);
     let max_code = (1i32 << bits) - 1;
     for c in 0..usize::from(channels) {
@@ -571,14 +493,7 @@ fn parse_grid<'a>(
             return Err(malformed(Field::LatentQuantization, g, far));
         }
     }
-    Ok(LatentGrid {
-        width,
-        height,
-        channels,
-        bits,
-        quant,
-        data,
-    })
+    Ok(LatentGrid { width, height, channels, bits, quant, data })
 }
 
 fn parse_term(rec: &[u8], index: usize, grids: &[LatentGrid<'_>]) -> Result<(Term, usize), Error> {
@@ -611,9 +526,7 @@ fn parse_term(rec: &[u8], index: usize, grids: &[LatentGrid<'_>]) -> Result<(Ter
         if *channels.get_or_insert(grid.channels()) != grid.channels() {
             return Err(malformed(Field::TermGrid, index, g));
         }
-        chain
-            .push(g)
-            .map_err(|_| malformed(Field::TermChainLength, index, chain_len as i64))?;
+        chain.push(g).map_err(|_| malformed(Field::TermChainLength, index, chain_len as i64))?;
     }
     let c = channels.unwrap_or(0);
     let width = if mode == TermMode::Nearest4 { 4 * c } else { c };
@@ -633,19 +546,9 @@ fn parse_mlp(s: &[u8], channel_count: usize) -> Result<Mlp<'_>, Error> {
     if input_frac_bits < MIN_INPUT_FRAC_BITS {
         return Err(malformed(Field::InputFracBits, 0, input_frac_bits));
     }
-    at_most(
-        Field::InputFracBits,
-        0,
-        u64::from(input_frac_bits),
-        u64::from(MAX_FRAC_BITS),
-    )?;
+    at_most(Field::InputFracBits, 0, u64::from(input_frac_bits), u64::from(MAX_FRAC_BITS))?;
     let pe_frequencies = u8_at(s, 2);
-    at_most(
-        Field::PeFrequencies,
-        0,
-        u64::from(pe_frequencies),
-        u64::from(MAX_PE_FREQUENCIES),
-    )?;
+    at_most(Field::PeFrequencies, 0, u64::from(pe_frequencies), u64::from(MAX_PE_FREQUENCIES))?;
     if pe_frequencies + 2 > input_frac_bits {
         // The triangle wave of frequency k has denominator 2^(k+3) and must be exact (§6.4).
         return Err(malformed(Field::PeFrequencies, 0, pe_frequencies));
@@ -659,13 +562,7 @@ fn parse_mlp(s: &[u8], channel_count: usize) -> Result<Mlp<'_>, Error> {
     if u16_at(s, 6) != 0 {
         return Err(malformed(Field::MlpReserved, 0, u16_at(s, 6)));
     }
-    need_bytes(
-        s,
-        MLP_HEADER_LEN,
-        LAYER_RECORD_LEN * layer_count,
-        Field::LayerCount,
-        0,
-    )?;
+    need_bytes(s, MLP_HEADER_LEN, LAYER_RECORD_LEN * layer_count, Field::LayerCount, 0)?;
     let mut pos = MLP_HEADER_LEN + LAYER_RECORD_LEN * layer_count;
     let mut layers = heapless::Vec::new();
     let mut prev_outputs = usize::from(input_width);
@@ -687,12 +584,7 @@ fn parse_mlp(s: &[u8], channel_count: usize) -> Result<Mlp<'_>, Error> {
         if out_frac_bits == 0 {
             return Err(malformed(Field::LayerOutFracBits, l, 0));
         }
-        at_most(
-            Field::LayerOutFracBits,
-            l,
-            u64::from(out_frac_bits),
-            u64::from(MAX_FRAC_BITS),
-        )?;
+        at_most(Field::LayerOutFracBits, l, u64::from(out_frac_bits), u64::from(MAX_FRAC_BITS))?;
         let activation = match u8_at(s, r + 5) {
             0 => Activation::None,
             1 => Activation::HardGelu,
@@ -704,18 +596,8 @@ fn parse_mlp(s: &[u8], channel_count: usize) -> Result<Mlp<'_>, Error> {
         let len = layer_data_len(inputs, outputs);
         need_bytes(s, pos, len, Field::LayerOutputs, l)?;
         let block = slice(s, pos, len).unwrap_or(&[]);
-        let layer = parse_layer(
-            block,
-            l,
-            inputs,
-            outputs,
-            prev_frac,
-            out_frac_bits,
-            activation,
-        )?;
-        layers
-            .push(layer)
-            .map_err(|_| malformed(Field::LayerCount, l, l as i64))?;
+        let layer = parse_layer(block, l, inputs, outputs, prev_frac, out_frac_bits, activation)?;
+        layers.push(layer).map_err(|_| malformed(Field::LayerCount, l, l as i64))?;
         pos += len;
         prev_outputs = outputs;
         prev_frac = out_frac_bits;
@@ -723,13 +605,7 @@ fn parse_mlp(s: &[u8], channel_count: usize) -> Result<Mlp<'_>, Error> {
     if pos != s.len() {
         return Err(malformed(Field::SectionLength, 0, s.len() as i64));
     }
-    Ok(Mlp {
-        input_frac_bits,
-        pe_frequencies,
-        lod_input,
-        input_width,
-        layers,
-    })
+    Ok(Mlp { input_frac_bits, pe_frequencies, lod_input, input_width, layers })
 }
 
 fn parse_layer(
@@ -770,9 +646,8 @@ fn parse_layer(
             return Err(malformed(Field::FloatBias, l, o as i64));
         }
     }
-    if let Some(i) = weights_f16
-        .chunks_exact(2)
-        .position(|w| !half::f16::from_bits(u16_at(w, 0)).is_finite())
+    if let Some(i) =
+        weights_f16.chunks_exact(2).position(|w| !half::f16::from_bits(u16_at(w, 0)).is_finite())
     {
         return Err(malformed(Field::FloatWeight, l, i as i64));
     }

@@ -32,16 +32,9 @@ impl<'a> Material<'a> {
     /// The mask with every bit naming a real channel, or `BadArgument` (empty mask, or a bit at or
     /// beyond `channel_count` other than in [`ChannelMask::ALL`]).
     pub fn resolve_channels(&self, channels: ChannelMask) -> Result<u16, Error> {
-        let all = if self.channel_count() >= 16 {
-            u16::MAX
-        } else {
-            (1u16 << self.channel_count()) - 1
-        };
-        let mask = if channels == ChannelMask::ALL {
-            all
-        } else {
-            channels.0
-        };
+        let all =
+            if self.channel_count() >= 16 { u16::MAX } else { (1u16 << self.channel_count()) - 1 };
+        let mask = if channels == ChannelMask::ALL { all } else { channels.0 };
         if mask == 0 || mask & !all != 0 {
             return Err(Error::BadArgument {
                 argument: Argument::Channels,
@@ -74,11 +67,7 @@ impl<'a> Material<'a> {
     pub fn address_texel(&self, x: i64, y: i64, mip: u32) -> (u32, u32, u32) {
         let mip = mip.min(self.mip_count() - 1);
         let (w, h) = self.mip_size(mip);
-        (
-            address(x, w, self.address_mode),
-            address(y, h, self.address_mode),
-            mip,
-        )
+        (address(x, w, self.address_mode), address(y, h, self.address_mode), mip)
     }
 
     /// Input features of texel (x, y) of `mip` (already addressed) in units of 2^-(16+f).
@@ -107,12 +96,8 @@ impl<'a> Material<'a> {
             };
             match term.mode {
                 TermMode::Nearest4 => {
-                    for (cx, cy) in [
-                        (fp.x0, fp.y0),
-                        (fp.x1, fp.y0),
-                        (fp.x0, fp.y1),
-                        (fp.x1, fp.y1),
-                    ] {
+                    for (cx, cy) in [(fp.x0, fp.y0), (fp.x1, fp.y0), (fp.x0, fp.y1), (fp.x1, fp.y1)]
+                    {
                         for c in 0..first.channels() {
                             push(i64::from(first.value(cx, cy, c)) << RAW_SHIFT);
                         }
@@ -179,10 +164,7 @@ impl<'a> Material<'a> {
     }
 
     fn last_frac_bits(&self) -> u32 {
-        self.mlp
-            .layers
-            .last()
-            .map_or(1, |l| u32::from(l.out_frac_bits))
+        self.mlp.layers.last().map_or(1, |l| u32::from(l.out_frac_bits))
     }
 
     /// Float reference decode: values in each channel's range (§6.8), for the channels in
@@ -229,9 +211,7 @@ impl<'a> Material<'a> {
         let rows = self.check_out(channels, out.len())?;
         let f = self.last_frac_bits();
         let y_out = self.run_int(x, y, mip, rows);
-        Ok(write_selected(rows, &y_out, out, |&v| {
-            code(v, f, 255) as u8
-        }))
+        Ok(write_selected(rows, &y_out, out, |&v| code(v, f, 255) as u8))
     }
 
     /// Integer decode to 16-bit codes: `clamp((y·65535 + 2^(f−1)) >> f, 0, 65535)` (§6.7).
@@ -246,9 +226,7 @@ impl<'a> Material<'a> {
         let rows = self.check_out(channels, out.len())?;
         let f = self.last_frac_bits();
         let y_out = self.run_int(x, y, mip, rows);
-        Ok(write_selected(rows, &y_out, out, |&v| {
-            code(v, f, 65535) as u16
-        }))
+        Ok(write_selected(rows, &y_out, out, |&v| code(v, f, 65535) as u16))
     }
 }
 
@@ -282,11 +260,7 @@ pub fn code(y: i16, f: u32, max: i32) -> i32 {
 }
 
 fn selected<T>(items: &[T], rows: u16) -> impl Iterator<Item = &T> {
-    items
-        .iter()
-        .enumerate()
-        .filter(move |(i, _)| *i < 16 && rows & (1 << i) != 0)
-        .map(|(_, t)| t)
+    items.iter().enumerate().filter(move |(i, _)| *i < 16 && rows & (1 << i) != 0).map(|(_, t)| t)
 }
 
 fn write_selected<S, T>(rows: u16, values: &[S], out: &mut [T], map: impl Fn(&S) -> T) -> usize {

@@ -86,39 +86,17 @@ pub enum Argument {
 pub enum Error {
     /// The bytes contradict the format (corrupt or hostile data). `index` says which element of a
     /// repeated structure (section, channel, grid, level, layer, row…), 0 for single fields.
-    Malformed {
-        field: Field,
-        index: u32,
-        value: i64,
-    },
+    Malformed { field: Field, index: u32, value: i64 },
     /// The file is larger or denser than this decoder's named limits allow.
-    LimitExceeded {
-        field: Field,
-        index: u32,
-        value: u64,
-        limit: u64,
-    },
+    LimitExceeded { field: Field, index: u32, value: u64, limit: u64 },
     /// The data needs more bytes than the file (or section) has.
-    Truncated {
-        field: Field,
-        index: u32,
-        needed: u64,
-        available: u64,
-    },
+    Truncated { field: Field, index: u32, needed: u64, available: u64 },
     /// A version, flag, code or mode this decoder does not know.
-    Unsupported {
-        field: Field,
-        index: u32,
-        value: u64,
-    },
+    Unsupported { field: Field, index: u32, value: u64 },
     /// The stored checksum does not match the bytes: the file was corrupted.
     ChecksumMismatch { stored: u32, computed: u32 },
     /// The caller passed an argument that cannot be served.
-    BadArgument {
-        argument: Argument,
-        value: u64,
-        limit: u64,
-    },
+    BadArgument { argument: Argument, value: u64, limit: u64 },
 }
 
 impl fmt::Display for Field {
@@ -131,53 +109,25 @@ impl fmt::Display for Field {
 impl fmt::Display for Error {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match *self {
-            Error::Malformed {
-                field,
-                index,
-                value,
-            } => {
-                write!(
-                    f,
-                    "malformed .nmat: field {field}[{index}] has invalid value {value}"
-                )
+            Error::Malformed { field, index, value } => {
+                write!(f, "malformed .nmat: field {field}[{index}] has invalid value {value}")
             }
-            Error::LimitExceeded {
-                field,
-                index,
-                value,
-                limit,
-            } => write!(
+            Error::LimitExceeded { field, index, value, limit } => write!(
                 f,
                 "limit exceeded: field {field}[{index}] is {value}, this decoder allows at most {limit}"
             ),
-            Error::Truncated {
-                field,
-                index,
-                needed,
-                available,
-            } => write!(
+            Error::Truncated { field, index, needed, available } => write!(
                 f,
                 "truncated .nmat: {field}[{index}] needs {needed} bytes but only {available} are there"
             ),
-            Error::Unsupported {
-                field,
-                index,
-                value,
-            } => {
-                write!(
-                    f,
-                    "unsupported .nmat: field {field}[{index}] has unknown value {value}"
-                )
+            Error::Unsupported { field, index, value } => {
+                write!(f, "unsupported .nmat: field {field}[{index}] has unknown value {value}")
             }
             Error::ChecksumMismatch { stored, computed } => write!(
                 f,
                 "corrupt .nmat: checksum is {stored:#010x} but the bytes give {computed:#010x}"
             ),
-            Error::BadArgument {
-                argument,
-                value,
-                limit,
-            } => {
+            Error::BadArgument { argument, value, limit } => {
                 write!(f, "bad argument {argument:?}: value {value}, limit {limit}")
             }
         }
@@ -187,30 +137,17 @@ impl fmt::Display for Error {
 impl core::error::Error for Error {}
 
 pub(crate) fn malformed(field: Field, index: usize, value: impl TryInto<i64>) -> Error {
-    Error::Malformed {
-        field,
-        index: index as u32,
-        value: value.try_into().unwrap_or(i64::MAX),
-    }
+    Error::Malformed { field, index: index as u32, value: value.try_into().unwrap_or(i64::MAX) }
 }
 
 pub(crate) fn unsupported(field: Field, index: usize, value: impl Into<u64>) -> Error {
-    Error::Unsupported {
-        field,
-        index: index as u32,
-        value: value.into(),
-    }
+    Error::Unsupported { field, index: index as u32, value: value.into() }
 }
 
 /// Checks `value <= limit`, naming the field otherwise.
 pub(crate) fn at_most(field: Field, index: usize, value: u64, limit: u64) -> Result<(), Error> {
     if value > limit {
-        return Err(Error::LimitExceeded {
-            field,
-            index: index as u32,
-            value,
-            limit,
-        });
+        return Err(Error::LimitExceeded { field, index: index as u32, value, limit });
     }
     Ok(())
 }

@@ -91,12 +91,7 @@ impl<'a> Material<'a> {
         match req.filter {
             Filter::Nearest => {
                 let (w, h) = self.mip_size(nearest_mip);
-                add(
-                    axis(req.u, w, false).0,
-                    axis(req.v, h, false).0,
-                    nearest_mip,
-                    1.0,
-                )?;
+                add(axis(req.u, w, false).0, axis(req.v, h, false).0, nearest_mip, 1.0)?;
             }
             Filter::Bilinear => self.bilinear(req, nearest_mip, 1.0, &mut add)?,
             Filter::Trilinear => {
@@ -115,11 +110,7 @@ impl<'a> Material<'a> {
                 add(x, y, mip, 1.0)?;
             }
         }
-        let mut selected = self
-            .channels
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| rows & (1 << i) != 0);
+        let mut selected = self.channels.iter().enumerate().filter(|(i, _)| rows & (1 << i) != 0);
         for (slot, a) in out.iter_mut().zip(acc).take(n) {
             if let Some((_, ch)) = selected.next() {
                 let unit = a.clamp(0.0, 1.0) as f32;

@@ -204,10 +204,5 @@ pub(crate) fn channel_name_bytes(rec: &[u8]) -> &[u8] {
 }
 
 pub(crate) fn channel_codes(rec: &[u8]) -> (u8, u8, u8, u8) {
-    (
-        u8_at(rec, 16),
-        u8_at(rec, 17),
-        u8_at(rec, 18),
-        u8_at(rec, 19),
-    )
+    (u8_at(rec, 16), u8_at(rec, 17), u8_at(rec, 18), u8_at(rec, 19))
 }

@@ -54,10 +54,7 @@ impl Requant {
         out_frac_bits: u8,
     ) -> Option<Requant> {
         if scale_bits == 0 {
-            return Some(Requant {
-                multiplier: 0,
-                shift: 1,
-            });
+            return Some(Requant { multiplier: 0, shift: 1 });
         }
         let biased = (scale_bits >> 23) & 0xFF;
         if scale_bits >> 31 != 0 || biased == 0 || biased == 0xFF {
@@ -69,10 +66,7 @@ impl Requant {
         if !(1..=62).contains(&shift) {
             return None;
         }
-        Some(Requant {
-            multiplier: (mantissa << 7) as i32,
-            shift: shift as u32,
-        })
+        Some(Requant { multiplier: (mantissa << 7) as i32, shift: shift as u32 })
     }
 
     /// Round-half-up requantization of an accumulator. |acc · multiplier| < 2^62, so the i64
@@ -155,10 +149,8 @@ impl<'a> Layer<'a> {
     /// The requantization of row `o`; parse has checked that it exists.
     pub fn requant(&self, o: usize) -> Requant {
         let bits = f32_at(self.scales, 4 * o).to_bits();
-        Requant::from_scale_bits(bits, self.in_frac_bits, self.out_frac_bits).unwrap_or(Requant {
-            multiplier: 0,
-            shift: 1,
-        })
+        Requant::from_scale_bits(bits, self.in_frac_bits, self.out_frac_bits)
+            .unwrap_or(Requant { multiplier: 0, shift: 1 })
     }
 
     /// Integer accumulator of row `o`: bias + Σ w·x. Parse bounds |bias| so this cannot overflow
@@ -166,9 +158,10 @@ impl<'a> Layer<'a> {
     pub fn accumulate(&self, o: usize, x: &[i16]) -> i32 {
         let n = self.inputs();
         let row = self.weights_i8.get(o * n..(o + 1) * n).unwrap_or(&[]);
-        let dot = row.iter().zip(x).fold(0i32, |acc, (&w, &v)| {
-            acc.wrapping_add(i32::from(w as i8) * i32::from(v))
-        });
+        let dot = row
+            .iter()
+            .zip(x)
+            .fold(0i32, |acc, (&w, &v)| acc.wrapping_add(i32::from(w as i8) * i32::from(v)));
         dot.wrapping_add(self.bias(o))
     }
 
@@ -184,13 +177,11 @@ impl<'a> Layer<'a> {
     /// Float output of row `o`: f32 bias + Σ f32(w_f16)·x in input order, then the activation.
     pub fn row_float(&self, o: usize, x: &[f32]) -> f32 {
         let n = self.inputs();
-        let row = self
-            .weights_f16
-            .get(2 * o * n..2 * (o + 1) * n)
-            .unwrap_or(&[]);
-        let dot = row.chunks_exact(2).zip(x).fold(0.0f32, |acc, (w, &v)| {
-            acc + f16::from_bits(u16_at(w, 0)).to_f32() * v
-        });
+        let row = self.weights_f16.get(2 * o * n..2 * (o + 1) * n).unwrap_or(&[]);
+        let dot = row
+            .chunks_exact(2)
+            .zip(x)
+            .fold(0.0f32, |acc, (w, &v)| acc + f16::from_bits(u16_at(w, 0)).to_f32() * v);
         let y = dot + self.float_bias(o);
         match self.activation {
             Activation::None => y,
@@ -248,14 +239,7 @@ mod tests {
 
     #[test]
     fn requant_rejects_bad_scales() {
-        for s in [
-            -1.0f32,
-            f32::NAN,
-            f32::INFINITY,
-            f32::NEG_INFINITY,
-            1e-40,
-            -0.0,
-        ] {
+        for s in [-1.0f32, f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 1e-40, -0.0] {
             assert_eq!(Requant::from_scale_bits(s.to_bits(), 12, 12), None, "{s}");
         }
     }

@@ -13,11 +13,7 @@ pub fn triangle_q(x: u32, k: u8, phase: u32, frac_bits: u8) -> i16 {
     let magnitude = (2 * a).abs_diff(2 * period);
     let shift = i64::from(frac_bits) - i64::from(k as u8 + 3);
     // magnitude < 2^(k+3); scaled by 2^(f−k−3) it stays below 2^f ≤ 2^14.
-    (if shift >= 0 {
-        magnitude << shift
-    } else {
-        magnitude >> -shift
-    }) as i16
+    (if shift >= 0 { magnitude << shift } else { magnitude >> -shift }) as i16
 }
 
 /// Number of input features the encoding contributes for `frequencies`.

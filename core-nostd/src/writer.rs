@@ -88,11 +88,7 @@ pub struct MaterialSpec {
 }
 
 fn spec_error(value: usize, limit: usize) -> Error {
-    Error::BadArgument {
-        argument: Argument::Spec,
-        value: value as u64,
-        limit: limit as u64,
-    }
+    Error::BadArgument { argument: Argument::Spec, value: value as u64, limit: limit as u64 }
 }
 
 fn put_u16(out: &mut Vec<u8>, v: u16) {
@@ -170,10 +166,7 @@ impl MaterialSpec {
             pad4(&mut out);
         }
         let file_len = len_u32(out.len())?;
-        copy_into(
-            out.get_mut(12..).unwrap_or(&mut []),
-            &file_len.to_le_bytes(),
-        );
+        copy_into(out.get_mut(12..).unwrap_or(&mut []), &file_len.to_le_bytes());
         let crc = file_checksum(&out);
         copy_into(out.get_mut(20..).unwrap_or(&mut []), &crc.to_le_bytes());
         Container::parse(&out)?;
@@ -225,12 +218,8 @@ impl MaterialSpec {
                 return Err(spec_error(g.quantization.len(), usize::from(g.channels)));
             }
             let packed = pack_codes(&g.codes, g.bits);
-            let expected = packed_len(
-                g.width.into(),
-                g.height.into(),
-                g.channels.into(),
-                g.bits.into(),
-            );
+            let expected =
+                packed_len(g.width.into(), g.height.into(), g.channels.into(), g.bits.into());
             put_u16(&mut s, g.width);
             put_u16(&mut s, g.height);
             s.extend_from_slice(&[g.channels, g.bits]);
@@ -292,19 +281,11 @@ impl MaterialSpec {
             }
             s.extend(l.weights_i8.iter().map(|&w| w as u8));
             pad4(&mut s);
-            l.scales
-                .iter()
-                .for_each(|v| s.extend_from_slice(&v.to_le_bytes()));
-            l.bias
-                .iter()
-                .for_each(|v| s.extend_from_slice(&v.to_le_bytes()));
-            l.weights_f16
-                .iter()
-                .for_each(|v| s.extend_from_slice(&v.to_bits().to_le_bytes()));
+            l.scales.iter().for_each(|v| s.extend_from_slice(&v.to_le_bytes()));
+            l.bias.iter().for_each(|v| s.extend_from_slice(&v.to_le_bytes()));
+            l.weights_f16.iter().for_each(|v| s.extend_from_slice(&v.to_bits().to_le_bytes()));
             pad4(&mut s);
-            l.float_bias
-                .iter()
-                .for_each(|v| s.extend_from_slice(&v.to_le_bytes()));
+            l.float_bias.iter().for_each(|v| s.extend_from_slice(&v.to_le_bytes()));
         }
         Ok(s)
     }
@@ -349,10 +330,7 @@ impl<'a> Material<'a> {
                 terms: l
                     .terms
                     .iter()
-                    .map(|t| TermSpec {
-                        mode: t.mode,
-                        grids: t.grids.iter().copied().collect(),
-                    })
+                    .map(|t| TermSpec { mode: t.mode, grids: t.grids.iter().copied().collect() })
                     .collect(),
             })
             .collect();

@@ -39,19 +39,11 @@ impl Rng {
 pub enum Layout {
     /// NTC: level k covers mips 2k and 2k+1 with a high-res grid (1/4 of mip 2k, sampled by its 4
     /// nearest cells) and a low-res grid (1/8, bilinear).
-    Ntc {
-        hi_channels: u8,
-        lo_channels: u8,
-        hi_bits: u8,
-        lo_bits: u8,
-    },
+    Ntc { hi_channels: u8, lo_channels: u8, hi_bits: u8, lo_bits: u8 },
     /// NBC: one residual grid per level with its own bit depth (given coarse → fine); level l reads
     /// its fused features (bilinear sum of its residual and every coarser one) and, as its low-res
     /// input, the fused next-coarser level. Level l covers mip l; the coarsest covers the rest.
-    Nbc {
-        channels: u8,
-        bits_coarse_to_fine: Vec<u8>,
-    },
+    Nbc { channels: u8, bits_coarse_to_fine: Vec<u8> },
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -89,12 +81,7 @@ impl FixtureConfig {
             height,
             mip_count: 0,
             channels,
-            layout: Layout::Ntc {
-                hi_channels: 4,
-                lo_channels: 4,
-                hi_bits: 4,
-                lo_bits: 4,
-            },
+            layout: Layout::Ntc { hi_channels: 4, lo_channels: 4, hi_bits: 4, lo_bits: 4 },
             address_mode: AddressMode::Wrap,
             hidden: vec![32, 32],
             pe_frequencies: 2,
@@ -113,10 +100,7 @@ impl FixtureConfig {
         channels: u8,
     ) -> FixtureConfig {
         FixtureConfig {
-            layout: Layout::Nbc {
-                channels: 6,
-                bits_coarse_to_fine: vec![8, 4, 2, 1],
-            },
+            layout: Layout::Nbc { channels: 6, bits_coarse_to_fine: vec![8, 4, 2, 1] },
             ..FixtureConfig::ntc(name, seed, width, height, channels)
         }
     }
@@ -128,12 +112,7 @@ pub fn golden_configs() -> Vec<FixtureConfig> {
         // The NTC paper's shape: 2 hidden layers of 64, 4-cell high-res + bilinear low-res grids.
         FixtureConfig {
             hidden: vec![64, 64],
-            layout: Layout::Ntc {
-                hi_channels: 8,
-                lo_channels: 8,
-                hi_bits: 4,
-                lo_bits: 4,
-            },
+            layout: Layout::Ntc { hi_channels: 8, lo_channels: 8, hi_bits: 4, lo_bits: 4 },
             ..FixtureConfig::ntc("ntc_rgb_64", 1, 64, 64, 3)
         },
         // Non-power-of-two, clamp addressing, a PBR set of 10 channels.
@@ -143,22 +122,12 @@ pub fn golden_configs() -> Vec<FixtureConfig> {
         },
         // Every channel the format allows; 8-bit latents on both grids.
         FixtureConfig {
-            layout: Layout::Ntc {
-                hi_channels: 4,
-                lo_channels: 4,
-                hi_bits: 8,
-                lo_bits: 8,
-            },
+            layout: Layout::Ntc { hi_channels: 4, lo_channels: 4, hi_bits: 8, lo_bits: 8 },
             ..FixtureConfig::ntc("ntc_16ch_8bit_32", 3, 32, 32, 16)
         },
         // 1-bit latents on the high-res grid, other Q-formats.
         FixtureConfig {
-            layout: Layout::Ntc {
-                hi_channels: 6,
-                lo_channels: 2,
-                hi_bits: 1,
-                lo_bits: 2,
-            },
+            layout: Layout::Ntc { hi_channels: 6, lo_channels: 2, hi_bits: 1, lo_bits: 2 },
             input_frac_bits: 10,
             hidden_frac_bits: 11,
             output_frac_bits: 13,
@@ -166,30 +135,18 @@ pub fn golden_configs() -> Vec<FixtureConfig> {
             ..FixtureConfig::ntc("ntc_1bit_q10_40x24", 4, 40, 24, 4)
         },
         // NBC: 8-4-2-1 bits coarse → fine, residual fusion and feature reuse.
-        FixtureConfig {
-            hidden: vec![64, 64],
-            ..FixtureConfig::nbc("nbc_8421_64", 5, 64, 64, 4)
-        },
+        FixtureConfig { hidden: vec![64, 64], ..FixtureConfig::nbc("nbc_8421_64", 5, 64, 64, 4) },
         FixtureConfig {
             address_mode: AddressMode::Clamp,
             lod_input: false,
             pe_frequencies: 0,
-            layout: Layout::Nbc {
-                channels: 4,
-                bits_coarse_to_fine: vec![8, 1, 1],
-            },
+            layout: Layout::Nbc { channels: 4, bits_coarse_to_fine: vec![8, 1, 1] },
             hidden_frac_bits: 10, // three fused grids reach beyond the ±8 of Q.12 (FORMAT.md §6.6)
             ..FixtureConfig::nbc("nbc_clamp_nolod_48x36", 6, 48, 36, 3)
         },
         // Degenerate sizes: one texel; a 1×N strip; a single hidden layer.
-        FixtureConfig {
-            hidden: vec![8],
-            ..FixtureConfig::ntc("tiny_1x1", 7, 1, 1, 1)
-        },
-        FixtureConfig {
-            hidden: vec![16, 16, 16],
-            ..FixtureConfig::ntc("strip_1x37", 8, 1, 37, 2)
-        },
+        FixtureConfig { hidden: vec![8], ..FixtureConfig::ntc("tiny_1x1", 7, 1, 1, 1) },
+        FixtureConfig { hidden: vec![16, 16, 16], ..FixtureConfig::ntc("strip_1x37", 8, 1, 37, 2) },
     ]
 }
 
@@ -214,9 +171,7 @@ fn random_grid(
             let span = (one * 4 * (75 + rng.range(0, 50) as i32) / 100).min(60000);
             let step = (span / max_code).clamp(1, 32767);
             let half = step * max_code / 2;
-            let jitter = (one / 4)
-                .min(32767 - (step * max_code - half))
-                .min(32768 - half);
+            let jitter = (one / 4).min(32767 - (step * max_code - half)).min(32768 - half);
             let offset = -half + rng.range(-i64::from(jitter), i64::from(jitter)) as i32;
             (offset as i16, step as i16)
         })
@@ -228,9 +183,7 @@ fn random_grid(
         channels,
         bits,
         quantization,
-        codes: (0..cells)
-            .map(|_| rng.range(0, i64::from(max_code)) as u8)
-            .collect(),
+        codes: (0..cells).map(|_| rng.range(0, i64::from(max_code)) as u8).collect(),
     }
 }
 
@@ -249,9 +202,8 @@ fn random_layer(
     let n = usize::from(inputs) * usize::from(outputs);
     let weights_i8: Vec<i8> = (0..n).map(|_| rng.range(-127, 127) as i8).collect();
     let base = gain / (127.0 * (f64::from(inputs)).sqrt() * 0.577);
-    let scales: Vec<f32> = (0..outputs)
-        .map(|_| (base * (0.75 + 0.5 * rng.unit())) as f32)
-        .collect();
+    let scales: Vec<f32> =
+        (0..outputs).map(|_| (base * (0.75 + 0.5 * rng.unit())) as f32).collect();
     let in_lsb = 1.0 / f64::from(1u32 << in_frac);
     let bias: Vec<i32> = scales
         .iter()
@@ -305,21 +257,13 @@ const CHANNEL_NAMES: [(&str, Semantic, ColorSpace); 16] = [
 /// Builds the material a config describes. Same config → same spec → same bytes.
 pub fn generate(cfg: &FixtureConfig) -> MaterialSpec {
     let mut rng = Rng::new(cfg.seed);
-    let mip_count = if cfg.mip_count == 0 {
-        full_chain(cfg.width, cfg.height)
-    } else {
-        cfg.mip_count
-    };
+    let mip_count =
+        if cfg.mip_count == 0 { full_chain(cfg.width, cfg.height) } else { cfg.mip_count };
     let f = cfg.input_frac_bits;
     let (mut grids, mut levels, mut mip_to_level) = (Vec::new(), Vec::new(), Vec::new());
     let scaled = |size: u32, shift: u32| (size >> shift.min(31)).max(1);
     match &cfg.layout {
-        Layout::Ntc {
-            hi_channels,
-            lo_channels,
-            hi_bits,
-            lo_bits,
-        } => {
+        Layout::Ntc { hi_channels, lo_channels, hi_bits, lo_bits } => {
             let level_count = usize::from(mip_count).div_ceil(2);
             for k in 0..level_count as u32 {
                 let hi = grids.len() as u8;
@@ -341,23 +285,14 @@ pub fn generate(cfg: &FixtureConfig) -> MaterialSpec {
                 ));
                 levels.push(LevelSpec {
                     terms: vec![
-                        TermSpec {
-                            mode: TermMode::Nearest4,
-                            grids: vec![hi],
-                        },
-                        TermSpec {
-                            mode: TermMode::Bilinear,
-                            grids: vec![hi + 1],
-                        },
+                        TermSpec { mode: TermMode::Nearest4, grids: vec![hi] },
+                        TermSpec { mode: TermMode::Bilinear, grids: vec![hi + 1] },
                     ],
                 });
             }
             mip_to_level.extend((0..mip_count).map(|m| m / 2));
         }
-        Layout::Nbc {
-            channels,
-            bits_coarse_to_fine,
-        } => {
+        Layout::Nbc { channels, bits_coarse_to_fine } => {
             let level_count = bits_coarse_to_fine.len().min(usize::from(mip_count));
             // Grid l is level l's residual; l = 0 is the finest.
             for l in 0..level_count {
@@ -373,21 +308,12 @@ pub fn generate(cfg: &FixtureConfig) -> MaterialSpec {
             }
             for l in 0..level_count {
                 let fused: Vec<u8> = (l..level_count).map(|g| g as u8).collect();
-                let coarser: Vec<u8> = if l + 1 < level_count {
-                    fused[1..].to_vec()
-                } else {
-                    fused.clone()
-                };
+                let coarser: Vec<u8> =
+                    if l + 1 < level_count { fused[1..].to_vec() } else { fused.clone() };
                 levels.push(LevelSpec {
                     terms: vec![
-                        TermSpec {
-                            mode: TermMode::Bilinear,
-                            grids: fused,
-                        },
-                        TermSpec {
-                            mode: TermMode::Bilinear,
-                            grids: coarser,
-                        },
+                        TermSpec { mode: TermMode::Bilinear, grids: fused },
+                        TermSpec { mode: TermMode::Bilinear, grids: coarser },
                     ],
                 });
             }
@@ -399,11 +325,7 @@ pub fn generate(cfg: &FixtureConfig) -> MaterialSpec {
         .iter()
         .map(|t| {
             let c = usize::from(grids[usize::from(t.grids[0])].channels);
-            if t.mode == TermMode::Nearest4 {
-                4 * c
-            } else {
-                c
-            }
+            if t.mode == TermMode::Nearest4 { 4 * c } else { c }
         })
         .sum();
     let input_width =

@@ -14,9 +14,9 @@ pub fn fixtures_dir() -> PathBuf {
 
 /// 64-bit FNV-1a: a stable, dependency-free hash for golden outputs.
 pub fn fnv1a(bytes: impl IntoIterator<Item = u8>) -> u64 {
-    bytes.into_iter().fold(0xcbf2_9ce4_8422_2325, |h, b| {
-        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
-    })
+    bytes
+        .into_iter()
+        .fold(0xcbf2_9ce4_8422_2325, |h, b| (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3))
 }
 
 /// Every texel of every mip, in mip → row → column → channel order.
@@ -33,8 +33,7 @@ pub fn decode_all_u8(m: &Material<'_>) -> Vec<u8> {
     let mut out = Vec::new();
     let mut buf = [0u8; 16];
     for (x, y, mip) in texels(m) {
-        m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut buf)
-            .expect("valid request");
+        m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut buf).expect("valid request");
         out.extend_from_slice(&buf[..n]);
     }
     out
@@ -46,8 +45,7 @@ pub fn decode_all_u16(m: &Material<'_>) -> Vec<u8> {
     let mut out = Vec::new();
     let mut buf = [0u16; 16];
     for (x, y, mip) in texels(m) {
-        m.decode_texel_u16(x, y, mip, ChannelMask::ALL, &mut buf)
-            .expect("valid request");
+        m.decode_texel_u16(x, y, mip, ChannelMask::ALL, &mut buf).expect("valid request");
         out.extend(buf[..n].iter().flat_map(|v| v.to_le_bytes()));
     }
     out
@@ -68,10 +66,8 @@ pub fn int_vs_float(m: &Material<'_>) -> CodeAgreement {
     let (mut a, mut sum) = (CodeAgreement::default(), 0f64);
     let (mut codes, mut units) = ([0u8; 16], [0f32; 16]);
     for (x, y, mip) in texels(m) {
-        m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut codes)
-            .expect("valid request");
-        m.decode_texel_unit(x, y, mip, ChannelMask::ALL, &mut units)
-            .expect("valid request");
+        m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut codes).expect("valid request");
+        m.decode_texel_unit(x, y, mip, ChannelMask::ALL, &mut units).expect("valid request");
         for (&c, &u) in codes[..n].iter().zip(&units[..n]) {
             let real = f64::from(u) * 255.0;
             let d = i32::from(c) - real.round() as i32;

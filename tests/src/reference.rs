@@ -7,10 +7,7 @@
 use nmat_core::{Activation, AddressMode, LayerSpec, MaterialSpec, TermMode};
 
 fn mip_dims(spec: &MaterialSpec, mip: u32) -> (i64, i64) {
-    (
-        (i64::from(spec.width) >> mip).max(1),
-        (i64::from(spec.height) >> mip).max(1),
-    )
+    ((i64::from(spec.width) >> mip).max(1), (i64::from(spec.height) >> mip).max(1))
 }
 
 fn wrap_or_clamp(i: i64, n: i64, mode: AddressMode) -> i64 {
@@ -67,12 +64,8 @@ fn features(spec: &MaterialSpec, x: i64, y: i64, mip: u32) -> Vec<i64> {
                     for &g in &term.grids {
                         let g = usize::from(g);
                         let (xs, ys, fx, fy) = cells(g);
-                        let w = [
-                            (256 - fx) * (256 - fy),
-                            fx * (256 - fy),
-                            (256 - fx) * fy,
-                            fx * fy,
-                        ];
+                        let w =
+                            [(256 - fx) * (256 - fy), fx * (256 - fy), (256 - fx) * fy, fx * fy];
                         let v = [
                             latent(spec, g, xs[0], ys[0], c),
                             latent(spec, g, xs[1], ys[0], c),
@@ -138,13 +131,8 @@ fn layer_int(l: &LayerSpec, x: &[i64], in_frac: u32) -> Vec<i64> {
     (0..usize::from(l.outputs))
         .map(|o| {
             let acc: i64 = i64::from(l.bias[o])
-                + (0..n)
-                    .map(|i| i64::from(l.weights_i8[o * n + i]) * x[i])
-                    .sum::<i64>();
-            assert!(
-                acc.abs() < 1 << 31,
-                "accumulator out of i32 range: the bias bound failed"
-            );
+                + (0..n).map(|i| i64::from(l.weights_i8[o * n + i]) * x[i]).sum::<i64>();
+            assert!(acc.abs() < 1 << 31, "accumulator out of i32 range: the bias bound failed");
             let y = requantize(acc, l.scales[o], in_frac, u32::from(l.out_frac_bits))
                 .clamp(-32768, 32767);
             match l.activation {
@@ -159,11 +147,7 @@ fn layer_int(l: &LayerSpec, x: &[i64], in_frac: u32) -> Vec<i64> {
 fn address(spec: &MaterialSpec, x: i64, y: i64, mip: u32) -> (i64, i64, u32) {
     let mip = mip.min(u32::from(spec.mip_count) - 1);
     let (w, h) = mip_dims(spec, mip);
-    (
-        wrap_or_clamp(x, w, spec.address_mode),
-        wrap_or_clamp(y, h, spec.address_mode),
-        mip,
-    )
+    (wrap_or_clamp(x, w, spec.address_mode), wrap_or_clamp(y, h, spec.address_mode), mip)
 }
 
 /// Integer decode of every channel: the last layer's Q.f outputs.
@@ -187,18 +171,12 @@ fn to_code(y: i64, f: u32, max: i64) -> i64 {
 
 pub fn decode_u8(spec: &MaterialSpec, x: i64, y: i64, mip: u32) -> Vec<u8> {
     let f = u32::from(spec.mlp.layers.last().unwrap().out_frac_bits);
-    decode_int_raw(spec, x, y, mip)
-        .into_iter()
-        .map(|v| to_code(v, f, 255) as u8)
-        .collect()
+    decode_int_raw(spec, x, y, mip).into_iter().map(|v| to_code(v, f, 255) as u8).collect()
 }
 
 pub fn decode_u16(spec: &MaterialSpec, x: i64, y: i64, mip: u32) -> Vec<u16> {
     let f = u32::from(spec.mlp.layers.last().unwrap().out_frac_bits);
-    decode_int_raw(spec, x, y, mip)
-        .into_iter()
-        .map(|v| to_code(v, f, 65535) as u16)
-        .collect()
+    decode_int_raw(spec, x, y, mip).into_iter().map(|v| to_code(v, f, 65535) as u16).collect()
 }
 
 /// The float network in f64, outputs clamped to [0, 1] (§6.5, §6.8).
@@ -215,9 +193,7 @@ pub fn decode_unit_f64(spec: &MaterialSpec, x: i64, y: i64, mip: u32) -> Vec<f64
         act = (0..usize::from(l.outputs))
             .map(|o| {
                 let z = f64::from(l.float_bias[o])
-                    + (0..n)
-                        .map(|i| l.weights_f16[o * n + i].to_f64() * act[i])
-                        .sum::<f64>();
+                    + (0..n).map(|i| l.weights_f16[o * n + i].to_f64() * act[i]).sum::<f64>();
                 match l.activation {
                     Activation::HardGelu if z <= -1.5 => 0.0,
                     Activation::HardGelu if z < 1.5 => z * (z + 1.5) / 3.0,

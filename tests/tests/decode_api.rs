@@ -19,15 +19,10 @@ fn channel_subsets_equal_the_same_channels_of_a_full_decode() {
         let mask = r.range(1, (1 << 10) - 1) as u16;
         let (mut full8, mut sub8) = ([0u8; 16], [0u8; 16]);
         let (mut fullf, mut subf) = ([0f32; 16], [0f32; 16]);
-        m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut full8)
-            .unwrap();
-        m.decode_texel(x, y, mip, ChannelMask::ALL, &mut fullf)
-            .unwrap();
-        let n = m
-            .decode_texel_u8(x, y, mip, ChannelMask(mask), &mut sub8)
-            .unwrap();
-        m.decode_texel(x, y, mip, ChannelMask(mask), &mut subf)
-            .unwrap();
+        m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut full8).unwrap();
+        m.decode_texel(x, y, mip, ChannelMask::ALL, &mut fullf).unwrap();
+        let n = m.decode_texel_u8(x, y, mip, ChannelMask(mask), &mut sub8).unwrap();
+        m.decode_texel(x, y, mip, ChannelMask(mask), &mut subf).unwrap();
         assert_eq!(n, mask.count_ones() as usize);
         let picked: Vec<usize> = (0..10).filter(|c| mask & (1 << c) != 0).collect();
         for (k, &c) in picked.iter().enumerate() {
@@ -42,17 +37,11 @@ fn float_values_are_mapped_into_each_channel_range() {
     let bytes = fixture(1);
     let m = Container::parse(&bytes).unwrap();
     let (mut unit, mut val) = ([0f32; 16], [0f32; 16]);
-    m.decode_texel_unit(4, 4, 0, ChannelMask::ALL, &mut unit)
-        .unwrap();
+    m.decode_texel_unit(4, 4, 0, ChannelMask::ALL, &mut unit).unwrap();
     m.decode_texel(4, 4, 0, ChannelMask::ALL, &mut val).unwrap();
     for (c, ch) in m.channels().iter().enumerate() {
         let expected = ch.range_min + unit[c] * (ch.range_max - ch.range_min);
-        assert!(
-            (val[c] - expected).abs() < 1e-6,
-            "{}: {} vs {expected}",
-            ch.name,
-            val[c]
-        );
+        assert!((val[c] - expected).abs() < 1e-6, "{}: {} vs {expected}", ch.name, val[c]);
         assert!((ch.range_min..=ch.range_max).contains(&val[c]));
     }
     assert!(
@@ -69,20 +58,13 @@ fn bad_arguments_are_typed_errors() {
     for mask in [0u16, 0b1000, 0x8001] {
         assert!(matches!(
             m.decode_texel_u8(0, 0, 0, ChannelMask(mask), &mut out),
-            Err(Error::BadArgument {
-                argument: Argument::Channels,
-                ..
-            })
+            Err(Error::BadArgument { argument: Argument::Channels, .. })
         ));
     }
     let mut short = [0u8; 2];
     assert_eq!(
         m.decode_texel_u8(0, 0, 0, ChannelMask::ALL, &mut short),
-        Err(Error::BadArgument {
-            argument: Argument::Output,
-            value: 2,
-            limit: 3
-        })
+        Err(Error::BadArgument { argument: Argument::Output, value: 2, limit: 3 })
     );
     let mut shortf = [0f32; 1];
     let req = SampleRequest {
@@ -96,16 +78,10 @@ fn bad_arguments_are_typed_errors() {
     };
     assert!(matches!(
         m.sample(&req, &mut shortf),
-        Err(Error::BadArgument {
-            argument: Argument::Output,
-            ..
-        })
+        Err(Error::BadArgument { argument: Argument::Output, .. })
     ));
     assert_eq!(m.required_len(ChannelMask(0b101)), Ok(2));
-    let msg = m
-        .decode_texel_u8(0, 0, 0, ChannelMask(0), &mut out)
-        .unwrap_err()
-        .to_string();
+    let msg = m.decode_texel_u8(0, 0, 0, ChannelMask(0), &mut out).unwrap_err().to_string();
     assert!(msg.contains("Channels"), "{msg}");
 }
 
@@ -121,15 +97,7 @@ fn sample(
     let mut out = [0f32; 16];
     let n = m
         .sample(
-            &SampleRequest {
-                u,
-                v,
-                lod,
-                filter,
-                precision,
-                random,
-                channels: ChannelMask::ALL,
-            },
+            &SampleRequest { u, v, lod, filter, precision, random, channels: ChannelMask::ALL },
             &mut out,
         )
         .unwrap();
@@ -187,15 +155,9 @@ fn stochastic_filtering_averages_to_trilinear() {
     let mut mean = vec![0f64; target.len()];
     for _ in 0..trials {
         let rnd = [r.unit() as f32, r.unit() as f32, r.unit() as f32];
-        for (acc, v) in mean.iter_mut().zip(sample(
-            &m,
-            u,
-            v,
-            lod,
-            Filter::Stochastic,
-            Precision::Float,
-            rnd,
-        )) {
+        for (acc, v) in
+            mean.iter_mut().zip(sample(&m, u, v, lod, Filter::Stochastic, Precision::Float, rnd))
+        {
             *acc += f64::from(v) / f64::from(trials);
         }
     }
@@ -204,31 +166,19 @@ fn stochastic_filtering_averages_to_trilinear() {
         assert!((a - f64::from(*b)).abs() < 0.015, "{a} vs {b}");
     }
     // And it is a selection, not a blend: every draw equals one of the 8 footprint texels.
-    let one = sample(
-        &m,
-        u,
-        v,
-        lod,
-        Filter::Stochastic,
-        Precision::Float,
-        [0.1, 0.9, 0.2],
-    );
+    let one = sample(&m, u, v, lod, Filter::Stochastic, Precision::Float, [0.1, 0.9, 0.2]);
     assert_ne!(one, target);
 }
 
 #[test]
 fn a_material_is_shared_across_threads() {
     fn assert_sync<T: Sync + Send>(_: &T) {}
-    let bytes = generate(&FixtureConfig::ntc("threads", 9, 32, 32, 4))
-        .to_bytes()
-        .unwrap();
+    let bytes = generate(&FixtureConfig::ntc("threads", 9, 32, 32, 4)).to_bytes().unwrap();
     let m = Container::parse(&bytes).unwrap();
     assert_sync(&m);
     let single = nmat_tests::decode_all_u8(&m);
     std::thread::scope(|s| {
-        let handles: Vec<_> = (0..4)
-            .map(|_| s.spawn(|| nmat_tests::decode_all_u8(&m)))
-            .collect();
+        let handles: Vec<_> = (0..4).map(|_| s.spawn(|| nmat_tests::decode_all_u8(&m))).collect();
         for h in handles {
             assert_eq!(h.join().unwrap(), single);
         }

@@ -21,12 +21,7 @@ fn wide_constant_material(input: i16, weight: i8, bias: i32) -> MaterialSpec {
         hidden: vec![],
         pe_frequencies: 0,
         lod_input: false,
-        layout: Layout::Ntc {
-            hi_channels: 16,
-            lo_channels: 16,
-            hi_bits: 1,
-            lo_bits: 1,
-        },
+        layout: Layout::Ntc { hi_channels: 16, lo_channels: 16, hi_bits: 1, lo_bits: 1 },
         ..FixtureConfig::ntc("wide", 12, 4, 4, 1)
     };
     let mut spec = generate(&cfg);
@@ -57,27 +52,14 @@ fn accumulator_at_the_bound_does_not_overflow_and_beyond_is_rejected() {
         let bytes = spec.to_bytes().expect("bias at the limit is valid");
         let m = Container::parse(&bytes).unwrap();
         let mut out = [0u16; 1];
-        m.decode_texel_u16(1, 2, 0, ChannelMask::ALL, &mut out)
-            .unwrap();
+        m.decode_texel_u16(1, 2, 0, ChannelMask::ALL, &mut out).unwrap();
         // The reference accumulates in i64 and asserts |acc| < 2^31.
         assert_eq!(out.to_vec(), reference::decode_u16(&spec, 1, 2, 0));
     }
     let over = wide_constant_material(1, 1, limit + 1);
-    assert!(matches!(
-        over.to_bytes(),
-        Err(Error::LimitExceeded {
-            field: Field::Bias,
-            ..
-        })
-    ));
+    assert!(matches!(over.to_bytes(), Err(Error::LimitExceeded { field: Field::Bias, .. })));
     let under = wide_constant_material(1, 1, -limit - 1);
-    assert!(matches!(
-        under.to_bytes(),
-        Err(Error::LimitExceeded {
-            field: Field::Bias,
-            ..
-        })
-    ));
+    assert!(matches!(under.to_bytes(), Err(Error::LimitExceeded { field: Field::Bias, .. })));
 }
 
 #[test]
@@ -86,11 +68,7 @@ fn int8_minus_128_is_rejected() {
     spec.mlp.layers[0].weights_i8[5] = i8::MIN;
     assert!(matches!(
         spec.to_bytes(),
-        Err(Error::Malformed {
-            field: Field::WeightInt8,
-            index: 0,
-            value: 5
-        })
+        Err(Error::Malformed { field: Field::WeightInt8, index: 0, value: 5 })
     ));
 }
 
@@ -124,10 +102,7 @@ fn requant_from_scale_covers_every_valid_shift_exactly() {
                 assert_eq!(rq.multiplier, 1 << 30);
                 assert_eq!(rq.shift as i32, 30 + k, "scale 2^-{k}");
             }
-            None => assert!(
-                !(1..=62).contains(&(30 + k)),
-                "scale 2^-{k} wrongly rejected"
-            ),
+            None => assert!(!(1..=62).contains(&(30 + k)), "scale 2^-{k} wrongly rejected"),
         }
     }
 }
@@ -147,10 +122,7 @@ fn hard_gelu_is_within_half_an_lsb_everywhere() {
                 x * (x + 1.5) / 3.0
             };
             let got = f64::from(hard_gelu_q(z, f)) / one;
-            assert!(
-                (got - exact).abs() * one <= 0.5,
-                "f {f} z {z}: {got} vs {exact}"
-            );
+            assert!((got - exact).abs() * one <= 0.5, "f {f} z {z}: {got} vs {exact}");
         }
         // Boundaries: continuous at ±1.5, identity above, zero below, minimum −0.1875.
         let t = 3i32 << (f - 1);
@@ -158,20 +130,9 @@ fn hard_gelu_is_within_half_an_lsb_everywhere() {
             assert_eq!(i32::from(hard_gelu_q(t as i16, f)), t);
             assert_eq!(hard_gelu_q((-t) as i16, f), 0);
         }
-        let min = (i16::MIN..=i16::MAX)
-            .map(|z| hard_gelu_q(z, f))
-            .min()
-            .unwrap();
-        assert_eq!(
-            f64::from(min),
-            (-0.1875 * one + 0.5).floor(),
-            "f {f}: round half up"
-        );
-        assert_eq!(
-            hard_gelu_q(i16::MAX, f),
-            i16::MAX,
-            "saturated inputs pass through"
-        );
+        let min = (i16::MIN..=i16::MAX).map(|z| hard_gelu_q(z, f)).min().unwrap();
+        assert_eq!(f64::from(min), (-0.1875 * one + 0.5).floor(), "f {f}: round half up");
+        assert_eq!(hard_gelu_q(i16::MAX, f), i16::MAX, "saturated inputs pass through");
     }
 }
 
@@ -188,34 +149,22 @@ fn with_codes(spec: &mut MaterialSpec, pattern: impl Fn(usize, u8) -> u8) {
 fn extreme_latent_patterns_decode_like_the_reference() {
     for bits in [1u8, 8] {
         let cfg = FixtureConfig {
-            layout: Layout::Ntc {
-                hi_channels: 3,
-                lo_channels: 2,
-                hi_bits: bits,
-                lo_bits: bits,
-            },
+            layout: Layout::Ntc { hi_channels: 3, lo_channels: 2, hi_bits: bits, lo_bits: bits },
             ..FixtureConfig::ntc("lat", 13, 24, 20, 2)
         };
         type Pattern = fn(usize, u8) -> u8;
-        let patterns: [Pattern; 3] = [
-            |_, max| max,
-            |_, _| 0,
-            |i, max| if i % 2 == 0 { max } else { 0 },
-        ];
+        let patterns: [Pattern; 3] =
+            [|_, max| max, |_, _| 0, |i, max| if i % 2 == 0 { max } else { 0 }];
         for pattern in patterns {
             let mut spec = generate(&cfg);
             with_codes(&mut spec, pattern);
             let bytes = spec.to_bytes().unwrap();
             let m = Container::parse(&bytes).unwrap();
             let back = m.to_spec();
-            assert_eq!(
-                back.grids, spec.grids,
-                "codes survive packing at {bits} bits"
-            );
+            assert_eq!(back.grids, spec.grids, "codes survive packing at {bits} bits");
             let mut out = [0u8; 2];
             for (x, y, mip) in nmat_tests::texels(&m) {
-                m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut out)
-                    .unwrap();
+                m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut out).unwrap();
                 assert_eq!(out.to_vec(), reference::decode_u8(&spec, x, y, mip));
             }
         }
@@ -230,10 +179,7 @@ fn bilinear_of_a_constant_grid_is_exactly_the_constant() {
             hidden: vec![],
             pe_frequencies: 0,
             lod_input: false,
-            layout: Layout::Nbc {
-                channels: 1,
-                bits_coarse_to_fine: vec![3],
-            },
+            layout: Layout::Nbc { channels: 1, bits_coarse_to_fine: vec![3] },
             input_frac_bits: 14,
             ..FixtureConfig::ntc("const", 14, 37, 23, 1)
         };
@@ -254,13 +200,8 @@ fn bilinear_of_a_constant_grid_is_exactly_the_constant() {
         let mut out = [0u16; 1];
         let expected = reference::decode_u16(&spec, 0, 0, 0);
         for (x, y, mip) in nmat_tests::texels(&m) {
-            m.decode_texel_u16(x, y, mip, ChannelMask::ALL, &mut out)
-                .unwrap();
-            assert_eq!(
-                out.to_vec(),
-                expected,
-                "value {value} at ({x},{y}) mip {mip}"
-            );
+            m.decode_texel_u16(x, y, mip, ChannelMask::ALL, &mut out).unwrap();
+            assert_eq!(out.to_vec(), expected, "value {value} at ({x},{y}) mip {mip}");
         }
     }
 }
@@ -276,8 +217,7 @@ fn out_of_range_texels_follow_the_address_mode() {
         let (w, h) = (i64::from(m.width()), i64::from(m.height()));
         let decode = |x: i64, y: i64, mip: u32| {
             let mut o = [0u8; 3];
-            m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut o)
-                .unwrap();
+            m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut o).unwrap();
             o
         };
         for (x, y) in [
@@ -294,17 +234,10 @@ fn out_of_range_texels_follow_the_address_mode() {
                 _ => (x.clamp(0, w - 1), y.clamp(0, h - 1)),
             };
             assert_eq!(decode(x, y, 0), decode(ex, ey, 0), "{mode:?} ({x},{y})");
-            assert_eq!(
-                decode(x, y, 0).to_vec(),
-                reference::decode_u8(&spec, x, y, 0)
-            );
+            assert_eq!(decode(x, y, 0).to_vec(), reference::decode_u8(&spec, x, y, 0));
         }
         let last = m.mip_count() - 1;
-        assert_eq!(
-            decode(0, 0, last + 1),
-            decode(0, 0, last),
-            "mip beyond the chain clamps"
-        );
+        assert_eq!(decode(0, 0, last + 1), decode(0, 0, last), "mip beyond the chain clamps");
         assert_eq!(decode(0, 0, u32::MAX), decode(0, 0, last));
     }
 }
@@ -327,16 +260,7 @@ fn sample_handles_every_odd_coordinate_and_lod() {
         f32::NEG_INFINITY,
         f32::MIN_POSITIVE,
     ];
-    let lods = [
-        -1.0,
-        0.0,
-        0.5,
-        2.25,
-        100.0,
-        f32::NAN,
-        f32::INFINITY,
-        f32::NEG_INFINITY,
-    ];
+    let lods = [-1.0, 0.0, 0.5, 2.25, 100.0, f32::NAN, f32::INFINITY, f32::NEG_INFINITY];
     let run = |u: f32, v: f32, lod: f32, filter, precision| {
         let mut out = [0f32; 3];
         let req = SampleRequest {
@@ -351,12 +275,7 @@ fn sample_handles_every_odd_coordinate_and_lod() {
         m.sample(&req, &mut out).unwrap();
         out
     };
-    for filter in [
-        Filter::Nearest,
-        Filter::Bilinear,
-        Filter::Trilinear,
-        Filter::Stochastic,
-    ] {
+    for filter in [Filter::Nearest, Filter::Bilinear, Filter::Trilinear, Filter::Stochastic] {
         for precision in [Precision::Float, Precision::Integer] {
             for &u in &odd {
                 for &lod in &lods {
@@ -402,23 +321,13 @@ fn sample_handles_every_odd_coordinate_and_lod() {
 fn the_largest_texture_decodes_like_the_reference() {
     let cfg = FixtureConfig {
         mip_count: 15,
-        layout: Layout::Ntc {
-            hi_channels: 2,
-            lo_channels: 2,
-            hi_bits: 2,
-            lo_bits: 2,
-        },
+        layout: Layout::Ntc { hi_channels: 2, lo_channels: 2, hi_bits: 2, lo_bits: 2 },
         hidden: vec![8],
         pe_frequencies: 8,
         ..FixtureConfig::ntc("huge", 15, 16384, 16384, 2)
     };
     // Grids of the NTC layout at 16k would be 4096² — too big for a test file; shrink them all.
-    let mut spec = generate(&FixtureConfig {
-        width: 64,
-        height: 64,
-        mip_count: 7,
-        ..cfg.clone()
-    });
+    let mut spec = generate(&FixtureConfig { width: 64, height: 64, mip_count: 7, ..cfg.clone() });
     spec.width = 16384;
     spec.height = 16384;
     spec.mip_count = 15;
@@ -426,20 +335,12 @@ fn the_largest_texture_decodes_like_the_reference() {
     let bytes = spec.to_bytes().unwrap();
     let m = Container::parse(&bytes).unwrap();
     for mip in 0..15u32 {
-        assert_eq!(
-            m.mip_size(mip),
-            ((16384 >> mip).max(1), (16384 >> mip).max(1))
-        );
+        assert_eq!(m.mip_size(mip), ((16384 >> mip).max(1), (16384 >> mip).max(1)));
         let s = i64::from(16384u32 >> mip);
         for (x, y) in [(0, 0), (s - 1, s - 1), (s / 3, s / 2 + 1)] {
             let mut out = [0u8; 2];
-            m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut out)
-                .unwrap();
-            assert_eq!(
-                out.to_vec(),
-                reference::decode_u8(&spec, x, y, mip),
-                "mip {mip} ({x},{y})"
-            );
+            m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut out).unwrap();
+            assert_eq!(out.to_vec(), reference::decode_u8(&spec, x, y, mip), "mip {mip} ({x},{y})");
         }
     }
 }
@@ -465,23 +366,11 @@ fn positional_encoding_is_exact_at_16k() {
 // 7. File values.
 #[test]
 fn bad_scales_are_rejected_and_zero_scale_is_handled() {
-    for bad in [
-        f32::NAN,
-        f32::INFINITY,
-        f32::NEG_INFINITY,
-        -0.5,
-        -0.0,
-        1e-42,
-        1e30,
-    ] {
+    for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -0.5, -0.0, 1e-42, 1e30] {
         let mut spec = small("scale");
         spec.mlp.layers[1].scales[3] = bad;
         match spec.to_bytes() {
-            Err(Error::Malformed {
-                field: Field::WeightScale,
-                index: 1,
-                ..
-            }) => {}
+            Err(Error::Malformed { field: Field::WeightScale, index: 1, .. }) => {}
             other => panic!("scale {bad}: {other:?}"),
         }
     }
@@ -491,8 +380,7 @@ fn bad_scales_are_rejected_and_zero_scale_is_handled() {
     let bytes = spec.to_bytes().unwrap();
     let m = Container::parse(&bytes).unwrap();
     let mut out = [9u8; 3];
-    m.decode_texel_u8(3, 4, 0, ChannelMask::ALL, &mut out)
-        .unwrap();
+    m.decode_texel_u8(3, 4, 0, ChannelMask::ALL, &mut out).unwrap();
     assert_eq!(out, [0, 0, 0], "a zero scale makes the channel constant 0");
 }
 
@@ -504,22 +392,13 @@ fn non_finite_float_parameters_are_rejected() {
             spec.mlp.layers[layer].weights_f16[idx] = bad;
             assert!(matches!(
                 spec.to_bytes(),
-                Err(Error::Malformed {
-                    field: Field::FloatWeight,
-                    ..
-                })
+                Err(Error::Malformed { field: Field::FloatWeight, .. })
             ));
         }
     }
     let mut spec = small("fb");
     spec.mlp.layers[0].float_bias[0] = f32::NAN;
-    assert!(matches!(
-        spec.to_bytes(),
-        Err(Error::Malformed {
-            field: Field::FloatBias,
-            ..
-        })
-    ));
+    assert!(matches!(spec.to_bytes(), Err(Error::Malformed { field: Field::FloatBias, .. })));
 }
 
 #[test]
@@ -532,10 +411,8 @@ fn all_zero_weights_give_the_bias() {
     let bytes = spec.to_bytes().unwrap();
     let m = Container::parse(&bytes).unwrap();
     let (mut a, mut b) = ([0u8; 3], [0u8; 3]);
-    m.decode_texel_u8(0, 0, 0, ChannelMask::ALL, &mut a)
-        .unwrap();
-    m.decode_texel_u8(7, 9, 2, ChannelMask::ALL, &mut b)
-        .unwrap();
+    m.decode_texel_u8(0, 0, 0, ChannelMask::ALL, &mut a).unwrap();
+    m.decode_texel_u8(7, 9, 2, ChannelMask::ALL, &mut b).unwrap();
     assert_eq!(a, b, "output independent of the texel");
     assert_eq!(a.to_vec(), reference::decode_u8(&spec, 0, 0, 0));
 }
@@ -552,10 +429,8 @@ fn huge_pre_activations_clamp_to_the_code_range() {
         let bytes = spec.to_bytes().unwrap();
         let m = Container::parse(&bytes).unwrap();
         let (mut o8, mut o16) = ([0u8; 3], [0u16; 3]);
-        m.decode_texel_u8(1, 1, 0, ChannelMask::ALL, &mut o8)
-            .unwrap();
-        m.decode_texel_u16(1, 1, 0, ChannelMask::ALL, &mut o16)
-            .unwrap();
+        m.decode_texel_u8(1, 1, 0, ChannelMask::ALL, &mut o8).unwrap();
+        m.decode_texel_u16(1, 1, 0, ChannelMask::ALL, &mut o16).unwrap();
         assert_eq!(o8, [expect8; 3]);
         assert_eq!(o16, [expect16; 3]);
     }
@@ -565,10 +440,7 @@ fn huge_pre_activations_clamp_to_the_code_range() {
 fn fusion_chain_sums_saturate_instead_of_wrapping() {
     // Three grids at +32767 each sum to 98301 before the i16 saturation of the input (§6.3).
     let cfg = FixtureConfig {
-        layout: Layout::Nbc {
-            channels: 1,
-            bits_coarse_to_fine: vec![2, 2, 2],
-        },
+        layout: Layout::Nbc { channels: 1, bits_coarse_to_fine: vec![2, 2, 2] },
         ..FixtureConfig::ntc("sat", 16, 32, 32, 1)
     };
     let mut spec = generate(&cfg);
@@ -579,8 +451,7 @@ fn fusion_chain_sums_saturate_instead_of_wrapping() {
     let m = Container::parse(&bytes).unwrap();
     for (x, y, mip) in nmat_tests::texels(&m) {
         let mut out = [0u8; 1];
-        m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut out)
-            .unwrap();
+        m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut out).unwrap();
         assert_eq!(out.to_vec(), reference::decode_u8(&spec, x, y, mip));
     }
 }
@@ -592,10 +463,6 @@ fn grid_quantization_that_leaves_i16_is_rejected() {
     spec.grids[0].quantization[1] = (32000, (1000 / ((1 << bits) - 1)).max(1) as i16 * 10);
     assert!(matches!(
         spec.to_bytes(),
-        Err(Error::Malformed {
-            field: Field::LatentQuantization,
-            index: 0,
-            ..
-        })
+        Err(Error::Malformed { field: Field::LatentQuantization, index: 0, .. })
     ));
 }

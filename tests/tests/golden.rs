@@ -19,10 +19,7 @@ fn read_hashes() -> BTreeMap<String, String> {
     let text = std::fs::read_to_string(fixtures_dir().join("golden.txt")).unwrap_or_default();
     text.lines()
         .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
-        .filter_map(|l| {
-            l.split_once(' ')
-                .map(|(n, rest)| (n.to_string(), rest.trim().to_string()))
-        })
+        .filter_map(|l| l.split_once(' ').map(|(n, rest)| (n.to_string(), rest.trim().to_string())))
         .collect()
 }
 
@@ -32,9 +29,7 @@ fn fixtures_are_reproducible_and_decode_to_their_golden_hashes() {
     let mut blessed =
         String::from("# name  fnv1a64(u8 codes)  fnv1a64(u16 codes)  file bytes — see README.md\n");
     for cfg in golden_configs() {
-        let bytes = generate(&cfg)
-            .to_bytes()
-            .expect("generator makes valid specs");
+        let bytes = generate(&cfg).to_bytes().expect("generator makes valid specs");
         let path = fixtures_dir().join(format!("{}.nmat", cfg.name));
         if bless() {
             std::fs::write(&path, &bytes).unwrap();
@@ -55,12 +50,7 @@ fn fixtures_are_reproducible_and_decode_to_their_golden_hashes() {
         );
         writeln!(blessed, "{} {line}", cfg.name).unwrap();
         if !bless() {
-            assert_eq!(
-                hashes.get(cfg.name),
-                Some(&line),
-                "{}: integer decode changed",
-                cfg.name
-            );
+            assert_eq!(hashes.get(cfg.name), Some(&line), "{}: integer decode changed", cfg.name);
         }
     }
     if bless() {
@@ -77,10 +67,8 @@ fn integer_decoder_matches_the_reference_on_every_texel() {
         let n = m.channel_count();
         let (mut c8, mut c16) = ([0u8; 16], [0u16; 16]);
         for (x, y, mip) in texels(&m) {
-            m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut c8)
-                .unwrap();
-            m.decode_texel_u16(x, y, mip, ChannelMask::ALL, &mut c16)
-                .unwrap();
+            m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut c8).unwrap();
+            m.decode_texel_u16(x, y, mip, ChannelMask::ALL, &mut c16).unwrap();
             assert_eq!(
                 &c8[..n],
                 reference::decode_u8(&spec, x, y, mip),
@@ -107,21 +95,13 @@ fn float_decoder_matches_the_f64_reference() {
         let mut worst = 0f64;
         let mut out = [0f32; 16];
         for (x, y, mip) in texels(&m) {
-            m.decode_texel_unit(x, y, mip, ChannelMask::ALL, &mut out)
-                .unwrap();
-            for (a, b) in out[..n]
-                .iter()
-                .zip(reference::decode_unit_f64(&spec, x, y, mip))
-            {
+            m.decode_texel_unit(x, y, mip, ChannelMask::ALL, &mut out).unwrap();
+            for (a, b) in out[..n].iter().zip(reference::decode_unit_f64(&spec, x, y, mip)) {
                 worst = worst.max((f64::from(*a) - b).abs());
             }
         }
         // f32 against f64 on ~100-term dot products: a few ulps of the activations, far below a code.
-        assert!(
-            worst < 1e-4,
-            "{}: float path is {worst} away from the f64 reference",
-            cfg.name
-        );
+        assert!(worst < 1e-4, "{}: float path is {worst} away from the f64 reference", cfg.name);
     }
 }
 
@@ -148,9 +128,5 @@ fn integer_decoder_is_within_one_code_of_the_float_decoder() {
         total += a.count;
         sum += a.mean * a.count as f64;
     }
-    assert!(
-        (sum / total as f64).abs() < 0.05,
-        "pooled mean Δ = {}",
-        sum / total as f64
-    );
+    assert!((sum / total as f64).abs() < 0.05, "pooled mean Δ = {}", sum / total as f64);
 }

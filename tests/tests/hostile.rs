@@ -9,10 +9,7 @@ use nmat_tests::generate::{generate, golden_configs};
 use nmat_tests::reference;
 
 fn fixtures() -> Vec<(&'static str, Vec<u8>)> {
-    golden_configs()
-        .into_iter()
-        .map(|c| (c.name, generate(&c).to_bytes().unwrap()))
-        .collect()
+    golden_configs().into_iter().map(|c| (c.name, generate(&c).to_bytes().unwrap())).collect()
 }
 
 /// Decodes a handful of texels through every entry point; they must not panic.
@@ -22,10 +19,8 @@ fn exercise(m: &Material<'_>) {
     let mut c8 = [0u8; 16];
     let mut c16 = [0u16; 16];
     m.decode_texel(-1, 7, 1, ChannelMask::ALL, &mut f).unwrap();
-    m.decode_texel_u8(1 << 20, -3, last, ChannelMask::ALL, &mut c8)
-        .unwrap();
-    m.decode_texel_u16(5, 5, last + 3, ChannelMask::single(0), &mut c16)
-        .unwrap();
+    m.decode_texel_u8(1 << 20, -3, last, ChannelMask::ALL, &mut c8).unwrap();
+    m.decode_texel_u16(5, 5, last + 3, ChannelMask::single(0), &mut c16).unwrap();
     let req = SampleRequest {
         u: 0.3,
         v: 0.9,
@@ -47,10 +42,7 @@ fn refresh_checksum(bytes: &mut [u8]) {
 fn every_truncation_is_an_error() {
     for (name, bytes) in fixtures() {
         for len in 0..bytes.len() {
-            assert!(
-                Container::parse(&bytes[..len]).is_err(),
-                "{name}: {len} bytes parsed"
-            );
+            assert!(Container::parse(&bytes[..len]).is_err(), "{name}: {len} bytes parsed");
         }
     }
 }
@@ -66,11 +58,9 @@ fn truncations_with_a_consistent_header_are_errors_or_decode() {
                 refresh_checksum(&mut cut);
             }
             match Container::parse(&cut) {
-                Ok(m) => panic!(
-                    "{name}: a {len}-byte prefix parsed as {}×{}",
-                    m.width(),
-                    m.height()
-                ),
+                Ok(m) => {
+                    panic!("{name}: a {len}-byte prefix parsed as {}×{}", m.width(), m.height())
+                }
                 Err(Error::Truncated { .. } | Error::Malformed { .. }) => {}
                 Err(other) => panic!("{name}: {len} bytes gave {other}"),
             }
@@ -84,10 +74,7 @@ fn every_bit_flip_breaks_the_checksum_or_a_field() {
         let mut b = bytes.clone();
         for bit in 0..b.len() * 8 {
             b[bit / 8] ^= 1 << (bit % 8);
-            assert!(
-                Container::parse(&b).is_err(),
-                "{name}: flip of bit {bit} went unnoticed"
-            );
+            assert!(Container::parse(&b).is_err(), "{name}: flip of bit {bit} went unnoticed");
             b[bit / 8] ^= 1 << (bit % 8);
         }
     }
@@ -95,9 +82,7 @@ fn every_bit_flip_breaks_the_checksum_or_a_field() {
 
 #[test]
 fn every_bit_flip_past_the_checksum_is_an_error_or_a_valid_decode() {
-    let no_crc = ParseOptions {
-        verify_checksum: false,
-    };
+    let no_crc = ParseOptions { verify_checksum: false };
     let fixtures = fixtures();
     std::thread::scope(|s| {
         for (name, bytes) in &fixtures {
@@ -115,9 +100,8 @@ fn every_bit_flip_past_the_checksum_is_an_error_or_a_valid_decode() {
                             if bit % 97 == 0 {
                                 let spec = m.to_spec();
                                 let mut out = [0u8; 16];
-                                let n = m
-                                    .decode_texel_u8(3, 2, 0, ChannelMask::ALL, &mut out)
-                                    .unwrap();
+                                let n =
+                                    m.decode_texel_u8(3, 2, 0, ChannelMask::ALL, &mut out).unwrap();
                                 assert_eq!(
                                     out[..n].to_vec(),
                                     reference::decode_u8(&spec, 3, 2, 0),
@@ -148,68 +132,39 @@ fn specific_corruptions_give_specific_errors() {
         refresh_checksum(&mut b);
         Container::parse(&b).map(|m| m.version_minor())
     };
-    assert!(matches!(
-        edit(0, b"NMAX"),
-        Err(Error::Malformed {
-            field: Field::Magic,
-            ..
-        })
-    ));
+    assert!(matches!(edit(0, b"NMAX"), Err(Error::Malformed { field: Field::Magic, .. })));
     assert!(matches!(
         edit(4, &2u16.to_le_bytes()),
-        Err(Error::Unsupported {
-            field: Field::VersionMajor,
-            value: 2,
-            ..
-        })
+        Err(Error::Unsupported { field: Field::VersionMajor, value: 2, .. })
     ));
     // A newer minor version is accepted (§1.3).
     assert_eq!(edit(6, &7u16.to_le_bytes()), Ok(7));
     assert!(matches!(
         edit(8, &1u32.to_le_bytes()),
-        Err(Error::Unsupported {
-            field: Field::Flags,
-            ..
-        })
+        Err(Error::Unsupported { field: Field::Flags, .. })
     ));
     assert!(matches!(
         edit(16, &0u32.to_le_bytes()),
-        Err(Error::Malformed {
-            field: Field::SectionCount,
-            ..
-        })
+        Err(Error::Malformed { field: Field::SectionCount, .. })
     ));
     assert!(matches!(
         edit(16, &99u32.to_le_bytes()),
-        Err(Error::LimitExceeded {
-            field: Field::SectionCount,
-            ..
-        })
+        Err(Error::LimitExceeded { field: Field::SectionCount, .. })
     ));
     // Section 0 (material) moved onto section 1 (levels): overlap.
     let levels_offset = u32::from_le_bytes(good[32 + 16 + 8..32 + 16 + 12].try_into().unwrap());
     assert!(matches!(
         edit(32 + 8, &levels_offset.to_le_bytes()),
-        Err(Error::Malformed {
-            field: Field::SectionOffset,
-            ..
-        })
+        Err(Error::Malformed { field: Field::SectionOffset, .. })
     ));
     assert!(matches!(
         edit(32 + 8, &(levels_offset + 2).to_le_bytes()),
-        Err(Error::Malformed {
-            field: Field::SectionOffset,
-            ..
-        })
+        Err(Error::Malformed { field: Field::SectionOffset, .. })
     ));
     // An unknown required section kind, and the same kind made optional (skipped, then missing).
     assert!(matches!(
         edit(32, &77u32.to_le_bytes()),
-        Err(Error::Unsupported {
-            field: Field::SectionKind,
-            value: 77,
-            ..
-        })
+        Err(Error::Unsupported { field: Field::SectionKind, value: 77, .. })
     ));
     let mut b = good.clone();
     b[32..36].copy_from_slice(&77u32.to_le_bytes());
@@ -217,34 +172,18 @@ fn specific_corruptions_give_specific_errors() {
     refresh_checksum(&mut b);
     assert!(matches!(
         Container::parse(&b),
-        Err(Error::Malformed {
-            field: Field::MissingSection,
-            index: 1,
-            ..
-        })
+        Err(Error::Malformed { field: Field::MissingSection, index: 1, .. })
     ));
     // Checksum.
     let mut b = good.clone();
     b[100] ^= 0x10;
-    assert!(matches!(
-        Container::parse(&b),
-        Err(Error::ChecksumMismatch { .. })
-    ));
+    assert!(matches!(Container::parse(&b), Err(Error::ChecksumMismatch { .. })));
     // Trailing bytes and a short file.
     let mut b = good.clone();
     b.extend_from_slice(&[0; 4]);
-    assert!(matches!(
-        Container::parse(&b),
-        Err(Error::Malformed {
-            field: Field::FileLength,
-            ..
-        })
-    ));
+    assert!(matches!(Container::parse(&b), Err(Error::Malformed { field: Field::FileLength, .. })));
     assert!(matches!(
         Container::parse(&good[..good.len() - 4]),
-        Err(Error::Truncated {
-            field: Field::FileLength,
-            ..
-        })
+        Err(Error::Truncated { field: Field::FileLength, .. })
     ));
 }
