@@ -197,14 +197,7 @@ fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'
     }
     at_most(Field::SectionCount, 0, u64::from(header.section_count), MAX_SECTIONS as u64)?;
     let table_end = HEADER_LEN + SECTION_ENTRY_LEN * count;
-    if table_end > bytes.len() {
-        return Err(Error::Truncated {
-            field: Field::SectionCount,
-            index: 0,
-            needed: table_end as u64,
-            available: bytes.len() as u64,
-        });
-    }
+    need_bytes(bytes, 0, table_end, Field::SectionCount, 0)?;
     let mut ranges = [(0usize, 0usize); MAX_SECTIONS];
     let mut found: [Option<&'a [u8]>; 4] = [None; 4];
     for i in 0..count {
@@ -219,14 +212,7 @@ fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'
         if offset % 4 != 0 || offset < table_end {
             return Err(malformed(Field::SectionOffset, i, offset as i64));
         }
-        let Some(data) = slice(bytes, offset, length) else {
-            return Err(Error::Truncated {
-                field: Field::SectionLength,
-                index: i as u32,
-                needed: offset as u64 + length as u64,
-                available: bytes.len() as u64,
-            });
-        };
+        let data = take(bytes, offset, length, Field::SectionLength, i)?;
         let end = offset + length;
         for (j, &(o, e2)) in ranges.iter().enumerate().take(i) {
             if offset < e2 && o < end {
@@ -257,7 +243,12 @@ fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'
     Ok(Sections { material: need(0)?, levels: need(1)?, mlp: need(2)?, latents: need(3)? })
 }
 
-fn exact_length(section: &[u8], needed: usize, field: Field) -> Result<(), Error> {
+fn exact_length(
+    section: &[u8],
+    needed: usize,
+    field: Field,
+    kind: SectionKind,
+) -> Result<(), Error> {
     if section.len() < needed {
         return Err(Error::Truncated {
             field,
@@ -267,7 +258,7 @@ fn exact_length(section: &[u8], needed: usize, field: Field) -> Result<(), Error
         });
     }
     if section.len() > needed {
-        return Err(malformed(Field::SectionLength, 0, section.len() as i64));
+        return Err(malformed(Field::SectionContent, kind.0 as usize, section.len() as i64));
     }
     Ok(())
 }
@@ -283,14 +274,7 @@ fn dimension(field: Field, value: u32, limit: u32) -> Result<u32, Error> {
 type MaterialParts<'a> = (u32, u32, u8, AddressMode, heapless::Vec<Channel<'a>, MAX_CHANNELS>);
 
 fn parse_material(s: &[u8]) -> Result<MaterialParts<'_>, Error> {
-    if s.len() < MATERIAL_HEADER_LEN {
-        return Err(Error::Truncated {
-            field: Field::Width,
-            index: 0,
-            needed: MATERIAL_HEADER_LEN as u64,
-            available: s.len() as u64,
-        });
-    }
+    need_bytes(s, 0, MATERIAL_HEADER_LEN, Field::Width, 0)?;
     let width = dimension(Field::Width, u32_at(s, 0), MAX_DIMENSION)?;
     let height = dimension(Field::Height, u32_at(s, 4), MAX_DIMENSION)?;
     let mip_count = u8_at(s, 8);
@@ -311,7 +295,8 @@ fn parse_material(s: &[u8]) -> Result<MaterialParts<'_>, Error> {
     if u8_at(s, 11) != 0 {
         return Err(malformed(Field::MaterialReserved, 0, u8_at(s, 11)));
     }
-    exact_length(s, MATERIAL_HEADER_LEN + CHANNEL_RECORD_LEN * channel_count, Field::ChannelCount)?;
+    let len = MATERIAL_HEADER_LEN + CHANNEL_RECORD_LEN * channel_count;
+    exact_length(s, len, Field::ChannelCount, SectionKind::MATERIAL)?;
     let mut channels = heapless::Vec::new();
     for c in 0..channel_count {
         let rec = slice(s, MATERIAL_HEADER_LEN + CHANNEL_RECORD_LEN * c, CHANNEL_RECORD_LEN)
@@ -355,16 +340,18 @@ struct Levels<'a> {
     widths: heapless::Vec<usize, MAX_LEVELS>,
 }
 
+/// `len` bytes of `s` from `pos`, or `Truncated` naming the structure that needed them.
+fn take(s: &[u8], pos: usize, len: usize, field: Field, index: usize) -> Result<&[u8], Error> {
+    slice(s, pos, len).ok_or(Error::Truncated {
+        field,
+        index: index as u32,
+        needed: pos as u64 + len as u64,
+        available: s.len() as u64,
+    })
+}
+
 fn need_bytes(s: &[u8], pos: usize, len: usize, field: Field, index: usize) -> Result<(), Error> {
-    match pos.checked_add(len) {
-        Some(end) if end <= s.len() => Ok(()),
-        _ => Err(Error::Truncated {
-            field,
-            index: index as u32,
-            needed: pos as u64 + len as u64,
-            available: s.len() as u64,
-        }),
-    }
+    take(s, pos, len, field, index).map(|_| ())
 }
 
 fn count(field: Field, value: u8, limit: usize) -> Result<usize, Error> {
@@ -430,9 +417,7 @@ fn parse_levels<'a>(s: &'a [u8], latents: &'a [u8], mip_count: u8) -> Result<Lev
             .map_err(|_| malformed(Field::LevelCount, l, l as i64))?;
         widths.push(width).map_err(|_| malformed(Field::LevelCount, l, l as i64))?;
     }
-    if pos != s.len() {
-        return Err(malformed(Field::SectionLength, 0, s.len() as i64));
-    }
+    exact_length(s, pos, Field::LevelCount, SectionKind::LEVELS)?;
     Ok(Levels { mip_to_level, grids, levels, widths })
 }
 
@@ -472,17 +457,9 @@ fn parse_grid<'a>(
     if offset % 4 != 0 {
         return Err(malformed(Field::GridDataOffset, g, offset as i64));
     }
-    let Some(data) = slice(latents, offset, length) else {
-        return Err(Error::Truncated {
-            field: Field::GridDataOffset,
-            index: g as u32,
-            needed: offset as u64 + length as u64,
-            available: latents.len() as u64,
-        });
-    };
+    let data = take(latents, offset, length, Field::GridDataOffset, g)?;
     let quant_len = 4 * usize::from(channels);
-    need_bytes(s, pos + GRID_RECORD_LEN, quant_len, Field::LatentQuantization, g)?;
-    let quant = slice(s, pos + GRID_RECORD_LEN, quant_len).unwrap_or(&[]);
+    let quant = take(s, pos + GRID_RECORD_LEN, quant_len, Field::LatentQuantization, g)?;
     let max_code = (1i32 << bits) - 1;
     for c in 0..usize::from(channels) {
         let offset = i32::from(i16_at(quant, 4 * c));
@@ -594,17 +571,14 @@ fn parse_mlp(s: &[u8], channel_count: usize) -> Result<Mlp<'_>, Error> {
             return Err(malformed(Field::LayerReserved, l, u16_at(s, r + 6)));
         }
         let len = layer_data_len(inputs, outputs);
-        need_bytes(s, pos, len, Field::LayerOutputs, l)?;
-        let block = slice(s, pos, len).unwrap_or(&[]);
+        let block = take(s, pos, len, Field::LayerOutputs, l)?;
         let layer = parse_layer(block, l, inputs, outputs, prev_frac, out_frac_bits, activation)?;
         layers.push(layer).map_err(|_| malformed(Field::LayerCount, l, l as i64))?;
         pos += len;
         prev_outputs = outputs;
         prev_frac = out_frac_bits;
     }
-    if pos != s.len() {
-        return Err(malformed(Field::SectionLength, 0, s.len() as i64));
-    }
+    exact_length(s, pos, Field::LayerCount, SectionKind::MLP)?;
     Ok(Mlp { input_frac_bits, pe_frequencies, lod_input, input_width, layers })
 }
 

@@ -208,10 +208,7 @@ impl<'a> Material<'a> {
         channels: ChannelMask,
         out: &mut [u8],
     ) -> Result<usize, Error> {
-        let rows = self.check_out(channels, out.len())?;
-        let f = self.last_frac_bits();
-        let y_out = self.run_int(x, y, mip, rows);
-        Ok(write_selected(rows, &y_out, out, |&v| code(v, f, 255) as u8))
+        self.decode_codes(x, y, mip, channels, out, 255, |c| c as u8)
     }
 
     /// Integer decode to 16-bit codes: `clamp((y·65535 + 2^(f−1)) >> f, 0, 65535)` (§6.7).
@@ -223,10 +220,24 @@ impl<'a> Material<'a> {
         channels: ChannelMask,
         out: &mut [u16],
     ) -> Result<usize, Error> {
+        self.decode_codes(x, y, mip, channels, out, 65535, |c| c as u16)
+    }
+
+    #[allow(clippy::too_many_arguments)] // the public signatures above, plus the code width
+    fn decode_codes<T>(
+        &self,
+        x: i64,
+        y: i64,
+        mip: u32,
+        channels: ChannelMask,
+        out: &mut [T],
+        full_scale: i32,
+        narrow: impl Fn(i32) -> T,
+    ) -> Result<usize, Error> {
         let rows = self.check_out(channels, out.len())?;
         let f = self.last_frac_bits();
         let y_out = self.run_int(x, y, mip, rows);
-        Ok(write_selected(rows, &y_out, out, |&v| code(v, f, 65535) as u16))
+        Ok(write_selected(rows, &y_out, out, |&v| narrow(code(v, f, full_scale))))
     }
 }
 

@@ -18,6 +18,8 @@ pub enum Field {
     SectionFlags,
     SectionOffset,
     SectionLength,
+    /// A section's length disagrees with what its content declares; `index` is the section kind.
+    SectionContent,
     /// A required section (named by its kind in `index`) is missing.
     MissingSection,
     Width,
