@@ -44,7 +44,8 @@ impl SectionKind {
     pub const LEVELS: SectionKind = SectionKind(2);
     pub const MLP: SectionKind = SectionKind(3);
     pub const LATENTS: SectionKind = SectionKind(4);
-    const KNOWN: [SectionKind; 4] = [Self::MATERIAL, Self::LEVELS, Self::MLP, Self::LATENTS];
+    pub(crate) const KNOWN: [SectionKind; 4] =
+        [Self::MATERIAL, Self::LEVELS, Self::MLP, Self::LATENTS];
 }
 
 /// The fixed 32-byte file header (§1).
@@ -131,6 +132,7 @@ impl Container {
             levels: levels.levels,
             mlp,
             file_len: bytes.len(),
+            optional_sections: sections.optional,
         })
     }
 }
@@ -184,6 +186,7 @@ fn read_header(bytes: &[u8]) -> Result<Header, Error> {
 }
 
 struct Sections<'a> {
+    optional: heapless::Vec<(SectionKind, &'a [u8]), MAX_SECTIONS>,
     material: &'a [u8],
     levels: &'a [u8],
     mlp: &'a [u8],
@@ -200,6 +203,7 @@ fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'
     need_bytes(bytes, 0, table_end, Field::SectionCount, 0)?;
     let mut ranges = [(0usize, 0usize); MAX_SECTIONS];
     let mut found: [Option<&'a [u8]>; 4] = [None; 4];
+    let mut optional = heapless::Vec::new();
     for i in 0..count {
         let e = HEADER_LEN + SECTION_ENTRY_LEN * i;
         let kind = SectionKind(u32_at(bytes, e));
@@ -230,7 +234,10 @@ fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'
             None if flags & SECTION_REQUIRED != 0 => {
                 return Err(unsupported(Field::SectionKind, i, kind.0));
             }
-            None => {} // an optional extension this reader does not know: skipped (§1.3)
+            // An optional extension: not needed to decode (§1.3), kept for whoever knows it.
+            None => {
+                optional.push((kind, data)).map_err(|_| malformed(Field::SectionCount, i, 0))?
+            }
         }
     }
     let need = |k: usize| {
@@ -240,7 +247,13 @@ fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'
             (k + 1) as i64,
         ))
     };
-    Ok(Sections { material: need(0)?, levels: need(1)?, mlp: need(2)?, latents: need(3)? })
+    Ok(Sections {
+        optional,
+        material: need(0)?,
+        levels: need(1)?,
+        mlp: need(2)?,
+        latents: need(3)?,
+    })
 }
 
 fn exact_length(

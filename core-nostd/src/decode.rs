@@ -86,10 +86,9 @@ impl<'a> Material<'a> {
         for term in &level.terms {
             let mut chain: [Option<(&LatentGrid<'a>, Footprint)>; MAX_CHAIN] = [None; MAX_CHAIN];
             for (slot, &g) in chain.iter_mut().zip(&term.grids) {
-                *slot = self
-                    .grids
-                    .get(usize::from(g))
-                    .map(|grid| (grid, footprint(grid, x, y, mip_size, mode)));
+                *slot = self.grids.get(usize::from(g)).map(|grid| {
+                    (grid, footprint((grid.width(), grid.height()), x, y, mip_size, mode))
+                });
             }
             let Some((first, fp)) = chain.first().copied().flatten() else {
                 continue;

@@ -77,7 +77,7 @@ impl<'a> LatentGrid<'a> {
 /// Where a texel of a `mip_w × mip_h` image falls on a grid: the 2×2 cells around it (already
 /// wrapped or clamped) and the bilinear fractions in 1/256 (FORMAT.md §6.2).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) struct Footprint {
+pub struct Footprint {
     pub x0: u32,
     pub x1: u32,
     pub y0: u32,
@@ -104,14 +104,16 @@ pub fn address(i: i64, size: u32, mode: AddressMode) -> u32 {
     }
 }
 
-pub(crate) fn footprint(
-    grid: &LatentGrid<'_>,
+/// The footprint of texel (x, y) (already addressed into the mip) on a `grid_size` grid. Public so
+/// that encoders train on exactly the positions the decoder reads.
+pub fn footprint(
+    grid_size: (u32, u32),
     x: u32,
     y: u32,
     mip_size: (u32, u32),
     mode: AddressMode,
 ) -> Footprint {
-    let (gw, gh) = (grid.width(), grid.height());
+    let (gw, gh) = (grid_size.0.max(1), grid_size.1.max(1));
     let (i, fx) = axis(x, mip_size.0, gw);
     let (j, fy) = axis(y, mip_size.1, gh);
     Footprint {

@@ -134,6 +134,8 @@ pub struct Material<'a> {
     pub(crate) levels: heapless::Vec<FeatureLevel, MAX_LEVELS>,
     pub(crate) mlp: Mlp<'a>,
     pub(crate) file_len: usize,
+    pub(crate) optional_sections:
+        heapless::Vec<(crate::SectionKind, &'a [u8]), { crate::limits::MAX_SECTIONS }>,
 }
 
 impl<'a> Material<'a> {
@@ -184,6 +186,17 @@ impl<'a> Material<'a> {
     pub fn file_len(&self) -> usize {
         self.file_len
     }
+    /// The bytes of an optional section (one without the REQUIRED flag and of a kind the decoder
+    /// does not need, FORMAT.md §1.3 and §9), if the file has one of that kind.
+    pub fn optional_section(&self, kind: crate::SectionKind) -> Option<&'a [u8]> {
+        self.optional_sections.iter().find(|(k, _)| *k == kind).map(|(_, d)| *d)
+    }
+
+    /// Every optional section, in file order.
+    pub fn optional_sections(&self) -> &[(crate::SectionKind, &'a [u8])] {
+        &self.optional_sections
+    }
+
     /// Bits per pixel per channel: file bits / (width · height · channels) of mip 0.
     pub fn bppc(&self) -> f64 {
         let denom = f64::from(self.width) * f64::from(self.height) * self.channels.len() as f64;

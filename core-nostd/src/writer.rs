@@ -85,6 +85,9 @@ pub struct MaterialSpec {
     pub grids: Vec<GridSpec>,
     pub levels: Vec<LevelSpec>,
     pub mlp: MlpSpec,
+    /// Optional sections (`kind`, payload), written without the REQUIRED flag after the four
+    /// required ones; readers that do not know a kind skip it (FORMAT.md §1.3, §9).
+    pub optional_sections: Vec<(u32, Vec<u8>)>,
 }
 
 fn spec_error(value: usize, limit: usize) -> Error {
@@ -138,12 +141,19 @@ impl MaterialSpec {
         let material = self.material_section()?;
         let (levels, latents) = self.levels_and_latents()?;
         let mlp = self.mlp_section()?;
-        let sections = [
-            (SectionKind::MATERIAL, material),
-            (SectionKind::LEVELS, levels),
-            (SectionKind::MLP, mlp),
-            (SectionKind::LATENTS, latents),
+        let mut sections = alloc::vec![
+            (SectionKind::MATERIAL, SECTION_REQUIRED, material),
+            (SectionKind::LEVELS, SECTION_REQUIRED, levels),
+            (SectionKind::MLP, SECTION_REQUIRED, mlp),
+            (SectionKind::LATENTS, SECTION_REQUIRED, latents),
         ];
+        for (kind, data) in &self.optional_sections {
+            let kind = SectionKind(*kind);
+            if SectionKind::KNOWN.contains(&kind) {
+                return Err(spec_error(kind.0 as usize, 0));
+            }
+            sections.push((kind, 0, data.clone()));
+        }
         let mut out = Vec::new();
         out.extend_from_slice(&MAGIC);
         put_u16(&mut out, VERSION_MAJOR);
@@ -154,14 +164,14 @@ impl MaterialSpec {
         put_u32(&mut out, 0); // checksum, patched below
         out.extend_from_slice(&[0; 8]);
         let mut offset = HEADER_LEN + SECTION_ENTRY_LEN * sections.len();
-        for (kind, data) in &sections {
+        for (kind, flags, data) in &sections {
             put_u32(&mut out, kind.0);
-            put_u32(&mut out, SECTION_REQUIRED);
+            put_u32(&mut out, *flags);
             put_u32(&mut out, len_u32(offset)?);
             put_u32(&mut out, len_u32(data.len())?);
             offset = align4(offset + data.len());
         }
-        for (_, data) in &sections {
+        for (_, _, data) in &sections {
             out.extend_from_slice(data);
             pad4(&mut out);
         }
@@ -374,6 +384,11 @@ impl<'a> Material<'a> {
                 lod_input: self.mlp.lod_input,
                 layers,
             },
+            optional_sections: self
+                .optional_sections
+                .iter()
+                .map(|(k, d)| (k.0, d.to_vec()))
+                .collect(),
         }
     }
 }

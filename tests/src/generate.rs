@@ -384,5 +384,6 @@ pub fn generate(cfg: &FixtureConfig) -> MaterialSpec {
             lod_input: cfg.lod_input,
             layers,
         },
+        optional_sections: Vec::new(),
     }
 }

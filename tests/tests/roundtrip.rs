@@ -52,7 +52,12 @@ fn random_config(seed: u64) -> FixtureConfig {
 fn random_materials_round_trip_exactly() {
     for seed in 0..300 {
         let cfg = random_config(seed);
-        let spec = generate(&cfg);
+        let mut spec = generate(&cfg);
+        if seed % 3 == 0 {
+            // Optional sections survive the round trip and do not disturb decoding.
+            spec.optional_sections
+                .push((0x1000 + seed as u32, vec![seed as u8; seed as usize % 9]));
+        }
         let bytes = spec.to_bytes().unwrap_or_else(|e| panic!("seed {seed}: {e}\n{cfg:?}"));
         let m = Container::parse(&bytes).unwrap();
         assert_eq!(m.to_spec(), spec, "seed {seed}");
