@@ -1,0 +1,389 @@
+//! `nmat`: encode material maps into a `.nmat` file and back, inspect and evaluate it, or run the
+//! whole chain on a bundled procedural material (`nmat demo`). See docs/ENCODING.md.
+
+mod output;
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+use nmat_core::{AddressMode, Container, Material};
+use nmat_encode::metrics::{ChainQuality, chain_quality};
+use nmat_encode::texset::{self, LoadOptions, Role};
+use nmat_encode::{
+    EncodeError, EncodeOptions, Encoded, PROFILES, Profile, TextureSet, TrainOptions, encode,
+};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+#[derive(Parser)]
+#[command(
+    name = "nmat",
+    version,
+    about = "Neural material textures: encode, decode, inspect, evaluate"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Compress a folder (or list) of material maps into one .nmat file.
+    Encode(EncodeArgs),
+    /// Write the maps of a .nmat file back as images.
+    Decode(DecodeArgs),
+    /// Print what a .nmat file holds.
+    Info { input: PathBuf },
+    /// Compare a .nmat file with the source maps: PSNR per map and mip, SSIM, BPPC.
+    Eval {
+        input: PathBuf,
+        /// Folder with the reference maps.
+        #[arg(long = "ref")]
+        reference: PathBuf,
+    },
+    /// Encode, decode and evaluate a bundled procedural material, and print a report.
+    Demo {
+        /// Where to write demo.nmat and the decoded maps.
+        #[arg(short, long, default_value = "target/nmat-demo")]
+        out: PathBuf,
+        #[command(flatten)]
+        train: TrainArgs,
+        #[arg(long, default_value = nmat_encode::DEFAULT_PROFILE)]
+        profile: String,
+    },
+}
+
+#[derive(Args)]
+struct TrainArgs {
+    /// Optimizer steps (more: better quality, longer encode) [default: 10000 for encode, 3000
+    /// for demo].
+    #[arg(long)]
+    steps: Option<usize>,
+    /// Seed of every random choice: same inputs, seed and steps give the same file.
+    #[arg(long, default_value_t = TrainOptions::default().seed)]
+    seed: u64,
+    /// Worker threads (default: all cores). The file does not depend on it.
+    #[arg(long)]
+    threads: Option<usize>,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Address {
+    Wrap,
+    Clamp,
+}
+
+#[derive(Args)]
+struct EncodeArgs {
+    /// Folders and/or map files; roles come from file names (or --map).
+    inputs: Vec<PathBuf>,
+    /// Output file.
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Assign a role explicitly: ROLE=PATH (albedo, normal, roughness, gloss, specular, height,
+    /// ao, metallic, emissive, opacity). Repeatable.
+    #[arg(long = "map", value_name = "ROLE=PATH")]
+    maps: Vec<String>,
+    /// Rate/layout profile.
+    #[arg(long, conflicts_with_all = ["bppc", "target_psnr"])]
+    profile: Option<String>,
+    /// Pick the profile nearest to this many bits per pixel per channel.
+    #[arg(long, conflicts_with = "target_psnr")]
+    bppc: Option<f64>,
+    /// Search for the smallest profile whose whole-chain PSNR reaches this many dB.
+    #[arg(long)]
+    target_psnr: Option<f64>,
+    /// Resize maps of another size to the first map's size (Lanczos3) instead of failing.
+    #[arg(long)]
+    resize: bool,
+    /// Texture addressing at the edges.
+    #[arg(long, value_enum, default_value = "wrap")]
+    address: Address,
+    #[command(flatten)]
+    train: TrainArgs,
+}
+
+#[derive(Clone, Copy, ValueEnum, PartialEq)]
+enum Mode {
+    Int,
+    Float,
+}
+
+#[derive(Args)]
+struct DecodeArgs {
+    input: PathBuf,
+    /// Output folder (created if missing).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Which mip to write: a number or "all".
+    #[arg(long, default_value = "0")]
+    mip: String,
+    /// Decode with the float reference decoder instead of the integer-exact one.
+    #[arg(long, conflicts_with = "int")]
+    float: bool,
+    /// Decode with the integer-exact decoder (the default).
+    #[arg(long)]
+    int: bool,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("nmat: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Encode(args) => cmd_encode(args),
+        Command::Decode(args) => cmd_decode(args),
+        Command::Info { input } => {
+            let bytes = read_nmat(&input)?;
+            let m = parse(&bytes, &input)?;
+            print!("{}", output::describe(&input, &m));
+            Ok(())
+        }
+        Command::Eval { input, reference } => cmd_eval(&input, &reference),
+        Command::Demo { out, train, profile } => cmd_demo(&out, &train, &profile),
+    }
+}
+
+fn threads(n: Option<usize>) -> Result<()> {
+    if let Some(n) = n {
+        if n == 0 {
+            return Err(Box::new(EncodeError::BadOption {
+                option: "--threads",
+                value: "0".into(),
+                reason: "must be at least 1",
+            }));
+        }
+        rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
+    }
+    Ok(())
+}
+
+/// Steps of `nmat demo` when not given: its 256² material needs fewer than a 1024² one.
+const DEMO_STEPS: usize = 3000;
+
+fn train_options(t: &TrainArgs, default_steps: usize) -> Result<TrainOptions> {
+    let steps = t.steps.unwrap_or(default_steps);
+    if steps == 0 {
+        return Err(Box::new(EncodeError::BadOption {
+            option: "--steps",
+            value: "0".into(),
+            reason: "must be at least 1",
+        }));
+    }
+    Ok(TrainOptions { steps, seed: t.seed, ..TrainOptions::default() })
+}
+
+fn profile_named(name: &str) -> Result<Profile> {
+    Profile::by_name(name).ok_or_else(|| {
+        let names: Vec<&str> = PROFILES.iter().map(|p| p.name()).collect();
+        format!("--profile {name}: unknown; choose one of {}", names.join(", ")).into()
+    })
+}
+
+/// Trains with a progress bar (ETA and live PSNR of the training loss).
+fn encode_with_progress(set: &TextureSet, options: &EncodeOptions) -> Result<Encoded> {
+    let bar = ProgressBar::new(options.train.steps as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{prefix:>9} [{bar:32}] {pos}/{len} steps, ETA {eta} {msg}")?
+            .progress_chars("=> "),
+    );
+    bar.set_prefix(options.profile.name());
+    let encoded = encode(set, options, &mut |p| {
+        bar.set_position(p.step as u64);
+        bar.set_message(format!("train PSNR {:.2} dB ({:?})", p.psnr, p.phase));
+    })?;
+    bar.finish_and_clear();
+    Ok(encoded)
+}
+
+fn cmd_encode(args: EncodeArgs) -> Result<()> {
+    threads(args.train.threads)?;
+    let explicit = args
+        .maps
+        .iter()
+        .map(|m| texset::parse_map_argument(m))
+        .collect::<std::result::Result<Vec<_>, _>>()?;
+    let files = texset::collect_inputs(&args.inputs)?;
+    if files.is_empty() && explicit.is_empty() {
+        return Err("no input maps: pass a folder, files, or --map ROLE=PATH".into());
+    }
+    let roles = texset::assign_roles(&files, &explicit)?;
+    let set = texset::load(&roles, &LoadOptions { resize: args.resize })?;
+    let address_mode = match args.address {
+        Address::Wrap => AddressMode::Wrap,
+        Address::Clamp => AddressMode::Clamp,
+    };
+    let train = train_options(&args.train, nmat_encode::train::DEFAULT_STEPS)?;
+    let start = Instant::now();
+    let encoded = if let Some(target) = args.target_psnr {
+        search_target(&set, target, &train, address_mode)?
+    } else {
+        let profile = match (&args.profile, args.bppc) {
+            (Some(name), _) => profile_named(name)?,
+            (None, Some(b)) if b.is_finite() && b > 0.0 => Profile::nearest(b),
+            (None, Some(b)) => {
+                return Err(Box::new(EncodeError::BadOption {
+                    option: "--bppc",
+                    value: b.to_string(),
+                    reason: "must be a positive number",
+                }));
+            }
+            (None, None) => profile_named(nmat_encode::DEFAULT_PROFILE)?,
+        };
+        encode_with_progress(&set, &EncodeOptions { profile, train, address_mode })?
+    };
+    output::write_atomic(&args.output, &encoded.bytes)?;
+    println!(
+        "wrote {} ({} bytes) in {:.1} s",
+        args.output.display(),
+        encoded.bytes.len(),
+        start.elapsed().as_secs_f64()
+    );
+    print!("{}", output::quality_table(&set, &encoded.quality, Some(encoded.config.profile)));
+    Ok(())
+}
+
+/// Encodes with profiles from the smallest rate up until the whole-chain PSNR reaches `target`.
+fn search_target(
+    set: &TextureSet,
+    target: f64,
+    train: &TrainOptions,
+    address_mode: AddressMode,
+) -> Result<Encoded> {
+    if !target.is_finite() || target <= 0.0 {
+        return Err(Box::new(EncodeError::BadOption {
+            option: "--target-psnr",
+            value: target.to_string(),
+            reason: "must be a positive number of dB",
+        }));
+    }
+    let mut order: Vec<Profile> = PROFILES.to_vec();
+    order.sort_by(|a, b| a.bppc().total_cmp(&b.bppc()));
+    let mut last = None;
+    for profile in order {
+        let e = encode_with_progress(
+            set,
+            &EncodeOptions { profile, train: train.clone(), address_mode },
+        )?;
+        eprintln!("  {:9} {:.3} BPPC  {:.2} dB", profile.name(), e.quality.bppc, e.quality.psnr);
+        if e.quality.psnr >= target {
+            return Ok(e);
+        }
+        last = Some(e);
+    }
+    eprintln!("no profile reached {target} dB; keeping the largest");
+    last.ok_or_else(|| "no profile".into())
+}
+
+fn read_nmat(path: &Path) -> Result<Vec<u8>> {
+    std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()).into())
+}
+
+fn parse<'a>(bytes: &'a [u8], path: &Path) -> Result<Material<'a>> {
+    Container::parse(bytes).map_err(|e| format!("{}: {e}", path.display()).into())
+}
+
+fn cmd_decode(args: DecodeArgs) -> Result<()> {
+    let bytes = read_nmat(&args.input)?;
+    let m = parse(&bytes, &args.input)?;
+    let mips: Vec<u32> = if args.mip == "all" {
+        (0..m.mip_count()).collect()
+    } else {
+        let mip: u32 = args
+            .mip
+            .parse()
+            .map_err(|_| format!("--mip {}: expected a number or \"all\"", args.mip))?;
+        if mip >= m.mip_count() {
+            return Err(
+                format!("--mip {mip}: the material has mips 0..{}", m.mip_count() - 1).into()
+            );
+        }
+        vec![mip]
+    };
+    let mode = if args.float { Mode::Float } else { Mode::Int };
+    std::fs::create_dir_all(&args.output).map_err(|e| format!("{}: {e}", args.output.display()))?;
+    let written = output::write_maps(&m, &args.output, &mips, mode == Mode::Float)?;
+    for w in &written {
+        println!("wrote {}", w.display());
+    }
+    Ok(())
+}
+
+/// Loads reference maps for `m`: the files named in its SOURCE_MAPS section if present in `dir`,
+/// else every image in `dir` by role.
+fn load_reference(m: &Material<'_>, dir: &Path) -> Result<TextureSet> {
+    let roles: Vec<(Role, PathBuf)> = match output::source_maps(m) {
+        Some(maps) if maps.iter().all(|s| dir.join(&s.file_name).is_file()) => {
+            maps.iter().map(|s| (s.role, dir.join(&s.file_name))).collect()
+        }
+        _ => texset::assign_roles(&texset::collect_inputs(&[dir.to_path_buf()])?, &[])?,
+    };
+    let set = texset::load(&roles, &LoadOptions::default())?;
+    if set.channel_count() != m.channel_count()
+        || (set.width, set.height) != (m.width(), m.height())
+    {
+        return Err(format!(
+            "{}: the reference maps give {}×{} with {} channels, the material is {}×{} with {}",
+            dir.display(),
+            set.width,
+            set.height,
+            set.channel_count(),
+            m.width(),
+            m.height(),
+            m.channel_count()
+        )
+        .into());
+    }
+    Ok(set)
+}
+
+fn cmd_eval(input: &Path, reference: &Path) -> Result<()> {
+    let bytes = read_nmat(input)?;
+    let m = parse(&bytes, input)?;
+    let set = load_reference(&m, reference)?;
+    let q: ChainQuality = chain_quality(&m, &set);
+    print!("{}", output::quality_table(&set, &q, None));
+    Ok(())
+}
+
+fn cmd_demo(out: &Path, train: &TrainArgs, profile: &str) -> Result<()> {
+    threads(train.threads)?;
+    let profile = profile_named(profile)?;
+    let set = nmat_encode::demo::bricks(256);
+    println!(
+        "demo: a procedural 256×256 brick material (albedo RGB, normal XYZ, roughness, height; {} mips), profile {}",
+        set.mips.len(),
+        profile.name()
+    );
+    std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
+    let start = Instant::now();
+    let options = EncodeOptions {
+        profile,
+        train: train_options(train, DEMO_STEPS)?,
+        address_mode: AddressMode::Wrap,
+    };
+    let encoded = encode_with_progress(&set, &options)?;
+    let path = out.join("demo.nmat");
+    output::write_atomic(&path, &encoded.bytes)?;
+    println!(
+        "encoded in {:.1} s → {} ({} bytes)",
+        start.elapsed().as_secs_f64(),
+        path.display(),
+        encoded.bytes.len()
+    );
+    let m = parse(&encoded.bytes, &path)?;
+    let written = output::write_maps(&m, out, &[0], false)?;
+    println!("decoded {} maps into {}", written.len(), out.display());
+    print!("{}", output::quality_table(&set, &encoded.quality, Some(profile.name())));
+    Ok(())
+}

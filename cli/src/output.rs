@@ -1,0 +1,311 @@
+//! What the CLI prints and writes: descriptions, quality tables, decoded maps, atomic files.
+
+use nmat_core::{ChannelMask, Material};
+use nmat_encode::TextureSet;
+use nmat_encode::metrics::{ChainQuality, unit_of};
+use nmat_encode::source_maps;
+use nmat_encode::texset::{FileLayout, Role, SourceMap};
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+/// Writes `bytes` to `path` through a temporary file in the same folder and a rename, so a reader
+/// never sees a partial file and a failure leaves no output behind.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
+    let result = (|| {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result.map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", path.display())))
+}
+
+/// The SOURCE_MAPS section, if the file has a valid one.
+pub fn source_maps(m: &Material<'_>) -> Option<Vec<SourceMap>> {
+    let maps = source_maps::decode(
+        m.optional_section(nmat_core::SectionKind(source_maps::SECTION_KIND))?,
+    )?;
+    let fits = maps
+        .iter()
+        .all(|s| s.channel_count >= 1 && s.first_channel + s.channel_count <= m.channel_count());
+    fits.then_some(maps)
+}
+
+/// Maps by channel-name stem (`albedo.r/g/b` → one RGB map) for files without SOURCE_MAPS.
+fn maps_from_names(m: &Material<'_>) -> Vec<SourceMap> {
+    let mut maps: Vec<SourceMap> = Vec::new();
+    for (c, ch) in m.channels().iter().enumerate() {
+        let stem = ch.name.split('.').next().unwrap_or(ch.name);
+        match maps.last_mut() {
+            Some(last) if last.file_name == format!("{stem}.png") && last.channel_count < 4 => {
+                last.channel_count += 1
+            }
+            _ => maps.push(SourceMap {
+                role: Role::from_semantic(ch.semantic).unwrap_or(Role::Albedo),
+                file_name: format!("{stem}.png"),
+                layout: FileLayout::Gray,
+                first_channel: c,
+                channel_count: 1,
+                gray_rgb: false,
+                alpha_value: None,
+                sixteen_bit: false,
+            }),
+        }
+    }
+    for map in &mut maps {
+        map.layout = [FileLayout::Gray, FileLayout::GrayAlpha, FileLayout::Rgb, FileLayout::Rgba]
+            [map.channel_count - 1];
+    }
+    maps
+}
+
+fn output_name(file_name: &str, mip: u32, single_mip0: bool) -> (String, image::ImageFormat) {
+    let path = Path::new(file_name);
+    let stem =
+        path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "map".into());
+    let ext =
+        path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+    // Lossy formats are not re-encoded lossily: they come back as PNG.
+    let (ext, format) = match ext.as_str() {
+        "tga" => ("tga", image::ImageFormat::Tga),
+        "bmp" => ("bmp", image::ImageFormat::Bmp),
+        "tif" | "tiff" => (if ext == "tif" { "tif" } else { "tiff" }, image::ImageFormat::Tiff),
+        _ => ("png", image::ImageFormat::Png),
+    };
+    let name = if single_mip0 && mip == 0 {
+        format!("{stem}.{ext}")
+    } else {
+        format!("{stem}_mip{mip}.{ext}")
+    };
+    (name, format)
+}
+
+/// Decodes `mips` of every map and writes them into `dir` under their original names.
+pub fn write_maps(
+    m: &Material<'_>,
+    dir: &Path,
+    mips: &[u32],
+    float: bool,
+) -> Result<Vec<PathBuf>, Box<dyn std::error::Error>> {
+    let maps = source_maps(m).unwrap_or_else(|| maps_from_names(m));
+    let mut written = Vec::new();
+    let single = mips == [0];
+    for map in &maps {
+        for &mip in mips {
+            let (w, h) = m.mip_size(mip);
+            let comps = map.layout.components();
+            let sixteen = map.sixteen_bit && !float;
+            let mut pixels: Vec<u16> = Vec::with_capacity((w * h) as usize * comps);
+            let mask = ChannelMask((((1u32 << map.channel_count) - 1) << map.first_channel) as u16);
+            let mut unit = [0f32; 16];
+            let mut codes = [0u16; 16];
+            let full = if sixteen { 65535.0 } else { 255.0 };
+            for y in 0..h {
+                for x in 0..w {
+                    let (x, y) = (i64::from(x), i64::from(y));
+                    if float {
+                        m.decode_texel_unit(x, y, mip, mask, &mut unit)?;
+                    } else if sixteen {
+                        m.decode_texel_u16(x, y, mip, mask, &mut codes)?;
+                        unit.iter_mut().zip(codes).for_each(|(u, c)| *u = f32::from(c) / 65535.0);
+                    } else {
+                        let mut c8 = [0u8; 16];
+                        m.decode_texel_u8(x, y, mip, mask, &mut c8)?;
+                        unit.iter_mut().zip(c8).for_each(|(u, c)| *u = f32::from(c) / 255.0);
+                    }
+                    let value = |k: usize| {
+                        let u = unit_of(m, map.first_channel + k, unit[k]);
+                        (u * full).round().clamp(0.0, full) as u16
+                    };
+                    let color = if map.gray_rgb {
+                        vec![value(0); 3]
+                    } else {
+                        (0..map.channel_count.min(comps)).map(value).collect()
+                    };
+                    pixels.extend(color.iter().take(comps));
+                    if let Some(a) = map.alpha_value {
+                        pixels.push(if sixteen { u16::from(a) * 257 } else { u16::from(a) });
+                    } else if map.gray_rgb && comps == 4 {
+                        pixels.push(value(1));
+                    }
+                    while pixels.len() % comps != 0 {
+                        pixels.push(full as u16);
+                    }
+                }
+            }
+            let (name, format) = output_name(&map.file_name, mip, single);
+            let image = to_image(w, h, map.layout, sixteen, pixels);
+            let mut buffer = std::io::Cursor::new(Vec::new());
+            // TGA and BMP have no 16-bit modes: those maps are written at 8 bits.
+            let image = if sixteen
+                && format != image::ImageFormat::Png
+                && format != image::ImageFormat::Tiff
+            {
+                image::DynamicImage::from(image.to_rgba8())
+            } else {
+                image
+            };
+            image.write_to(&mut buffer, format)?;
+            let path = dir.join(name);
+            write_atomic(&path, buffer.get_ref())?;
+            written.push(path);
+        }
+    }
+    Ok(written)
+}
+
+fn to_image(w: u32, h: u32, layout: FileLayout, sixteen: bool, p: Vec<u16>) -> image::DynamicImage {
+    use image::{DynamicImage as D, ImageBuffer};
+    macro_rules! buf {
+        ($px:ty, $data:expr) => {
+            ImageBuffer::<$px, _>::from_raw(w, h, $data).unwrap_or_else(|| ImageBuffer::new(w, h))
+        };
+    }
+    if sixteen {
+        match layout {
+            FileLayout::Gray => D::ImageLuma16(buf!(image::Luma<u16>, p)),
+            FileLayout::GrayAlpha => D::ImageLumaA16(buf!(image::LumaA<u16>, p)),
+            FileLayout::Rgb => D::ImageRgb16(buf!(image::Rgb<u16>, p)),
+            FileLayout::Rgba => D::ImageRgba16(buf!(image::Rgba<u16>, p)),
+        }
+    } else {
+        let p: Vec<u8> = p.into_iter().map(|v| v.min(255) as u8).collect();
+        match layout {
+            FileLayout::Gray => D::ImageLuma8(buf!(image::Luma<u8>, p)),
+            FileLayout::GrayAlpha => D::ImageLumaA8(buf!(image::LumaA<u8>, p)),
+            FileLayout::Rgb => D::ImageRgb8(buf!(image::Rgb<u8>, p)),
+            FileLayout::Rgba => D::ImageRgba8(buf!(image::Rgba<u8>, p)),
+        }
+    }
+}
+
+/// `nmat info`.
+pub fn describe(path: &Path, m: &Material<'_>) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "{}: .nmat format 1.{}, {} bytes",
+        path.display(),
+        m.version_minor(),
+        m.file_len()
+    );
+    let _ = writeln!(
+        s,
+        "size {}×{}, {} mips, {} channels, {:?} addressing, {:.4} bits per pixel per channel",
+        m.width(),
+        m.height(),
+        m.mip_count(),
+        m.channel_count(),
+        m.address_mode(),
+        m.bppc()
+    );
+    let _ = writeln!(s, "\nchannels:");
+    for (i, c) in m.channels().iter().enumerate() {
+        let role = Role::from_semantic(c.semantic).map_or("other", |r| r.name());
+        let constant = if c.range_min == c.range_max {
+            format!(" constant {}", c.range_min)
+        } else {
+            String::new()
+        };
+        let _ = writeln!(
+            s,
+            "  {i:2} {:12} {role:10} {:?} [{}, {}]{constant}",
+            c.name, c.color_space, c.range_min, c.range_max
+        );
+    }
+    if let Some(maps) = source_maps(m) {
+        let _ = writeln!(s, "\nsource maps:");
+        for map in maps {
+            let _ = writeln!(
+                s,
+                "  {:28} {:9} {:?}{} → channels {}..{}",
+                map.file_name,
+                map.role.name(),
+                map.layout,
+                if map.sixteen_bit { " 16-bit" } else { "" },
+                map.first_channel,
+                map.first_channel + map.channel_count - 1
+            );
+        }
+    }
+    let _ = writeln!(s, "\nlatent grids:");
+    let mut latent_bytes = 0;
+    for (i, g) in m.grids().iter().enumerate() {
+        latent_bytes += g.packed_data().len();
+        let _ = writeln!(
+            s,
+            "  {i:2} {:5}×{:<5} {:2} channels × {} bits  {:8} bytes",
+            g.width(),
+            g.height(),
+            g.channels(),
+            g.bits_per_latent(),
+            g.packed_data().len()
+        );
+    }
+    for (l, level) in m.levels().iter().enumerate() {
+        let mips: Vec<String> = (0..m.mip_count())
+            .filter(|&k| m.level_for_mip(k) == l)
+            .map(|k| k.to_string())
+            .collect();
+        let terms: Vec<String> =
+            level.terms.iter().map(|t| format!("{:?}{:?}", t.mode, t.grids.as_slice())).collect();
+        let _ = writeln!(s, "  level {l} (mips {}): {}", mips.join(","), terms.join(" + "));
+    }
+    let mlp = m.mlp();
+    let weight_bytes: usize =
+        mlp.layers().iter().map(|l| l.inputs() * l.outputs() * 3 + l.outputs() * 12).sum();
+    let shape: Vec<String> =
+        mlp.layers().iter().map(|l| format!("{}→{}", l.inputs(), l.outputs())).collect();
+    let _ = writeln!(
+        s,
+        "\nMLP {} ({} MACs/texel), input Q.{}, {} PE frequencies, LOD input {}",
+        shape.join(", "),
+        mlp.macs_per_texel(),
+        mlp.input_frac_bits(),
+        mlp.pe_frequencies(),
+        mlp.lod_input()
+    );
+    let _ = writeln!(
+        s,
+        "bytes: latents {latent_bytes}, weights {weight_bytes}, other {}",
+        m.file_len().saturating_sub(latent_bytes + weight_bytes)
+    );
+    s
+}
+
+/// The quality report of `encode`, `eval` and `demo`.
+pub fn quality_table(set: &TextureSet, q: &ChainQuality, profile: Option<&str>) -> String {
+    let mut s = String::new();
+    if let Some(p) = profile {
+        let _ = writeln!(s, "profile {p}");
+    }
+    let _ = writeln!(
+        s,
+        "{:28} {:>10} {}",
+        "map",
+        "chain dB",
+        (0..set.mips.len()).map(|m| format!("{:>7}", format!("mip{m}"))).collect::<String>()
+    );
+    for map in &set.maps {
+        let chans: Vec<usize> =
+            (map.first_channel..map.first_channel + map.channel_count).collect();
+        let _ = write!(s, "{:28} {:>10.2}", map.file_name, q.psnr_of(&chans, None, set));
+        for m in 0..set.mips.len() {
+            let _ = write!(s, "{:>7.2}", q.psnr_of(&chans, Some(m), set));
+        }
+        let _ = writeln!(s);
+    }
+    let _ = writeln!(
+        s,
+        "overall: PSNR {:.2} dB over all channels and mips, SSIM {:.4} at mip 0, {:.4} bits per pixel per channel",
+        q.psnr, q.ssim, q.bppc
+    );
+    s
+}

@@ -1,0 +1,179 @@
+//! `nmat-encode`: turns a folder of material maps into a `.nmat` file (docs/ENCODING.md).
+//!
+//! ```no_run
+//! use nmat_encode::{encode, texset, EncodeOptions};
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let files = texset::collect_inputs(&["maps/brick".into()])?;
+//! let roles = texset::assign_roles(&files, &[])?;
+//! let set = texset::load(&roles, &Default::default())?;
+//! let out = encode(&set, &EncodeOptions::default(), &mut |_| {})?;
+//! std::fs::write("brick.nmat", &out.bytes)?;
+//! # Ok(()) }
+//! ```
+
+pub mod demo;
+pub mod error;
+pub mod metrics;
+pub mod profile;
+pub mod source_maps;
+pub mod texset;
+pub mod train;
+
+pub use error::EncodeError;
+pub use profile::{DEFAULT_PROFILE, ModelConfig, PROFILES, Profile, configure};
+pub use texset::{Role, TextureSet};
+pub use train::{Phase, Progress, TrainOptions};
+
+use nmat_core::{
+    Activation, AddressMode, ChannelSpec, Container, GridSpec, LevelSpec, MaterialSpec, MlpSpec,
+    TermSpec,
+};
+
+#[derive(Clone, Debug)]
+pub struct EncodeOptions {
+    pub profile: Profile,
+    pub train: TrainOptions,
+    pub address_mode: AddressMode,
+}
+
+impl Default for EncodeOptions {
+    fn default() -> Self {
+        EncodeOptions {
+            profile: Profile::by_name(DEFAULT_PROFILE).unwrap_or(PROFILES[0]),
+            train: TrainOptions::default(),
+            address_mode: AddressMode::Wrap,
+        }
+    }
+}
+
+/// The result of an encode.
+pub struct Encoded {
+    pub bytes: Vec<u8>,
+    pub config: ModelConfig,
+    /// Whole-chain quality of the integer decoder against the source mip chain.
+    pub quality: metrics::ChainQuality,
+}
+
+/// Trains a model for `set` and writes it. Deterministic: the same set, options and seed give the
+/// same bytes, whatever the number of threads.
+pub fn encode(
+    set: &TextureSet,
+    options: &EncodeOptions,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<Encoded, EncodeError> {
+    let learned = set.learned_channels();
+    let config = configure(
+        options.profile,
+        set.width,
+        set.height,
+        set.mips.len() as u32,
+        set.channel_count(),
+        learned.len(),
+    );
+    let mut model = train::Model::new(set, &config, options.address_mode, options.train.seed);
+    model.train(&options.train, progress);
+    let spec = to_spec(set, &model, options)?;
+    let bytes = spec.to_bytes()?;
+    let quality = metrics::chain_quality(&Container::parse(&bytes)?, set);
+    Ok(Encoded { bytes, config, quality })
+}
+
+fn to_spec(
+    set: &TextureSet,
+    model: &train::Model<'_>,
+    options: &EncodeOptions,
+) -> Result<MaterialSpec, EncodeError> {
+    let cfg = model.cfg;
+    let ranges = model.activation_ranges(8192, options.train.seed);
+    let mut frac = train::INPUT_FRAC_BITS;
+    let mut layers = Vec::new();
+    let last = model.layers.len() - 1;
+    for (k, l) in model.layers.iter().enumerate() {
+        let (out_frac, activation, rows): (u8, Activation, Vec<Option<usize>>) = if k == last {
+            let mut next = 0;
+            let rows = set
+                .channels
+                .iter()
+                .map(|c| {
+                    c.constant.is_none().then(|| {
+                        next += 1;
+                        next - 1
+                    })
+                })
+                .collect();
+            (train::OUTPUT_FRAC_BITS, Activation::None, rows)
+        } else {
+            (
+                train::frac_bits_for(ranges[k]),
+                Activation::HardGelu,
+                (0..l.outputs).map(Some).collect(),
+            )
+        };
+        layers.push(train::export_layer(l, frac, out_frac, &rows, activation));
+        frac = out_frac;
+    }
+    let channels = set
+        .channels
+        .iter()
+        .map(|c| {
+            let (lo, hi) = c.role.nominal_range(c.component);
+            let (range_min, range_max) = match c.constant {
+                Some(u) => {
+                    let v = lo + u * (hi - lo);
+                    (v, v)
+                }
+                None => (lo, hi),
+            };
+            ChannelSpec {
+                name: c.name.clone(),
+                semantic: c.role.semantic(),
+                component: c.component,
+                color_space: c.role.color_space(),
+                range_min,
+                range_max,
+            }
+        })
+        .collect();
+    let grids = model
+        .grids
+        .iter()
+        .map(|g| GridSpec {
+            width: g.width as u16,
+            height: g.height as u16,
+            channels: g.channels as u8,
+            bits: g.bits,
+            quantization: vec![(g.offset_q, g.step_q); g.channels],
+            codes: model.codes(g),
+        })
+        .collect();
+    let levels = cfg
+        .levels
+        .iter()
+        .map(|terms| LevelSpec {
+            terms: terms
+                .iter()
+                .map(|t| TermSpec {
+                    mode: t.mode,
+                    grids: t.grids.iter().map(|&g| g as u8).collect(),
+                })
+                .collect(),
+        })
+        .collect();
+    Ok(MaterialSpec {
+        width: set.width,
+        height: set.height,
+        mip_count: set.mips.len() as u8,
+        address_mode: options.address_mode,
+        channels,
+        mip_to_level: cfg.mip_to_level.clone(),
+        grids,
+        levels,
+        mlp: MlpSpec {
+            input_frac_bits: train::INPUT_FRAC_BITS,
+            pe_frequencies: cfg.pe_frequencies,
+            lod_input: cfg.lod_input,
+            layers,
+        },
+        optional_sections: vec![(source_maps::SECTION_KIND, source_maps::encode(&set.maps))],
+    })
+}

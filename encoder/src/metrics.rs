@@ -1,0 +1,150 @@
+//! Quality as the literature measures it: PSNR over all channels and the whole mip chain (the NTC
+//! paper's figure), per map and per mip, SSIM at mip 0, and bits per pixel per channel.
+
+use crate::texset::TextureSet;
+use nmat_core::{ChannelMask, Material};
+use rayon::prelude::*;
+
+/// Integer-decoded unit values of one mip, `w × h × channels`, channel fastest.
+pub fn decode_mip(m: &Material<'_>, mip: u32) -> Vec<f32> {
+    let (w, h) = m.mip_size(mip);
+    let c = m.channel_count();
+    let rows: Vec<Vec<f32>> = (0..h)
+        .into_par_iter()
+        .map(|y| {
+            let mut row = Vec::with_capacity(w as usize * c);
+            let mut buf = [0u8; 16];
+            for x in 0..w {
+                // A valid material, mask and buffer: this cannot fail.
+                let _ =
+                    m.decode_texel_u8(i64::from(x), i64::from(y), mip, ChannelMask::ALL, &mut buf);
+                row.extend(buf[..c].iter().map(|&v| f32::from(v) / 255.0));
+            }
+            row
+        })
+        .collect();
+    rows.concat()
+}
+
+/// The decoded value a channel stands for, in unit scale of its source map (constants included).
+pub fn unit_of(m: &Material<'_>, channel: usize, decoded_unit: f32) -> f32 {
+    let ch = &m.channels()[channel];
+    if ch.range_min == ch.range_max {
+        // A constant channel: its value is the range; back to the map's unit scale.
+        let role =
+            crate::texset::Role::from_semantic(ch.semantic).unwrap_or(crate::texset::Role::Albedo);
+        let (lo, hi) = role.nominal_range(ch.component);
+        (ch.range_min - lo) / (hi - lo)
+    } else {
+        decoded_unit
+    }
+}
+
+pub fn psnr(mse: f64) -> f64 {
+    if mse <= 0.0 { f64::INFINITY } else { -10.0 * mse.log10() }
+}
+
+#[derive(Clone, Debug, Default)]
+pub struct ChainQuality {
+    /// PSNR over all channels of all mips (squared errors summed over every sample).
+    pub psnr: f64,
+    /// `[mip][channel]` mean squared error.
+    pub mse: Vec<Vec<f64>>,
+    /// Mean SSIM over channels at mip 0.
+    pub ssim: f64,
+    pub bppc: f64,
+}
+
+impl ChainQuality {
+    /// PSNR of channels `channels` at `mip`, or over the chain if `mip` is `None`.
+    pub fn psnr_of(&self, channels: &[usize], mip: Option<usize>, set: &TextureSet) -> f64 {
+        let (mut sum, mut n) = (0.0, 0.0);
+        for (m, row) in self.mse.iter().enumerate() {
+            if mip.is_some_and(|k| k != m) {
+                continue;
+            }
+            let texels = f64::from(set.mips[m].width * set.mips[m].height);
+            for &c in channels {
+                sum += row[c] * texels;
+                n += texels;
+            }
+        }
+        psnr(sum / n.max(1.0))
+    }
+}
+
+/// Compares the integer decode of `m` with the source chain of `set`.
+pub fn chain_quality(m: &Material<'_>, set: &TextureSet) -> ChainQuality {
+    let c = set.channel_count();
+    let (mut total, mut count) = (0.0f64, 0.0f64);
+    let mut mse = Vec::new();
+    let mut ssim = 0.0;
+    for (mip, src) in set.mips.iter().enumerate() {
+        let decoded = decode_mip(m, mip as u32);
+        let mut per = vec![0.0f64; c];
+        for (i, (&d, &s)) in decoded.iter().zip(&src.data).enumerate() {
+            let ch = i % c;
+            let e = f64::from(unit_of(m, ch, d) - s);
+            per[ch] += e * e;
+        }
+        let n = f64::from(src.width * src.height);
+        total += per.iter().sum::<f64>();
+        count += n * c as f64;
+        mse.push(per.into_iter().map(|s| s / n).collect());
+        if mip == 0 {
+            let decoded: Vec<f32> =
+                decoded.iter().enumerate().map(|(i, &d)| unit_of(m, i % c, d)).collect();
+            ssim = (0..c)
+                .map(|ch| ssim_channel(&src.data, &decoded, src.width, src.height, c, ch))
+                .sum::<f64>()
+                / c as f64;
+        }
+    }
+    ChainQuality { psnr: psnr(total / count), mse, ssim, bppc: m.bppc() }
+}
+
+/// SSIM (Wang et al. 2004) of one channel: 11×11 Gaussian window (σ = 1.5), K1 = 0.01,
+/// K2 = 0.03, dynamic range 1, mean over the valid window positions (whole image if smaller).
+pub fn ssim_channel(a: &[f32], b: &[f32], w: u32, h: u32, stride: usize, ch: usize) -> f64 {
+    const R: i64 = 5;
+    let g: Vec<f64> = (-R..=R).map(|i| (-(i * i) as f64 / (2.0 * 1.5 * 1.5)).exp()).collect();
+    let (c1, c2) = (0.01f64.powi(2), 0.03f64.powi(2));
+    let (w, h) = (i64::from(w), i64::from(h));
+    let at = |img: &[f32], x: i64, y: i64| {
+        let (x, y) = (x.clamp(0, w - 1), y.clamp(0, h - 1));
+        f64::from(img[(y * w + x) as usize * stride + ch])
+    };
+    let (x0, x1) = if w > 2 * R { (R, w - R) } else { (0, w) };
+    let (y0, y1) = if h > 2 * R { (R, h - R) } else { (0, h) };
+    let rows: Vec<(f64, f64)> = (y0..y1)
+        .into_par_iter()
+        .map(|y| {
+            let mut sum = 0.0;
+            for x in x0..x1 {
+                let (mut wsum, mut ma, mut mb, mut aa, mut bb, mut ab) =
+                    (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+                for dy in -R..=R {
+                    for dx in -R..=R {
+                        let k = g[(dy + R) as usize] * g[(dx + R) as usize];
+                        let (va, vb) = (at(a, x + dx, y + dy), at(b, x + dx, y + dy));
+                        wsum += k;
+                        ma += k * va;
+                        mb += k * vb;
+                        aa += k * va * va;
+                        bb += k * vb * vb;
+                        ab += k * va * vb;
+                    }
+                }
+                let (ma, mb) = (ma / wsum, mb / wsum);
+                let va = aa / wsum - ma * ma;
+                let vb = bb / wsum - mb * mb;
+                let cov = ab / wsum - ma * mb;
+                sum += ((2.0 * ma * mb + c1) * (2.0 * cov + c2))
+                    / ((ma * ma + mb * mb + c1) * (va + vb + c2));
+            }
+            (sum, (x1 - x0) as f64)
+        })
+        .collect();
+    let (s, n) = rows.iter().fold((0.0, 0.0), |acc, r| (acc.0 + r.0, acc.1 + r.1));
+    s / n.max(1.0)
+}

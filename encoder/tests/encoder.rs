@@ -1,0 +1,247 @@
+//! Encoder behaviour: determinism, quality on the procedural material, agreement of the two
+//! decoders on trained files, role detection, and clear errors for bad input.
+
+use nmat_core::{ChannelMask, Container};
+use nmat_encode::texset::{self, FileLayout, LoadOptions, Role, role_from_name};
+use nmat_encode::{EncodeError, EncodeOptions, Profile, TrainOptions, demo, encode, source_maps};
+use std::path::{Path, PathBuf};
+
+fn options(profile: &str, steps: usize, seed: u64) -> EncodeOptions {
+    EncodeOptions {
+        profile: Profile::by_name(profile).unwrap(),
+        train: TrainOptions { steps, seed, ..TrainOptions::default() },
+        ..EncodeOptions::default()
+    }
+}
+
+#[test]
+fn same_inputs_seed_and_steps_give_identical_files_for_any_thread_count() {
+    let set = demo::bricks(64);
+    let opts = options("ntc-0.5", 60, 7);
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| encode(&set, &opts, &mut |_| {}).unwrap().bytes)
+    };
+    let one = run(1);
+    assert_eq!(one, run(1), "same thread count");
+    assert_eq!(one, run(2), "other thread count");
+    let other_seed = encode(&set, &options("ntc-0.5", 60, 8), &mut |_| {}).unwrap().bytes;
+    assert_ne!(one, other_seed, "the seed matters");
+}
+
+#[test]
+fn training_reaches_a_useful_quality_on_the_procedural_material() {
+    let set = demo::bricks(64);
+    for (profile, floor_db) in [("ntc-1.0", 27.0), ("nbc-0.5", 24.0)] {
+        let before = encode(&set, &options(profile, 1, 3), &mut |_| {}).unwrap().quality.psnr;
+        let after = encode(&set, &options(profile, 600, 3), &mut |_| {}).unwrap().quality.psnr;
+        eprintln!("{profile}: {before:.2} dB after 1 step, {after:.2} dB after 600");
+        assert!(after > floor_db, "{profile}: {after} dB");
+        assert!(after > before + 5.0, "{profile}: training did not help ({before} → {after})");
+    }
+}
+
+#[test]
+fn integer_and_float_decoders_agree_on_a_trained_material() {
+    let set = demo::bricks(64);
+    let out = encode(&set, &options("ntc-0.5", 300, 5), &mut |_| {}).unwrap();
+    let m = Container::parse(&out.bytes).unwrap();
+    let (mut worst, mut sum, mut n) = (0i32, 0f64, 0u64);
+    let (mut c8, mut unit) = ([0u8; 16], [0f32; 16]);
+    for mip in 0..m.mip_count() {
+        let (w, h) = m.mip_size(mip);
+        for y in 0..i64::from(h) {
+            for x in 0..i64::from(w) {
+                m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut c8).unwrap();
+                m.decode_texel_unit(x, y, mip, ChannelMask::ALL, &mut unit).unwrap();
+                for k in 0..m.channel_count() {
+                    let real = f64::from(unit[k]) * 255.0;
+                    worst = worst.max((i32::from(c8[k]) - real.round() as i32).abs());
+                    sum += f64::from(c8[k]) - real;
+                    n += 1;
+                }
+            }
+        }
+    }
+    eprintln!("trained material: max |Δ| {worst}, mean Δ {:+.4} over {n} codes", sum / n as f64);
+    assert!(worst <= 1);
+    assert!((sum / n as f64).abs() < 0.05);
+}
+
+#[test]
+fn roles_are_detected_from_common_names() {
+    let cases = [
+        ("brick_albedo.png", Some(Role::Albedo)),
+        ("Brick_Diffuse.TGA", Some(Role::Albedo)),
+        ("wall-basecolor.jpg", Some(Role::Albedo)),
+        ("wall_base_color.png", Some(Role::Albedo)),
+        ("rock_n.png", Some(Role::Normal)),
+        ("rock_nm.tga", Some(Role::Normal)),
+        ("rock_norm.png", Some(Role::Normal)),
+        ("metal_roughness.png", Some(Role::Roughness)),
+        ("metal_gloss.png", Some(Role::Gloss)),
+        ("metal_spec.png", Some(Role::Specular)),
+        ("metal_s.png", Some(Role::Specular)),
+        ("sand_height.png", Some(Role::Height)),
+        ("sand_z.png", Some(Role::Height)),
+        ("sand_bump.png", Some(Role::Height)),
+        ("sand_disp.exr.png", Some(Role::Height)),
+        ("tile_ao.png", Some(Role::Ao)),
+        ("tile_metallic.png", Some(Role::Metallic)),
+        ("lamp_glow.png", Some(Role::Emissive)),
+        ("lamp_emissive.png", Some(Role::Emissive)),
+        ("leaf_opacity.png", Some(Role::Opacity)),
+        ("rock_normal_ao.png", Some(Role::Ao)),
+        ("eX_floor_grate_03.tga", None),
+    ];
+    for (name, role) in cases {
+        assert_eq!(role_from_name(Path::new(name)), role, "{name}");
+    }
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("nmat-encoder-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn gradient_rgb(w: u32, h: u32) -> image::RgbImage {
+    image::RgbImage::from_fn(w, h, |x, y| {
+        image::Rgb([(x * 255 / w.max(1)) as u8, (y * 255 / h.max(1)) as u8, 128])
+    })
+}
+
+#[test]
+fn bad_inputs_give_errors_that_name_the_file() {
+    let dir = temp_dir("bad");
+    // Empty folder.
+    let empty = dir.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    assert!(matches!(texset::collect_inputs(&[empty]), Err(EncodeError::NoMaps { .. })));
+    // A name without a role.
+    let unnamed = dir.join("mystery.png");
+    gradient_rgb(8, 8).save(&unnamed).unwrap();
+    let e = texset::assign_roles(&[unnamed.clone()], &[]).unwrap_err();
+    assert!(e.to_string().contains("mystery.png"), "{e}");
+    // Two maps of one role.
+    let a = dir.join("a_albedo.png");
+    let b = dir.join("b_diffuse.png");
+    gradient_rgb(8, 8).save(&a).unwrap();
+    gradient_rgb(8, 8).save(&b).unwrap();
+    assert!(matches!(
+        texset::assign_roles(&[a.clone(), b], &[]),
+        Err(EncodeError::DuplicateRole { .. })
+    ));
+    // Sizes that differ, then --resize.
+    let n = dir.join("a_normal.png");
+    gradient_rgb(16, 8).save(&n).unwrap();
+    let roles = texset::assign_roles(&[a.clone(), n.clone()], &[]).unwrap();
+    let e = texset::load(&roles, &LoadOptions::default()).unwrap_err();
+    assert!(
+        matches!(e, EncodeError::SizeMismatch { ref path, size: (16, 8), expected: (8, 8), .. } if path == &n),
+        "{e}"
+    );
+    let set = texset::load(&roles, &LoadOptions { resize: true }).unwrap();
+    assert_eq!((set.width, set.height, set.channel_count()), (8, 8, 6));
+    // Not an image at all.
+    let junk = dir.join("junk_albedo.png");
+    std::fs::write(&junk, b"this is not a PNG").unwrap();
+    let e = texset::load(&[(Role::Albedo, junk.clone())], &LoadOptions::default()).unwrap_err();
+    assert!(matches!(e, EncodeError::Image { ref path, .. } if path == &junk), "{e}");
+    // A missing file.
+    let e = texset::load(&[(Role::Albedo, dir.join("missing.png"))], &LoadOptions::default())
+        .unwrap_err();
+    assert!(matches!(e, EncodeError::Io { .. }), "{e}");
+    // More than 16 channels: five RGBA maps with varying alpha.
+    let roles: Vec<(Role, PathBuf)> =
+        [Role::Albedo, Role::Normal, Role::Specular, Role::Emissive, Role::Roughness]
+            .iter()
+            .map(|&r| {
+                let p = dir.join(format!("x_{}.png", r.name()));
+                image::RgbaImage::from_fn(4, 4, |x, y| {
+                    image::Rgba([x as u8 * 9, y as u8 * 7, (x + y) as u8, (x * y) as u8 * 5])
+                })
+                .save(&p)
+                .unwrap();
+                (r, p)
+            })
+            .collect();
+    let e = texset::load(&roles, &LoadOptions::default()).unwrap_err();
+    assert!(matches!(e, EncodeError::TooManyChannels { channels: 20, limit: 16 }), "{e}");
+    // --map syntax.
+    assert!(matches!(
+        texset::parse_map_argument("albedo"),
+        Err(EncodeError::BadMapArgument { .. })
+    ));
+    assert!(matches!(
+        texset::parse_map_argument("colour=x.png"),
+        Err(EncodeError::BadMapArgument { .. })
+    ));
+    assert_eq!(texset::parse_map_argument("AO=x.png").unwrap(), (Role::Ao, PathBuf::from("x.png")));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn pixel_formats_are_packed_as_documented() {
+    let dir = temp_dir("formats");
+    // 16-bit gray, palette PNG (expanded to RGB), gray stored as RGB, constant alpha, constant map.
+    let h16 = dir.join("s_height.png");
+    image::ImageBuffer::<image::Luma<u16>, _>::from_fn(8, 8, |x, y| {
+        image::Luma([(x * 8000 + y * 100) as u16])
+    })
+    .save(&h16)
+    .unwrap();
+    let gloss = dir.join("s_gloss.png");
+    image::RgbImage::from_fn(8, 8, |x, _| image::Rgb([x as u8 * 30; 3])).save(&gloss).unwrap();
+    let albedo = dir.join("s_albedo.png");
+    image::RgbaImage::from_fn(8, 8, |x, y| image::Rgba([x as u8 * 20, y as u8 * 20, 3, 255]))
+        .save(&albedo)
+        .unwrap();
+    let ao = dir.join("s_ao.png");
+    image::GrayImage::from_pixel(8, 8, image::Luma([200])).save(&ao).unwrap();
+    let roles =
+        texset::assign_roles(&texset::collect_inputs(&[dir.clone()]).unwrap(), &[]).unwrap();
+    let set = texset::load(&roles, &LoadOptions::default()).unwrap();
+    let names: Vec<&str> = set.channels.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(names, ["albedo.r", "albedo.g", "albedo.b", "gloss", "height", "ao"]);
+    let by_role = |r: Role| set.maps.iter().find(|m| m.role == r).unwrap();
+    assert_eq!(by_role(Role::Albedo).alpha_value, Some(255), "constant alpha is noted, not stored");
+    assert_eq!(by_role(Role::Albedo).layout, FileLayout::Rgba);
+    assert!(by_role(Role::Gloss).gray_rgb, "R = G = B is one channel");
+    assert!(by_role(Role::Height).sixteen_bit);
+    assert_eq!(
+        set.channels[5].constant,
+        Some(200.0 / 255.0),
+        "a constant map is a constant channel"
+    );
+    assert_eq!(set.channels[2].constant, Some(3.0 / 255.0));
+    assert_eq!(set.mips.len(), 4);
+    assert_eq!(set.learned_channels(), vec![0, 1, 3, 4]);
+    // The encoded file keeps the constants exactly and the layout in SOURCE_MAPS.
+    let out = encode(&set, &options("ntc-0.5", 20, 1), &mut |_| {}).unwrap();
+    let m = Container::parse(&out.bytes).unwrap();
+    assert_eq!(
+        (m.channels()[5].range_min, m.channels()[5].range_max),
+        (200.0 / 255.0, 200.0 / 255.0)
+    );
+    let mut v = [0f32; 1];
+    m.decode_texel(3, 3, 1, ChannelMask::single(5), &mut v).unwrap();
+    assert_eq!(v[0], 200.0 / 255.0);
+    let maps = source_maps::decode(
+        m.optional_section(nmat_core::SectionKind(source_maps::SECTION_KIND)).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(maps, set.maps);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn source_maps_never_name_a_path() {
+    let mut maps = demo::bricks(32).maps;
+    maps[0].file_name = "../evil.png".into();
+    assert_eq!(source_maps::decode(&source_maps::encode(&maps)), None);
+    maps[0].file_name = "ok.png".into();
+    assert_eq!(source_maps::decode(&source_maps::encode(&maps)).unwrap(), maps);
+    assert_eq!(source_maps::decode(&[1, 0, 5, 0]), None, "count beyond the bytes");
+}
