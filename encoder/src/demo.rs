@@ -46,7 +46,7 @@ pub fn bricks(size: u32) -> TextureSet {
             tint[i] = hash(bx as i64 % 4, by as i64, 9) * mortar;
         }
     }
-    let mut planes: Vec<Vec<f32>> = vec![Vec::with_capacity(n); 8];
+    let mut planes: Vec<Vec<f32>> = (0..8).map(|_| Vec::with_capacity(n)).collect();
     let s = size as i64;
     for y in 0..s {
         for x in 0..s {

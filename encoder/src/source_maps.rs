@@ -20,9 +20,9 @@ pub fn encode(maps: &[SourceMap]) -> Vec<u8> {
     for m in maps {
         let name = m.file_name.as_bytes();
         let name = &name[..name.len().min(255)];
-        let flags = u8::from(m.gray_rgb) * GRAY_RGB
-            | u8::from(m.alpha_value.is_some()) * CONSTANT_ALPHA
-            | u8::from(m.sixteen_bit) * SIXTEEN_BIT;
+        let flags = (u8::from(m.gray_rgb) * GRAY_RGB)
+            | (u8::from(m.alpha_value.is_some()) * CONSTANT_ALPHA)
+            | (u8::from(m.sixteen_bit) * SIXTEEN_BIT);
         out.extend_from_slice(&[
             m.role.semantic().0,
             m.layout as u8,

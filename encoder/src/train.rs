@@ -86,7 +86,7 @@ impl Rng {
         (self.next() >> 40) as f32 / (1u64 << 24) as f32
     }
     fn below(&mut self, n: u32) -> u32 {
-        ((self.next() >> 32) * u64::from(n) >> 32) as u32
+        (((self.next() >> 32) * u64::from(n)) >> 32) as u32
     }
 }
 

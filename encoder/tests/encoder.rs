@@ -122,7 +122,7 @@ fn bad_inputs_give_errors_that_name_the_file() {
     // A name without a role.
     let unnamed = dir.join("mystery.png");
     gradient_rgb(8, 8).save(&unnamed).unwrap();
-    let e = texset::assign_roles(&[unnamed.clone()], &[]).unwrap_err();
+    let e = texset::assign_roles(std::slice::from_ref(&unnamed), &[]).unwrap_err();
     assert!(e.to_string().contains("mystery.png"), "{e}");
     // Two maps of one role.
     let a = dir.join("a_albedo.png");
@@ -201,7 +201,8 @@ fn pixel_formats_are_packed_as_documented() {
     let ao = dir.join("s_ao.png");
     image::GrayImage::from_pixel(8, 8, image::Luma([200])).save(&ao).unwrap();
     let roles =
-        texset::assign_roles(&texset::collect_inputs(&[dir.clone()]).unwrap(), &[]).unwrap();
+        texset::assign_roles(&texset::collect_inputs(std::slice::from_ref(&dir)).unwrap(), &[])
+            .unwrap();
     let set = texset::load(&roles, &LoadOptions::default()).unwrap();
     let names: Vec<&str> = set.channels.iter().map(|c| c.name.as_str()).collect();
     assert_eq!(names, ["albedo.r", "albedo.g", "albedo.b", "gloss", "height", "ao"]);

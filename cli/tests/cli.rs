@@ -1,0 +1,268 @@
+//! The `nmat` binary end to end: encode → info → decode → eval, determinism across thread counts,
+//! and bad input that fails cleanly without leaving partial files.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn nmat(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_nmat")).args(args).output().expect("run nmat")
+}
+
+fn text(o: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("nmat-cli-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Writes the procedural brick material's mip 0 as PNG maps.
+fn write_maps(dir: &Path, size: u32) {
+    let set = nmat_encode::demo::bricks(size);
+    let mip = &set.mips[0];
+    let c = set.channel_count();
+    let plane = |k: usize| -> Vec<u8> {
+        (0..(size * size) as usize).map(|i| (mip.data[i * c + k] * 255.0).round() as u8).collect()
+    };
+    let rgb = |k: usize| -> Vec<u8> {
+        let (r, g, b) = (plane(k), plane(k + 1), plane(k + 2));
+        (0..r.len()).flat_map(|i| [r[i], g[i], b[i]]).collect()
+    };
+    image::RgbImage::from_raw(size, size, rgb(0))
+        .unwrap()
+        .save(dir.join("bricks_albedo.png"))
+        .unwrap();
+    image::RgbImage::from_raw(size, size, rgb(3))
+        .unwrap()
+        .save(dir.join("bricks_normal.png"))
+        .unwrap();
+    image::GrayImage::from_raw(size, size, plane(6))
+        .unwrap()
+        .save(dir.join("bricks_roughness.png"))
+        .unwrap();
+    image::GrayImage::from_raw(size, size, plane(7))
+        .unwrap()
+        .save(dir.join("bricks_height.png"))
+        .unwrap();
+}
+
+fn files_in(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn encode_info_decode_eval_round_trip() {
+    let dir = temp_dir("roundtrip");
+    let src = dir.join("src");
+    std::fs::create_dir_all(&src).unwrap();
+    write_maps(&src, 64);
+    let file = dir.join("bricks.nmat");
+    let o = nmat(&[
+        "encode",
+        src.to_str().unwrap(),
+        "-o",
+        file.to_str().unwrap(),
+        "--steps",
+        "200",
+        "--profile",
+        "ntc-1.0",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("overall: PSNR"), "{}", text(&o));
+
+    let o = nmat(&["info", file.to_str().unwrap()]);
+    let info = text(&o);
+    assert!(o.status.success(), "{info}");
+    for needle in [
+        "64×64",
+        "7 mips",
+        "8 channels",
+        "bricks_normal.png",
+        "bits per pixel per channel",
+        "latent grids",
+    ] {
+        assert!(info.contains(needle), "info lacks {needle}: {info}");
+    }
+
+    let out = dir.join("out");
+    let o = nmat(&["decode", file.to_str().unwrap(), "-o", out.to_str().unwrap(), "--mip", "all"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let written = files_in(&out);
+    assert_eq!(written.len(), 4 * 7, "{written:?}");
+    for name in ["bricks_albedo_mip0.png", "bricks_height_mip6.png", "bricks_normal_mip3.png"] {
+        assert!(written.contains(&name.to_string()), "{name} in {written:?}");
+    }
+    let albedo = image::open(out.join("bricks_albedo_mip1.png")).unwrap();
+    assert_eq!((albedo.width(), albedo.height(), albedo.color()), (32, 32, image::ColorType::Rgb8));
+    let rough = image::open(out.join("bricks_roughness_mip0.png")).unwrap();
+    assert_eq!(rough.color(), image::ColorType::L8, "gray maps stay gray");
+
+    let out0 = dir.join("out0");
+    let o = nmat(&["decode", file.to_str().unwrap(), "-o", out0.to_str().unwrap(), "--float"]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert_eq!(
+        files_in(&out0),
+        ["bricks_albedo.png", "bricks_height.png", "bricks_normal.png", "bricks_roughness.png"]
+    );
+
+    let o = nmat(&["eval", file.to_str().unwrap(), "--ref", src.to_str().unwrap()]);
+    let report = text(&o);
+    assert!(o.status.success(), "{report}");
+    let psnr: f64 = report
+        .split("overall: PSNR ")
+        .nth(1)
+        .and_then(|r| r.split(' ').next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("{report}"));
+    // Plumbing, not quality (the encoder tests judge training): well above a broken pipeline.
+    assert!(psnr > 20.0, "{report}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_file_does_not_depend_on_the_thread_count() {
+    let dir = temp_dir("threads");
+    write_maps(&dir, 32);
+    let a = dir.join("a.nmat");
+    let b = dir.join("b.nmat");
+    let args = |out: &Path, threads: &str| {
+        vec![
+            "encode".to_string(),
+            dir.to_str().unwrap().to_string(),
+            "-o".into(),
+            out.to_str().unwrap().into(),
+            "--steps".into(),
+            "40".into(),
+            "--seed".into(),
+            "11".into(),
+            "--threads".into(),
+            threads.into(),
+        ]
+    };
+    let run = |v: Vec<String>| nmat(&v.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(run(args(&a, "1")).status.success());
+    assert!(run(args(&b, "2")).status.success());
+    assert!(
+        std::fs::read(&a).unwrap() == std::fs::read(&b).unwrap(),
+        "1 and 2 threads gave different files"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn bad_input_fails_cleanly_and_writes_nothing() {
+    let dir = temp_dir("bad");
+    let out = dir.join("never.nmat");
+    let empty = dir.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let cases: Vec<(Vec<String>, &str)> = vec![
+        (
+            vec![
+                "encode".into(),
+                empty.to_str().unwrap().into(),
+                "-o".into(),
+                out.to_str().unwrap().into(),
+            ],
+            "no image maps",
+        ),
+        (
+            vec![
+                "encode".into(),
+                dir.join("nope").to_str().unwrap().into(),
+                "-o".into(),
+                out.to_str().unwrap().into(),
+            ],
+            "nope",
+        ),
+        (
+            vec![
+                "encode".into(),
+                "--map".into(),
+                "colour=x.png".into(),
+                "-o".into(),
+                out.to_str().unwrap().into(),
+            ],
+            "--map colour=x.png",
+        ),
+        (
+            vec![
+                "encode".into(),
+                empty.to_str().unwrap().into(),
+                "-o".into(),
+                out.to_str().unwrap().into(),
+                "--profile".into(),
+                "ntc-9".into(),
+            ],
+            "no image maps",
+        ),
+        (
+            vec![
+                "encode".into(),
+                empty.to_str().unwrap().into(),
+                "-o".into(),
+                out.to_str().unwrap().into(),
+                "--steps".into(),
+                "0".into(),
+            ],
+            "no image maps",
+        ),
+    ];
+    for (args, needle) in cases {
+        let o = nmat(&args.iter().map(String::as_str).collect::<Vec<_>>());
+        assert!(!o.status.success(), "{args:?} succeeded");
+        assert!(text(&o).contains(needle), "{args:?}: {}", text(&o));
+    }
+    // A corrupt map: an error naming it, and no output (not even a temporary file).
+    let maps = dir.join("maps");
+    std::fs::create_dir_all(&maps).unwrap();
+    std::fs::write(maps.join("wall_albedo.png"), b"\x89PNG\r\n\x1a\ngarbage").unwrap();
+    let o = nmat(&["encode", maps.to_str().unwrap(), "-o", out.to_str().unwrap(), "--steps", "5"]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("wall_albedo.png"), "{}", text(&o));
+    assert!(!out.exists());
+    assert!(files_in(&dir).iter().all(|f| !f.contains(".tmp")), "{:?}", files_in(&dir));
+    // A corrupt .nmat names the problem; a mip out of range is refused.
+    let bad = dir.join("bad.nmat");
+    std::fs::write(&bad, b"NMAT but not really").unwrap();
+    let o = nmat(&["info", bad.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("truncated"), "{}", text(&o));
+    write_maps(&maps, 16);
+    std::fs::remove_file(maps.join("wall_albedo.png")).unwrap();
+    let good = dir.join("good.nmat");
+    assert!(
+        nmat(&["encode", maps.to_str().unwrap(), "-o", good.to_str().unwrap(), "--steps", "5"])
+            .status
+            .success()
+    );
+    let o = nmat(&[
+        "decode",
+        good.to_str().unwrap(),
+        "-o",
+        dir.join("o").to_str().unwrap(),
+        "--mip",
+        "99",
+    ]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("--mip 99"), "{}", text(&o));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn demo_runs_end_to_end() {
+    let dir = temp_dir("demo");
+    let o = nmat(&["demo", "-o", dir.to_str().unwrap(), "--steps", "30"]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("overall: PSNR"), "{}", text(&o));
+    assert!(dir.join("demo.nmat").is_file());
+    assert!(dir.join("bricks_albedo.png").is_file());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
