@@ -41,7 +41,7 @@ pub struct TrainOptions {
 
 impl Default for TrainOptions {
     fn default() -> Self {
-        TrainOptions { steps: DEFAULT_STEPS, batch: 2048, seed: 1, lr_mlp: 4e-3, lr_latents: 3e-2 }
+        TrainOptions { steps: DEFAULT_STEPS, batch: 2048, seed: 1, lr_mlp: 1e-2, lr_latents: 2e-2 }
     }
 }
 

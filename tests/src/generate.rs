@@ -214,7 +214,9 @@ fn random_layer(
         .enumerate()
         .map(|(i, &w)| {
             let s = scales[i / usize::from(inputs)];
-            f16::from_f64(f64::from(w) * f64::from(s))
+            // f32 product, one rounding to f16: `half` converts f64 → f16 differently with and
+            // without its `std` feature (hardware F16C goes through f32), f32 → f16 identically.
+            f16::from_f32(f32::from(w) * s)
         })
         .collect();
     let float_bias = bias
