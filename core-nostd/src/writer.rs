@@ -64,6 +64,48 @@ pub struct LayerSpec {
     pub float_bias: Vec<f32>,
 }
 
+impl LayerSpec {
+    /// A layer whose float parameters are its dequantized integer ones — `f16(code · scale)` and
+    /// `bias · scale · 2^−in_frac_bits` — as quantization-aware training leaves them: the float and
+    /// integer decoders then model one network and differ only in arithmetic (FORMAT.md §5.3).
+    #[allow(clippy::too_many_arguments)] // every field of the layer but the derived ones
+    pub fn from_quantized(
+        inputs: u16,
+        outputs: u16,
+        in_frac_bits: u8,
+        out_frac_bits: u8,
+        activation: Activation,
+        weights_i8: Vec<i8>,
+        scales: Vec<f32>,
+        bias: Vec<i32>,
+    ) -> LayerSpec {
+        let n = usize::from(inputs.max(1));
+        // One f32 product, one rounding to f16 (identical with and without hardware F16C).
+        let weights_f16 = weights_i8
+            .iter()
+            .enumerate()
+            .map(|(i, &w)| f16::from_f32(f32::from(w) * scales.get(i / n).copied().unwrap_or(0.0)))
+            .collect();
+        let lsb = 1.0 / f64::from(1u32 << in_frac_bits.min(31));
+        let float_bias = bias
+            .iter()
+            .zip(&scales)
+            .map(|(&b, &s)| (f64::from(b) * f64::from(s) * lsb) as f32)
+            .collect();
+        LayerSpec {
+            inputs,
+            outputs,
+            out_frac_bits,
+            activation,
+            weights_i8,
+            scales,
+            bias,
+            weights_f16,
+            float_bias,
+        }
+    }
+}
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct MlpSpec {
     pub input_frac_bits: u8,

@@ -11,7 +11,6 @@
 
 use crate::profile::ModelConfig;
 use crate::texset::TextureSet;
-use half::f16;
 use nmat_core::latents::footprint;
 use nmat_core::posenc::triangle_q;
 use nmat_core::{Activation, AddressMode, LayerSpec, TermMode};
@@ -657,42 +656,32 @@ pub fn export_layer(
     let min_scale = 2f32.powi(-30 + i32::from(in_frac) - i32::from(out_frac));
     let in_lsb = 1.0 / f64::from(1u32 << in_frac);
     let bias_limit = f64::from(i32::MAX) - n as f64 * 127.0 * 32768.0;
-    let (mut weights_i8, mut scales, mut bias, mut weights_f16, mut float_bias) =
-        (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut weights_i8, mut scales, mut bias) = (Vec::new(), Vec::new(), Vec::new());
     for row in out_rows {
         match row {
             Some(o) => {
                 let w = &l.w[o * n..(o + 1) * n];
                 let s = row_scale(w, min_scale);
-                let q: Vec<i8> =
-                    w.iter().map(|v| (v / s).round().clamp(-127.0, 127.0) as i8).collect();
-                let b = (f64::from(l.b[*o]) / (f64::from(s) * in_lsb))
-                    .round()
-                    .clamp(-bias_limit, bias_limit);
-                weights_f16.extend(q.iter().map(|&v| f16::from_f32(f32::from(v) * s)));
-                float_bias.push((b * f64::from(s) * in_lsb) as f32);
-                weights_i8.extend(q);
+                weights_i8.extend(w.iter().map(|v| (v / s).round().clamp(-127.0, 127.0) as i8));
+                let b = (f64::from(l.b[*o]) / (f64::from(s) * in_lsb)).round();
+                bias.push(b.clamp(-bias_limit, bias_limit) as i32);
                 scales.push(s);
-                bias.push(b as i32);
             }
             None => {
                 weights_i8.extend(std::iter::repeat_n(0i8, n));
-                weights_f16.extend(std::iter::repeat_n(f16::ZERO, n));
                 scales.push(0.0);
                 bias.push(0);
-                float_bias.push(0.0);
             }
         }
     }
-    LayerSpec {
-        inputs: n as u16,
-        outputs: out_rows.len() as u16,
-        out_frac_bits: out_frac,
+    LayerSpec::from_quantized(
+        n as u16,
+        out_rows.len() as u16,
+        in_frac,
+        out_frac,
         activation,
         weights_i8,
         scales,
         bias,
-        weights_f16,
-        float_bias,
-    }
+    )
 }

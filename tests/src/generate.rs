@@ -3,7 +3,6 @@
 //! leave them: int8 codes with per-row scales, and float weights equal to `f16(code · scale)`, so
 //! the float and integer decoders model the same network and their difference is arithmetic only.
 
-use half::f16;
 use nmat_core::{
     Activation, AddressMode, ChannelSpec, ColorSpace, GridSpec, LayerSpec, LevelSpec, MaterialSpec,
     MlpSpec, Semantic, TermMode, TermSpec,
@@ -209,32 +208,9 @@ fn random_layer(
         .iter()
         .map(|&s| ((center + 0.2 * (rng.unit() - 0.5)) / (f64::from(s) * in_lsb)).round() as i32)
         .collect();
-    let weights_f16 = weights_i8
-        .iter()
-        .enumerate()
-        .map(|(i, &w)| {
-            let s = scales[i / usize::from(inputs)];
-            // f32 product, one rounding to f16: `half` converts f64 → f16 differently with and
-            // without its `std` feature (hardware F16C goes through f32), f32 → f16 identically.
-            f16::from_f32(f32::from(w) * s)
-        })
-        .collect();
-    let float_bias = bias
-        .iter()
-        .zip(&scales)
-        .map(|(&b, &s)| (f64::from(b) * f64::from(s) * in_lsb) as f32)
-        .collect();
-    LayerSpec {
-        inputs,
-        outputs,
-        out_frac_bits: out_frac,
-        activation,
-        weights_i8,
-        scales,
-        bias,
-        weights_f16,
-        float_bias,
-    }
+    LayerSpec::from_quantized(
+        inputs, outputs, in_frac, out_frac, activation, weights_i8, scales, bias,
+    )
 }
 
 const CHANNEL_NAMES: [(&str, Semantic, ColorSpace); 16] = [
