@@ -130,3 +130,20 @@ fn integer_decoder_is_within_one_code_of_the_float_decoder() {
     }
     assert!((sum / total as f64).abs() < 0.05, "pooled mean Δ = {}", sum / total as f64);
 }
+
+/// The C tests (`bindings-c/tests/test_nmat.c`) compare the C API's output with committed bytes;
+/// this keeps those bytes equal to the Rust integer decoder of the same fixture (which the test
+/// above checks against the reference decoder).
+#[test]
+fn c_test_expectations_match_the_rust_decoder() {
+    let name = "ntc_16ch_8bit_32";
+    let bytes = std::fs::read(fixtures_dir().join(format!("{name}.nmat"))).unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    let decoded = decode_all_u8(&m);
+    let path = fixtures_dir().join(format!("../../bindings-c/tests/data/{name}.u8"));
+    if bless() {
+        std::fs::write(&path, &decoded).unwrap();
+    }
+    let committed = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    assert!(committed == decoded, "{} differs from the decoder's output", path.display());
+}

@@ -1,0 +1,257 @@
+/* Tests of the nmat C API. Compiled as C99 and as C++17, run under ASan+UBSan and valgrind
+ * (see ../Makefile). Usage: test_nmat FIXTURE.nmat EXPECTED.u8
+ * EXPECTED holds the Rust integer decoder's 8-bit codes of every channel of every texel of every
+ * mip of FIXTURE (kept equal by tests/tests/golden.rs). */
+#include "nmat.h"
+
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static int failures = 0;
+#define CHECK(cond)                                                              \
+    do {                                                                         \
+        if (!(cond)) {                                                           \
+            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond); \
+            failures++;                                                          \
+        }                                                                        \
+    } while (0)
+#define CHECK_STATUS(call, expected) CHECK((call) == (expected))
+
+static uint8_t *read_file(const char *path, size_t *len) {
+    FILE *f = fopen(path, "rb");
+    uint8_t *data = NULL;
+    long size;
+    if (!f) return NULL;
+    if (fseek(f, 0, SEEK_END) == 0 && (size = ftell(f)) >= 0 && fseek(f, 0, SEEK_SET) == 0) {
+        data = (uint8_t *)malloc((size_t)size + 1);
+        if (data && fread(data, 1, (size_t)size, f) != (size_t)size) {
+            free(data);
+            data = NULL;
+        }
+        *len = (size_t)size;
+    }
+    fclose(f);
+    return data;
+}
+
+/* Decodes every texel of every mip (all channels) and compares with the expected codes. */
+static int matches_expected(const nmat_material *m, const uint8_t *expected, size_t expected_len) {
+    nmat_info info;
+    size_t at = 0;
+    uint32_t mip, x, y;
+    uint8_t texel[16];
+    if (nmat_material_info(m, &info) != NMAT_OK) return 0;
+    for (mip = 0; mip < info.mip_count; mip++) {
+        uint32_t w, h;
+        if (nmat_mip_size(m, mip, &w, &h) != NMAT_OK) return 0;
+        for (y = 0; y < h; y++) {
+            for (x = 0; x < w; x++) {
+                if (nmat_decode_texel_u8(m, x, y, mip, 0xFFFF, texel, sizeof texel) != NMAT_OK) return 0;
+                if (at + info.channel_count > expected_len) return 0;
+                if (memcmp(texel, expected + at, info.channel_count) != 0) return 0;
+                at += info.channel_count;
+            }
+        }
+    }
+    return at == expected_len;
+}
+
+typedef struct {
+    const nmat_material *m;
+    const uint8_t *expected;
+    size_t expected_len;
+    int ok;
+} thread_job;
+
+static void *decode_in_thread(void *arg) {
+    thread_job *job = (thread_job *)arg;
+    job->ok = matches_expected(job->m, job->expected, job->expected_len);
+    return NULL;
+}
+
+static void test_version(void) {
+    CHECK(nmat_version() == NMAT_VERSION);
+    CHECK(NMAT_VERSION == ((NMAT_VERSION_MAJOR << 16) | (NMAT_VERSION_MINOR << 8) | NMAT_VERSION_PATCH));
+    CHECK(NMAT_VERSION_MAJOR == 0 && NMAT_VERSION_MINOR == 1 && NMAT_VERSION_PATCH == 0);
+}
+
+static void test_messages(void) {
+    char buf[64];
+    size_t need = nmat_status_message(NMAT_CHECKSUM_MISMATCH, NULL, 0);
+    CHECK(need == strlen("the .nmat data is corrupted (checksum mismatch)") + 1);
+    CHECK(nmat_status_message(NMAT_CHECKSUM_MISMATCH, (uint8_t *)buf, sizeof buf) == need);
+    CHECK(strcmp(buf, "the .nmat data is corrupted (checksum mismatch)") == 0);
+    CHECK(nmat_status_message(NMAT_OK, (uint8_t *)buf, 4) == 8);
+    CHECK(strcmp(buf, "suc") == 0); /* truncated, still NUL-terminated */
+    CHECK(nmat_status_message(12345, (uint8_t *)buf, sizeof buf) > 1);
+    CHECK(strcmp(buf, "unknown nmat_status") == 0);
+}
+
+static void test_bad_files(const uint8_t *good, size_t len) {
+    nmat_material *m = (nmat_material *)&m; /* must be overwritten with NULL on failure */
+    uint8_t *copy = (uint8_t *)malloc(len);
+    char detail[256];
+    CHECK_STATUS(nmat_material_open(NULL, 10, &m), NMAT_NULL_ARGUMENT);
+    CHECK_STATUS(nmat_material_open(good, len, NULL), NMAT_NULL_ARGUMENT);
+    CHECK_STATUS(nmat_material_open(good, 20, &m), NMAT_TRUNCATED);
+    CHECK(m == NULL);
+    CHECK_STATUS(nmat_material_open((const uint8_t *)"JUNKJUNKJUNKJUNKJUNKJUNKJUNKJUNKJUNK", 36, &m), NMAT_MALFORMED);
+    CHECK(m == NULL);
+    CHECK(nmat_last_error((uint8_t *)detail, sizeof detail) > 1);
+    CHECK(strstr(detail, "Magic") != NULL);
+    memcpy(copy, good, len);
+    copy[len / 2] ^= 0x40;
+    CHECK_STATUS(nmat_material_open(copy, len, &m), NMAT_CHECKSUM_MISMATCH);
+    CHECK(m == NULL);
+    nmat_material_free(NULL); /* accepted */
+    free(copy);
+}
+
+static void test_arguments(const nmat_material *m) {
+    uint8_t codes[16];
+    float values[16];
+    float rnd[3] = {0.5f, 0.5f, 0.5f};
+    uint8_t region[64];
+    size_t row = 0, total = 0;
+    nmat_info info;
+    nmat_channel_info ch;
+    uint32_t w, h;
+    CHECK_STATUS(nmat_material_info(NULL, &info), NMAT_NULL_ARGUMENT);
+    CHECK_STATUS(nmat_material_info(m, NULL), NMAT_NULL_ARGUMENT);
+    CHECK_STATUS(nmat_material_channel(m, 16, &ch), NMAT_BAD_ARGUMENT);
+    CHECK_STATUS(nmat_mip_size(m, 99, &w, &h), NMAT_BAD_ARGUMENT);
+    CHECK_STATUS(nmat_mip_size(m, 0, NULL, &h), NMAT_NULL_ARGUMENT);
+    CHECK_STATUS(nmat_decode_texel_u8(NULL, 0, 0, 0, 1, codes, 16), NMAT_NULL_ARGUMENT);
+    CHECK_STATUS(nmat_decode_texel_u8(m, 0, 0, 0, 1, NULL, 16), NMAT_NULL_ARGUMENT);
+    CHECK_STATUS(nmat_decode_texel_u8(m, 0, 0, 0, 0, codes, 16), NMAT_BAD_ARGUMENT);
+    CHECK_STATUS(nmat_decode_texel_u8(m, 0, 0, 0, 1u << 16, codes, 16), NMAT_BAD_ARGUMENT);
+    CHECK_STATUS(nmat_decode_texel_u8(m, 0, 0, 0, 0xFFFF, codes, 15), NMAT_BUFFER_TOO_SMALL);
+    CHECK_STATUS(nmat_decode_texel_u8(m, 0, 0, 99, 1, codes, 16), NMAT_BAD_ARGUMENT);
+    CHECK_STATUS(nmat_decode_texel(m, 0, 0, 0, 1, 7, values, 16), NMAT_BAD_ARGUMENT);
+    CHECK_STATUS(nmat_decode_texel(m, 0, 0, 0, 0xFFFF, NMAT_MODE_FLOAT, values, 3), NMAT_BUFFER_TOO_SMALL);
+    CHECK_STATUS(nmat_sample(m, 0.5f, 0.5f, 0.0f, 9, NMAT_MODE_FLOAT, rnd, 1, values, 16), NMAT_BAD_ARGUMENT);
+    CHECK_STATUS(nmat_sample(m, 0.5f, 0.5f, 0.0f, NMAT_FILTER_STOCHASTIC, NMAT_MODE_FLOAT, NULL, 1, values, 16), NMAT_NULL_ARGUMENT);
+    CHECK_STATUS(nmat_sample(m, 0.5f, 0.5f, 0.0f, NMAT_FILTER_BILINEAR, NMAT_MODE_FLOAT, NULL, 1, values, 16), NMAT_OK);
+    CHECK_STATUS(nmat_required_size(m, 0xFFFFFFFFu, 0xFFFFFFFFu, 0xFFFF, (size_t)-1, 0, &row, &total), NMAT_SIZE_OVERFLOW);
+    CHECK_STATUS(nmat_required_size(m, 4, 2, 0x3, 1, 0, &row, &total), NMAT_OK);
+    CHECK(row == 8 && total == 16);
+    CHECK_STATUS(nmat_required_size(m, 4, 2, 0x3, 1, 20, &row, &total), NMAT_OK);
+    CHECK(row == 8 && total == 28);
+    CHECK_STATUS(nmat_required_size(m, 4, 2, 0x3, 1, 7, &row, &total), NMAT_BUFFER_TOO_SMALL);
+    CHECK_STATUS(nmat_decode_region_u8(m, 0, 30, 0, 4, 2, 0x3, region, 0, sizeof region), NMAT_BAD_ARGUMENT);
+    CHECK_STATUS(nmat_decode_region_u8(m, 0, 0, 0, 4, 2, 0x3, region, 0, 15), NMAT_BUFFER_TOO_SMALL);
+    CHECK_STATUS(nmat_decode_region_u8(m, 0, 0, 0, 4, 2, 0x3, region, 7, sizeof region), NMAT_BUFFER_TOO_SMALL);
+    CHECK_STATUS(nmat_decode_region_u8(m, 0, 0, 0, 4, 2, 0x3, NULL, 0, sizeof region), NMAT_NULL_ARGUMENT);
+    CHECK_STATUS(nmat_decode_region_f32(m, 0, 0, 0, 2, 2, 0x3, NMAT_MODE_FLOAT, values, 6, sizeof values), NMAT_BAD_ARGUMENT);
+}
+
+static void test_decoding(const nmat_material *m, const uint8_t *expected, size_t expected_len) {
+    nmat_info info;
+    nmat_channel_info ch;
+    uint8_t codes[16], one[1];
+    float values[16], sampled[16];
+    uint8_t region[32 * 8 * 2 + 64];
+    uint32_t x, y;
+    CHECK_STATUS(nmat_material_info(m, &info), NMAT_OK);
+    CHECK(info.width == 32 && info.height == 32 && info.mip_count == 6 && info.channel_count == 16);
+    CHECK(info.bppc > 0.0);
+    CHECK_STATUS(nmat_material_channel(m, 0, &ch), NMAT_OK);
+    CHECK(strcmp((const char *)ch.name, "albedo.r") == 0 && ch.semantic == 1 && ch.color_space == 1);
+    CHECK(matches_expected(m, expected, expected_len));
+    /* A channel subset is the same bytes as the full decode. */
+    CHECK_STATUS(nmat_decode_texel_u8(m, 5, 9, 1, 0xFFFF, codes, 16), NMAT_OK);
+    CHECK_STATUS(nmat_decode_texel_u8(m, 5, 9, 1, 1u << 7, one, 1), NMAT_OK);
+    CHECK(one[0] == codes[7]);
+    /* Integer mode through the float API: codes mapped into the channel ranges. */
+    CHECK_STATUS(nmat_decode_texel(m, 5, 9, 1, 0xFFFF, NMAT_MODE_INTEGER, values, 16), NMAT_OK);
+    CHECK_STATUS(nmat_material_channel(m, 7, &ch), NMAT_OK);
+    CHECK(values[7] == ch.range_min * (1.0f - codes[7] / 255.0f) + ch.range_max * (codes[7] / 255.0f));
+    /* Coordinates wrap (the fixture wraps): x = -1 is x = 15 at mip 1 (16 wide). */
+    CHECK_STATUS(nmat_decode_texel_u8(m, -1, 9, 1, 0xFFFF, codes, 16), NMAT_OK);
+    {
+        uint8_t again[16];
+        CHECK_STATUS(nmat_decode_texel_u8(m, 15, 9, 1, 0xFFFF, again, 16), NMAT_OK);
+        CHECK(memcmp(again, codes, 16) == 0);
+    }
+    /* Nearest sampling at a texel centre is that texel. */
+    CHECK_STATUS(nmat_decode_texel(m, 3, 4, 0, 0x7, NMAT_MODE_FLOAT, values, 16), NMAT_OK);
+    CHECK_STATUS(nmat_sample(m, 3.5f / 32, 4.5f / 32, 0.0f, NMAT_FILTER_NEAREST, NMAT_MODE_FLOAT, NULL, 0x7, sampled, 16), NMAT_OK);
+    CHECK(memcmp(values, sampled, 3 * sizeof(float)) == 0);
+    /* A region with a padded row pitch equals per-texel decodes. */
+    CHECK_STATUS(nmat_decode_region_u8(m, 0, 8, 3, 32 - 8, 8, 0x3, region, 2 * 24 + 16, sizeof region), NMAT_OK);
+    for (y = 0; y < 8; y++) {
+        for (x = 0; x < 24; x++) {
+            CHECK_STATUS(nmat_decode_texel_u8(m, 8 + x, 3 + y, 0, 0x3, codes, 2), NMAT_OK);
+            CHECK(region[y * (2 * 24 + 16) + 2 * x] == codes[0] && region[y * (2 * 24 + 16) + 2 * x + 1] == codes[1]);
+        }
+    }
+    {
+        float fregion[4 * 2 * 3];
+        CHECK_STATUS(nmat_decode_region_f32(m, 2, 1, 1, 4, 2, 0x7, NMAT_MODE_FLOAT, fregion, 0, sizeof fregion), NMAT_OK);
+        CHECK_STATUS(nmat_decode_texel(m, 4, 2, 2, 0x7, NMAT_MODE_FLOAT, values, 3), NMAT_OK);
+        CHECK(memcmp(&fregion[(1 * 4 + 3) * 3], values, 3 * sizeof(float)) == 0);
+    }
+}
+
+static void test_threads(const nmat_material *m, const uint8_t *expected, size_t expected_len) {
+    pthread_t threads[4];
+    thread_job jobs[4];
+    int i;
+    for (i = 0; i < 4; i++) {
+        jobs[i].m = m;
+        jobs[i].expected = expected;
+        jobs[i].expected_len = expected_len;
+        jobs[i].ok = 0;
+        CHECK(pthread_create(&threads[i], NULL, decode_in_thread, &jobs[i]) == 0);
+    }
+    for (i = 0; i < 4; i++) {
+        CHECK(pthread_join(threads[i], NULL) == 0);
+        CHECK(jobs[i].ok);
+    }
+}
+
+int main(int argc, char **argv) {
+    size_t len = 0, expected_len = 0;
+    uint8_t *data, *expected;
+    nmat_material *copied = NULL, *borrowed = NULL;
+    if (argc != 3) {
+        fprintf(stderr, "usage: %s FIXTURE.nmat EXPECTED.u8\n", argv[0]);
+        return 2;
+    }
+    data = read_file(argv[1], &len);
+    expected = read_file(argv[2], &expected_len);
+    if (!data || !expected) {
+        fprintf(stderr, "cannot read %s or %s\n", argv[1], argv[2]);
+        return 2;
+    }
+    test_version();
+    test_messages();
+    test_bad_files(data, len);
+    CHECK_STATUS(nmat_material_open_borrowed(data, len, &borrowed), NMAT_OK);
+    {
+        /* The copying open: the caller's buffer is gone before the handle is used. */
+        uint8_t *temp = (uint8_t *)malloc(len);
+        memcpy(temp, data, len);
+        CHECK_STATUS(nmat_material_open(temp, len, &copied), NMAT_OK);
+        memset(temp, 0xAB, len);
+        free(temp);
+    }
+    if (copied && borrowed) {
+        test_arguments(copied);
+        test_decoding(copied, expected, expected_len);
+        CHECK(matches_expected(borrowed, expected, expected_len));
+        test_threads(copied, expected, expected_len);
+    }
+    nmat_material_free(copied);
+    nmat_material_free(borrowed);
+    free(data);
+    free(expected);
+    if (failures) {
+        fprintf(stderr, "%d check(s) failed\n", failures);
+        return 1;
+    }
+    printf("all C API checks passed\n");
+    return 0;
+}

@@ -1,0 +1,675 @@
+//! The C API of nmat (`bindings-c/include/nmat.h` is generated from this file by cbindgen).
+//!
+//! Boundary rules: every exported function runs inside one panic boundary ([`guard`]); pointers
+//! are checked through one helper ([`arg`], [`arg_mut`], [`slice_mut`]) that answers
+//! `NMAT_NULL_ARGUMENT`; nothing here unwraps or asserts on caller input. A material handle is
+//! immutable after `nmat_material_open*`, so one handle may be used from any number of threads at
+//! once.
+
+// The C names are the API.
+#![allow(non_camel_case_types)]
+
+use nmat_core::{ChannelMask, Container, Error, Filter, Material, Precision, SampleRequest};
+use std::cell::RefCell;
+use std::panic::{AssertUnwindSafe, catch_unwind};
+
+/// Version of this library: major.minor.patch.
+pub const NMAT_VERSION_MAJOR: u32 = 0;
+pub const NMAT_VERSION_MINOR: u32 = 1;
+pub const NMAT_VERSION_PATCH: u32 = 0;
+/// `(major << 16) | (minor << 8) | patch`, the value `nmat_version()` returns.
+pub const NMAT_VERSION: u32 =
+    (NMAT_VERSION_MAJOR << 16) | (NMAT_VERSION_MINOR << 8) | NMAT_VERSION_PATCH;
+
+/// Result of every fallible call. 0 is success; the numbers are stable across versions.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum nmat_status {
+    NMAT_OK = 0,
+    /// A required pointer argument was NULL.
+    NMAT_NULL_ARGUMENT = 1,
+    /// An argument is out of range (channel mask, mip, region, mode, filter).
+    NMAT_BAD_ARGUMENT = 2,
+    /// The output buffer (or row pitch) is smaller than the call needs.
+    NMAT_BUFFER_TOO_SMALL = 3,
+    /// A size computation would overflow `size_t`.
+    NMAT_SIZE_OVERFLOW = 4,
+    /// The file contradicts the format (see `nmat_last_error` for the field).
+    NMAT_MALFORMED = 10,
+    /// The file is shorter than its contents need.
+    NMAT_TRUNCATED = 11,
+    /// The file uses a version or feature this library does not know.
+    NMAT_UNSUPPORTED = 12,
+    /// The file exceeds a limit of this library.
+    NMAT_LIMIT_EXCEEDED = 13,
+    /// The file's checksum does not match: it was corrupted.
+    NMAT_CHECKSUM_MISMATCH = 14,
+    /// Memory for the handle could not be allocated.
+    NMAT_OUT_OF_MEMORY = 20,
+    /// An internal error (a bug in nmat) was caught at the boundary.
+    NMAT_INTERNAL_ERROR = 99,
+}
+
+use nmat_status::*;
+
+/// Which decoder computes the values.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum nmat_mode {
+    /// Integer-exact (W8A16): bit-identical on every platform and on the GPU runtime.
+    NMAT_MODE_INTEGER = 0,
+    /// The float reference decoder (f16 weights, f32 arithmetic).
+    NMAT_MODE_FLOAT = 1,
+}
+
+/// Texture filter of `nmat_sample`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum nmat_filter {
+    NMAT_FILTER_NEAREST = 0,
+    NMAT_FILTER_BILINEAR = 1,
+    NMAT_FILTER_TRILINEAR = 2,
+    /// One decode per sample, the texel drawn with the caller's random numbers.
+    NMAT_FILTER_STOCHASTIC = 3,
+}
+
+/// An opened material. Opaque; create with `nmat_material_open*`, destroy with
+/// `nmat_material_free`. (Not `repr(C)`: C sees only an incomplete type.)
+pub struct nmat_material {
+    _private: [u8; 0],
+}
+
+/// What `nmat_material_info` reports.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default)]
+pub struct nmat_info {
+    pub width: u32,
+    pub height: u32,
+    pub mip_count: u32,
+    pub channel_count: u32,
+    /// 0 wrap, 1 clamp.
+    pub address_mode: u32,
+    /// Minor version of the file's format (major is always 1).
+    pub format_minor: u32,
+    /// Bytes of the file.
+    pub file_size: u64,
+    /// Bits per pixel per channel: file bits / (width · height · channels).
+    pub bppc: f64,
+}
+
+/// What `nmat_material_channel` reports.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default)]
+pub struct nmat_channel_info {
+    /// NUL-terminated UTF-8, at most 16 bytes before the NUL.
+    pub name: [u8; 17],
+    /// 0 unknown, 1 albedo, 2 normal, 3 roughness, 4 gloss, 5 height, 6 ambient occlusion,
+    /// 7 metallic, 8 emissive, 9 opacity, 10 specular (others may appear: treat as unknown).
+    pub semantic: u8,
+    /// Component within its map (0 = R/X … 3 = A).
+    pub component: u8,
+    /// 0 linear, 1 sRGB.
+    pub color_space: u8,
+    /// Decoded values lie in [range_min, range_max].
+    pub range_min: f32,
+    pub range_max: f32,
+}
+
+/// The handle behind `nmat_material*`. `material` borrows `owned` (or the caller's bytes);
+/// field order makes it drop first.
+struct Handle {
+    material: Material<'static>,
+    /// The copy `material` points into (`nmat_material_open`); never read, only kept alive.
+    _bytes: Option<Box<[u8]>>,
+}
+
+thread_local! {
+    static LAST_ERROR: RefCell<String> = const { RefCell::new(String::new()) };
+}
+
+fn set_last_error(text: String) {
+    LAST_ERROR.with(|e| *e.borrow_mut() = text);
+}
+
+fn status_of(e: &Error) -> nmat_status {
+    match e {
+        Error::Malformed { .. } => NMAT_MALFORMED,
+        Error::Truncated { .. } => NMAT_TRUNCATED,
+        Error::Unsupported { .. } => NMAT_UNSUPPORTED,
+        Error::LimitExceeded { .. } => NMAT_LIMIT_EXCEEDED,
+        Error::ChecksumMismatch { .. } => NMAT_CHECKSUM_MISMATCH,
+        Error::BadArgument { argument: nmat_core::Argument::Output, .. } => NMAT_BUFFER_TOO_SMALL,
+        _ => NMAT_BAD_ARGUMENT,
+    }
+}
+
+fn fail(e: Error) -> nmat_status {
+    set_last_error(e.to_string());
+    status_of(&e)
+}
+
+/// The one panic boundary: runs `f`, turns a panic into `NMAT_INTERNAL_ERROR`.
+fn guard(f: impl FnOnce() -> Result<(), nmat_status>) -> nmat_status {
+    match catch_unwind(AssertUnwindSafe(f)) {
+        Ok(Ok(())) => NMAT_OK,
+        Ok(Err(status)) => status,
+        Err(_) => {
+            set_last_error("internal error: a panic was caught at the C boundary".into());
+            NMAT_INTERNAL_ERROR
+        }
+    }
+}
+
+/// The one null check for inputs.
+fn arg<'a, T>(p: *const T) -> Result<&'a T, nmat_status> {
+    // SAFETY: the C contract of every function taking `p` is that a non-NULL pointer points to a
+    // valid, live `T` for the duration of the call.
+    unsafe { p.as_ref() }.ok_or_else(|| {
+        set_last_error("a required pointer argument is NULL".into());
+        NMAT_NULL_ARGUMENT
+    })
+}
+
+/// The one null check for outputs.
+fn arg_mut<'a, T>(p: *mut T) -> Result<&'a mut T, nmat_status> {
+    // SAFETY: as for `arg`, and the caller does not alias the pointee during the call.
+    unsafe { p.as_mut() }.ok_or_else(|| {
+        set_last_error("a required output pointer is NULL".into());
+        NMAT_NULL_ARGUMENT
+    })
+}
+
+/// The one (pointer, length) → slice conversion.
+fn slice<'a, T>(p: *const T, len: usize) -> Result<&'a [T], nmat_status> {
+    if p.is_null() {
+        return Err(arg(p).err().unwrap_or(NMAT_NULL_ARGUMENT));
+    }
+    // SAFETY: the caller guarantees `len` readable elements at `p` (the documented contract).
+    Ok(unsafe { std::slice::from_raw_parts(p, len) })
+}
+
+fn slice_mut<'a, T>(p: *mut T, len: usize) -> Result<&'a mut [T], nmat_status> {
+    if p.is_null() {
+        return Err(arg_mut(p).err().unwrap_or(NMAT_NULL_ARGUMENT));
+    }
+    // SAFETY: the caller guarantees `len` writable elements at `p`, not aliased during the call.
+    Ok(unsafe { std::slice::from_raw_parts_mut(p, len) })
+}
+
+fn material<'a>(m: *const nmat_material) -> Result<&'a Material<'static>, nmat_status> {
+    arg(m.cast::<Handle>()).map(|h| &h.material)
+}
+
+fn bad(what: &str) -> nmat_status {
+    set_last_error(format!("bad argument: {what}"));
+    NMAT_BAD_ARGUMENT
+}
+
+/// `(major << 16) | (minor << 8) | patch` of the library, to compare with `NMAT_VERSION` from
+/// the header the caller compiled against.
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_version() -> u32 {
+    NMAT_VERSION
+}
+
+fn open(data: *const u8, len: usize, out: *mut *mut nmat_material, copy: bool) -> nmat_status {
+    guard(|| {
+        let out = arg_mut(out)?;
+        *out = std::ptr::null_mut();
+        let bytes = slice(data, len)?;
+        let owned: Option<Box<[u8]>> = if copy {
+            let mut v = Vec::new();
+            v.try_reserve_exact(len).map_err(|_| NMAT_OUT_OF_MEMORY)?;
+            v.extend_from_slice(bytes);
+            Some(v.into_boxed_slice())
+        } else {
+            None
+        };
+        let view: &[u8] = owned.as_deref().unwrap_or(bytes);
+        // SAFETY: `view` is either the heap block of `owned`, which the handle keeps, never
+        // mutates and frees only after `material` (field order), or the caller's bytes, which the
+        // borrowed variant's contract requires to outlive the handle.
+        let view: &'static [u8] = unsafe { std::slice::from_raw_parts(view.as_ptr(), view.len()) };
+        let material = Container::parse(view).map_err(fail)?;
+        let handle = Box::new(Handle { material, _bytes: owned });
+        *out = Box::into_raw(handle).cast::<nmat_material>();
+        Ok(())
+    })
+}
+
+/// Parses and validates `len` bytes at `data` and returns a handle in `*out` (NULL on error).
+/// The bytes are **copied**: the caller may free them as soon as this returns.
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_material_open(
+    data: *const u8,
+    len: usize,
+    out: *mut *mut nmat_material,
+) -> nmat_status {
+    open(data, len, out, true)
+}
+
+/// Like `nmat_material_open` without the copy: the `len` bytes at `data` must stay valid and
+/// unchanged until `nmat_material_free` (e.g. a memory-mapped file). Saves one copy of the file.
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_material_open_borrowed(
+    data: *const u8,
+    len: usize,
+    out: *mut *mut nmat_material,
+) -> nmat_status {
+    open(data, len, out, false)
+}
+
+/// Destroys a handle. NULL is accepted and ignored. Using the handle afterwards is undefined.
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_material_free(m: *mut nmat_material) {
+    let _ = guard(|| {
+        if !m.is_null() {
+            // SAFETY: a non-NULL `m` came from `Box::into_raw` in `open` and is freed once (the
+            // caller's contract).
+            drop(unsafe { Box::from_raw(m.cast::<Handle>()) });
+        }
+        Ok(())
+    });
+}
+
+/// Size, mips, channels, addressing and rate of a material.
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_material_info(m: *const nmat_material, out: *mut nmat_info) -> nmat_status {
+    guard(|| {
+        let (m, out) = (material(m)?, arg_mut(out)?);
+        *out = nmat_info {
+            width: m.width(),
+            height: m.height(),
+            mip_count: m.mip_count(),
+            channel_count: m.channel_count() as u32,
+            address_mode: m.address_mode() as u32,
+            format_minor: u32::from(m.version_minor()),
+            file_size: m.file_len() as u64,
+            bppc: m.bppc(),
+        };
+        Ok(())
+    })
+}
+
+/// Description of channel `index` (< channel_count).
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_material_channel(
+    m: *const nmat_material,
+    index: u32,
+    out: *mut nmat_channel_info,
+) -> nmat_status {
+    guard(|| {
+        let (m, out) = (material(m)?, arg_mut(out)?);
+        let c = m.channels().get(index as usize).ok_or_else(|| bad("channel index"))?;
+        let mut name = [0u8; 17];
+        name.iter_mut().zip(c.name.as_bytes()).for_each(|(d, s)| *d = *s);
+        *out = nmat_channel_info {
+            name,
+            semantic: c.semantic.0,
+            component: c.component,
+            color_space: c.color_space as u8,
+            range_min: c.range_min,
+            range_max: c.range_max,
+        };
+        Ok(())
+    })
+}
+
+/// Width and height of `mip` (< mip_count).
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_mip_size(
+    m: *const nmat_material,
+    mip: u32,
+    width: *mut u32,
+    height: *mut u32,
+) -> nmat_status {
+    guard(|| {
+        let m = material(m)?;
+        let (w, h) = (arg_mut(width)?, arg_mut(height)?);
+        if mip >= m.mip_count() {
+            return Err(bad("mip beyond the chain"));
+        }
+        (*w, *h) = m.mip_size(mip);
+        Ok(())
+    })
+}
+
+fn mask(m: &Material<'_>, channel_mask: u32) -> Result<(ChannelMask, usize), nmat_status> {
+    let mask = u16::try_from(channel_mask).map_err(|_| bad("channel mask beyond 16 channels"))?;
+    let n = m.required_len(ChannelMask(mask)).map_err(fail)?;
+    Ok((ChannelMask(mask), n))
+}
+
+/// Decodes texel (x, y) of `mip` for the channels in `channel_mask` (bit c = channel c;
+/// 0xFFFF = all) with decoder `mode` (an `nmat_mode`) into `out` (values in each channel's range, packed in channel order).
+/// Coordinates outside the mip wrap or clamp by the material's address mode; a mip beyond the
+/// chain is `NMAT_BAD_ARGUMENT`.
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_decode_texel(
+    m: *const nmat_material,
+    x: i64,
+    y: i64,
+    mip: u32,
+    channel_mask: u32,
+    mode: u32,
+    out: *mut f32,
+    out_len: usize,
+) -> nmat_status {
+    guard(|| {
+        let m = material(m)?;
+        let out = slice_mut(out, out_len)?;
+        let (mask, n) = mask(m, channel_mask)?;
+        if mip >= m.mip_count() {
+            return Err(bad("mip beyond the chain"));
+        }
+        match decode_mode(mode)? {
+            nmat_mode::NMAT_MODE_FLOAT => {
+                m.decode_texel(x, y, mip, mask, out).map(|_| ()).map_err(fail)
+            }
+            nmat_mode::NMAT_MODE_INTEGER => {
+                let mut codes = [0u8; 16];
+                m.decode_texel_u8(x, y, mip, mask, &mut codes).map_err(fail)?;
+                let channels = selected(m, mask);
+                if out.len() < n {
+                    return Err(NMAT_BUFFER_TOO_SMALL);
+                }
+                for ((o, c), ch) in out.iter_mut().zip(codes).zip(channels) {
+                    let u = f32::from(c) / 255.0;
+                    *o = ch.range_min * (1.0 - u) + ch.range_max * u;
+                }
+                Ok(())
+            }
+        }
+    })
+}
+
+/// A C enum arrives as an integer that may hold anything: converted here, never transmuted.
+fn decode_mode(mode: u32) -> Result<nmat_mode, nmat_status> {
+    match mode {
+        0 => Ok(nmat_mode::NMAT_MODE_INTEGER),
+        1 => Ok(nmat_mode::NMAT_MODE_FLOAT),
+        _ => Err(bad("mode is not an nmat_mode")),
+    }
+}
+
+fn selected<'m>(
+    m: &'m Material<'_>,
+    mask: ChannelMask,
+) -> impl Iterator<Item = &'m nmat_core::Channel<'m>> {
+    let bits = if mask == ChannelMask::ALL { u16::MAX } else { mask.0 };
+    m.channels().iter().enumerate().filter(move |(i, _)| bits & (1 << i) != 0).map(|(_, c)| c)
+}
+
+/// Integer-exact decode of one texel to 8-bit codes (0 = range_min, 255 = range_max).
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_decode_texel_u8(
+    m: *const nmat_material,
+    x: i64,
+    y: i64,
+    mip: u32,
+    channel_mask: u32,
+    out: *mut u8,
+    out_len: usize,
+) -> nmat_status {
+    guard(|| {
+        let m = material(m)?;
+        let out = slice_mut(out, out_len)?;
+        let (mask, _) = mask(m, channel_mask)?;
+        if mip >= m.mip_count() {
+            return Err(bad("mip beyond the chain"));
+        }
+        m.decode_texel_u8(x, y, mip, mask, out).map(|_| ()).map_err(fail)
+    })
+}
+
+/// Filtered sample at normalized (u, v) and fractional `lod` with `filter` (an `nmat_filter`)
+/// and decoder `mode` (an `nmat_mode`). `random` points to 3 uniform
+/// numbers in [0, 1) for `NMAT_FILTER_STOCHASTIC` (may be NULL for the other filters).
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_sample(
+    m: *const nmat_material,
+    u: f32,
+    v: f32,
+    lod: f32,
+    filter: u32,
+    mode: u32,
+    random: *const f32,
+    channel_mask: u32,
+    out: *mut f32,
+    out_len: usize,
+) -> nmat_status {
+    guard(|| {
+        let m = material(m)?;
+        let out = slice_mut(out, out_len)?;
+        let (channels, _) = mask(m, channel_mask)?;
+        let filter = match filter {
+            0 => Filter::Nearest,
+            1 => Filter::Bilinear,
+            2 => Filter::Trilinear,
+            3 => Filter::Stochastic,
+            _ => return Err(bad("filter is not an nmat_filter")),
+        };
+        let random = if random.is_null() {
+            if filter == Filter::Stochastic {
+                return Err(arg(random).err().unwrap_or(NMAT_NULL_ARGUMENT));
+            }
+            [0.0; 3]
+        } else {
+            let r = slice(random, 3)?;
+            [r[0], r[1], r[2]]
+        };
+        let precision = match decode_mode(mode)? {
+            nmat_mode::NMAT_MODE_INTEGER => Precision::Integer,
+            nmat_mode::NMAT_MODE_FLOAT => Precision::Float,
+        };
+        let req = SampleRequest { u, v, lod, filter, precision, random, channels };
+        m.sample(&req, out).map(|_| ()).map_err(fail)
+    })
+}
+
+/// The buffer a region decode needs: `*row_bytes` = width · channels · bytes_per_value (the
+/// smallest valid row pitch) and `*total_bytes` = row_pitch · (height − 1) + row_bytes for the
+/// given `row_pitch` (0 = tightly packed). Reports `NMAT_SIZE_OVERFLOW` instead of wrapping.
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_required_size(
+    m: *const nmat_material,
+    width: u32,
+    height: u32,
+    channel_mask: u32,
+    bytes_per_value: usize,
+    row_pitch: usize,
+    row_bytes: *mut usize,
+    total_bytes: *mut usize,
+) -> nmat_status {
+    guard(|| {
+        let m = material(m)?;
+        let (row_out, total_out) = (arg_mut(row_bytes)?, arg_mut(total_bytes)?);
+        let (_, n) = mask(m, channel_mask)?;
+        let (row, total) = region_size(width, height, n, bytes_per_value, row_pitch)?;
+        (*row_out, *total_out) = (row, total);
+        Ok(())
+    })
+}
+
+fn region_size(
+    width: u32,
+    height: u32,
+    channels: usize,
+    bytes: usize,
+    pitch: usize,
+) -> Result<(usize, usize), nmat_status> {
+    let overflow = || {
+        set_last_error("the region's size overflows size_t".into());
+        NMAT_SIZE_OVERFLOW
+    };
+    let row = (width as usize)
+        .checked_mul(channels)
+        .and_then(|v| v.checked_mul(bytes))
+        .ok_or_else(overflow)?;
+    let pitch = if pitch == 0 { row } else { pitch };
+    if pitch < row {
+        set_last_error(format!("row pitch {pitch} is below the row size {row}"));
+        return Err(NMAT_BUFFER_TOO_SMALL);
+    }
+    let total = if height == 0 {
+        0
+    } else {
+        pitch
+            .checked_mul(height as usize - 1)
+            .and_then(|v| v.checked_add(row))
+            .ok_or_else(overflow)?
+    };
+    Ok((row, total))
+}
+
+/// Checks a region against the mip and the buffer; returns (mask, channels, pitch).
+fn region_checks(
+    m: &Material<'_>,
+    mip: u32,
+    rect: (u32, u32, u32, u32),
+    channel_mask: u32,
+    bytes: usize,
+    pitch: usize,
+    out_len_bytes: usize,
+) -> Result<(ChannelMask, usize, usize), nmat_status> {
+    let (x0, y0, w, h) = rect;
+    if mip >= m.mip_count() {
+        return Err(bad("mip beyond the chain"));
+    }
+    let (mw, mh) = m.mip_size(mip);
+    if x0.checked_add(w).is_none_or(|e| e > mw) || y0.checked_add(h).is_none_or(|e| e > mh) {
+        return Err(bad("region outside the mip"));
+    }
+    let (mask, n) = mask(m, channel_mask)?;
+    let (row, total) = region_size(w, h, n, bytes, pitch)?;
+    if out_len_bytes < total {
+        set_last_error(format!("the region needs {total} bytes, the buffer has {out_len_bytes}"));
+        return Err(NMAT_BUFFER_TOO_SMALL);
+    }
+    Ok((mask, n, if pitch == 0 { row } else { pitch }))
+}
+
+/// Integer-exact decode of the rectangle (x0, y0, width, height) of `mip` into `out`: rows of
+/// `width · channels` codes, `row_pitch` bytes apart (0 = packed), `out_len` bytes in all.
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_decode_region_u8(
+    m: *const nmat_material,
+    mip: u32,
+    x0: u32,
+    y0: u32,
+    width: u32,
+    height: u32,
+    channel_mask: u32,
+    out: *mut u8,
+    row_pitch: usize,
+    out_len: usize,
+) -> nmat_status {
+    guard(|| {
+        let m = material(m)?;
+        let out = slice_mut(out, out_len)?;
+        let (mask, n, pitch) =
+            region_checks(m, mip, (x0, y0, width, height), channel_mask, 1, row_pitch, out_len)?;
+        for y in 0..height as usize {
+            let row = out.get_mut(y * pitch..).ok_or(NMAT_BUFFER_TOO_SMALL)?;
+            for (x, texel) in row.chunks_mut(n).take(width as usize).enumerate() {
+                let (tx, ty) = (i64::from(x0) + x as i64, i64::from(y0) + y as i64);
+                m.decode_texel_u8(tx, ty, mip, mask, texel).map_err(fail)?;
+            }
+        }
+        Ok(())
+    })
+}
+
+/// Float decode of a rectangle (values in channel ranges): like `nmat_decode_region_u8` with
+/// `float` values; `row_pitch` and `out_len` count **bytes**.
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_decode_region_f32(
+    m: *const nmat_material,
+    mip: u32,
+    x0: u32,
+    y0: u32,
+    width: u32,
+    height: u32,
+    channel_mask: u32,
+    mode: u32,
+    out: *mut f32,
+    row_pitch: usize,
+    out_len: usize,
+) -> nmat_status {
+    guard(|| {
+        let handle = m;
+        let mm = material(m)?;
+        if row_pitch % 4 != 0 {
+            return Err(bad("row pitch of a float region must be a multiple of 4 bytes"));
+        }
+        let out = slice_mut(out, out_len / 4)?;
+        let (mask, n, pitch) =
+            region_checks(mm, mip, (x0, y0, width, height), channel_mask, 4, row_pitch, out_len)?;
+        for y in 0..height as usize {
+            let row = out.get_mut(y * pitch / 4..).ok_or(NMAT_BUFFER_TOO_SMALL)?;
+            for (x, texel) in row.chunks_mut(n).take(width as usize).enumerate() {
+                let (tx, ty) = (i64::from(x0) + x as i64, i64::from(y0) + y as i64);
+                let status = nmat_decode_texel(
+                    handle,
+                    tx,
+                    ty,
+                    mip,
+                    u32::from(mask.0),
+                    mode,
+                    texel.as_mut_ptr(),
+                    texel.len(),
+                );
+                if status != NMAT_OK {
+                    return Err(status);
+                }
+            }
+        }
+        Ok(())
+    })
+}
+
+/// Writes a readable description of `status` (an `nmat_status` value) into `buf` (NUL-terminated, truncated to `len`)
+/// and returns the length the full message needs including the NUL. `buf` may be NULL with
+/// `len` 0 to ask for the length.
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_status_message(status: i32, buf: *mut u8, len: usize) -> usize {
+    let text = match status {
+        0 => "success",
+        1 => "a required pointer argument is NULL",
+        2 => "an argument is out of range",
+        3 => "the output buffer is too small",
+        4 => "a size computation overflows",
+        10 => "the .nmat data is malformed",
+        11 => "the .nmat data is truncated",
+        12 => "the .nmat data uses an unsupported version or feature",
+        13 => "the .nmat data exceeds a limit of this library",
+        14 => "the .nmat data is corrupted (checksum mismatch)",
+        20 => "out of memory",
+        99 => "internal error in nmat",
+        _ => "unknown nmat_status",
+    };
+    copy_message(text, buf, len)
+}
+
+/// The detail of the last failure on this thread (which field of the file, which argument), like
+/// `nmat_status_message`. Empty if nothing failed yet.
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_last_error(buf: *mut u8, len: usize) -> usize {
+    LAST_ERROR.with(|e| copy_message(&e.borrow(), buf, len))
+}
+
+fn copy_message(text: &str, buf: *mut u8, len: usize) -> usize {
+    let needed = text.len() + 1;
+    // No `slice_mut` here: a NULL buffer is a valid question, not an error to record.
+    if !buf.is_null() && len > 0 {
+        // SAFETY: the caller provides `len` writable bytes at a non-NULL `buf`.
+        let out = unsafe { std::slice::from_raw_parts_mut(buf, len) };
+        if let Some((last, body)) = out.split_last_mut() {
+            let n = body.len().min(text.len());
+            body[..n].copy_from_slice(&text.as_bytes()[..n]);
+            let end = body.get_mut(n).unwrap_or(last);
+            *end = 0;
+        }
+    }
+    needed
+}
