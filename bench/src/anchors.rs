@@ -174,6 +174,15 @@ impl Codec {
             Codec::Bc => {
                 let dds = dir.join("out.dds");
                 let format = if p.channels.len() == 3 { "-bc1" } else { "-bc4" };
+                if p.channels.len() == 1 {
+                    // This nvcompress (nvtt 2) compresses BC4 from the alpha channel: hand it the
+                    // value in all four channels.
+                    let rgba = pixels(set, p).iter().flat_map(|&v| [v, v, v, v]).collect();
+                    image::RgbaImage::from_raw(p.width, p.height, rgba)
+                        .expect("size")
+                        .save(&src)
+                        .expect("png");
+                }
                 run(Command::new("nvcompress")
                     .args(["-silent", "-nomips", format])
                     .arg(&src)
@@ -223,12 +232,18 @@ fn measure(codec: Codec, dir: &Path, set: &TextureSet, parts: &[Part]) -> (f64, 
         bits += b;
         let m = &set.mips[p.mip];
         let c = set.channel_count();
+        let mut part_sq = 0.0;
         for (i, v) in decoded.iter().enumerate() {
             let (texel, k) = (i / p.channels.len(), p.channels[i % p.channels.len()]);
             let e = f64::from(v - m.data[texel * c + k]);
-            sq += e * e;
-            n += 1.0;
+            part_sq += e * e;
         }
+        if std::env::var_os("NMAT_ANCHORS_VERBOSE").is_some() {
+            let psnr = -10.0 * (part_sq / decoded.len().max(1) as f64).log10();
+            eprintln!("{codec:?} mip {} channels {:?}: {psnr:.2} dB", p.mip, p.channels);
+        }
+        sq += part_sq;
+        n += decoded.len() as f64;
     }
     let bppc =
         bits as f64 / (f64::from(set.width) * f64::from(set.height) * set.channel_count() as f64);

@@ -137,10 +137,15 @@ struct EvalLayer {
     b: Vec<f32>,
 }
 
-/// Per-row int8 scale: max |w| / 127, kept from underflowing the decoder's shift range.
-pub fn row_scale(row: &[f32], min_scale: f32) -> f32 {
+/// Per-row int8 scale: max |w| / 127, but never so small that the row's bias (in accumulator
+/// units, `bias / (scale · 2^−in_frac)`) leaves the decoder's bias bound, nor below `min_scale`
+/// (the decoder's shift range). A row whose weights died during training but whose bias carries
+/// the output is the case the bias term exists for.
+pub fn row_scale(row: &[f32], bias: f32, in_frac_bits: u8, min_scale: f32) -> f32 {
     let max = row.iter().fold(0f32, |m, w| m.max(w.abs()));
-    (max / 127.0).max(min_scale)
+    let bias_limit = f64::from(i32::MAX) - row.len() as f64 * 127.0 * 32768.0;
+    let for_bias = (f64::from(bias.abs()) * f64::from(1u32 << in_frac_bits) / bias_limit) as f32;
+    (max / 127.0).max(for_bias * 1.01).max(min_scale)
 }
 
 fn eval_layers(layers: &[Dense], fake_quant: bool) -> Vec<EvalLayer> {
@@ -149,8 +154,9 @@ fn eval_layers(layers: &[Dense], fake_quant: bool) -> Vec<EvalLayer> {
         .map(|l| {
             let mut w = l.w.clone();
             if fake_quant {
-                for row in w.chunks_mut(l.inputs) {
-                    let s = row_scale(row, 1e-12);
+                for (row, &b) in w.chunks_mut(l.inputs).zip(&l.b) {
+                    // The hidden Q-formats are chosen after training: bound by the finest.
+                    let s = row_scale(row, b, nmat_core::limits::MAX_FRAC_BITS, 1e-12);
                     row.iter_mut().for_each(|v| *v = (*v / s).round().clamp(-127.0, 127.0) * s);
                 }
             }
@@ -631,6 +637,30 @@ impl<'a> Model<'a> {
     }
 }
 
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_row_carried_by_its_bias_survives_export() {
+        // Dead weights, a live bias: the int8 scale must still express the bias.
+        for (w, b) in [(1e-12f32, 0.7f32), (0.0, -3.0), (0.5, 0.25), (1e-6, 5.0)] {
+            let layer = Dense { inputs: 64, outputs: 1, hidden: true, w: vec![w; 64], b: vec![b] };
+            for in_frac in [10u8, 12, 14] {
+                let spec = export_layer(&layer, in_frac, 12, &[Some(0)], Activation::HardGelu);
+                let lsb = 1.0 / f64::from(1u32 << in_frac);
+                let real_bias = f64::from(spec.bias[0]) * f64::from(spec.scales[0]) * lsb;
+                assert!(
+                    (real_bias - f64::from(b)).abs() < 1e-3 * f64::from(b.abs()).max(1.0),
+                    "w {w} b {b}: {real_bias}"
+                );
+                let limit = f64::from(i32::MAX) - 64.0 * 127.0 * 32768.0;
+                assert!(f64::from(spec.bias[0]).abs() <= limit);
+            }
+        }
+    }
+}
+
 fn gr_loss(sum: f64, n: usize) -> f64 {
     sum / n.max(1) as f64
 }
@@ -661,7 +691,7 @@ pub fn export_layer(
         match row {
             Some(o) => {
                 let w = &l.w[o * n..(o + 1) * n];
-                let s = row_scale(w, min_scale);
+                let s = row_scale(w, l.b[*o], in_frac, min_scale);
                 weights_i8.extend(w.iter().map(|v| (v / s).round().clamp(-127.0, 127.0) as i8));
                 let b = (f64::from(l.b[*o]) / (f64::from(s) * in_lsb)).round();
                 bias.push(b.clamp(-bias_limit, bias_limit) as i32);
