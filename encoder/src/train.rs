@@ -504,7 +504,7 @@ impl<'a> Model<'a> {
                 }
             }
         }
-        gr_loss(loss, samples * outputs)
+        loss / (samples * outputs).max(1) as f64
     }
 
     /// Trains for `opts.steps` steps, reporting progress about 100 times.
@@ -637,34 +637,6 @@ impl<'a> Model<'a> {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_row_carried_by_its_bias_survives_export() {
-        // Dead weights, a live bias: the int8 scale must still express the bias.
-        for (w, b) in [(1e-12f32, 0.7f32), (0.0, -3.0), (0.5, 0.25), (1e-6, 5.0)] {
-            let layer = Dense { inputs: 64, outputs: 1, hidden: true, w: vec![w; 64], b: vec![b] };
-            for in_frac in [10u8, 12, 14] {
-                let spec = export_layer(&layer, in_frac, 12, &[Some(0)], Activation::HardGelu);
-                let lsb = 1.0 / f64::from(1u32 << in_frac);
-                let real_bias = f64::from(spec.bias[0]) * f64::from(spec.scales[0]) * lsb;
-                assert!(
-                    (real_bias - f64::from(b)).abs() < 1e-3 * f64::from(b.abs()).max(1.0),
-                    "w {w} b {b}: {real_bias}"
-                );
-                let limit = f64::from(i32::MAX) - 64.0 * 127.0 * 32768.0;
-                assert!(f64::from(spec.bias[0]).abs() <= limit);
-            }
-        }
-    }
-}
-
-fn gr_loss(sum: f64, n: usize) -> f64 {
-    sum / n.max(1) as f64
-}
-
 /// Hidden-layer output format: the most fraction bits whose i16 range (±2^(15−f)) holds the
 /// observed activations with 25 % headroom.
 pub fn frac_bits_for(max_abs: f32) -> u8 {
@@ -714,4 +686,28 @@ pub fn export_layer(
         scales,
         bias,
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_row_carried_by_its_bias_survives_export() {
+        // Dead weights, a live bias: the int8 scale must still express the bias.
+        for (w, b) in [(1e-12f32, 0.7f32), (0.0, -3.0), (0.5, 0.25), (1e-6, 5.0)] {
+            let layer = Dense { inputs: 64, outputs: 1, hidden: true, w: vec![w; 64], b: vec![b] };
+            for in_frac in [10u8, 12, 14] {
+                let spec = export_layer(&layer, in_frac, 12, &[Some(0)], Activation::HardGelu);
+                let lsb = 1.0 / f64::from(1u32 << in_frac);
+                let real_bias = f64::from(spec.bias[0]) * f64::from(spec.scales[0]) * lsb;
+                assert!(
+                    (real_bias - f64::from(b)).abs() < 1e-3 * f64::from(b.abs()).max(1.0),
+                    "w {w} b {b}: {real_bias}"
+                );
+                let limit = f64::from(i32::MAX) - 64.0 * 127.0 * 32768.0;
+                assert!(f64::from(spec.bias[0]).abs() <= limit);
+            }
+        }
+    }
 }
