@@ -286,6 +286,16 @@ fn search_target(
 }
 
 fn read_nmat(path: &Path) -> Result<Vec<u8>> {
+    // The size is checked before anything is allocated: a .nmat file states its length in a u32.
+    let len = std::fs::metadata(path).map_err(|e| format!("{}: {e}", path.display()))?.len();
+    if len > u64::from(u32::MAX) {
+        return Err(format!(
+            "{}: {len} bytes; a .nmat file is at most {} bytes",
+            path.display(),
+            u32::MAX
+        )
+        .into());
+    }
     std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()).into())
 }
 

@@ -1,0 +1,52 @@
+//! Parse fuzzer-chosen bytes (checksum not verified), then decode texels and samples at
+//! fuzzer-chosen coordinates, mips, LODs, filters and channel masks through both decoders; the
+//! integer decoder must equal the independent reference decoder on every accepted file.
+#![no_main]
+use arbitrary::{Arbitrary, Unstructured};
+use libfuzzer_sys::fuzz_target;
+use nmat_core::{ChannelMask, Container, Filter, ParseOptions, Precision, SampleRequest};
+
+#[derive(Arbitrary, Debug)]
+struct Request {
+    x: i64,
+    y: i64,
+    mip: u32,
+    mask: u16,
+    u: f32,
+    v: f32,
+    lod: f32,
+    filter: u8,
+    random: [f32; 3],
+}
+
+fuzz_target!(|data: &[u8]| {
+    // The file is the input up to its declared length; the bytes after it choose the requests.
+    // So a plain .nmat (the seed corpus) is a valid input as it is.
+    let declared = data.get(12..16).map_or(0, |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize);
+    let split = if (32..=data.len()).contains(&declared) { declared } else { data.len() };
+    let (file, controls) = data.split_at(split);
+    let mut u = Unstructured::new(controls);
+    let mut requests: Vec<Request> = (0..8).map_while(|_| Request::arbitrary(&mut u).ok()).collect();
+    if requests.len() < 2 {
+        let corner = |x, y, mip, lod| Request { x, y, mip, mask: 0xFFFF, u: 0.3, v: 0.7, lod, filter: 2, random: [0.5; 3] };
+        requests.extend([corner(0, 0, 0, 0.0), corner(-1, 5, 1, 1.5), corner(i64::MAX, i64::MIN, u32::MAX, 99.0)]);
+    }
+    let Ok(m) = Container::parse_with(file, ParseOptions { verify_checksum: false }) else { return };
+    let spec = m.to_spec();
+    for r in &requests {
+        let mask = ChannelMask(r.mask);
+        let (mut f, mut c8, mut c16) = ([0f32; 16], [0u8; 16], [0u16; 16]);
+        let _ = m.decode_texel(r.x, r.y, r.mip, mask, &mut f);
+        let _ = m.decode_texel_u16(r.x, r.y, r.mip, mask, &mut c16);
+        if let Ok(n) = m.decode_texel_u8(r.x, r.y, r.mip, ChannelMask::ALL, &mut c8) {
+            assert_eq!(c8[..n].to_vec(), nmat_tests::reference::decode_u8(&spec, r.x, r.y, r.mip));
+        }
+        let filter = [Filter::Nearest, Filter::Bilinear, Filter::Trilinear, Filter::Stochastic][usize::from(r.filter % 4)];
+        for precision in [Precision::Float, Precision::Integer] {
+            let req = SampleRequest { u: r.u, v: r.v, lod: r.lod, filter, precision, random: r.random, channels: mask };
+            if m.sample(&req, &mut f).is_ok() {
+                assert!(f.iter().all(|v| v.is_finite()));
+            }
+        }
+    }
+});
