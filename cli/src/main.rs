@@ -124,6 +124,10 @@ struct DecodeArgs {
     /// Decode with the integer-exact decoder (the default).
     #[arg(long)]
     int: bool,
+    /// Decode on the GPU (wgpu; bit-identical to --int). Needs the `gpu` feature:
+    /// cargo build --release -p nmat --features gpu
+    #[arg(long, conflicts_with = "float")]
+    gpu: bool,
 }
 
 fn main() -> ExitCode {
@@ -322,11 +326,34 @@ fn cmd_decode(args: DecodeArgs) -> Result<()> {
     };
     let mode = if args.float { Mode::Float } else { Mode::Int };
     std::fs::create_dir_all(&args.output).map_err(|e| format!("{}: {e}", args.output.display()))?;
-    let written = output::write_maps(&m, &args.output, &mips, mode == Mode::Float)?;
+    let written = if args.gpu {
+        decode_on_gpu(&m, &args.output, &mips)?
+    } else {
+        output::write_maps(&m, &args.output, &mips, mode == Mode::Float, None)?
+    };
     for w in &written {
         println!("wrote {}", w.display());
     }
     Ok(())
+}
+
+#[cfg(feature = "gpu")]
+fn decode_on_gpu(m: &Material<'_>, dir: &Path, mips: &[u32]) -> Result<Vec<PathBuf>> {
+    let (device, queue, info) = pollster::block_on(nmat_wgpu::default_device()).ok_or(
+        "--gpu: no GPU adapter found (on Linux without a GPU: apt-get install mesa-vulkan-drivers)",
+    )?;
+    eprintln!("decoding on {} ({:?}, {:?})", info.name, info.backend, info.device_type);
+    let ctx = nmat_wgpu::Context::new(&device);
+    let gm = ctx.upload(&device, m)?;
+    let decode = |mip: u32| -> Result<Vec<u8>> {
+        Ok(ctx.decode_mip(&device, &queue, &gm, mip, nmat_core::ChannelMask::ALL)?)
+    };
+    output::write_maps(m, dir, mips, false, Some(&decode))
+}
+
+#[cfg(not(feature = "gpu"))]
+fn decode_on_gpu(_: &Material<'_>, _: &Path, _: &[u32]) -> Result<Vec<PathBuf>> {
+    Err("--gpu: this nmat was built without GPU support; build it with `--features gpu`".into())
 }
 
 /// Loads reference maps for `m`: the files named in its SOURCE_MAPS section if present in `dir`,
@@ -392,7 +419,7 @@ fn cmd_demo(out: &Path, train: &TrainArgs, profile: &str) -> Result<()> {
         encoded.bytes.len()
     );
     let m = parse(&encoded.bytes, &path)?;
-    let written = output::write_maps(&m, out, &[0], false)?;
+    let written = output::write_maps(&m, out, &[0], false, None)?;
     println!("decoded {} maps into {}", written.len(), out.display());
     print!("{}", output::quality_table(&set, &encoded.quality, Some(profile.name())));
     Ok(())

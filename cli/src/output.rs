@@ -88,20 +88,37 @@ fn output_name(file_name: &str, mip: u32, single_mip0: bool) -> (String, image::
 }
 
 /// Decodes `mips` of every map and writes them into `dir` under their original names.
+/// 8-bit codes of every channel of a whole mip, row-major, decoded elsewhere (the GPU).
+pub type MipDecoder<'d> = dyn Fn(u32) -> Result<Vec<u8>, Box<dyn std::error::Error>> + 'd;
+
 pub fn write_maps(
     m: &Material<'_>,
     dir: &Path,
     mips: &[u32],
     float: bool,
+    batch: Option<&MipDecoder<'_>>,
 ) -> Result<Vec<PathBuf>, Box<dyn std::error::Error>> {
     let maps = source_maps(m).unwrap_or_else(|| maps_from_names(m));
+    let channels = m.channel_count();
+    let mut batched: Vec<Option<Vec<u8>>> = vec![None; m.mip_count() as usize];
     let mut written = Vec::new();
     let single = mips == [0];
     for map in &maps {
         for &mip in mips {
             let (w, h) = m.mip_size(mip);
             let comps = map.layout.components();
-            let sixteen = map.sixteen_bit && !float;
+            // The batch decoder gives 8-bit codes: 16-bit maps come back at 8 bits from it.
+            let sixteen = map.sixteen_bit && !float && batch.is_none();
+            let all_codes: Option<&Vec<u8>> = match (batch, float) {
+                (Some(decode), false) => {
+                    let slot = &mut batched[mip as usize];
+                    if slot.is_none() {
+                        *slot = Some(decode(mip)?);
+                    }
+                    slot.as_ref()
+                }
+                _ => None,
+            };
             let mut pixels: Vec<u16> = Vec::with_capacity((w * h) as usize * comps);
             let mask = ChannelMask((((1u32 << map.channel_count) - 1) << map.first_channel) as u16);
             let mut unit = [0f32; 16];
@@ -110,7 +127,13 @@ pub fn write_maps(
             for y in 0..h {
                 for x in 0..w {
                     let (x, y) = (i64::from(x), i64::from(y));
-                    if float {
+                    if let Some(all) = all_codes {
+                        let at =
+                            (y as usize * w as usize + x as usize) * channels + map.first_channel;
+                        for (k, u) in unit.iter_mut().enumerate().take(map.channel_count) {
+                            *u = f32::from(all.get(at + k).copied().unwrap_or(0)) / 255.0;
+                        }
+                    } else if float {
                         m.decode_texel_unit(x, y, mip, mask, &mut unit)?;
                     } else if sixteen {
                         m.decode_texel_u16(x, y, mip, mask, &mut codes)?;

@@ -1,0 +1,557 @@
+//! `nmat-wgpu`: batch decoding of `.nmat` materials on any GPU wgpu reaches (Vulkan, Metal,
+//! D3D12, OpenGL ES, WebGPU), bit-exact with `nmat_core`'s integer decoder.
+//!
+//! The caller owns the device and queue (engines do); a [`Context`] caches the pipeline;
+//! [`Context::upload`] puts a material's packed latent words (as stored in the file), its int8
+//! weights and its requantization constants into buffers once. Decodes are submit-then-map:
+//! [`Context::submit_requests`] / [`Context::submit_region`] record and submit the work and return
+//! a [`PendingDecode`] whose [`PendingDecode::wait`] maps the result; `decode_*` do both.
+//!
+//! Only downlevel limits are needed: the kernel uses 32-bit integers only (no `f16`, no
+//! subgroups, no 64-bit integers; the wide products are computed in pieces, docs/FORMAT.md §6).
+
+use nmat_core::{ChannelMask, Material, TermMode};
+use std::sync::mpsc;
+use wgpu::util::DeviceExt;
+
+/// Everything that can go wrong, named.
+#[derive(Debug)]
+#[non_exhaustive]
+pub enum GpuError {
+    /// The channel mask is empty or names a channel the material lacks.
+    Channels { mask: u16 },
+    /// A region outside the mip, or a mip beyond the chain.
+    Region { mip: u32, x0: u32, y0: u32, width: u32, height: u32 },
+    /// More texels in one call than one dispatch or buffer allows.
+    TooLarge { texels: u64, limit: u64 },
+    /// A grid too large for 32-bit bit addressing on the GPU (≥ 2^32 latent bits).
+    GridTooLarge { grid: usize },
+    /// Mapping the result buffer failed (device lost, …).
+    Map(String),
+}
+
+impl std::fmt::Display for GpuError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            GpuError::Channels { mask } => {
+                write!(f, "channel mask {mask:#06x} is empty or names a missing channel")
+            }
+            GpuError::Region { mip, x0, y0, width, height } => {
+                write!(
+                    f,
+                    "region {width}×{height} at ({x0}, {y0}) of mip {mip} is outside the material"
+                )
+            }
+            GpuError::TooLarge { texels, limit } => {
+                write!(f, "{texels} texels in one call; at most {limit}")
+            }
+            GpuError::GridTooLarge { grid } => {
+                write!(f, "grid {grid} has 2^32 or more latent bits")
+            }
+            GpuError::Map(e) => write!(f, "reading the result back failed: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for GpuError {}
+
+/// One texel to decode: coordinates wrap or clamp by the material's address mode; a mip beyond
+/// the chain is clamped to the last (as `Material::decode_texel_u8`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TexelRequest {
+    pub x: i32,
+    pub y: i32,
+    pub mip: u32,
+}
+
+/// The cached pipeline. Create one per device.
+pub struct Context {
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+}
+
+/// A material's buffers on the GPU.
+pub struct GpuMaterial {
+    desc: wgpu::Buffer,
+    latents: wgpu::Buffer,
+    channel_count: usize,
+    mip_sizes: Vec<(u32, u32)>,
+}
+
+impl GpuMaterial {
+    pub fn channel_count(&self) -> usize {
+        self.channel_count
+    }
+    /// Width and height of each mip.
+    pub fn mip_sizes(&self) -> &[(u32, u32)] {
+        &self.mip_sizes
+    }
+}
+
+/// Work submitted to the queue; `wait` maps the result: `channels` 8-bit codes per texel, in
+/// request (or row-major) order.
+pub struct PendingDecode {
+    readback: wgpu::Buffer,
+    len: usize,
+}
+
+const WORKGROUP: u32 = 64;
+/// Workgroups per dispatch dimension guaranteed by downlevel limits.
+const MAX_GROUPS: u32 = 65535;
+
+#[repr(C)]
+#[derive(Clone, Copy)]
+struct Params {
+    mode: u32,
+    count: u32,
+    mip: u32,
+    x0: u32,
+    y0: u32,
+    width: u32,
+    channel_mask: u32,
+    out_channels: u32,
+}
+
+fn words_to_bytes(words: &[u32]) -> Vec<u8> {
+    words.iter().flat_map(|w| w.to_le_bytes()).collect()
+}
+
+impl Context {
+    pub fn new(device: &wgpu::Device) -> Context {
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("nmat decode"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("decode.wgsl").into()),
+        });
+        let storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("nmat decode"),
+            entries: &[
+                storage(0, true),
+                storage(1, true),
+                storage(2, true),
+                storage(3, false),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 4,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+            ],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("nmat decode"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("nmat decode"),
+            layout: Some(&pipeline_layout),
+            module: &module,
+            entry_point: Some("main"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        Context { pipeline, layout }
+    }
+
+    /// Uploads a parsed material once: the latent words as stored, the int8 weights widened to
+    /// i32, and per row (bias, requantization multiplier, shift) derived exactly as the CPU does.
+    pub fn upload(&self, device: &wgpu::Device, m: &Material<'_>) -> Result<GpuMaterial, GpuError> {
+        let mlp = m.mlp();
+        let mut desc = vec![0u32; 30];
+        desc[0] = m.width();
+        desc[1] = m.height();
+        desc[2] = m.mip_count();
+        desc[3] = m.channel_count() as u32;
+        desc[4] = m.address_mode() as u32;
+        desc[5] = u32::from(mlp.input_frac_bits());
+        desc[6] = u32::from(mlp.pe_frequencies());
+        desc[7] = u32::from(mlp.lod_input());
+        desc[8] = mlp.layers().len() as u32;
+        desc[9] = m.levels().len() as u32;
+        desc[10] = m.grids().len() as u32;
+        for mip in 0..m.mip_count() {
+            desc[14 + mip as usize] = m.level_for_mip(mip) as u32;
+        }
+        // Grids: 8 words each, then their quantizers.
+        let mut latents: Vec<u32> = Vec::new();
+        desc[11] = desc.len() as u32;
+        let grids_at = desc.len();
+        desc.resize(grids_at + 8 * m.grids().len(), 0);
+        for (g, grid) in m.grids().iter().enumerate() {
+            let bits = u64::from(grid.width())
+                * u64::from(grid.height())
+                * grid.channels() as u64
+                * u64::from(grid.bits_per_latent());
+            if bits >= 1 << 32 {
+                return Err(GpuError::GridTooLarge { grid: g });
+            }
+            let words: Vec<u32> = grid
+                .packed_data()
+                .chunks_exact(4)
+                .map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]))
+                .collect();
+            let quant_at = desc.len() as u32;
+            for c in 0..grid.channels() {
+                let (offset, step) = grid.quantization(c);
+                desc.push(i32::from(offset) as u32);
+                desc.push(i32::from(step) as u32);
+            }
+            let record = [
+                grid.width(),
+                grid.height(),
+                grid.channels() as u32,
+                grid.bits_per_latent(),
+                latents.len() as u32,
+                words.len() as u32,
+                quant_at,
+                0,
+            ];
+            desc[grids_at + 8 * g..grids_at + 8 * g + 8].copy_from_slice(&record);
+            latents.extend(words);
+        }
+        // Levels: 1 + 4 × 10 words each.
+        desc[12] = desc.len() as u32;
+        for level in m.levels() {
+            let mut rec = vec![0u32; 41];
+            rec[0] = level.terms.len() as u32;
+            for (t, term) in level.terms.iter().enumerate() {
+                let tb = 1 + 10 * t;
+                rec[tb] = u32::from(term.mode != TermMode::Nearest4);
+                rec[tb + 1] = term.grids.len() as u32;
+                for (k, &g) in term.grids.iter().enumerate() {
+                    rec[tb + 2 + k] = u32::from(g);
+                }
+            }
+            desc.extend(rec);
+        }
+        // Layers: 8 words each; weights and row constants in `weights`.
+        desc[13] = desc.len() as u32;
+        let mut weights: Vec<i32> = Vec::new();
+        for layer in mlp.layers() {
+            let (n_in, n_out) = (layer.inputs(), layer.outputs());
+            let weights_at = weights.len() as u32;
+            for o in 0..n_out {
+                weights.extend((0..n_in).map(|i| i32::from(layer.weight_i8(o, i))));
+            }
+            let rows_at = weights.len() as u32;
+            for o in 0..n_out {
+                let rq = layer.requant(o);
+                weights.extend([layer.bias(o), rq.multiplier, rq.shift as i32]);
+            }
+            desc.extend([
+                n_in as u32,
+                n_out as u32,
+                u32::from(layer.out_frac_bits()),
+                u32::from(layer.activation() == nmat_core::Activation::HardGelu),
+                weights_at,
+                rows_at,
+                0,
+                0,
+            ]);
+        }
+        let init = |label, contents: Vec<u8>| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents: &contents,
+                usage: wgpu::BufferUsages::STORAGE,
+            })
+        };
+        // The weights follow the descriptors in one buffer: move the layers' offsets past them.
+        let base = desc.len() as u32;
+        for l in 0..mlp.layers().len() {
+            let at = desc[13] as usize + 8 * l;
+            desc[at + 4] += base;
+            desc[at + 5] += base;
+        }
+        desc.extend(weights.iter().map(|&w| w as u32));
+        Ok(GpuMaterial {
+            desc: init("nmat desc", words_to_bytes(&desc)),
+            latents: init("nmat latents", words_to_bytes(&latents)),
+            channel_count: m.channel_count(),
+            mip_sizes: (0..m.mip_count()).map(|mip| m.mip_size(mip)).collect(),
+        })
+    }
+
+    fn mask(&self, gm: &GpuMaterial, channels: ChannelMask) -> Result<(u32, u32), GpuError> {
+        let all = if gm.channel_count >= 16 { u16::MAX } else { (1u16 << gm.channel_count) - 1 };
+        let mask = if channels == ChannelMask::ALL { all } else { channels.0 };
+        if mask == 0 || mask & !all != 0 {
+            return Err(GpuError::Channels { mask: channels.0 });
+        }
+        Ok((u32::from(mask), mask.count_ones()))
+    }
+
+    #[allow(clippy::too_many_arguments)] // one dispatch's worth of state
+    fn submit(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        gm: &GpuMaterial,
+        params: Params,
+        requests: &[u8],
+    ) -> Result<PendingDecode, GpuError> {
+        let count = u64::from(params.count);
+        let groups = count.div_ceil(u64::from(WORKGROUP));
+        let limit = u64::from(MAX_GROUPS) * u64::from(MAX_GROUPS) * u64::from(WORKGROUP);
+        let out_bytes = count * u64::from(params.out_channels) * 4;
+        let max_binding = device.limits().max_storage_buffer_binding_size;
+        if groups > u64::from(MAX_GROUPS) * u64::from(MAX_GROUPS) || out_bytes > max_binding {
+            let per_texel = u64::from(params.out_channels) * 4;
+            return Err(GpuError::TooLarge {
+                texels: count,
+                limit: limit.min(max_binding / per_texel.max(1)),
+            });
+        }
+        let out_size = out_bytes.max(4);
+        let out = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("nmat codes"),
+            size: out_size,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let readback = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("nmat readback"),
+            size: out_size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let request_bytes = if requests.is_empty() { vec![0u8; 12] } else { requests.to_vec() };
+        let requests = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("nmat requests"),
+            contents: &request_bytes,
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let p = [
+            params.mode,
+            params.count,
+            params.mip,
+            params.x0,
+            params.y0,
+            params.width,
+            params.channel_mask,
+            params.out_channels,
+        ];
+        let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("nmat params"),
+            contents: &words_to_bytes(&p),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("nmat decode"),
+            layout: &self.layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: gm.desc.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: gm.latents.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: requests.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: out.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 4, resource: uniform.as_entire_binding() },
+            ],
+        });
+        let mut encoder = device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nmat decode") });
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("nmat decode"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &bind, &[]);
+            let gx = groups.min(u64::from(MAX_GROUPS)) as u32;
+            let gy = groups.div_ceil(u64::from(MAX_GROUPS)) as u32;
+            if count > 0 {
+                pass.dispatch_workgroups(gx.max(1), gy.max(1), 1);
+            }
+        }
+        encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, out_size);
+        queue.submit([encoder.finish()]);
+        Ok(PendingDecode { readback, len: (count * u64::from(params.out_channels)) as usize })
+    }
+
+    /// Decodes a batch of arbitrary texels (the random-access path), channels in `channels`.
+    pub fn submit_requests(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        gm: &GpuMaterial,
+        requests: &[TexelRequest],
+        channels: ChannelMask,
+    ) -> Result<PendingDecode, GpuError> {
+        let (mask, n) = self.mask(gm, channels)?;
+        let count = u32::try_from(requests.len()).map_err(|_| GpuError::TooLarge {
+            texels: requests.len() as u64,
+            limit: u64::from(u32::MAX),
+        })?;
+        let bytes: Vec<u8> = requests
+            .iter()
+            .flat_map(|r| [r.x.to_le_bytes(), r.y.to_le_bytes(), r.mip.to_le_bytes()])
+            .flatten()
+            .collect();
+        let params = Params {
+            mode: 0,
+            count,
+            mip: 0,
+            x0: 0,
+            y0: 0,
+            width: 1,
+            channel_mask: mask,
+            out_channels: n,
+        };
+        self.submit(device, queue, gm, params, &bytes)
+    }
+
+    /// Decodes the rectangle (x0, y0, width, height) of `mip`, row-major.
+    #[allow(clippy::too_many_arguments)] // a rectangle is four numbers
+    pub fn submit_region(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        gm: &GpuMaterial,
+        mip: u32,
+        (x0, y0, width, height): (u32, u32, u32, u32),
+        channels: ChannelMask,
+    ) -> Result<PendingDecode, GpuError> {
+        let (mask, n) = self.mask(gm, channels)?;
+        let region = GpuError::Region { mip, x0, y0, width, height };
+        let &(mw, mh) = gm.mip_sizes.get(mip as usize).ok_or(GpuError::Region {
+            mip,
+            x0,
+            y0,
+            width,
+            height,
+        })?;
+        if x0.checked_add(width).is_none_or(|e| e > mw)
+            || y0.checked_add(height).is_none_or(|e| e > mh)
+        {
+            return Err(region);
+        }
+        let count = u64::from(width) * u64::from(height);
+        let count = u32::try_from(count)
+            .map_err(|_| GpuError::TooLarge { texels: count, limit: u64::from(u32::MAX) })?;
+        let params = Params {
+            mode: 1,
+            count,
+            mip,
+            x0,
+            y0,
+            width: width.max(1),
+            channel_mask: mask,
+            out_channels: n,
+        };
+        self.submit(device, queue, gm, params, &[])
+    }
+
+    /// Blocking convenience: `submit_requests` then `wait`.
+    pub fn decode_requests(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        gm: &GpuMaterial,
+        requests: &[TexelRequest],
+        channels: ChannelMask,
+    ) -> Result<Vec<u8>, GpuError> {
+        self.submit_requests(device, queue, gm, requests, channels)?.wait(device)
+    }
+
+    /// Blocking convenience: a whole mip.
+    pub fn decode_mip(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        gm: &GpuMaterial,
+        mip: u32,
+        channels: ChannelMask,
+    ) -> Result<Vec<u8>, GpuError> {
+        let &(w, h) = gm.mip_sizes.get(mip as usize).ok_or(GpuError::Region {
+            mip,
+            x0: 0,
+            y0: 0,
+            width: 0,
+            height: 0,
+        })?;
+        self.submit_region(device, queue, gm, mip, (0, 0, w, h), channels)?.wait(device)
+    }
+
+    /// Blocking convenience: every mip, concatenated mip by mip.
+    pub fn decode_chain(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        gm: &GpuMaterial,
+        channels: ChannelMask,
+    ) -> Result<Vec<u8>, GpuError> {
+        let pending: Vec<PendingDecode> = (0..gm.mip_sizes.len() as u32)
+            .map(|mip| {
+                let (w, h) = gm.mip_sizes[mip as usize];
+                self.submit_region(device, queue, gm, mip, (0, 0, w, h), channels)
+            })
+            .collect::<Result<_, _>>()?;
+        let mut out = Vec::new();
+        for p in pending {
+            out.extend(p.wait(device)?);
+        }
+        Ok(out)
+    }
+}
+
+impl PendingDecode {
+    /// Maps the result (blocking on the device) and returns the codes.
+    pub fn wait(self, device: &wgpu::Device) -> Result<Vec<u8>, GpuError> {
+        let (tx, rx) = mpsc::channel();
+        self.readback.map_async(wgpu::MapMode::Read, .., move |r| {
+            let _ = tx.send(r);
+        });
+        device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Map(e.to_string()))?;
+        rx.recv()
+            .map_err(|e| GpuError::Map(e.to_string()))?
+            .map_err(|e| GpuError::Map(e.to_string()))?;
+        let view = self.readback.get_mapped_range(..).map_err(|e| GpuError::Map(e.to_string()))?;
+        let codes = view.chunks_exact(4).take(self.len).map(|w| w[0]).collect();
+        drop(view);
+        self.readback.unmap();
+        Ok(codes)
+    }
+}
+
+/// Creates a device on the first adapter wgpu finds (any backend, software adapters included),
+/// with downlevel limits only. For tools and tests; engines pass their own device.
+pub async fn default_device() -> Option<(wgpu::Device, wgpu::Queue, wgpu::AdapterInfo)> {
+    let instance =
+        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+    let adapter = instance
+        .request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            ..Default::default()
+        })
+        .await
+        .ok()?;
+    let info = adapter.get_info();
+    let (device, queue) = adapter
+        .request_device(&wgpu::DeviceDescriptor {
+            label: Some("nmat"),
+            required_features: wgpu::Features::empty(),
+            required_limits: wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits()),
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            memory_hints: wgpu::MemoryHints::MemoryUsage,
+            trace: wgpu::Trace::Off,
+        })
+        .await
+        .ok()?;
+    Some((device, queue, info))
+}
