@@ -41,6 +41,9 @@ enum Command {
         #[arg(long = "ref")]
         reference: PathBuf,
     },
+    /// Decode speed of a .nmat file: CPU integer and float decoders (1 thread and all threads)
+    /// and, when built with `--features gpu`, the GPU; medians of 5 runs over mip 0.
+    Bench { input: PathBuf },
     /// Encode, decode and evaluate a bundled procedural material, and print a report.
     Demo {
         /// Where to write demo.nmat and the decoded maps.
@@ -155,6 +158,7 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Eval { input, reference } => cmd_eval(&input, &reference),
         Command::Demo { out, train, profile } => cmd_demo(&out, &train, &profile),
+        Command::Bench { input } => cmd_bench(&input),
     }
 }
 
@@ -354,6 +358,108 @@ fn decode_on_gpu(m: &Material<'_>, dir: &Path, mips: &[u32]) -> Result<Vec<PathB
 #[cfg(not(feature = "gpu"))]
 fn decode_on_gpu(_: &Material<'_>, _: &Path, _: &[u32]) -> Result<Vec<PathBuf>> {
     Err("--gpu: this nmat was built without GPU support; build it with `--features gpu`".into())
+}
+
+/// Median seconds of 5 runs of `f`.
+fn median_seconds(mut f: impl FnMut() -> Result<()>) -> Result<f64> {
+    let mut runs = Vec::new();
+    for _ in 0..5 {
+        let t = Instant::now();
+        f()?;
+        runs.push(t.elapsed().as_secs_f64());
+    }
+    runs.sort_by(f64::total_cmp);
+    Ok(runs[2])
+}
+
+fn cmd_bench(input: &Path) -> Result<()> {
+    use nmat_core::ChannelMask;
+    use rayon::prelude::*;
+    let bytes = read_nmat(input)?;
+    let m = parse(&bytes, input)?;
+    let (w, h) = m.mip_size(0);
+    let texels = f64::from(w) * f64::from(h);
+    let n = m.channel_count();
+    println!(
+        "{}: {w}×{h} mip 0, {n} channels, {} MACs/texel; medians of 5 runs",
+        input.display(),
+        m.mlp().macs_per_texel()
+    );
+    let row = |name: &str, secs: f64| {
+        println!(
+            "  {name:44} {:9.1} ns/texel {:12.0} texels/s",
+            secs * 1e9 / texels,
+            texels / secs
+        );
+    };
+    let rows_int = |y: u32| {
+        let mut buf = [0u8; 16];
+        for x in 0..w {
+            let _ = m.decode_texel_u8(i64::from(x), i64::from(y), 0, ChannelMask::ALL, &mut buf);
+        }
+    };
+    row(
+        "CPU integer, 1 thread",
+        median_seconds(|| {
+            (0..h).for_each(rows_int);
+            Ok(())
+        })?,
+    );
+    row(
+        &format!("CPU integer, {} threads", rayon::current_num_threads()),
+        median_seconds(|| {
+            (0..h).into_par_iter().for_each(rows_int);
+            Ok(())
+        })?,
+    );
+    row(
+        "CPU float (f16 weights), 1 thread",
+        median_seconds(|| {
+            let mut buf = [0f32; 16];
+            for y in 0..h {
+                for x in 0..w {
+                    let _ =
+                        m.decode_texel(i64::from(x), i64::from(y), 0, ChannelMask::ALL, &mut buf);
+                }
+            }
+            Ok(())
+        })?,
+    );
+    bench_gpu(&m, &row)
+}
+
+#[cfg(feature = "gpu")]
+fn bench_gpu(m: &Material<'_>, row: &dyn Fn(&str, f64)) -> Result<()> {
+    let Some((device, queue, info)) = pollster::block_on(nmat_wgpu::default_device()) else {
+        println!("  GPU: no adapter found");
+        return Ok(());
+    };
+    let ctx = nmat_wgpu::Context::new(&device);
+    let gm = ctx.upload(&device, m)?;
+    let what = if info.device_type == wgpu_device_type_cpu() {
+        format!("GPU {} (a software rasterizer on the CPU)", info.name)
+    } else {
+        format!("GPU {}", info.name)
+    };
+    row(
+        &what,
+        median_seconds(|| {
+            ctx.decode_mip(&device, &queue, &gm, 0, nmat_core::ChannelMask::ALL)?;
+            Ok(())
+        })?,
+    );
+    Ok(())
+}
+
+#[cfg(feature = "gpu")]
+fn wgpu_device_type_cpu() -> nmat_wgpu::DeviceType {
+    nmat_wgpu::DeviceType::Cpu
+}
+
+#[cfg(not(feature = "gpu"))]
+fn bench_gpu(_: &Material<'_>, _: &dyn Fn(&str, f64)) -> Result<()> {
+    println!("  GPU: not measured (build with --features gpu)");
+    Ok(())
 }
 
 /// Loads reference maps for `m`: the files named in its SOURCE_MAPS section if present in `dir`,

@@ -14,6 +14,8 @@ use nmat_core::{ChannelMask, Material, TermMode};
 use std::sync::mpsc;
 use wgpu::util::DeviceExt;
 
+pub use wgpu::DeviceType;
+
 /// Everything that can go wrong, named.
 #[derive(Debug)]
 #[non_exhaustive]
