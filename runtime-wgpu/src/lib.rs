@@ -94,6 +94,7 @@ impl GpuMaterial {
 /// Work submitted to the queue; `wait` maps the result: `channels` 8-bit codes per texel, in
 /// request (or row-major) order.
 pub struct PendingDecode {
+    codes: wgpu::Buffer,
     readback: wgpu::Buffer,
     len: usize,
 }
@@ -381,7 +382,11 @@ impl Context {
         }
         encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, out_size);
         queue.submit([encoder.finish()]);
-        Ok(PendingDecode { readback, len: (count * u64::from(params.out_channels)) as usize })
+        Ok(PendingDecode {
+            codes: out,
+            readback,
+            len: (count * u64::from(params.out_channels)) as usize,
+        })
     }
 
     /// Decodes a batch of arbitrary texels (the random-access path), channels in `channels`.
@@ -511,6 +516,21 @@ impl Context {
 }
 
 impl PendingDecode {
+    /// The GPU-side result, one `u32` per code (channels fastest), usable as a storage buffer by
+    /// the caller's own passes (e.g. to build textures) without a round trip through the CPU.
+    pub fn gpu_buffer(&self) -> &wgpu::Buffer {
+        &self.codes
+    }
+
+    /// Number of codes in the result.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
     /// Maps the result (blocking on the device) and returns the codes.
     pub fn wait(self, device: &wgpu::Device) -> Result<Vec<u8>, GpuError> {
         let (tx, rx) = mpsc::channel();
