@@ -18,6 +18,15 @@ impl ChannelMask {
     /// Every channel the material has, whatever their number.
     pub const ALL: ChannelMask = ChannelMask(u16::MAX);
 
+    /// The concrete mask for a material of `channel_count` channels: every bit names a real
+    /// channel ([`ChannelMask::ALL`] becomes all of them), or `None` if the mask is empty or names
+    /// a channel the material lacks. The one rule every engine (CPU, C API, GPU) applies.
+    pub fn resolve(self, channel_count: usize) -> Option<u16> {
+        let all = if channel_count >= 16 { u16::MAX } else { (1u16 << channel_count) - 1 };
+        let mask = if self == ChannelMask::ALL { all } else { self.0 };
+        (mask != 0 && mask & !all == 0).then_some(mask)
+    }
+
     /// Channel `c` alone (`c` < 16).
     pub const fn single(c: u32) -> ChannelMask {
         ChannelMask(1u16.wrapping_shl(c))
@@ -32,17 +41,11 @@ impl<'a> Material<'a> {
     /// The mask with every bit naming a real channel, or `BadArgument` (empty mask, or a bit at or
     /// beyond `channel_count` other than in [`ChannelMask::ALL`]).
     pub fn resolve_channels(&self, channels: ChannelMask) -> Result<u16, Error> {
-        let all =
-            if self.channel_count() >= 16 { u16::MAX } else { (1u16 << self.channel_count()) - 1 };
-        let mask = if channels == ChannelMask::ALL { all } else { channels.0 };
-        if mask == 0 || mask & !all != 0 {
-            return Err(Error::BadArgument {
-                argument: Argument::Channels,
-                value: u64::from(channels.0),
-                limit: u64::from(all),
-            });
-        }
-        Ok(mask)
+        channels.resolve(self.channel_count()).ok_or(Error::BadArgument {
+            argument: Argument::Channels,
+            value: u64::from(channels.0),
+            limit: ChannelMask::ALL.resolve(self.channel_count()).map_or(0, u64::from),
+        })
     }
 
     /// How many values a decode with `channels` writes.
@@ -176,10 +179,15 @@ impl<'a> Material<'a> {
         channels: ChannelMask,
         out: &mut [f32],
     ) -> Result<usize, Error> {
-        let n = self.decode_texel_unit(x, y, mip, channels, out)?;
-        let rows = self.resolve_channels(channels)?;
-        for (v, ch) in out.iter_mut().zip(selected(&self.channels, rows)) {
-            *v = ch.range_min * (1.0 - *v) + ch.range_max * *v;
+        let rows = self.check_out(channels, out.len())?;
+        let y_out = self.run_float(x, y, mip, rows);
+        let mut n = 0;
+        for ((slot, v), ch) in
+            out.iter_mut().zip(selected(&y_out, rows)).zip(selected(&self.channels, rows))
+        {
+            let u = unit(*v);
+            *slot = ch.range_min * (1.0 - u) + ch.range_max * u;
+            n += 1;
         }
         Ok(n)
     }

@@ -61,7 +61,7 @@ impl<'a> Material<'a> {
     /// Filtered sample: values in each channel's range, packed for the channels selected.
     pub fn sample(&self, req: &SampleRequest, out: &mut [f32]) -> Result<usize, Error> {
         let rows = self.resolve_channels(req.channels)?;
-        let n = self.required_len(req.channels)?;
+        let n = rows.count_ones() as usize;
         if out.len() < n {
             return Err(Error::BadArgument {
                 argument: crate::error::Argument::Output,

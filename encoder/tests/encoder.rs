@@ -46,26 +46,13 @@ fn integer_and_float_decoders_agree_on_a_trained_material() {
     let set = demo::bricks(64);
     let out = encode(&set, &options("ntc-0.5", 300, 5), &mut |_| {}).unwrap();
     let m = Container::parse(&out.bytes).unwrap();
-    let (mut worst, mut sum, mut n) = (0i32, 0f64, 0u64);
-    let (mut c8, mut unit) = ([0u8; 16], [0f32; 16]);
-    for mip in 0..m.mip_count() {
-        let (w, h) = m.mip_size(mip);
-        for y in 0..i64::from(h) {
-            for x in 0..i64::from(w) {
-                m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut c8).unwrap();
-                m.decode_texel_unit(x, y, mip, ChannelMask::ALL, &mut unit).unwrap();
-                for k in 0..m.channel_count() {
-                    let real = f64::from(unit[k]) * 255.0;
-                    worst = worst.max((i32::from(c8[k]) - real.round() as i32).abs());
-                    sum += f64::from(c8[k]) - real;
-                    n += 1;
-                }
-            }
-        }
-    }
-    eprintln!("trained material: max |Δ| {worst}, mean Δ {:+.4} over {n} codes", sum / n as f64);
-    assert!(worst <= 1);
-    assert!((sum / n as f64).abs() < 0.05);
+    let a = nmat_tests::int_vs_float(&m);
+    eprintln!(
+        "trained material: max |Δ| {}, mean Δ {:+.4} over {} codes",
+        a.max_abs, a.mean, a.count
+    );
+    assert!(a.max_abs <= 1);
+    assert!(a.mean.abs() < 0.05);
 }
 
 #[test]

@@ -396,7 +396,7 @@ fn selected<'m>(
     m: &'m Material<'_>,
     mask: ChannelMask,
 ) -> impl Iterator<Item = &'m nmat_core::Channel<'m>> {
-    let bits = if mask == ChannelMask::ALL { u16::MAX } else { mask.0 };
+    let bits = mask.resolve(m.channel_count()).unwrap_or(0);
     m.channels().iter().enumerate().filter(move |(i, _)| bits & (1 << i) != 0).map(|(_, c)| c)
 }
 

@@ -291,11 +291,8 @@ impl Context {
     }
 
     fn mask(&self, gm: &GpuMaterial, channels: ChannelMask) -> Result<(u32, u32), GpuError> {
-        let all = if gm.channel_count >= 16 { u16::MAX } else { (1u16 << gm.channel_count) - 1 };
-        let mask = if channels == ChannelMask::ALL { all } else { channels.0 };
-        if mask == 0 || mask & !all != 0 {
-            return Err(GpuError::Channels { mask: channels.0 });
-        }
+        let mask =
+            channels.resolve(gm.channel_count).ok_or(GpuError::Channels { mask: channels.0 })?;
         Ok((u32::from(mask), mask.count_ones()))
     }
 
