@@ -4,7 +4,7 @@
 
 use crate::error::{Argument, Error};
 use crate::latents::{Footprint, LatentGrid, address, footprint};
-use crate::limits::{MAX_CHAIN, MAX_WIDTH};
+use crate::limits::{MAX_CHAIN, MAX_GRID_CHANNELS, MAX_TERMS, MAX_WIDTH};
 use crate::material::{Material, TermMode};
 use crate::mlp::{forward_float, forward_int, saturate_i16};
 use crate::posenc::triangle_q;
@@ -53,7 +53,7 @@ impl<'a> Material<'a> {
         Ok(self.resolve_channels(channels)?.count_ones() as usize)
     }
 
-    fn check_out(&self, channels: ChannelMask, out_len: usize) -> Result<u16, Error> {
+    pub(crate) fn check_out(&self, channels: ChannelMask, out_len: usize) -> Result<u16, Error> {
         let mask = self.resolve_channels(channels)?;
         let needed = mask.count_ones() as usize;
         if out_len < needed {
@@ -73,47 +73,60 @@ impl<'a> Material<'a> {
         (address(x, w, self.address_mode), address(y, h, self.address_mode), mip)
     }
 
-    /// Input features of texel (x, y) of `mip` (already addressed) in units of 2^-(16+f).
-    fn gather(&self, x: u32, y: u32, mip: u32, raw: &mut [i64; MAX_WIDTH]) {
+    /// Input features of texel (x, y) of `mip` (already addressed) in units of 2^-(16+f), passed
+    /// to `push` in input order; `cells` supplies the latent values of footprint cells.
+    pub(crate) fn gather(
+        &self,
+        x: u32,
+        y: u32,
+        mip: u32,
+        cells: &mut impl CellSource,
+        mut push: impl FnMut(i64),
+    ) {
         let mip_size = self.mip_size(mip);
         let mode = self.address_mode;
-        let mut slots = raw.iter_mut();
-        let mut push = |v: i64| {
-            if let Some(slot) = slots.next() {
-                *slot = v;
-            }
-        };
         let Some(level) = self.levels.get(self.level_for_mip(mip)) else {
             return;
         };
-        for term in &level.terms {
-            let mut chain: [Option<(&LatentGrid<'a>, Footprint)>; MAX_CHAIN] = [None; MAX_CHAIN];
-            for (slot, &g) in chain.iter_mut().zip(&term.grids) {
-                *slot = self.grids.get(usize::from(g)).map(|grid| {
-                    (grid, footprint((grid.width(), grid.height()), x, y, mip_size, mode))
-                });
-            }
-            let Some((first, fp)) = chain.first().copied().flatten() else {
-                continue;
-            };
+        for (t, term) in level.terms.iter().enumerate() {
+            let channels = term
+                .grids
+                .first()
+                .and_then(|&g| self.grids.get(usize::from(g)))
+                .map_or(0, LatentGrid::channels);
             match term.mode {
                 TermMode::Nearest4 => {
-                    for (cx, cy) in [(fp.x0, fp.y0), (fp.x1, fp.y0), (fp.x0, fp.y1), (fp.x1, fp.y1)]
-                    {
-                        for c in 0..first.channels() {
-                            push(i64::from(first.value(cx, cy, c)) << RAW_SHIFT);
+                    let Some(&g) = term.grids.first() else { continue };
+                    let Some(grid) = self.grids.get(usize::from(g)) else { continue };
+                    let fp = footprint((grid.width(), grid.height()), x, y, mip_size, mode);
+                    for cell in cells.cells(t * MAX_CHAIN, g, grid, &fp) {
+                        for &v in cell.iter().take(channels) {
+                            push(i64::from(v) << RAW_SHIFT);
                         }
                     }
                 }
                 TermMode::Bilinear => {
-                    for c in 0..first.channels() {
-                        push(
-                            chain
-                                .iter()
-                                .flatten()
-                                .map(|(grid, fp)| i64::from(bilinear(grid, fp, c)))
-                                .sum(),
-                        );
+                    let mut sums = [0i64; MAX_GRID_CHANNELS];
+                    for (k, &g) in term.grids.iter().enumerate() {
+                        let Some(grid) = self.grids.get(usize::from(g)) else { continue };
+                        let fp = footprint((grid.width(), grid.height()), x, y, mip_size, mode);
+                        let [c00, c10, c01, c11] = cells.cells(t * MAX_CHAIN + k, g, grid, &fp);
+                        let (fx, fy) = (fp.fx, fp.fy);
+                        let (gx, gy) = (256 - fx, 256 - fy);
+                        for (c, sum) in sums.iter_mut().enumerate().take(channels) {
+                            let v =
+                                |cell: &[i32; MAX_GRID_CHANNELS]| cell.get(c).copied().unwrap_or(0);
+                            // Exact: weights in 1/65536 summing to 65536, values i16, so the
+                            // sum lies in [−2^31, 2^31 − 2^16] (an i32 cannot overflow).
+                            let b = gx * gy * v(c00)
+                                + fx * gy * v(c10)
+                                + gx * fy * v(c01)
+                                + fx * fy * v(c11);
+                            *sum += i64::from(b);
+                        }
+                    }
+                    for &sum in sums.iter().take(channels) {
+                        push(sum);
                     }
                 }
             }
@@ -135,37 +148,63 @@ impl<'a> Material<'a> {
         }
     }
 
+    /// The integer network's input vector for texel (x, y) of `mip` (§6.3): addressed, gathered,
+    /// rounded half up onto the input grid and saturated. Entries past the input width are 0.
+    pub(crate) fn int_inputs(
+        &self,
+        x: i64,
+        y: i64,
+        mip: u32,
+        cells: &mut impl CellSource,
+    ) -> [i16; MAX_WIDTH] {
+        let (x, y, mip) = self.address_texel(x, y, mip);
+        let mut io = [0i16; MAX_WIDTH];
+        let mut slots = io.iter_mut();
+        self.gather(x, y, mip, cells, |r| {
+            if let Some(v) = slots.next() {
+                *v = saturate_i16((r + (1 << (RAW_SHIFT - 1))) >> RAW_SHIFT);
+            }
+        });
+        io
+    }
+
+    /// The float network's input vector for texel (x, y) of `mip`.
+    pub(crate) fn float_inputs(
+        &self,
+        x: i64,
+        y: i64,
+        mip: u32,
+        cells: &mut impl CellSource,
+    ) -> [f32; MAX_WIDTH] {
+        let (x, y, mip) = self.address_texel(x, y, mip);
+        let lo = i64::from(i16::MIN) << RAW_SHIFT;
+        let hi = i64::from(i16::MAX) << RAW_SHIFT;
+        let scale = 1.0 / (1u64 << (RAW_SHIFT + u32::from(self.mlp.input_frac_bits))) as f32;
+        let mut io = [0f32; MAX_WIDTH];
+        let mut slots = io.iter_mut();
+        self.gather(x, y, mip, cells, |r| {
+            if let Some(v) = slots.next() {
+                *v = r.clamp(lo, hi) as f32 * scale;
+            }
+        });
+        io
+    }
+
     /// The integer network's outputs (Q.`out_frac_bits` of the last layer) for the rows in `rows`.
     fn run_int(&self, x: i64, y: i64, mip: u32, rows: u16) -> [i16; MAX_WIDTH] {
-        let (x, y, mip) = self.address_texel(x, y, mip);
-        let mut raw = [0i64; MAX_WIDTH];
-        self.gather(x, y, mip, &mut raw);
-        let mut io = [0i16; MAX_WIDTH];
-        for (v, r) in io.iter_mut().zip(&raw) {
-            // Round half up onto the input grid, then saturate (§6.3).
-            *v = saturate_i16((r + (1 << (RAW_SHIFT - 1))) >> RAW_SHIFT);
-        }
+        let mut io = self.int_inputs(x, y, mip, &mut DirectCells::default());
         forward_int(&self.mlp.layers, &mut io, rows);
         io
     }
 
     /// The float network's outputs for the rows in `rows`, in unit scale (1.0 = top of range).
     fn run_float(&self, x: i64, y: i64, mip: u32, rows: u16) -> [f32; MAX_WIDTH] {
-        let (x, y, mip) = self.address_texel(x, y, mip);
-        let mut raw = [0i64; MAX_WIDTH];
-        self.gather(x, y, mip, &mut raw);
-        let lo = i64::from(i16::MIN) << RAW_SHIFT;
-        let hi = i64::from(i16::MAX) << RAW_SHIFT;
-        let scale = 1.0 / (1u64 << (RAW_SHIFT + u32::from(self.mlp.input_frac_bits))) as f32;
-        let mut io = [0f32; MAX_WIDTH];
-        for (v, r) in io.iter_mut().zip(&raw) {
-            *v = (*r).clamp(lo, hi) as f32 * scale;
-        }
+        let mut io = self.float_inputs(x, y, mip, &mut DirectCells::default());
         forward_float(&self.mlp.layers, &mut io, rows);
         io
     }
 
-    fn last_frac_bits(&self) -> u32 {
+    pub(crate) fn last_frac_bits(&self) -> u32 {
         self.mlp.layers.last().map_or(1, |l| u32::from(l.out_frac_bits))
     }
 
@@ -181,15 +220,20 @@ impl<'a> Material<'a> {
     ) -> Result<usize, Error> {
         let rows = self.check_out(channels, out.len())?;
         let y_out = self.run_float(x, y, mip, rows);
+        Ok(self.write_ranged(rows, &y_out, out))
+    }
+
+    /// Writes the selected float outputs mapped into their channels' ranges (§6.8).
+    pub(crate) fn write_ranged(&self, rows: u16, y_out: &[f32], out: &mut [f32]) -> usize {
         let mut n = 0;
         for ((slot, v), ch) in
-            out.iter_mut().zip(selected(&y_out, rows)).zip(selected(&self.channels, rows))
+            out.iter_mut().zip(selected(y_out, rows)).zip(selected(&self.channels, rows))
         {
             let u = unit(*v);
             *slot = ch.range_min * (1.0 - u) + ch.range_max * u;
             n += 1;
         }
-        Ok(n)
+        n
     }
 
     /// Float reference decode in unit scale: each value is the network output clamped to [0, 1].
@@ -248,20 +292,78 @@ impl<'a> Material<'a> {
     }
 }
 
-/// Exact bilinear sum Σ wᵢ·vᵢ of channel `c`, weights in 1/65536 summing to 65536. With vᵢ an i16
-/// the sum lies in [−2^31, 2^31 − 2^16], so the i32 cannot overflow.
-fn bilinear(grid: &LatentGrid<'_>, fp: &Footprint, c: usize) -> i32 {
-    let (fx, fy) = (fp.fx, fp.fy);
-    let (gx, gy) = (256 - fx, 256 - fy);
-    let v = |x, y| grid.value(x, y, c);
-    gx * gy * v(fp.x0, fp.y0)
-        + fx * gy * v(fp.x1, fp.y0)
-        + gx * fy * v(fp.x0, fp.y1)
-        + fx * fy * v(fp.x1, fp.y1)
+/// The dequantized latent values of the 4 footprint cells of a grid, in the order (x0, y0),
+/// (x1, y0), (x0, y1), (x1, y1); channels past the grid's are 0.
+pub(crate) type Cells = [[i32; MAX_GRID_CHANNELS]; 4];
+
+/// Where `gather` gets footprint cells from: decoded on the spot, or remembered across the
+/// texels of a span (neighbouring texels share cells on grids coarser than the mip).
+pub(crate) trait CellSource {
+    /// The cells of `fp` on `grid` (number `index` in the material); `slot` names the term and
+    /// chain position asking, so a cache can keep one entry per position.
+    fn cells(&mut self, slot: usize, index: u8, grid: &LatentGrid<'_>, fp: &Footprint) -> &Cells;
+}
+
+fn decode_cells(grid: &LatentGrid<'_>, fp: &Footprint, out: &mut Cells) {
+    for (cell, (x, y)) in
+        out.iter_mut().zip([(fp.x0, fp.y0), (fp.x1, fp.y0), (fp.x0, fp.y1), (fp.x1, fp.y1)])
+    {
+        grid.cell_values(x, y, cell);
+    }
+}
+
+/// Decodes every footprint on the spot (single-texel calls).
+#[derive(Default)]
+pub(crate) struct DirectCells(Cells);
+
+impl CellSource for DirectCells {
+    fn cells(&mut self, _slot: usize, _index: u8, grid: &LatentGrid<'_>, fp: &Footprint) -> &Cells {
+        decode_cells(grid, fp, &mut self.0);
+        &self.0
+    }
+}
+
+/// A grid number and the cells (x0, x1, y0, y1) of a footprint on it.
+type CellKey = (u8, u32, u32, u32, u32);
+
+/// Remembers the last footprint of each term and chain position (span calls).
+pub(crate) struct CachedCells {
+    keys: [Option<CellKey>; MAX_TERMS * MAX_CHAIN],
+    cells: [Cells; MAX_TERMS * MAX_CHAIN],
+    scratch: Cells,
+}
+
+impl Default for CachedCells {
+    fn default() -> Self {
+        CachedCells {
+            keys: [None; MAX_TERMS * MAX_CHAIN],
+            cells: [[[0; MAX_GRID_CHANNELS]; 4]; MAX_TERMS * MAX_CHAIN],
+            scratch: [[0; MAX_GRID_CHANNELS]; 4],
+        }
+    }
+}
+
+impl CellSource for CachedCells {
+    fn cells(&mut self, slot: usize, index: u8, grid: &LatentGrid<'_>, fp: &Footprint) -> &Cells {
+        let key = Some((index, fp.x0, fp.x1, fp.y0, fp.y1));
+        match (self.keys.get_mut(slot), self.cells.get_mut(slot)) {
+            (Some(k), Some(cells)) => {
+                if *k != key {
+                    decode_cells(grid, fp, cells);
+                    *k = key;
+                }
+                cells
+            }
+            _ => {
+                decode_cells(grid, fp, &mut self.scratch);
+                &self.scratch
+            }
+        }
+    }
 }
 
 /// Unit-scale clamp; NaN (impossible for validated weights, but cheap to rule out) maps to 0.
-fn unit(v: f32) -> f32 {
+pub(crate) fn unit(v: f32) -> f32 {
     if v >= 1.0 {
         1.0
     } else if v > 0.0 {
@@ -277,11 +379,16 @@ pub fn code(y: i16, f: u32, max: i32) -> i32 {
     ((i32::from(y) * max + half) >> f.clamp(1, 14)).clamp(0, max)
 }
 
-fn selected<T>(items: &[T], rows: u16) -> impl Iterator<Item = &T> {
+pub(crate) fn selected<T>(items: &[T], rows: u16) -> impl Iterator<Item = &T> {
     items.iter().enumerate().filter(move |(i, _)| *i < 16 && rows & (1 << i) != 0).map(|(_, t)| t)
 }
 
-fn write_selected<S, T>(rows: u16, values: &[S], out: &mut [T], map: impl Fn(&S) -> T) -> usize {
+pub(crate) fn write_selected<S, T>(
+    rows: u16,
+    values: &[S],
+    out: &mut [T],
+    map: impl Fn(&S) -> T,
+) -> usize {
     let mut n = 0;
     for (slot, v) in out.iter_mut().zip(selected(values, rows)) {
         *slot = map(v);

@@ -80,6 +80,10 @@ pub enum Argument {
     Output,
     /// A `MaterialSpec` vector whose length contradicts the sizes it declares.
     Spec,
+    /// A `Decoder` was given another material than the one it was prepared from.
+    Material,
+    /// A `Decoder` kernel this CPU cannot run.
+    Kernel,
 }
 
 /// Everything that can go wrong, split by cause.

@@ -67,6 +67,31 @@ impl<'a> LatentGrid<'a> {
         ((both >> (bit % 32)) & mask) as u8
     }
 
+    /// The dequantized values of every channel of cell (x, y) into `out` (further entries are
+    /// left alone): the cell's codes are consecutive bits, read with one index computation.
+    /// Out-of-range cells read as codes 0.
+    pub fn cell_values(&self, x: u32, y: u32, out: &mut [i32]) {
+        let inside = x < self.width() && y < self.height();
+        let bits = u32::from(self.bits);
+        let mask = (1u64 << bits) - 1;
+        let cell = u64::from(y) * u64::from(self.width) + u64::from(x);
+        let mut bit = cell * u64::from(self.channels) * u64::from(bits);
+        for (c, slot) in out.iter_mut().take(self.channels()).enumerate() {
+            let word = (bit / 32) as usize;
+            let code = if inside {
+                // As in `code`: the second word is read only when the latent straddles into it.
+                let lo = u64::from(u32_at(self.data, word * 4));
+                let hi = u64::from(u32_at(self.data, word * 4 + 4));
+                (((hi << 32) | lo) >> (bit % 32)) & mask
+            } else {
+                0
+            };
+            let (offset, step) = self.quantization(c);
+            *slot = i32::from(offset) + code as i32 * i32::from(step);
+            bit += u64::from(bits);
+        }
+    }
+
     /// The dequantized value `offset + code · step`; parse guarantees it fits an i16.
     pub fn value(&self, x: u32, y: u32, c: usize) -> i32 {
         let (offset, step) = self.quantization(c);

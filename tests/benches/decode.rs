@@ -2,8 +2,8 @@
 //! `cargo bench -p nmat-tests --bench decode`. The numbers go to the issue notes and, with the
 //! performance issue, to docs/PERFORMANCE.md; tests never assert them.
 
-use criterion::{Criterion, criterion_group, criterion_main};
-use nmat_core::{ChannelMask, Container, Filter, Precision, SampleRequest};
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use nmat_core::{ChannelMask, Container, Decoder, Filter, Kernel, Precision, SampleRequest};
 use nmat_tests::generate::{generate, golden_configs};
 use std::hint::black_box;
 
@@ -41,6 +41,38 @@ fn texel_decoding(c: &mut Criterion) {
             b.iter(|| {
                 let (x, y) = next();
                 m.decode_texel(x, y, 0, ChannelMask::ALL, &mut out).expect("valid");
+                black_box(out)
+            })
+        });
+        for kernel in Kernel::ALL.into_iter().filter(|k| k.is_available()) {
+            let d = Decoder::with_kernel(&m, kernel).expect("available");
+            let name = kernel.name();
+            group.bench_function(format!("decoder {name} u8 texel, all channels"), |b| {
+                let mut out = [0u8; 16];
+                b.iter(|| {
+                    let (x, y) = next();
+                    d.decode_texel_u8(&m, x, y, 0, ChannelMask::ALL, &mut out).expect("valid");
+                    black_box(out)
+                })
+            });
+            const SPAN: usize = 64;
+            group.throughput(Throughput::Elements(SPAN as u64));
+            group.bench_function(format!("decoder {name} u8 span of {SPAN}, all channels"), |b| {
+                let mut out = vec![0u8; SPAN * m.channel_count()];
+                b.iter(|| {
+                    let (_, y) = next();
+                    d.decode_span_u8(&m, 0, y, 0, SPAN, ChannelMask::ALL, &mut out).expect("valid");
+                    black_box(out.first().copied())
+                })
+            });
+            group.throughput(Throughput::Elements(1));
+        }
+        let d = Decoder::new(&m);
+        group.bench_function("decoder float f32 texel, all channels", |b| {
+            let mut out = [0f32; 16];
+            b.iter(|| {
+                let (x, y) = next();
+                d.decode_texel(&m, x, y, 0, ChannelMask::ALL, &mut out).expect("valid");
                 black_box(out)
             })
         });

@@ -365,3 +365,27 @@ pub fn generate(cfg: &FixtureConfig) -> MaterialSpec {
         optional_sections: Vec::new(),
     }
 }
+
+/// A one-layer material whose 128 inputs are two constant 16-channel grids read by `Nearest4`.
+pub fn wide_constant_material(input: i16, weight: i8, bias: i32) -> MaterialSpec {
+    let cfg = FixtureConfig {
+        mip_count: 1,
+        hidden: vec![],
+        pe_frequencies: 0,
+        lod_input: false,
+        layout: Layout::Ntc { hi_channels: 16, lo_channels: 16, hi_bits: 1, lo_bits: 1 },
+        ..FixtureConfig::ntc("wide", 12, 4, 4, 1)
+    };
+    let mut spec = generate(&cfg);
+    for g in &mut spec.grids {
+        g.quantization = vec![(input, 0); 16];
+    }
+    spec.levels[0].terms[1].mode = TermMode::Nearest4;
+    let layer = &mut spec.mlp.layers[0];
+    layer.inputs = 128;
+    layer.weights_f16 = vec![half::f16::from_f32(0.001); 128];
+    layer.weights_i8 = vec![weight; 128];
+    layer.bias = vec![bias];
+    layer.scales = vec![1.0 / 65536.0];
+    spec
+}

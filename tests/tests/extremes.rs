@@ -5,37 +5,13 @@ use nmat_core::mlp::{Requant, hard_gelu_q};
 use nmat_core::posenc::triangle_q;
 use nmat_core::{
     AddressMode, ChannelMask, Container, Error, Field, Filter, MaterialSpec, Precision,
-    SampleRequest, TermMode,
+    SampleRequest,
 };
-use nmat_tests::generate::{FixtureConfig, Layout, generate};
+use nmat_tests::generate::{FixtureConfig, Layout, generate, wide_constant_material};
 use nmat_tests::reference;
 
 fn small(name: &'static str) -> MaterialSpec {
     generate(&FixtureConfig::ntc(name, 11, 16, 12, 3))
-}
-
-/// A one-layer material whose 128 inputs are two constant 16-channel grids read by `Nearest4`.
-fn wide_constant_material(input: i16, weight: i8, bias: i32) -> MaterialSpec {
-    let cfg = FixtureConfig {
-        mip_count: 1,
-        hidden: vec![],
-        pe_frequencies: 0,
-        lod_input: false,
-        layout: Layout::Ntc { hi_channels: 16, lo_channels: 16, hi_bits: 1, lo_bits: 1 },
-        ..FixtureConfig::ntc("wide", 12, 4, 4, 1)
-    };
-    let mut spec = generate(&cfg);
-    for g in &mut spec.grids {
-        g.quantization = vec![(input, 0); 16];
-    }
-    spec.levels[0].terms[1].mode = TermMode::Nearest4;
-    let layer = &mut spec.mlp.layers[0];
-    layer.inputs = 128;
-    layer.weights_f16 = vec![f16::from_f32(0.001); 128];
-    layer.weights_i8 = vec![weight; 128];
-    layer.bias = vec![bias];
-    layer.scales = vec![1.0 / 65536.0];
-    spec
 }
 
 // 1. Accumulator bound.

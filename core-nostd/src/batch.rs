@@ -1,0 +1,683 @@
+//! A prepared decoder for throughput (issue 7, docs/PERFORMANCE.md): the MLP's weights are
+//! re-laid once — int8 widened to i16 and interleaved by input pairs so one SIMD multiply-add
+//! serves 8 output rows, f16 widened to f32 and transposed — and kept hot across texels.
+//!
+//! Every result is bit-identical to the per-texel definition on [`Material`] (FORMAT.md §6): the
+//! integer sums are exact and the float sums keep the input order of `Layer::row_float`. Two
+//! kernels compute the integer layers: [`Kernel::Scalar`], portable Rust over the prepared
+//! layout (the twin every SIMD kernel is tested against), and [`Kernel::Avx2`] (x86-64,
+//! `core::arch`, chosen at run time with the `std` feature, at compile time without it).
+
+extern crate alloc;
+
+use alloc::vec::Vec;
+
+use crate::decode::{CachedCells, CellSource, ChannelMask, DirectCells, code, write_selected};
+use crate::error::{Argument, Error};
+use crate::limits::MAX_WIDTH;
+use crate::material::Material;
+use crate::mlp::{Activation, Layer, Requant, hard_gelu_f32, hard_gelu_q, saturate_i16};
+
+#[cfg(target_arch = "x86_64")]
+mod avx2;
+#[cfg(target_arch = "x86_64")]
+mod avx512;
+
+/// Which code computes the integer layers of a [`Decoder`].
+#[non_exhaustive]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Kernel {
+    /// Portable Rust over the prepared layout; what the compiler makes of it on any target.
+    Scalar,
+    /// x86-64 AVX2: `vpmaddwd` over 8 output rows per instruction, vector requantization.
+    Avx2,
+    /// x86-64 AVX-512 with VNNI: `vpdpwssd` (multiply, add pairs, accumulate) over 16 rows.
+    Avx512Vnni,
+}
+
+impl Kernel {
+    /// The fastest kernel this CPU runs.
+    pub fn best() -> Kernel {
+        [Kernel::Avx512Vnni, Kernel::Avx2]
+            .into_iter()
+            .find(|k| k.is_available())
+            .unwrap_or(Kernel::Scalar)
+    }
+
+    /// Every kernel this build knows, slowest first.
+    pub const ALL: [Kernel; 3] = [Kernel::Scalar, Kernel::Avx2, Kernel::Avx512Vnni];
+
+    /// Whether this CPU can run the kernel (with the `std` feature the CPU is asked; without it
+    /// only what the build targets counts).
+    pub fn is_available(self) -> bool {
+        match self {
+            Kernel::Scalar => true,
+            Kernel::Avx2 => avx2_available(),
+            Kernel::Avx512Vnni => avx512_vnni_available(),
+        }
+    }
+
+    /// Short lowercase name for tables and logs.
+    pub fn name(self) -> &'static str {
+        match self {
+            Kernel::Scalar => "scalar",
+            Kernel::Avx2 => "avx2",
+            Kernel::Avx512Vnni => "avx512-vnni",
+        }
+    }
+}
+
+#[cfg(all(target_arch = "x86_64", feature = "std"))]
+fn avx2_available() -> bool {
+    extern crate std;
+    std::is_x86_feature_detected!("avx2")
+}
+
+#[cfg(all(target_arch = "x86_64", feature = "std"))]
+fn avx512_vnni_available() -> bool {
+    extern crate std;
+    std::is_x86_feature_detected!("avx512f")
+        && std::is_x86_feature_detected!("avx512bw")
+        && std::is_x86_feature_detected!("avx512vnni")
+}
+
+#[cfg(all(target_arch = "x86_64", not(feature = "std")))]
+fn avx2_available() -> bool {
+    cfg!(target_feature = "avx2")
+}
+
+#[cfg(all(target_arch = "x86_64", not(feature = "std")))]
+fn avx512_vnni_available() -> bool {
+    cfg!(all(
+        target_feature = "avx512f",
+        target_feature = "avx512bw",
+        target_feature = "avx512vnni"
+    ))
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+fn avx2_available() -> bool {
+    false
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+fn avx512_vnni_available() -> bool {
+    false
+}
+
+/// One layer in the prepared layout. Invariants (established by [`PackedLayer::new`], relied on
+/// by the SIMD kernels): `out_pad` is a multiple of 16 and at most `MAX_WIDTH`; `2·in_pairs` is at
+/// most `MAX_WIDTH`; `weights` holds `in_pairs · out_pad · 2` values; the per-row vectors hold
+/// `out_pad`; padding rows and columns are zero (multiplier 0, shift 1), so they decode to 0.
+#[derive(Clone, Debug)]
+struct PackedLayer {
+    in_pairs: usize,
+    outputs: usize,
+    out_pad: usize,
+    /// `[pair][row][2]`: the int8 weights of inputs 2p and 2p+1 of each row, as i16.
+    weights: Vec<i16>,
+    bias: Vec<i32>,
+    multiplier: Vec<i32>,
+    shift: Vec<u32>,
+    /// Per 8-row block, even rows then odd rows (the lane order of a 64-bit SIMD multiply):
+    /// `2^(shift−1)`, `shift`, and `2^(63−shift)` (see `avx2::requantize`).
+    lane_round: Vec<i64>,
+    lane_shift: Vec<u64>,
+    lane_correction: Vec<i64>,
+    out_frac_bits: u8,
+    activation: Activation,
+    /// `[input][row]` f32 weights (exact widenings of the f16 ones), rows padded to `out_pad`.
+    float_weights: Vec<f32>,
+    float_bias: Vec<f32>,
+}
+
+impl PackedLayer {
+    fn new(layer: &Layer<'_>) -> PackedLayer {
+        let (inputs, outputs) = (layer.inputs(), layer.outputs());
+        let in_pairs = inputs.div_ceil(2);
+        let out_pad = outputs.div_ceil(16) * 16;
+        let mut weights = alloc::vec![0i16; in_pairs * out_pad * 2];
+        let mut float_weights = alloc::vec![0f32; inputs * out_pad];
+        for (p, pair) in weights.chunks_exact_mut(out_pad * 2).enumerate() {
+            for (o, w) in pair.chunks_exact_mut(2).take(outputs).enumerate() {
+                for (k, slot) in w.iter_mut().enumerate() {
+                    if 2 * p + k < inputs {
+                        *slot = i16::from(layer.weight_i8(o, 2 * p + k));
+                    }
+                }
+            }
+        }
+        for (i, row) in float_weights.chunks_exact_mut(out_pad).enumerate() {
+            for (o, slot) in row.iter_mut().take(outputs).enumerate() {
+                *slot = layer.weight_f16(o, i).to_f32();
+            }
+        }
+        let row = |o: usize| (o < outputs).then_some(o);
+        let requant =
+            |o: usize| row(o).map_or(Requant { multiplier: 0, shift: 1 }, |o| layer.requant(o));
+        let bias = (0..out_pad).map(|o| row(o).map_or(0, |o| layer.bias(o))).collect();
+        let multiplier = (0..out_pad).map(|o| requant(o).multiplier).collect();
+        let shift: Vec<u32> = (0..out_pad).map(|o| requant(o).shift).collect();
+        // Lane order inside each block of 8 rows: 0, 2, 4, 6, 1, 3, 5, 7.
+        let lane_rows = (0..out_pad).map(|i| {
+            let (block, lane) = (i / 8, i % 8);
+            8 * block + if lane < 4 { 2 * lane } else { 2 * (lane - 4) + 1 }
+        });
+        let lane_shift: Vec<u64> =
+            lane_rows.map(|o| u64::from(shift.get(o).copied().unwrap_or(1))).collect();
+        let lane_round = lane_shift.iter().map(|&s| 1i64 << (s - 1)).collect();
+        let lane_correction = lane_shift.iter().map(|&s| 1i64 << (63 - s)).collect();
+        let float_bias =
+            (0..out_pad).map(|o| row(o).map_or(0.0, |o| layer.float_bias(o))).collect();
+        PackedLayer {
+            in_pairs,
+            outputs,
+            out_pad,
+            weights,
+            bias,
+            multiplier,
+            shift,
+            lane_round,
+            lane_shift,
+            lane_correction,
+            out_frac_bits: layer.out_frac_bits(),
+            activation: layer.activation(),
+            float_weights,
+            float_bias,
+        }
+    }
+
+    /// Which 8-row blocks to compute: all of them, or for the last layer only those holding a
+    /// selected row.
+    fn blocks(&self, last: bool, rows: u16) -> u32 {
+        let all = if self.out_pad >= 8 * 32 { u32::MAX } else { (1u32 << (self.out_pad / 8)) - 1 };
+        if !last {
+            return all;
+        }
+        let mut blocks = 0;
+        for b in 0..2 {
+            if (rows >> (8 * b)) & 0xFF != 0 {
+                blocks |= 1 << b;
+            }
+        }
+        blocks & all
+    }
+
+    /// The scalar twin: exactly the integer layer of FORMAT.md §6.6 over the prepared layout.
+    fn forward_scalar(&self, x: &[i16; MAX_WIDTH], y: &mut [i16; MAX_WIDTH], blocks: u32) {
+        let row_len = 2 * self.out_pad;
+        for (b, out) in y.chunks_exact_mut(8).take(self.out_pad / 8).enumerate() {
+            if blocks & (1 << b) == 0 {
+                continue;
+            }
+            let mut acc = [0i32; 8];
+            for (a, &bias) in acc.iter_mut().zip(self.bias.iter().skip(8 * b)) {
+                *a = bias;
+            }
+            for (pair, x) in self.weights.chunks_exact(row_len).zip(x.chunks_exact(2)) {
+                let (x0, x1) = match x {
+                    [x0, x1] => (i32::from(*x0), i32::from(*x1)),
+                    _ => (0, 0),
+                };
+                let w = pair.get(16 * b..16 * b + 16).unwrap_or(&[]);
+                for (a, w) in acc.iter_mut().zip(w.chunks_exact(2)) {
+                    if let [w0, w1] = w {
+                        let term = i32::from(*w0) * x0 + i32::from(*w1) * x1;
+                        *a = a.wrapping_add(term);
+                    }
+                }
+            }
+            for (k, (slot, a)) in out.iter_mut().zip(acc).enumerate() {
+                let o = 8 * b + k;
+                let rq = Requant {
+                    multiplier: self.multiplier.get(o).copied().unwrap_or(0),
+                    shift: self.shift.get(o).copied().unwrap_or(1),
+                };
+                let v = saturate_i16(rq.apply(a));
+                *slot = match self.activation {
+                    Activation::None => v,
+                    Activation::HardGelu => hard_gelu_q(v, self.out_frac_bits),
+                };
+            }
+        }
+    }
+
+    /// The float layer, summed in input order per row like `Layer::row_float` (the loop over rows
+    /// is the one the compiler vectorizes).
+    fn forward_float(&self, x: &[f32; MAX_WIDTH], y: &mut [f32; MAX_WIDTH]) {
+        let mut acc = [0f32; MAX_WIDTH];
+        for (row, &xi) in self.float_weights.chunks_exact(self.out_pad).zip(x.iter()) {
+            for (a, &w) in acc.iter_mut().zip(row) {
+                *a += w * xi;
+            }
+        }
+        for ((slot, a), b) in y.iter_mut().zip(acc).zip(&self.float_bias).take(self.outputs) {
+            let v = a + b;
+            *slot = match self.activation {
+                Activation::None => v,
+                Activation::HardGelu => hard_gelu_f32(v),
+            };
+        }
+    }
+}
+
+/// The MLP of one material, prepared for fast decoding (see the module documentation). It owns
+/// its data and borrows nothing, so it can live next to the material in any handle; every call
+/// takes the [`Material`] it was made from and refuses another one.
+#[derive(Clone, Debug)]
+pub struct Decoder {
+    kernel: Kernel,
+    layers: Vec<PackedLayer>,
+    /// Address and length of the first layer's weights in the file: which material this is.
+    identity: (usize, usize),
+}
+
+fn identity(material: &Material<'_>) -> (usize, usize) {
+    material
+        .mlp
+        .layers
+        .first()
+        .map_or((0, 0), |l| (l.weights_i8.as_ptr() as usize, l.weights_i8.len()))
+}
+
+impl Decoder {
+    /// Prepares `material` for the fastest kernel of this CPU.
+    pub fn new(material: &Material<'_>) -> Decoder {
+        Decoder {
+            kernel: Kernel::best(),
+            layers: material.mlp.layers.iter().map(PackedLayer::new).collect(),
+            identity: identity(material),
+        }
+    }
+
+    /// Prepares `material` for a given kernel; `BadArgument(Kernel)` if this CPU lacks it.
+    pub fn with_kernel(material: &Material<'_>, kernel: Kernel) -> Result<Decoder, Error> {
+        if !kernel.is_available() {
+            return Err(Error::BadArgument {
+                argument: Argument::Kernel,
+                value: kernel as u64,
+                limit: 0,
+            });
+        }
+        Ok(Decoder { kernel, ..Decoder::new(material) })
+    }
+
+    /// The kernel computing the integer layers.
+    pub fn kernel(&self) -> Kernel {
+        self.kernel
+    }
+
+    fn check(&self, material: &Material<'_>) -> Result<(), Error> {
+        if identity(material) == self.identity {
+            Ok(())
+        } else {
+            Err(Error::BadArgument {
+                argument: Argument::Material,
+                value: identity(material).0 as u64,
+                limit: self.identity.0 as u64,
+            })
+        }
+    }
+
+    /// Runs the integer layers on `x` (inputs on entry, outputs on exit).
+    fn forward_int(&self, x: &mut [i16; MAX_WIDTH], rows: u16) {
+        let mut spare = [0i16; MAX_WIDTH];
+        let (mut from, mut to) = (&mut *x, &mut spare);
+        let count = self.layers.len();
+        for (li, layer) in self.layers.iter().enumerate() {
+            let blocks = layer.blocks(li + 1 == count, rows);
+            match self.kernel {
+                #[cfg(target_arch = "x86_64")]
+                Kernel::Avx2 => avx2::forward(layer, from, to, blocks),
+                #[cfg(target_arch = "x86_64")]
+                Kernel::Avx512Vnni => avx512::forward(layer, from, to, blocks),
+                _ => layer.forward_scalar(from, to, blocks),
+            }
+            // Rows past this layer's width may hold stale values: the next layer's padding
+            // column has weight 0, and the last layer's unselected rows are never read.
+            core::mem::swap(&mut from, &mut to);
+        }
+        if count % 2 == 1 {
+            x.copy_from_slice(&spare);
+        }
+    }
+
+    fn forward_float(&self, x: &mut [f32; MAX_WIDTH]) {
+        let mut y = [0f32; MAX_WIDTH];
+        for layer in &self.layers {
+            layer.forward_float(x, &mut y);
+            core::mem::swap(x, &mut y);
+        }
+    }
+
+    /// Integer decode to 8-bit codes, bit-identical to [`Material::decode_texel_u8`].
+    pub fn decode_texel_u8(
+        &self,
+        material: &Material<'_>,
+        x: i64,
+        y: i64,
+        mip: u32,
+        channels: ChannelMask,
+        out: &mut [u8],
+    ) -> Result<usize, Error> {
+        self.check(material)?;
+        let rows = material.check_out(channels, out.len())?;
+        Ok(self.texel_codes(
+            material,
+            (x, y, mip),
+            &mut DirectCells::default(),
+            rows,
+            out,
+            255,
+            |c| c as u8,
+        ))
+    }
+
+    /// Integer decode to 16-bit codes, bit-identical to [`Material::decode_texel_u16`].
+    pub fn decode_texel_u16(
+        &self,
+        material: &Material<'_>,
+        x: i64,
+        y: i64,
+        mip: u32,
+        channels: ChannelMask,
+        out: &mut [u16],
+    ) -> Result<usize, Error> {
+        self.check(material)?;
+        let rows = material.check_out(channels, out.len())?;
+        Ok(self.texel_codes(
+            material,
+            (x, y, mip),
+            &mut DirectCells::default(),
+            rows,
+            out,
+            65535,
+            |c| c as u16,
+        ))
+    }
+
+    /// Float decode (values in channel ranges) with f32 weights, bit-identical to
+    /// [`Material::decode_texel`] (which widens each f16 weight where it uses it).
+    pub fn decode_texel(
+        &self,
+        material: &Material<'_>,
+        x: i64,
+        y: i64,
+        mip: u32,
+        channels: ChannelMask,
+        out: &mut [f32],
+    ) -> Result<usize, Error> {
+        self.check(material)?;
+        let rows = material.check_out(channels, out.len())?;
+        Ok(self.texel_float(material, (x, y, mip), &mut DirectCells::default(), rows, out))
+    }
+
+    /// Integer decode of `count` consecutive texels of row `y` from column `x0` (addressed like
+    /// single texels), packed: `count · channels` codes. Returns how many values were written.
+    #[allow(clippy::too_many_arguments)] // a texel address, a span, a mask and the output
+    pub fn decode_span_u8(
+        &self,
+        material: &Material<'_>,
+        x0: i64,
+        y: i64,
+        mip: u32,
+        count: usize,
+        channels: ChannelMask,
+        out: &mut [u8],
+    ) -> Result<usize, Error> {
+        let (rows, n) = self.check_span(material, count, channels, out.len())?;
+        let mut cells = CachedCells::default();
+        for (i, texel) in out.chunks_exact_mut(n).take(count).enumerate() {
+            let at = (x0.wrapping_add(i as i64), y, mip);
+            self.texel_codes(material, at, &mut cells, rows, texel, 255, |c| c as u8);
+        }
+        Ok(count * n)
+    }
+
+    /// Float decode (values in channel ranges) of a span, like [`Decoder::decode_span_u8`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn decode_span_f32(
+        &self,
+        material: &Material<'_>,
+        x0: i64,
+        y: i64,
+        mip: u32,
+        count: usize,
+        channels: ChannelMask,
+        out: &mut [f32],
+    ) -> Result<usize, Error> {
+        let (rows, n) = self.check_span(material, count, channels, out.len())?;
+        let mut cells = CachedCells::default();
+        for (i, texel) in out.chunks_exact_mut(n).take(count).enumerate() {
+            self.texel_float(
+                material,
+                (x0.wrapping_add(i as i64), y, mip),
+                &mut cells,
+                rows,
+                texel,
+            );
+        }
+        Ok(count * n)
+    }
+
+    fn check_span(
+        &self,
+        material: &Material<'_>,
+        count: usize,
+        channels: ChannelMask,
+        out_len: usize,
+    ) -> Result<(u16, usize), Error> {
+        self.check(material)?;
+        let rows = material.resolve_channels(channels)?;
+        let n = rows.count_ones() as usize;
+        let needed = count.saturating_mul(n);
+        if out_len < needed {
+            return Err(Error::BadArgument {
+                argument: Argument::Output,
+                value: out_len as u64,
+                limit: needed as u64,
+            });
+        }
+        Ok((rows, n))
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn texel_codes<T>(
+        &self,
+        material: &Material<'_>,
+        (x, y, mip): (i64, i64, u32),
+        cells: &mut impl CellSource,
+        rows: u16,
+        out: &mut [T],
+        full_scale: i32,
+        narrow: impl Fn(i32) -> T,
+    ) -> usize {
+        let mut io = material.int_inputs(x, y, mip, cells);
+        self.forward_int(&mut io, rows);
+        let f = material.last_frac_bits();
+        write_selected(rows, &io, out, |&v| narrow(code(v, f, full_scale)))
+    }
+
+    fn texel_float(
+        &self,
+        material: &Material<'_>,
+        (x, y, mip): (i64, i64, u32),
+        cells: &mut impl CellSource,
+        rows: u16,
+        out: &mut [f32],
+    ) -> usize {
+        let mut io = material.float_inputs(x, y, mip, cells);
+        self.forward_float(&mut io);
+        material.write_ranged(rows, &io, out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn simd_kernels() -> Vec<Kernel> {
+        [Kernel::Avx2, Kernel::Avx512Vnni].into_iter().filter(|k| k.is_available()).collect()
+    }
+
+    fn run(
+        kernel: Kernel,
+        l: &PackedLayer,
+        x: &[i16; MAX_WIDTH],
+        y: &mut [i16; MAX_WIDTH],
+        blocks: u32,
+    ) {
+        match kernel {
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx2 => avx2::forward(l, x, y, blocks),
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx512Vnni => avx512::forward(l, x, y, blocks),
+            _ => l.forward_scalar(x, y, blocks),
+        }
+    }
+
+    struct Rng(u64);
+    impl Rng {
+        fn next(&mut self) -> u64 {
+            // xorshift64*
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        }
+        fn range(&mut self, lo: i64, hi: i64) -> i64 {
+            lo + (self.next() % (hi - lo + 1) as u64) as i64
+        }
+        /// Mostly uniform, sometimes a bound: extremes are where shortcuts break.
+        fn edgy(&mut self, lo: i64, hi: i64) -> i64 {
+            match self.next() % 8 {
+                0 => lo,
+                1 => hi,
+                2 => self.range(-2, 2).clamp(lo, hi),
+                _ => self.range(lo, hi),
+            }
+        }
+    }
+
+    fn layer(rng: &mut Rng, inputs: usize, outputs: usize) -> PackedLayer {
+        let in_pairs = inputs.div_ceil(2);
+        let out_pad = outputs.div_ceil(16) * 16;
+        let mut weights = alloc::vec![0i16; in_pairs * out_pad * 2];
+        for (p, pair) in weights.chunks_exact_mut(2 * out_pad).enumerate() {
+            for (o, w) in pair.chunks_exact_mut(2).take(outputs).enumerate() {
+                for (k, slot) in w.iter_mut().enumerate() {
+                    if 2 * p + k < inputs && o < outputs {
+                        *slot = rng.edgy(-128, 127) as i16;
+                    }
+                }
+            }
+        }
+        let live = |o: usize| o < outputs;
+        let bias: Vec<i32> = (0..out_pad)
+            .map(|o| if live(o) { rng.edgy(-(1 << 30), 1 << 30) as i32 } else { 0 })
+            .collect();
+        let multiplier: Vec<i32> = (0..out_pad)
+            .map(|o| match (live(o), rng.next() % 6) {
+                (false, _) | (true, 0) => 0,
+                _ => rng.edgy(1 << 30, i64::from(i32::MAX)) as i32,
+            })
+            .collect();
+        let shift: Vec<u32> = (0..out_pad)
+            .map(|o| if live(o) && multiplier[o] != 0 { rng.edgy(1, 62) as u32 } else { 1 })
+            .collect();
+        let lane_shift: Vec<u64> = (0..out_pad)
+            .map(|i| {
+                let (b, lane) = (i / 8, i % 8);
+                let o = 8 * b + if lane < 4 { 2 * lane } else { 2 * (lane - 4) + 1 };
+                u64::from(shift[o])
+            })
+            .collect();
+        PackedLayer {
+            in_pairs,
+            outputs,
+            out_pad,
+            weights,
+            bias,
+            multiplier,
+            shift,
+            lane_round: lane_shift.iter().map(|&s| 1i64 << (s - 1)).collect(),
+            lane_correction: lane_shift.iter().map(|&s| 1i64 << (63 - s)).collect(),
+            lane_shift,
+            out_frac_bits: rng.edgy(1, 14) as u8,
+            activation: if rng.next() % 2 == 0 { Activation::None } else { Activation::HardGelu },
+            float_weights: Vec::new(),
+            float_bias: Vec::new(),
+        }
+    }
+
+    /// Every SIMD layer this CPU runs against the scalar twin on random layers of every shape class (one block,
+    /// 4-block runs plus a remainder, odd input counts) with extreme weights, inputs, biases,
+    /// multipliers and shifts, and every block selection.
+    #[test]
+    fn simd_layers_match_the_scalar_twin() {
+        let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
+        for trial in 0..4000 {
+            let inputs = rng.range(1, MAX_WIDTH as i64) as usize;
+            let outputs = rng.range(1, MAX_WIDTH as i64) as usize;
+            let l = layer(&mut rng, inputs, outputs);
+            let mut x = [0i16; MAX_WIDTH];
+            for v in x.iter_mut().take(2 * l.in_pairs) {
+                *v = rng.edgy(i64::from(i16::MIN), i64::from(i16::MAX)) as i16;
+            }
+            let blocks = if trial % 3 == 0 { rng.next() as u32 } else { u32::MAX };
+            let mut scalar = [7i16; MAX_WIDTH];
+            l.forward_scalar(&x, &mut scalar, blocks);
+            for kernel in simd_kernels() {
+                let mut simd = [7i16; MAX_WIDTH];
+                run(kernel, &l, &x, &mut simd, blocks);
+                for b in 0..l.out_pad / 8 {
+                    if blocks & (1 << b) != 0 {
+                        let rows = 8 * b..8 * b + 8;
+                        assert_eq!(simd[rows.clone()], scalar[rows], "{kernel:?} trial {trial}");
+                    }
+                }
+            }
+        }
+    }
+
+    /// Requantization alone over a dense sweep of shifts and accumulators near every power of two.
+    #[test]
+    fn simd_requantization_matches_the_scalar_twin_at_every_shift() {
+        let mut rng = Rng(42);
+        for shift in 1..=62u32 {
+            for activation in [Activation::None, Activation::HardGelu] {
+                let mut l = layer(&mut rng, 1, 8);
+                let live = 8;
+                l.weights.iter_mut().for_each(|w| *w = 0);
+                l.activation = activation;
+                for o in 0..live {
+                    l.multiplier[o] = rng.edgy(1 << 30, i64::from(i32::MAX)) as i32;
+                    l.shift[o] = shift;
+                }
+                l.lane_shift.iter_mut().for_each(|s| *s = u64::from(shift));
+                l.lane_round.iter_mut().for_each(|r| *r = 1 << (shift - 1));
+                l.lane_correction.iter_mut().for_each(|c| *c = 1 << (63 - shift));
+                for _ in 0..64 {
+                    for b in l.bias.iter_mut().take(live) {
+                        let e = rng.range(0, 31) as u32;
+                        let v = (rng.range(-1, 1) << e) + rng.range(-1, 1);
+                        *b = v.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32;
+                    }
+                    let x = [0i16; MAX_WIDTH];
+                    let mut scalar = [0i16; MAX_WIDTH];
+                    l.forward_scalar(&x, &mut scalar, 1);
+                    for kernel in simd_kernels() {
+                        let mut simd = [0i16; MAX_WIDTH];
+                        run(kernel, &l, &x, &mut simd, 1);
+                        assert_eq!(
+                            simd[..8],
+                            scalar[..8],
+                            "{kernel:?} shift {shift}, bias {:?}",
+                            l.bias
+                        );
+                    }
+                }
+            }
+        }
+    }
+}

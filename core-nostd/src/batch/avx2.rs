@@ -1,0 +1,169 @@
+//! The AVX2 integer layer (x86-64). The only `unsafe` code of the crate: `core::arch` loads and
+//! stores through pointers whose bounds follow from `PackedLayer`'s invariants, and calls into
+//! `#[target_feature]` functions after the CPU was checked.
+#![allow(unsafe_code)]
+
+use core::arch::x86_64::*;
+
+use super::PackedLayer;
+use crate::limits::MAX_WIDTH;
+
+/// One integer layer: `y[o]` for every 8-row block selected in `blocks`.
+pub(super) fn forward(
+    l: &PackedLayer,
+    x: &[i16; MAX_WIDTH],
+    y: &mut [i16; MAX_WIDTH],
+    blocks: u32,
+) {
+    debug_assert!(super::Kernel::Avx2.is_available());
+    // SAFETY: a Decoder uses this kernel only after `Kernel::is_available` said the CPU has AVX2
+    // (`Decoder::new` picks it through `Kernel::best`, `with_kernel` checks it).
+    unsafe { forward_avx2(l, x, y, blocks) }
+}
+
+#[target_feature(enable = "avx2")]
+fn forward_avx2(l: &PackedLayer, x: &[i16; MAX_WIDTH], y: &mut [i16; MAX_WIDTH], blocks: u32) {
+    let count = l.out_pad / 8;
+    let mut b = 0;
+    while b < count {
+        if b + 4 <= count && (blocks >> b) & 0xF == 0xF {
+            block::<4>(l, x, y, b);
+            b += 4;
+        } else {
+            if (blocks >> b) & 1 != 0 {
+                block::<1>(l, x, y, b);
+            }
+            b += 1;
+        }
+    }
+}
+
+/// Rows `8·first .. 8·(first + B)`: B accumulators of 8 rows, one pass over the input pairs.
+#[target_feature(enable = "avx2")]
+fn block<const B: usize>(
+    l: &PackedLayer,
+    x: &[i16; MAX_WIDTH],
+    y: &mut [i16; MAX_WIDTH],
+    first: usize,
+) {
+    // Bounds: 8·(first + B) ≤ out_pad ≤ MAX_WIDTH (caller), 2·in_pairs ≤ MAX_WIDTH, and
+    // weights has in_pairs · out_pad · 2 entries (PackedLayer invariants).
+    debug_assert!(8 * (first + B) <= l.out_pad && l.out_pad <= MAX_WIDTH);
+    debug_assert!(2 * l.in_pairs <= MAX_WIDTH && l.weights.len() == l.in_pairs * l.out_pad * 2);
+    let mut acc = [_mm256_setzero_si256(); B];
+    // SAFETY (all pointer accesses below): within the bounds stated above.
+    unsafe {
+        let bias = l.bias.as_ptr().add(8 * first);
+        for (k, a) in acc.iter_mut().enumerate() {
+            *a = _mm256_loadu_si256(bias.add(8 * k).cast());
+        }
+        let pairs = x.as_ptr().cast::<i32>();
+        let mut row = l.weights.as_ptr().add(16 * first);
+        for p in 0..l.in_pairs {
+            let both = _mm256_set1_epi32(pairs.add(p).read_unaligned());
+            for (k, a) in acc.iter_mut().enumerate() {
+                let w = _mm256_loadu_si256(row.add(16 * k).cast());
+                *a = _mm256_add_epi32(*a, _mm256_madd_epi16(w, both));
+            }
+            row = row.add(2 * l.out_pad);
+        }
+    }
+    for (k, a) in acc.into_iter().enumerate() {
+        let values = requantize(l, a, first + k);
+        // SAFETY: 8·(first + k) + 8 ≤ MAX_WIDTH.
+        unsafe { _mm_storeu_si128(y.as_mut_ptr().add(8 * (first + k)).cast(), values) };
+    }
+}
+
+/// Requantization, saturation and activation of the 8 accumulators of block `b`, exactly as
+/// `Requant::apply`, `saturate_i16` and `hard_gelu_q`.
+///
+/// `(acc·m + 2^(s−1)) >> s` needs a 64-bit arithmetic shift by a per-row amount, which AVX2
+/// lacks; with |acc·m + 2^(s−1)| < 2^63, adding 2^63 (flipping the top bit) makes the value
+/// non-negative as an unsigned number, a logical shift then floors it, and subtracting
+/// 2^(63−s) removes the added part exactly (2^63 is a multiple of 2^s).
+#[target_feature(enable = "avx2")]
+fn requantize(l: &PackedLayer, acc: __m256i, b: usize) -> __m128i {
+    debug_assert!(l.lane_round.len() >= 8 * b + 8 && l.multiplier.len() >= 8 * b + 8);
+    // SAFETY: every per-row vector holds out_pad ≥ 8·b + 8 entries.
+    let (m, round, shift, correction) = unsafe {
+        let lanes =
+            |v: *const i64| (_mm256_loadu_si256(v.cast()), _mm256_loadu_si256(v.add(4).cast()));
+        (
+            _mm256_loadu_si256(l.multiplier.as_ptr().add(8 * b).cast()),
+            lanes(l.lane_round.as_ptr().add(8 * b)),
+            lanes(l.lane_shift.as_ptr().add(8 * b).cast()),
+            lanes(l.lane_correction.as_ptr().add(8 * b)),
+        )
+    };
+    let even = _mm256_mul_epi32(acc, m);
+    let odd = _mm256_mul_epi32(_mm256_srli_epi64::<32>(acc), _mm256_srli_epi64::<32>(m));
+    let top = _mm256_set1_epi64x(i64::MIN);
+    let (hi, lo) =
+        (_mm256_set1_epi64x(i64::from(i16::MAX)), _mm256_set1_epi64x(i64::from(i16::MIN)));
+    let finish = |p: __m256i, round: __m256i, shift: __m256i, correction: __m256i| {
+        let biased = _mm256_xor_si256(_mm256_add_epi64(p, round), top);
+        let v = _mm256_sub_epi64(_mm256_srlv_epi64(biased, shift), correction);
+        let v = _mm256_blendv_epi8(v, hi, _mm256_cmpgt_epi64(v, hi));
+        _mm256_blendv_epi8(v, lo, _mm256_cmpgt_epi64(lo, v))
+    };
+    let even = finish(even, round.0, shift.0, correction.0);
+    let odd = finish(odd, round.1, shift.1, correction.1);
+    let mut z = _mm256_blend_epi32::<0b1010_1010>(even, _mm256_slli_epi64::<32>(odd));
+    if l.activation == crate::mlp::Activation::HardGelu {
+        z = hard_gelu(z, u32::from(l.out_frac_bits.clamp(1, 14)));
+    }
+    // Every value is in i16 range, so the saturating pack is exact; it interleaves 128-bit
+    // halves, and the permute puts rows 0–3 and 4–7 back together.
+    let packed = _mm256_packs_epi32(z, z);
+    _mm256_castsi256_si128(_mm256_permute4x64_epi64::<0b00_00_10_00>(packed))
+}
+
+/// `hard_gelu_q` on 8 lanes. In the middle region (|z| < t = 1.5·2^f) the result is
+/// floor(floor(num / 2^f) / 3) with num = z(z + t) + t; u = floor(num / 2^f) + 3·2^f lies in
+/// [0, 2^17), so floor(u / 3) is exact through f32 as trunc(u · f32(1/3)): f32(1/3) is above 1/3,
+/// so the exact product is at least u/3 and, u/3 being k, k + 1/3 or k + 2/3, its rounding can
+/// neither fall below k nor (the excess being below 2^17 · 2^-25 + one rounding) reach k + 1.
+#[target_feature(enable = "avx2")]
+fn hard_gelu(z: __m256i, f: u32) -> __m256i {
+    let t = 3i32 << (f - 1);
+    let tv = _mm256_set1_epi32(t);
+    let num = _mm256_add_epi32(_mm256_mullo_epi32(z, _mm256_add_epi32(z, tv)), tv);
+    let floor_f = _mm256_sra_epi32(num, _mm_cvtsi32_si128(f as i32));
+    let offset = 1i32 << f;
+    let u = _mm256_add_epi32(floor_f, _mm256_set1_epi32(3 * offset));
+    let third = _mm256_set1_ps(1.0 / 3.0);
+    let q = _mm256_cvttps_epi32(_mm256_mul_ps(_mm256_cvtepi32_ps(u), third));
+    let mid = _mm256_sub_epi32(q, _mm256_set1_epi32(offset));
+    let above = _mm256_cmpgt_epi32(z, _mm256_set1_epi32(t - 1));
+    let below = _mm256_cmpgt_epi32(_mm256_set1_epi32(1 - t), z);
+    _mm256_andnot_si256(below, _mm256_blendv_epi8(mid, z, above))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// hardGELU on every i16 input at every Q-format, against `hard_gelu_q`.
+    #[test]
+    fn avx2_hard_gelu_is_exact_for_every_input() {
+        if !super::super::Kernel::Avx2.is_available() {
+            return;
+        }
+        for f in 1..=14u32 {
+            for start in (i32::from(i16::MIN)..=i32::from(i16::MAX)).step_by(8) {
+                let z: [i32; 8] = core::array::from_fn(|k| start + k as i32);
+                let mut got = [0i32; 8];
+                // SAFETY: AVX2 checked above; the arrays are 32 bytes.
+                unsafe {
+                    let v = _mm256_loadu_si256(z.as_ptr().cast());
+                    _mm256_storeu_si256(got.as_mut_ptr().cast(), hard_gelu(v, f));
+                }
+                for k in 0..8 {
+                    let want = crate::mlp::hard_gelu_q(z[k] as i16, f as u8);
+                    assert_eq!(got[k], i32::from(want), "z {} f {f}", z[k]);
+                }
+            }
+        }
+    }
+}

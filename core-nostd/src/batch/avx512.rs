@@ -1,0 +1,159 @@
+//! The AVX-512 VNNI integer layer (x86-64): 16 rows per vector, `vpdpwssd` fusing the pair
+//! multiply-add with the accumulation, and a native 64-bit arithmetic shift for requantization.
+//! Like `avx2.rs`, the only `unsafe` here is pointer access within `PackedLayer`'s invariants and
+//! calls into `#[target_feature]` code after the CPU was checked.
+#![allow(unsafe_code)]
+
+use core::arch::x86_64::*;
+
+use super::PackedLayer;
+use crate::limits::MAX_WIDTH;
+
+/// One integer layer: `y[o]` for every 16-row block holding an 8-row block selected in `blocks`.
+pub(super) fn forward(
+    l: &PackedLayer,
+    x: &[i16; MAX_WIDTH],
+    y: &mut [i16; MAX_WIDTH],
+    blocks: u32,
+) {
+    debug_assert!(super::Kernel::Avx512Vnni.is_available());
+    // SAFETY: a Decoder uses this kernel only after `Kernel::is_available` said the CPU has
+    // AVX-512 F, BW and VNNI.
+    unsafe { forward_avx512(l, x, y, blocks) }
+}
+
+#[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
+fn forward_avx512(l: &PackedLayer, x: &[i16; MAX_WIDTH], y: &mut [i16; MAX_WIDTH], blocks: u32) {
+    let count = l.out_pad / 16;
+    let selected = |b: usize| (blocks >> (2 * b)) & 3 != 0;
+    let mut b = 0;
+    while b < count {
+        if b + 4 <= count && (b..b + 4).all(selected) {
+            block::<4>(l, x, y, b);
+            b += 4;
+        } else {
+            if selected(b) {
+                block::<1>(l, x, y, b);
+            }
+            b += 1;
+        }
+    }
+}
+
+/// Rows `16·first .. 16·(first + B)`: B accumulators of 16 rows, one pass over the input pairs.
+#[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
+fn block<const B: usize>(
+    l: &PackedLayer,
+    x: &[i16; MAX_WIDTH],
+    y: &mut [i16; MAX_WIDTH],
+    first: usize,
+) {
+    // Bounds: 16·(first + B) ≤ out_pad ≤ MAX_WIDTH (caller), 2·in_pairs ≤ MAX_WIDTH, and
+    // weights has in_pairs · out_pad · 2 entries (PackedLayer invariants).
+    debug_assert!(16 * (first + B) <= l.out_pad && l.out_pad <= MAX_WIDTH);
+    debug_assert!(2 * l.in_pairs <= MAX_WIDTH && l.weights.len() == l.in_pairs * l.out_pad * 2);
+    let mut acc = [_mm512_setzero_si512(); B];
+    // SAFETY (all pointer accesses below): within the bounds stated above.
+    unsafe {
+        let bias = l.bias.as_ptr().add(16 * first);
+        for (k, a) in acc.iter_mut().enumerate() {
+            *a = _mm512_loadu_si512(bias.add(16 * k).cast());
+        }
+        let pairs = x.as_ptr().cast::<i32>();
+        let mut row = l.weights.as_ptr().add(32 * first);
+        for p in 0..l.in_pairs {
+            let both = _mm512_set1_epi32(pairs.add(p).read_unaligned());
+            for (k, a) in acc.iter_mut().enumerate() {
+                let w = _mm512_loadu_si512(row.add(32 * k).cast());
+                *a = _mm512_dpwssd_epi32(*a, w, both);
+            }
+            row = row.add(2 * l.out_pad);
+        }
+    }
+    for (k, a) in acc.into_iter().enumerate() {
+        let values = requantize(l, a, first + k);
+        // SAFETY: 16·(first + k) + 16 ≤ MAX_WIDTH.
+        unsafe { _mm256_storeu_si256(y.as_mut_ptr().add(16 * (first + k)).cast(), values) };
+    }
+}
+
+/// Requantization, saturation and activation of the 16 accumulators of block `b`, exactly as
+/// `Requant::apply`, `saturate_i16` and `hard_gelu_q`.
+#[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
+fn requantize(l: &PackedLayer, acc: __m512i, b: usize) -> __m256i {
+    debug_assert!(l.multiplier.len() >= 16 * b + 16 && l.shift.len() >= 16 * b + 16);
+    // SAFETY: the per-row vectors hold out_pad ≥ 16·b + 16 entries.
+    let (m, s) = unsafe {
+        (
+            _mm512_loadu_si512(l.multiplier.as_ptr().add(16 * b).cast()),
+            _mm512_loadu_si512(l.shift.as_ptr().add(16 * b).cast()),
+        )
+    };
+    let low = _mm512_set1_epi64(0xFFFF_FFFF);
+    let one = _mm512_set1_epi64(1);
+    let (hi, lo) = (_mm512_set1_epi64(i64::from(i16::MAX)), _mm512_set1_epi64(i64::from(i16::MIN)));
+    // 64-bit lanes: even rows in the low halves, odd rows in the high halves.
+    let finish = |product: __m512i, shift: __m512i| {
+        let round = _mm512_sllv_epi64(one, _mm512_sub_epi64(shift, one));
+        let v = _mm512_srav_epi64(_mm512_add_epi64(product, round), shift);
+        _mm512_max_epi64(_mm512_min_epi64(v, hi), lo)
+    };
+    let even = finish(_mm512_mul_epi32(acc, m), _mm512_and_si512(s, low));
+    let odd = finish(
+        _mm512_mul_epi32(_mm512_srli_epi64::<32>(acc), _mm512_srli_epi64::<32>(m)),
+        _mm512_srli_epi64::<32>(s),
+    );
+    let mut z = _mm512_mask_blend_epi32(0xAAAA, even, _mm512_slli_epi64::<32>(odd));
+    if l.activation == crate::mlp::Activation::HardGelu {
+        z = hard_gelu(z, u32::from(l.out_frac_bits.clamp(1, 14)));
+    }
+    // Every value is in i16 range, so truncating to 16 bits is exact.
+    _mm512_cvtepi32_epi16(z)
+}
+
+/// `hard_gelu_q` on 16 lanes; the arithmetic and its exactness argument are those of
+/// `avx2::hard_gelu`.
+#[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
+fn hard_gelu(z: __m512i, f: u32) -> __m512i {
+    let t = 3i32 << (f - 1);
+    let tv = _mm512_set1_epi32(t);
+    let num = _mm512_add_epi32(_mm512_mullo_epi32(z, _mm512_add_epi32(z, tv)), tv);
+    let floor_f = _mm512_sra_epi32(num, _mm_cvtsi32_si128(f as i32));
+    let offset = 1i32 << f;
+    let u = _mm512_add_epi32(floor_f, _mm512_set1_epi32(3 * offset));
+    let third = _mm512_set1_ps(1.0 / 3.0);
+    let q = _mm512_cvttps_epi32(_mm512_mul_ps(_mm512_cvtepi32_ps(u), third));
+    let mid = _mm512_sub_epi32(q, _mm512_set1_epi32(offset));
+    let above = _mm512_cmpge_epi32_mask(z, tv);
+    let below = _mm512_cmple_epi32_mask(z, _mm512_set1_epi32(-t));
+    let v = _mm512_mask_blend_epi32(above, mid, z);
+    _mm512_mask_blend_epi32(below, v, _mm512_setzero_si512())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// hardGELU on every i16 input at every Q-format, against `hard_gelu_q`.
+    #[test]
+    fn avx512_hard_gelu_is_exact_for_every_input() {
+        if !super::super::Kernel::Avx512Vnni.is_available() {
+            return;
+        }
+        for f in 1..=14u32 {
+            for start in (i32::from(i16::MIN)..=i32::from(i16::MAX)).step_by(16) {
+                let z: [i32; 16] = core::array::from_fn(|k| start + k as i32);
+                let mut got = [0i32; 16];
+                // SAFETY: AVX-512 checked above; the arrays are 64 bytes.
+                unsafe {
+                    let v = _mm512_loadu_si512(z.as_ptr().cast());
+                    _mm512_storeu_si512(got.as_mut_ptr().cast(), hard_gelu(v, f));
+                }
+                for k in 0..16 {
+                    let want = crate::mlp::hard_gelu_q(z[k] as i16, f as u8);
+                    assert_eq!(got[k], i32::from(want), "z {} f {f}", z[k]);
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,141 @@
+//! The prepared `Decoder` (issue 7) against the per-texel definition on `Material`: every kernel,
+//! every output type, spans, channel subsets, out-of-range coordinates, accumulator extremes.
+
+use nmat_core::{Argument, ChannelMask, Container, Decoder, Error, Kernel, Material};
+use nmat_tests::generate::{Rng, generate, golden_configs, wide_constant_material};
+
+fn kernels() -> Vec<Kernel> {
+    Kernel::ALL.into_iter().filter(|k| k.is_available()).collect()
+}
+
+fn random_mask(r: &mut Rng, m: &Material<'_>) -> ChannelMask {
+    let all = (1u32 << m.channel_count()) - 1;
+    match r.range(0, 3) {
+        0 => ChannelMask::ALL,
+        1 => ChannelMask::single(r.range(0, m.channel_count() as i64 - 1) as u32),
+        _ => ChannelMask(r.range(1, i64::from(all)) as u16),
+    }
+}
+
+/// Texel by texel: u8, u16 and float (to the bit) equal the `Material` decoders.
+fn assert_texels_agree(m: &Material<'_>, r: &mut Rng, count: usize) {
+    for kernel in kernels() {
+        let d = Decoder::with_kernel(m, kernel).unwrap();
+        for _ in 0..count {
+            let mip = r.range(0, i64::from(m.mip_count())) as u32; // one past the chain clamps
+            let (x, y) =
+                (r.range(-40, i64::from(m.width()) + 40), r.range(-40, i64::from(m.height()) + 40));
+            let mask = random_mask(r, m);
+            let (mut a8, mut b8) = ([0u8; 16], [0u8; 16]);
+            let (mut a16, mut b16) = ([0u16; 16], [0u16; 16]);
+            let (mut af, mut bf) = ([0f32; 16], [0f32; 16]);
+            let n = m.decode_texel_u8(x, y, mip, mask, &mut a8).unwrap();
+            assert_eq!(d.decode_texel_u8(m, x, y, mip, mask, &mut b8).unwrap(), n);
+            m.decode_texel_u16(x, y, mip, mask, &mut a16).unwrap();
+            d.decode_texel_u16(m, x, y, mip, mask, &mut b16).unwrap();
+            m.decode_texel(x, y, mip, mask, &mut af).unwrap();
+            d.decode_texel(m, x, y, mip, mask, &mut bf).unwrap();
+            let at = format!("{kernel:?} texel ({x}, {y}) mip {mip} mask {:#x}", mask.0);
+            assert_eq!(a8[..n], b8[..n], "u8 {at}");
+            assert_eq!(a16[..n], b16[..n], "u16 {at}");
+            let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&af[..n]), bits(&bf[..n]), "float {at}");
+        }
+    }
+}
+
+#[test]
+fn every_kernel_matches_the_per_texel_definition_on_every_fixture() {
+    let mut r = Rng::new(77);
+    for cfg in golden_configs() {
+        let bytes = generate(&cfg).to_bytes().unwrap();
+        let m = Container::parse(&bytes).unwrap();
+        assert_texels_agree(&m, &mut r, 300);
+    }
+}
+
+#[test]
+fn every_kernel_survives_the_accumulator_bound() {
+    let limit = i32::MAX - 128 * 127 * 32768;
+    let mut r = Rng::new(78);
+    for (input, weight, bias) in [
+        (i16::MAX, 127, limit),
+        (i16::MIN, 127, -limit),
+        (i16::MIN, -127, limit),
+        (i16::MAX, -127, -limit),
+    ] {
+        let bytes = wide_constant_material(input, weight, bias).to_bytes().unwrap();
+        let m = Container::parse(&bytes).unwrap();
+        assert_texels_agree(&m, &mut r, 20);
+    }
+}
+
+#[test]
+fn spans_equal_texel_by_texel_decodes() {
+    let mut r = Rng::new(79);
+    for cfg in golden_configs() {
+        let bytes = generate(&cfg).to_bytes().unwrap();
+        let m = Container::parse(&bytes).unwrap();
+        for kernel in kernels() {
+            let d = Decoder::with_kernel(&m, kernel).unwrap();
+            for _ in 0..20 {
+                let mip = r.range(0, i64::from(m.mip_count()) - 1) as u32;
+                let (x0, y, count) = (r.range(-20, 90), r.range(-20, 90), r.range(0, 70) as usize);
+                let mask = random_mask(&mut r, &m);
+                let n = m.required_len(mask).unwrap();
+                let mut span8 = vec![0u8; count * n];
+                let mut spanf = vec![0f32; count * n];
+                assert_eq!(
+                    d.decode_span_u8(&m, x0, y, mip, count, mask, &mut span8).unwrap(),
+                    count * n
+                );
+                d.decode_span_f32(&m, x0, y, mip, count, mask, &mut spanf).unwrap();
+                for i in 0..count {
+                    let (mut t8, mut tf) = ([0u8; 16], [0f32; 16]);
+                    m.decode_texel_u8(x0 + i as i64, y, mip, mask, &mut t8).unwrap();
+                    m.decode_texel(x0 + i as i64, y, mip, mask, &mut tf).unwrap();
+                    assert_eq!(span8[i * n..(i + 1) * n], t8[..n]);
+                    assert_eq!(spanf[i * n..(i + 1) * n], tf[..n]);
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn a_decoder_refuses_another_material_and_short_outputs() {
+    let (a, b) = (
+        generate(&golden_configs()[0]).to_bytes().unwrap(),
+        generate(&golden_configs()[1]).to_bytes().unwrap(),
+    );
+    let (ma, mb) = (Container::parse(&a).unwrap(), Container::parse(&b).unwrap());
+    let d = Decoder::new(&ma);
+    let mut out = [0u8; 64];
+    let err = d.decode_texel_u8(&mb, 0, 0, 0, ChannelMask::ALL, &mut out).unwrap_err();
+    assert!(matches!(err, Error::BadArgument { argument: Argument::Material, .. }), "{err}");
+    let err = d.decode_span_u8(&ma, 0, 0, 0, 22, ChannelMask::ALL, &mut out).unwrap_err();
+    assert!(
+        matches!(err, Error::BadArgument { argument: Argument::Output, value: 64, limit: 66 }),
+        "{err}"
+    );
+    let err = d.decode_span_u8(&ma, 0, 0, 0, usize::MAX, ChannelMask::ALL, &mut out).unwrap_err();
+    assert!(matches!(err, Error::BadArgument { argument: Argument::Output, .. }), "{err}");
+    let err = d.decode_texel_u8(&ma, 0, 0, 0, ChannelMask(1 << 5), &mut out).unwrap_err();
+    assert!(matches!(err, Error::BadArgument { argument: Argument::Channels, .. }), "{err}");
+}
+
+#[test]
+fn kernel_choice_is_reported_and_unavailable_kernels_are_refused() {
+    let bytes = generate(&golden_configs()[0]).to_bytes().unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    assert_eq!(Decoder::new(&m).kernel(), Kernel::best());
+    for kernel in Kernel::ALL {
+        match Decoder::with_kernel(&m, kernel) {
+            Ok(d) => assert!(kernel.is_available() && d.kernel() == kernel),
+            Err(e) => assert!(
+                !kernel.is_available()
+                    && matches!(e, Error::BadArgument { argument: Argument::Kernel, .. })
+            ),
+        }
+    }
+}
