@@ -1,6 +1,6 @@
 //! What the CLI prints and writes: descriptions, quality tables, decoded maps, atomic files.
 
-use nmat_core::{ChannelMask, Material};
+use nmat_core::{ChannelMask, Decoder, Material};
 use nmat_encode::TextureSet;
 use nmat_encode::metrics::{ChainQuality, unit_of};
 use nmat_encode::source_maps;
@@ -100,6 +100,7 @@ pub fn write_maps(
 ) -> Result<Vec<PathBuf>, Box<dyn std::error::Error>> {
     let maps = source_maps(m).unwrap_or_else(|| maps_from_names(m));
     let channels = m.channel_count();
+    let decoder = Decoder::new(m);
     let mut batched: Vec<Option<Vec<u8>>> = vec![None; m.mip_count() as usize];
     let mut written = Vec::new();
     let single = mips == [0];
@@ -136,11 +137,11 @@ pub fn write_maps(
                     } else if float {
                         m.decode_texel_unit(x, y, mip, mask, &mut unit)?;
                     } else if sixteen {
-                        m.decode_texel_u16(x, y, mip, mask, &mut codes)?;
+                        decoder.decode_texel_u16(m, x, y, mip, mask, &mut codes)?;
                         unit.iter_mut().zip(codes).for_each(|(u, c)| *u = f32::from(c) / 65535.0);
                     } else {
                         let mut c8 = [0u8; 16];
-                        m.decode_texel_u8(x, y, mip, mask, &mut c8)?;
+                        decoder.decode_texel_u8(m, x, y, mip, mask, &mut c8)?;
                         unit.iter_mut().zip(c8).for_each(|(u, c)| *u = f32::from(c) / 255.0);
                     }
                     let value = |k: usize| {
@@ -158,7 +159,7 @@ pub fn write_maps(
                     } else if map.gray_rgb && comps == 4 {
                         pixels.push(value(1));
                     }
-                    while pixels.len() % comps != 0 {
+                    while !pixels.len().is_multiple_of(comps) {
                         pixels.push(full as u16);
                     }
                 }

@@ -57,6 +57,32 @@ impl Kernel {
         }
     }
 
+    /// Multiply-adds one round of [`Kernel::probe`] performs.
+    pub fn probe_macs_per_round(self) -> u64 {
+        match self {
+            Kernel::Scalar => 8,
+            Kernel::Avx2 => 128,
+            Kernel::Avx512Vnni => 256,
+        }
+    }
+
+    /// A register-only loop of this kernel's multiply-add instruction, for measuring the CPU's
+    /// peak rate (the roofline of docs/PERFORMANCE.md): time `rounds` rounds and divide
+    /// `rounds · probe_macs_per_round()` by the time. Returns a value depending on every product
+    /// (print or `black_box` it), or `None` if this CPU lacks the kernel.
+    pub fn probe(self, rounds: u64) -> Option<i64> {
+        if !self.is_available() {
+            return None;
+        }
+        Some(match self {
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx2 => avx2::probe(rounds),
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx512Vnni => avx512::probe(rounds),
+            _ => scalar_probe(rounds),
+        })
+    }
+
     /// Short lowercase name for tables and logs.
     pub fn name(self) -> &'static str {
         match self {
@@ -103,6 +129,19 @@ fn avx2_available() -> bool {
 #[cfg(not(target_arch = "x86_64"))]
 fn avx512_vnni_available() -> bool {
     false
+}
+
+/// 8 independent scalar i32 multiply-add chains (what the scalar kernel's inner loop is).
+fn scalar_probe(rounds: u64) -> i64 {
+    let mut acc = [0i32; 8];
+    let mut x = 3i32;
+    for _ in 0..rounds {
+        for (k, a) in acc.iter_mut().enumerate() {
+            *a = a.wrapping_add((k as i32 + 1).wrapping_mul(x));
+        }
+        x = x.wrapping_add(1);
+    }
+    acc.iter().map(|&a| i64::from(a)).sum()
 }
 
 /// One layer in the prepared layout. Invariants (established by [`PackedLayer::new`], relied on
@@ -434,6 +473,27 @@ impl Decoder {
         Ok(count * n)
     }
 
+    /// Integer decode of a span to 16-bit codes, like [`Decoder::decode_span_u8`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn decode_span_u16(
+        &self,
+        material: &Material<'_>,
+        x0: i64,
+        y: i64,
+        mip: u32,
+        count: usize,
+        channels: ChannelMask,
+        out: &mut [u16],
+    ) -> Result<usize, Error> {
+        let (rows, n) = self.check_span(material, count, channels, out.len())?;
+        let mut cells = CachedCells::default();
+        for (i, texel) in out.chunks_exact_mut(n).take(count).enumerate() {
+            let at = (x0.wrapping_add(i as i64), y, mip);
+            self.texel_codes(material, at, &mut cells, rows, texel, 65535, |c| c as u16);
+        }
+        Ok(count * n)
+    }
+
     /// Float decode (values in channel ranges) of a span, like [`Decoder::decode_span_u8`].
     #[allow(clippy::too_many_arguments)]
     pub fn decode_span_f32(
@@ -604,7 +664,11 @@ mod tests {
             lane_correction: lane_shift.iter().map(|&s| 1i64 << (63 - s)).collect(),
             lane_shift,
             out_frac_bits: rng.edgy(1, 14) as u8,
-            activation: if rng.next() % 2 == 0 { Activation::None } else { Activation::HardGelu },
+            activation: if rng.next().is_multiple_of(2) {
+                Activation::None
+            } else {
+                Activation::HardGelu
+            },
             float_weights: Vec::new(),
             float_bias: Vec::new(),
         }

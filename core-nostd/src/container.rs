@@ -213,7 +213,7 @@ fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'
         if flags & !SECTION_REQUIRED != 0 {
             return Err(unsupported(Field::SectionFlags, i, flags));
         }
-        if offset % 4 != 0 || offset < table_end {
+        if !offset.is_multiple_of(4) || offset < table_end {
             return Err(malformed(Field::SectionOffset, i, offset as i64));
         }
         let data = take(bytes, offset, length, Field::SectionLength, i)?;
@@ -467,7 +467,7 @@ fn parse_grid<'a>(
     if expected != Some(length) {
         return Err(malformed(Field::GridDataLength, g, length as i64));
     }
-    if offset % 4 != 0 {
+    if !offset.is_multiple_of(4) {
         return Err(malformed(Field::GridDataOffset, g, offset as i64));
     }
     let data = take(latents, offset, length, Field::GridDataOffset, g)?;

@@ -2,25 +2,29 @@
 //! paper's figure), per map and per mip, SSIM at mip 0, and bits per pixel per channel.
 
 use crate::texset::TextureSet;
-use nmat_core::{ChannelMask, Material};
+use nmat_core::{ChannelMask, Decoder, Material};
 use rayon::prelude::*;
 
 /// Integer-decoded unit values of one mip, `w × h × channels`, channel fastest.
 pub fn decode_mip(m: &Material<'_>, mip: u32) -> Vec<f32> {
     let (w, h) = m.mip_size(mip);
     let c = m.channel_count();
+    let decoder = Decoder::new(m);
     let rows: Vec<Vec<f32>> = (0..h)
         .into_par_iter()
         .map(|y| {
-            let mut row = Vec::with_capacity(w as usize * c);
-            let mut buf = [0u8; 16];
-            for x in 0..w {
-                // A valid material, mask and buffer: this cannot fail.
-                let _ =
-                    m.decode_texel_u8(i64::from(x), i64::from(y), mip, ChannelMask::ALL, &mut buf);
-                row.extend(buf[..c].iter().map(|&v| f32::from(v) / 255.0));
-            }
-            row
+            let mut codes = vec![0u8; w as usize * c];
+            // A valid material, mask and buffer: this cannot fail.
+            let _ = decoder.decode_span_u8(
+                m,
+                0,
+                i64::from(y),
+                mip,
+                w as usize,
+                ChannelMask::ALL,
+                &mut codes,
+            );
+            codes.iter().map(|&v| f32::from(v) / 255.0).collect()
         })
         .collect();
     rows.concat()

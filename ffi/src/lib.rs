@@ -9,7 +9,9 @@
 // The C names are the API.
 #![allow(non_camel_case_types)]
 
-use nmat_core::{ChannelMask, Container, Error, Filter, Material, Precision, SampleRequest};
+use nmat_core::{
+    ChannelMask, Container, Decoder, Error, Filter, Material, Precision, SampleRequest,
+};
 use std::cell::RefCell;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
@@ -119,6 +121,8 @@ pub struct nmat_channel_info {
 /// field order makes it drop first.
 struct Handle {
     material: Material<'static>,
+    /// The material's MLP prepared for the fastest kernel of this CPU (every decode uses it).
+    decoder: Decoder,
     /// The copy `material` points into (`nmat_material_open`); never read, only kept alive.
     _bytes: Option<Box<[u8]>>,
 }
@@ -196,8 +200,12 @@ fn slice_mut<'a, T>(p: *mut T, len: usize) -> Result<&'a mut [T], nmat_status> {
     Ok(unsafe { std::slice::from_raw_parts_mut(p, len) })
 }
 
+fn handle<'a>(m: *const nmat_material) -> Result<&'a Handle, nmat_status> {
+    arg(m.cast::<Handle>())
+}
+
 fn material<'a>(m: *const nmat_material) -> Result<&'a Material<'static>, nmat_status> {
-    arg(m.cast::<Handle>()).map(|h| &h.material)
+    handle(m).map(|h| &h.material)
 }
 
 fn bad(what: &str) -> nmat_status {
@@ -231,7 +239,8 @@ fn open(data: *const u8, len: usize, out: *mut *mut nmat_material, copy: bool) -
         // borrowed variant's contract requires to outlive the handle.
         let view: &'static [u8] = unsafe { std::slice::from_raw_parts(view.as_ptr(), view.len()) };
         let material = Container::parse(view).map_err(fail)?;
-        let handle = Box::new(Handle { material, _bytes: owned });
+        let decoder = Decoder::new(&material);
+        let handle = Box::new(Handle { material, decoder, _bytes: owned });
         *out = Box::into_raw(handle).cast::<nmat_material>();
         Ok(())
     })
@@ -356,7 +365,7 @@ pub extern "C" fn nmat_decode_texel(
     out_len: usize,
 ) -> nmat_status {
     guard(|| {
-        let m = material(m)?;
+        let Handle { material: m, decoder, .. } = handle(m)?;
         let out = slice_mut(out, out_len)?;
         let (mask, n) = mask(m, channel_mask)?;
         if mip >= m.mip_count() {
@@ -364,11 +373,11 @@ pub extern "C" fn nmat_decode_texel(
         }
         match decode_mode(mode)? {
             nmat_mode::NMAT_MODE_FLOAT => {
-                m.decode_texel(x, y, mip, mask, out).map(|_| ()).map_err(fail)
+                decoder.decode_texel(m, x, y, mip, mask, out).map(|_| ()).map_err(fail)
             }
             nmat_mode::NMAT_MODE_INTEGER => {
                 let mut codes = [0u8; 16];
-                m.decode_texel_u8(x, y, mip, mask, &mut codes).map_err(fail)?;
+                decoder.decode_texel_u8(m, x, y, mip, mask, &mut codes).map_err(fail)?;
                 let channels = selected(m, mask);
                 if out.len() < n {
                     return Err(NMAT_BUFFER_TOO_SMALL);
@@ -412,13 +421,13 @@ pub extern "C" fn nmat_decode_texel_u8(
     out_len: usize,
 ) -> nmat_status {
     guard(|| {
-        let m = material(m)?;
+        let Handle { material: m, decoder, .. } = handle(m)?;
         let out = slice_mut(out, out_len)?;
         let (mask, _) = mask(m, channel_mask)?;
         if mip >= m.mip_count() {
             return Err(bad("mip beyond the chain"));
         }
-        m.decode_texel_u8(x, y, mip, mask, out).map(|_| ()).map_err(fail)
+        decoder.decode_texel_u8(m, x, y, mip, mask, out).map(|_| ()).map_err(fail)
     })
 }
 
@@ -565,16 +574,17 @@ pub extern "C" fn nmat_decode_region_u8(
     out_len: usize,
 ) -> nmat_status {
     guard(|| {
-        let m = material(m)?;
+        let Handle { material: m, decoder, .. } = handle(m)?;
         let out = slice_mut(out, out_len)?;
         let (mask, n, pitch) =
             region_checks(m, mip, (x0, y0, width, height), channel_mask, 1, row_pitch, out_len)?;
+        let row_len = width as usize * n;
         for y in 0..height as usize {
-            let row = out.get_mut(y * pitch..).ok_or(NMAT_BUFFER_TOO_SMALL)?;
-            for (x, texel) in row.chunks_mut(n).take(width as usize).enumerate() {
-                let (tx, ty) = (i64::from(x0) + x as i64, i64::from(y0) + y as i64);
-                m.decode_texel_u8(tx, ty, mip, mask, texel).map_err(fail)?;
-            }
+            let row = out.get_mut(y * pitch..y * pitch + row_len).ok_or(NMAT_BUFFER_TOO_SMALL)?;
+            let ty = i64::from(y0) + y as i64;
+            decoder
+                .decode_span_u8(m, i64::from(x0), ty, mip, width as usize, mask, row)
+                .map_err(fail)?;
         }
         Ok(())
     })
@@ -597,30 +607,34 @@ pub extern "C" fn nmat_decode_region_f32(
     out_len: usize,
 ) -> nmat_status {
     guard(|| {
-        let handle = m;
-        let mm = material(m)?;
-        if row_pitch % 4 != 0 {
+        let Handle { material: mm, decoder, .. } = handle(m)?;
+        if !row_pitch.is_multiple_of(4) {
             return Err(bad("row pitch of a float region must be a multiple of 4 bytes"));
         }
+        let mode = decode_mode(mode)?;
         let out = slice_mut(out, out_len / 4)?;
         let (mask, n, pitch) =
             region_checks(mm, mip, (x0, y0, width, height), channel_mask, 4, row_pitch, out_len)?;
+        let ranges: Vec<(f32, f32)> =
+            selected(mm, mask).map(|c| (c.range_min, c.range_max)).collect();
+        let row_len = width as usize * n;
+        let mut codes = vec![0u8; if mode == nmat_mode::NMAT_MODE_INTEGER { row_len } else { 0 }];
         for y in 0..height as usize {
-            let row = out.get_mut(y * pitch / 4..).ok_or(NMAT_BUFFER_TOO_SMALL)?;
-            for (x, texel) in row.chunks_mut(n).take(width as usize).enumerate() {
-                let (tx, ty) = (i64::from(x0) + x as i64, i64::from(y0) + y as i64);
-                let status = nmat_decode_texel(
-                    handle,
-                    tx,
-                    ty,
-                    mip,
-                    u32::from(mask.0),
-                    mode,
-                    texel.as_mut_ptr(),
-                    texel.len(),
-                );
-                if status != NMAT_OK {
-                    return Err(status);
+            let start = y * pitch / 4;
+            let row = out.get_mut(start..start + row_len).ok_or(NMAT_BUFFER_TOO_SMALL)?;
+            let (x, ty) = (i64::from(x0), i64::from(y0) + y as i64);
+            let w = width as usize;
+            match mode {
+                nmat_mode::NMAT_MODE_FLOAT => {
+                    decoder.decode_span_f32(mm, x, ty, mip, w, mask, row).map_err(fail)?;
+                }
+                nmat_mode::NMAT_MODE_INTEGER => {
+                    decoder.decode_span_u8(mm, x, ty, mip, w, mask, &mut codes).map_err(fail)?;
+                    for (i, (o, &c)) in row.iter_mut().zip(&codes).enumerate() {
+                        let (lo, hi) = ranges.get(i % n).copied().unwrap_or((0.0, 1.0));
+                        let u = f32::from(c) / 255.0;
+                        *o = lo * (1.0 - u) + hi * u;
+                    }
                 }
             }
         }

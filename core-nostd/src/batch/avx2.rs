@@ -27,20 +27,21 @@ fn forward_avx2(l: &PackedLayer, x: &[i16; MAX_WIDTH], y: &mut [i16; MAX_WIDTH],
     let mut b = 0;
     while b < count {
         if b + 4 <= count && (blocks >> b) & 0xF == 0xF {
-            block::<4>(l, x, y, b);
+            block::<4, 2>(l, x, y, b);
             b += 4;
         } else {
             if (blocks >> b) & 1 != 0 {
-                block::<1>(l, x, y, b);
+                block::<1, 4>(l, x, y, b);
             }
             b += 1;
         }
     }
 }
 
-/// Rows `8·first .. 8·(first + B)`: B accumulators of 8 rows, one pass over the input pairs.
+/// Rows `8·first .. 8·(first + B)`: B blocks of 8 rows, one pass over the input pairs, dealt
+/// round-robin to S partial sums per block (B·S independent chains; see `avx512::block`).
 #[target_feature(enable = "avx2")]
-fn block<const B: usize>(
+fn block<const B: usize, const S: usize>(
     l: &PackedLayer,
     x: &[i16; MAX_WIDTH],
     y: &mut [i16; MAX_WIDTH],
@@ -50,26 +51,46 @@ fn block<const B: usize>(
     // weights has in_pairs · out_pad · 2 entries (PackedLayer invariants).
     debug_assert!(8 * (first + B) <= l.out_pad && l.out_pad <= MAX_WIDTH);
     debug_assert!(2 * l.in_pairs <= MAX_WIDTH && l.weights.len() == l.in_pairs * l.out_pad * 2);
-    let mut acc = [_mm256_setzero_si256(); B];
+    let mut acc = [[_mm256_setzero_si256(); S]; B];
     // SAFETY (all pointer accesses below): within the bounds stated above.
     unsafe {
         let bias = l.bias.as_ptr().add(8 * first);
         for (k, a) in acc.iter_mut().enumerate() {
-            *a = _mm256_loadu_si256(bias.add(8 * k).cast());
+            if let Some(a) = a.first_mut() {
+                *a = _mm256_loadu_si256(bias.add(8 * k).cast());
+            }
         }
         let pairs = x.as_ptr().cast::<i32>();
-        let mut row = l.weights.as_ptr().add(16 * first);
-        for p in 0..l.in_pairs {
+        let base = l.weights.as_ptr().add(16 * first);
+        let step = 2 * l.out_pad;
+        let mut p = 0;
+        while p + S <= l.in_pairs {
+            for s in 0..S {
+                let both = _mm256_set1_epi32(pairs.add(p + s).read_unaligned());
+                let row = base.add((p + s) * step);
+                for (k, a) in acc.iter_mut().enumerate() {
+                    let w = _mm256_loadu_si256(row.add(16 * k).cast());
+                    if let Some(a) = a.get_mut(s) {
+                        *a = _mm256_add_epi32(*a, _mm256_madd_epi16(w, both));
+                    }
+                }
+            }
+            p += S;
+        }
+        for (s, p) in (p..l.in_pairs).enumerate() {
             let both = _mm256_set1_epi32(pairs.add(p).read_unaligned());
+            let row = base.add(p * step);
             for (k, a) in acc.iter_mut().enumerate() {
                 let w = _mm256_loadu_si256(row.add(16 * k).cast());
-                *a = _mm256_add_epi32(*a, _mm256_madd_epi16(w, both));
+                if let Some(a) = a.get_mut(s) {
+                    *a = _mm256_add_epi32(*a, _mm256_madd_epi16(w, both));
+                }
             }
-            row = row.add(2 * l.out_pad);
         }
     }
-    for (k, a) in acc.into_iter().enumerate() {
-        let values = requantize(l, a, first + k);
+    for (k, partial) in acc.into_iter().enumerate() {
+        let sum = partial.into_iter().fold(_mm256_setzero_si256(), |a, b| _mm256_add_epi32(a, b));
+        let values = requantize(l, sum, first + k);
         // SAFETY: 8·(first + k) + 8 ≤ MAX_WIDTH.
         unsafe { _mm_storeu_si128(y.as_mut_ptr().add(8 * (first + k)).cast(), values) };
     }
@@ -138,6 +159,35 @@ fn hard_gelu(z: __m256i, f: u32) -> __m256i {
     let above = _mm256_cmpgt_epi32(z, _mm256_set1_epi32(t - 1));
     let below = _mm256_cmpgt_epi32(_mm256_set1_epi32(1 - t), z);
     _mm256_andnot_si256(below, _mm256_blendv_epi8(mid, z, above))
+}
+
+/// The peak-rate probe of this instruction set: `rounds` × 8 independent `vpmaddwd` + `vpaddd`
+/// (128 multiply-adds per round) on registers only. Returns a value that depends on every
+/// product, so the work cannot be optimized away.
+pub(super) fn probe(rounds: u64) -> i64 {
+    // SAFETY: callers check `Kernel::Avx2.is_available()` first.
+    unsafe { probe_avx2(rounds) }
+}
+
+#[target_feature(enable = "avx2")]
+fn probe_avx2(rounds: u64) -> i64 {
+    let a = [0x0003_0001, 0x0005_0002, 0x0007_0004, 0x0001_0009].map(|v| _mm256_set1_epi32(v));
+    let (mut b0, mut b1) = (_mm256_set1_epi32(0x0001_0001), _mm256_set1_epi32(0x0002_0003));
+    let step = _mm256_set1_epi16(1);
+    let mut acc = [_mm256_setzero_si256(); 8];
+    for _ in 0..rounds {
+        for (k, pair) in acc.chunks_exact_mut(2).enumerate() {
+            let w = a.get(k).copied().unwrap_or(step);
+            if let [p, q] = pair {
+                *p = _mm256_add_epi32(*p, _mm256_madd_epi16(w, b0));
+                *q = _mm256_add_epi32(*q, _mm256_madd_epi16(w, b1));
+            }
+        }
+        b0 = _mm256_add_epi16(b0, step);
+        b1 = _mm256_add_epi16(b1, step);
+    }
+    let sum = acc.into_iter().fold(_mm256_setzero_si256(), |s, v| _mm256_add_epi32(s, v));
+    i64::from(_mm256_extract_epi32::<0>(sum)) + i64::from(_mm256_extract_epi32::<7>(sum))
 }
 
 #[cfg(test)]

@@ -29,20 +29,22 @@ fn forward_avx512(l: &PackedLayer, x: &[i16; MAX_WIDTH], y: &mut [i16; MAX_WIDTH
     let mut b = 0;
     while b < count {
         if b + 4 <= count && (b..b + 4).all(selected) {
-            block::<4>(l, x, y, b);
+            block::<4, 2>(l, x, y, b);
             b += 4;
         } else {
             if selected(b) {
-                block::<1>(l, x, y, b);
+                block::<1, 4>(l, x, y, b);
             }
             b += 1;
         }
     }
 }
 
-/// Rows `16·first .. 16·(first + B)`: B accumulators of 16 rows, one pass over the input pairs.
+/// Rows `16·first .. 16·(first + B)`: B blocks of 16 rows, one pass over the input pairs. The
+/// pairs are dealt round-robin to S partial sums per block, so B·S independent `vpdpwssd` chains
+/// hide the instruction's latency; integer sums do not depend on their order.
 #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
-fn block<const B: usize>(
+fn block<const B: usize, const S: usize>(
     l: &PackedLayer,
     x: &[i16; MAX_WIDTH],
     y: &mut [i16; MAX_WIDTH],
@@ -52,26 +54,46 @@ fn block<const B: usize>(
     // weights has in_pairs · out_pad · 2 entries (PackedLayer invariants).
     debug_assert!(16 * (first + B) <= l.out_pad && l.out_pad <= MAX_WIDTH);
     debug_assert!(2 * l.in_pairs <= MAX_WIDTH && l.weights.len() == l.in_pairs * l.out_pad * 2);
-    let mut acc = [_mm512_setzero_si512(); B];
+    let mut acc = [[_mm512_setzero_si512(); S]; B];
     // SAFETY (all pointer accesses below): within the bounds stated above.
     unsafe {
         let bias = l.bias.as_ptr().add(16 * first);
         for (k, a) in acc.iter_mut().enumerate() {
-            *a = _mm512_loadu_si512(bias.add(16 * k).cast());
+            if let Some(a) = a.first_mut() {
+                *a = _mm512_loadu_si512(bias.add(16 * k).cast());
+            }
         }
         let pairs = x.as_ptr().cast::<i32>();
-        let mut row = l.weights.as_ptr().add(32 * first);
-        for p in 0..l.in_pairs {
+        let base = l.weights.as_ptr().add(32 * first);
+        let step = 2 * l.out_pad;
+        let mut p = 0;
+        while p + S <= l.in_pairs {
+            for s in 0..S {
+                let both = _mm512_set1_epi32(pairs.add(p + s).read_unaligned());
+                let row = base.add((p + s) * step);
+                for (k, a) in acc.iter_mut().enumerate() {
+                    let w = _mm512_loadu_si512(row.add(32 * k).cast());
+                    if let Some(a) = a.get_mut(s) {
+                        *a = _mm512_dpwssd_epi32(*a, w, both);
+                    }
+                }
+            }
+            p += S;
+        }
+        for (s, p) in (p..l.in_pairs).enumerate() {
             let both = _mm512_set1_epi32(pairs.add(p).read_unaligned());
+            let row = base.add(p * step);
             for (k, a) in acc.iter_mut().enumerate() {
                 let w = _mm512_loadu_si512(row.add(32 * k).cast());
-                *a = _mm512_dpwssd_epi32(*a, w, both);
+                if let Some(a) = a.get_mut(s) {
+                    *a = _mm512_dpwssd_epi32(*a, w, both);
+                }
             }
-            row = row.add(2 * l.out_pad);
         }
     }
-    for (k, a) in acc.into_iter().enumerate() {
-        let values = requantize(l, a, first + k);
+    for (k, partial) in acc.into_iter().enumerate() {
+        let sum = partial.into_iter().fold(_mm512_setzero_si512(), |a, b| _mm512_add_epi32(a, b));
+        let values = requantize(l, sum, first + k);
         // SAFETY: 16·(first + k) + 16 ≤ MAX_WIDTH.
         unsafe { _mm256_storeu_si256(y.as_mut_ptr().add(16 * (first + k)).cast(), values) };
     }
@@ -128,6 +150,34 @@ fn hard_gelu(z: __m512i, f: u32) -> __m512i {
     let below = _mm512_cmple_epi32_mask(z, _mm512_set1_epi32(-t));
     let v = _mm512_mask_blend_epi32(above, mid, z);
     _mm512_mask_blend_epi32(below, v, _mm512_setzero_si512())
+}
+
+/// The peak-rate probe of this instruction set: `rounds` × 8 independent `vpdpwssd` (256
+/// multiply-adds per round) on registers only; see `avx2::probe`.
+pub(super) fn probe(rounds: u64) -> i64 {
+    // SAFETY: callers check `Kernel::Avx512Vnni.is_available()` first.
+    unsafe { probe_avx512(rounds) }
+}
+
+#[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
+fn probe_avx512(rounds: u64) -> i64 {
+    let a = [0x0003_0001, 0x0005_0002, 0x0007_0004, 0x0001_0009].map(|v| _mm512_set1_epi32(v));
+    let (mut b0, mut b1) = (_mm512_set1_epi32(0x0001_0001), _mm512_set1_epi32(0x0002_0003));
+    let step = _mm512_set1_epi16(1);
+    let mut acc = [_mm512_setzero_si512(); 8];
+    for _ in 0..rounds {
+        for (k, pair) in acc.chunks_exact_mut(2).enumerate() {
+            let w = a.get(k).copied().unwrap_or(step);
+            if let [p, q] = pair {
+                *p = _mm512_dpwssd_epi32(*p, w, b0);
+                *q = _mm512_dpwssd_epi32(*q, w, b1);
+            }
+        }
+        b0 = _mm512_add_epi16(b0, step);
+        b1 = _mm512_add_epi16(b1, step);
+    }
+    let sum = acc.into_iter().fold(_mm512_setzero_si512(), |s, v| _mm512_add_epi32(s, v));
+    i64::from(_mm512_reduce_add_epi32(sum))
 }
 
 #[cfg(test)]
