@@ -1,6 +1,7 @@
 //! `nmat`: encode material maps into a `.nmat` file and back, inspect and evaluate it, or run the
 //! whole chain on a bundled procedural material (`nmat demo`). See docs/ENCODING.md.
 
+mod bench;
 mod output;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
@@ -41,9 +42,23 @@ enum Command {
         #[arg(long = "ref")]
         reference: PathBuf,
     },
-    /// Decode speed of a .nmat file: CPU integer and float decoders (1 thread and all threads)
-    /// and, when built with `--features gpu`, the GPU; medians of 5 runs over mip 0.
-    Bench { input: PathBuf },
+    /// The speed–accuracy table of docs/PERFORMANCE.md for one or more .nmat files: every decode
+    /// mode (kernels, float, channel subsets, filters, random access, threads) over one region of
+    /// mip 0, with the CPU's roofline, BC1/BC4 and PNG decoding measured in the same run, and the
+    /// GPU when built with `--features gpu`.
+    Bench {
+        #[arg(required = true)]
+        inputs: Vec<PathBuf>,
+        /// Folder with the source maps: adds PSNR and PNG decode time.
+        #[arg(long = "ref")]
+        reference: Option<PathBuf>,
+        /// Side of the square region of mip 0 each mode decodes.
+        #[arg(long, default_value_t = 256)]
+        region: u32,
+        /// Timed runs per row (the median is reported).
+        #[arg(long, default_value_t = 5)]
+        runs: usize,
+    },
     /// Encode, decode and evaluate a bundled procedural material, and print a report.
     Demo {
         /// Where to write demo.nmat and the decoded maps.
@@ -158,7 +173,12 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Eval { input, reference } => cmd_eval(&input, &reference),
         Command::Demo { out, train, profile } => cmd_demo(&out, &train, &profile),
-        Command::Bench { input } => cmd_bench(&input),
+        Command::Bench { inputs, reference, region, runs } => {
+            if region == 0 || runs == 0 {
+                return Err("--region and --runs must be at least 1".into());
+            }
+            bench::run(&bench::Options { inputs, reference, region, runs })
+        }
     }
 }
 
@@ -361,6 +381,7 @@ fn decode_on_gpu(_: &Material<'_>, _: &Path, _: &[u32]) -> Result<Vec<PathBuf>> 
 }
 
 /// Median seconds of 5 runs of `f`.
+#[cfg(feature = "gpu")]
 fn median_seconds(mut f: impl FnMut() -> Result<()>) -> Result<f64> {
     let mut runs = Vec::new();
     for _ in 0..5 {
@@ -370,62 +391,6 @@ fn median_seconds(mut f: impl FnMut() -> Result<()>) -> Result<f64> {
     }
     runs.sort_by(f64::total_cmp);
     Ok(runs[2])
-}
-
-fn cmd_bench(input: &Path) -> Result<()> {
-    use nmat_core::ChannelMask;
-    use rayon::prelude::*;
-    let bytes = read_nmat(input)?;
-    let m = parse(&bytes, input)?;
-    let (w, h) = m.mip_size(0);
-    let texels = f64::from(w) * f64::from(h);
-    let n = m.channel_count();
-    println!(
-        "{}: {w}×{h} mip 0, {n} channels, {} MACs/texel; medians of 5 runs",
-        input.display(),
-        m.mlp().macs_per_texel()
-    );
-    let row = |name: &str, secs: f64| {
-        println!(
-            "  {name:44} {:9.1} ns/texel {:12.0} texels/s",
-            secs * 1e9 / texels,
-            texels / secs
-        );
-    };
-    let rows_int = |y: u32| {
-        let mut buf = [0u8; 16];
-        for x in 0..w {
-            let _ = m.decode_texel_u8(i64::from(x), i64::from(y), 0, ChannelMask::ALL, &mut buf);
-        }
-    };
-    row(
-        "CPU integer, 1 thread",
-        median_seconds(|| {
-            (0..h).for_each(rows_int);
-            Ok(())
-        })?,
-    );
-    row(
-        &format!("CPU integer, {} threads", rayon::current_num_threads()),
-        median_seconds(|| {
-            (0..h).into_par_iter().for_each(rows_int);
-            Ok(())
-        })?,
-    );
-    row(
-        "CPU float (f16 weights), 1 thread",
-        median_seconds(|| {
-            let mut buf = [0f32; 16];
-            for y in 0..h {
-                for x in 0..w {
-                    let _ =
-                        m.decode_texel(i64::from(x), i64::from(y), 0, ChannelMask::ALL, &mut buf);
-                }
-            }
-            Ok(())
-        })?,
-    );
-    bench_gpu(&m, &row)
 }
 
 #[cfg(feature = "gpu")]
