@@ -145,6 +145,9 @@ fn scalar_probe(rounds: u64) -> i64 {
     acc.iter().map(|&a| i64::from(a)).sum()
 }
 
+/// Texels a span decodes together (the batched kernel's group).
+const GROUP: usize = 4;
+
 /// One layer in the prepared layout. Invariants (established by [`PackedLayer::new`], relied on
 /// by the SIMD kernels): `out_pad` is a multiple of 16 and at most `MAX_WIDTH`; `2·in_pairs` is at
 /// most `MAX_WIDTH`; `weights` holds `in_pairs · out_pad · 2` values; the per-row vectors hold
@@ -382,6 +385,56 @@ impl Decoder {
         }
     }
 
+    /// [`Decoder::forward_int`] for the first `count` texels of a group, batched when the
+    /// kernel has a group form.
+    fn forward_int_group(&self, xs: &mut [[i16; MAX_WIDTH]; GROUP], count: usize, rows: u16) {
+        #[cfg(target_arch = "x86_64")]
+        if self.kernel == Kernel::Avx512Vnni && count == GROUP {
+            let mut spare = [[0i16; MAX_WIDTH]; GROUP];
+            let (mut from, mut to) = (&mut *xs, &mut spare);
+            let layers = self.layers.len();
+            for (li, layer) in self.layers.iter().enumerate() {
+                avx512::forward_group(layer, from, to, layer.blocks(li + 1 == layers, rows));
+                core::mem::swap(&mut from, &mut to);
+            }
+            if layers % 2 == 1 {
+                *xs = spare;
+            }
+            return;
+        }
+        for x in xs.iter_mut().take(count) {
+            self.forward_int(x, rows);
+        }
+    }
+
+    /// The integer codes of `count` texels of a span into `out` (`n` values each).
+    #[allow(clippy::too_many_arguments)]
+    fn span_codes<T>(
+        &self,
+        material: &Material<'_>,
+        (x0, y, mip): (i64, i64, u32),
+        count: usize,
+        (rows, n): (u16, usize),
+        out: &mut [T],
+        full_scale: i32,
+        narrow: impl Fn(i32) -> T,
+    ) {
+        let mut cells = CachedCells::default();
+        let f = material.last_frac_bits();
+        let mut xs = [[0i16; MAX_WIDTH]; GROUP];
+        for (g, texels) in out.chunks_mut(GROUP * n).take(count.div_ceil(GROUP)).enumerate() {
+            let k = (count - g * GROUP).min(GROUP);
+            for (i, x) in xs.iter_mut().enumerate().take(k) {
+                let at = x0.wrapping_add((g * GROUP + i) as i64);
+                material.fill_int_inputs(at, y, mip, &mut cells, x);
+            }
+            self.forward_int_group(&mut xs, k, rows);
+            for (x, texel) in xs.iter().zip(texels.chunks_exact_mut(n)) {
+                write_selected(rows, x, texel, |&v| narrow(code(v, f, full_scale)));
+            }
+        }
+    }
+
     fn forward_float(&self, x: &mut [f32; MAX_WIDTH]) {
         let mut y = [0f32; MAX_WIDTH];
         for layer in &self.layers {
@@ -466,11 +519,7 @@ impl Decoder {
         out: &mut [u8],
     ) -> Result<usize, Error> {
         let (rows, n) = self.check_span(material, count, channels, out.len())?;
-        let mut cells = CachedCells::default();
-        for (i, texel) in out.chunks_exact_mut(n).take(count).enumerate() {
-            let at = (x0.wrapping_add(i as i64), y, mip);
-            self.texel_codes(material, at, &mut cells, rows, texel, 255, |c| c as u8);
-        }
+        self.span_codes(material, (x0, y, mip), count, (rows, n), out, 255, |c| c as u8);
         Ok(count * n)
     }
 
@@ -487,11 +536,7 @@ impl Decoder {
         out: &mut [u16],
     ) -> Result<usize, Error> {
         let (rows, n) = self.check_span(material, count, channels, out.len())?;
-        let mut cells = CachedCells::default();
-        for (i, texel) in out.chunks_exact_mut(n).take(count).enumerate() {
-            let at = (x0.wrapping_add(i as i64), y, mip);
-            self.texel_codes(material, at, &mut cells, rows, texel, 65535, |c| c as u16);
-        }
+        self.span_codes(material, (x0, y, mip), count, (rows, n), out, 65535, |c| c as u16);
         Ok(count * n)
     }
 

@@ -3,9 +3,9 @@
 //! a parsed material: any coordinate, mip and mask gives a value or a `BadArgument` error.
 
 use crate::error::{Argument, Error};
-use crate::latents::{Footprint, LatentGrid, address, footprint};
+use crate::latents::{AxisStepper, Footprint, LatentGrid, address, footprint, footprint_from_axes};
 use crate::limits::{MAX_CHAIN, MAX_GRID_CHANNELS, MAX_TERMS, MAX_WIDTH};
-use crate::material::{Material, TermMode};
+use crate::material::{AddressMode, Material, TermMode};
 use crate::mlp::{forward_float, forward_int, saturate_i16};
 use crate::posenc::triangle_q;
 
@@ -98,7 +98,7 @@ impl<'a> Material<'a> {
                 TermMode::Nearest4 => {
                     let Some(&g) = term.grids.first() else { continue };
                     let Some(grid) = self.grids.get(usize::from(g)) else { continue };
-                    let fp = footprint((grid.width(), grid.height()), x, y, mip_size, mode);
+                    let fp = cells.footprint(t * MAX_CHAIN, grid, (x, y), mip_size, mode);
                     for cell in cells.cells(t * MAX_CHAIN, g, grid, &fp) {
                         for &v in cell.iter().take(channels) {
                             push(i64::from(v) << RAW_SHIFT);
@@ -109,8 +109,9 @@ impl<'a> Material<'a> {
                     let mut sums = [0i64; MAX_GRID_CHANNELS];
                     for (k, &g) in term.grids.iter().enumerate() {
                         let Some(grid) = self.grids.get(usize::from(g)) else { continue };
-                        let fp = footprint((grid.width(), grid.height()), x, y, mip_size, mode);
-                        let [c00, c10, c01, c11] = cells.cells(t * MAX_CHAIN + k, g, grid, &fp);
+                        let slot = t * MAX_CHAIN + k;
+                        let fp = cells.footprint(slot, grid, (x, y), mip_size, mode);
+                        let [c00, c10, c01, c11] = cells.cells(slot, g, grid, &fp);
                         let (fx, fy) = (fp.fx, fp.fy);
                         let (gx, gy) = (256 - fx, 256 - fy);
                         for (c, sum) in sums.iter_mut().enumerate().take(channels) {
@@ -157,15 +158,27 @@ impl<'a> Material<'a> {
         mip: u32,
         cells: &mut impl CellSource,
     ) -> [i16; MAX_WIDTH] {
-        let (x, y, mip) = self.address_texel(x, y, mip);
         let mut io = [0i16; MAX_WIDTH];
+        self.fill_int_inputs(x, y, mip, cells, &mut io);
+        io
+    }
+
+    /// [`Material::int_inputs`] into `io`; entries past the input width are left as they were.
+    pub(crate) fn fill_int_inputs(
+        &self,
+        x: i64,
+        y: i64,
+        mip: u32,
+        cells: &mut impl CellSource,
+        io: &mut [i16; MAX_WIDTH],
+    ) {
+        let (x, y, mip) = self.address_texel(x, y, mip);
         let mut slots = io.iter_mut();
         self.gather(x, y, mip, cells, |r| {
             if let Some(v) = slots.next() {
                 *v = saturate_i16((r + (1 << (RAW_SHIFT - 1))) >> RAW_SHIFT);
             }
         });
-        io
     }
 
     /// The float network's input vector for texel (x, y) of `mip`.
@@ -302,6 +315,18 @@ pub(crate) trait CellSource {
     /// The cells of `fp` on `grid` (number `index` in the material); `slot` names the term and
     /// chain position asking, so a cache can keep one entry per position.
     fn cells(&mut self, slot: usize, index: u8, grid: &LatentGrid<'_>, fp: &Footprint) -> &Cells;
+
+    /// The footprint of texel `at` on `grid` (what [`footprint`] computes).
+    fn footprint(
+        &mut self,
+        _slot: usize,
+        grid: &LatentGrid<'_>,
+        (x, y): (u32, u32),
+        mip_size: (u32, u32),
+        mode: AddressMode,
+    ) -> Footprint {
+        footprint((grid.width(), grid.height()), x, y, mip_size, mode)
+    }
 }
 
 fn decode_cells(grid: &LatentGrid<'_>, fp: &Footprint, out: &mut Cells) {
@@ -326,10 +351,14 @@ impl CellSource for DirectCells {
 /// A grid number and the cells (x0, x1, y0, y1) of a footprint on it.
 type CellKey = (u8, u32, u32, u32, u32);
 
-/// Remembers the last footprint of each term and chain position (span calls).
+/// Remembers the last footprint of each term and chain position (span calls), and steps the
+/// footprint's x axis from texel to texel instead of dividing.
 pub(crate) struct CachedCells {
     keys: [Option<CellKey>; MAX_TERMS * MAX_CHAIN],
     cells: [Cells; MAX_TERMS * MAX_CHAIN],
+    x_axes: [AxisStepper; MAX_TERMS * MAX_CHAIN],
+    /// The last y axis of each slot: (y, mip height, grid height) → (index, fraction).
+    y_axes: [Option<((u32, u32, u32), (i64, i32))>; MAX_TERMS * MAX_CHAIN],
     scratch: Cells,
 }
 
@@ -338,20 +367,59 @@ impl Default for CachedCells {
         CachedCells {
             keys: [None; MAX_TERMS * MAX_CHAIN],
             cells: [[[0; MAX_GRID_CHANNELS]; 4]; MAX_TERMS * MAX_CHAIN],
+            x_axes: [AxisStepper::default(); MAX_TERMS * MAX_CHAIN],
+            y_axes: [None; MAX_TERMS * MAX_CHAIN],
             scratch: [[0; MAX_GRID_CHANNELS]; 4],
         }
     }
 }
 
 impl CellSource for CachedCells {
+    fn footprint(
+        &mut self,
+        slot: usize,
+        grid: &LatentGrid<'_>,
+        (x, y): (u32, u32),
+        mip_size: (u32, u32),
+        mode: AddressMode,
+    ) -> Footprint {
+        let (gw, gh) = (grid.width().max(1), grid.height().max(1));
+        let (Some(stepper), Some(y_cache)) = (self.x_axes.get_mut(slot), self.y_axes.get_mut(slot))
+        else {
+            return footprint((gw, gh), x, y, mip_size, mode);
+        };
+        let x_axis = stepper.at(x, mip_size.0, gw);
+        let key = (y, mip_size.1, gh);
+        let y_axis = match *y_cache {
+            Some((k, axis)) if k == key => axis,
+            _ => {
+                let axis = AxisStepper::default().at(y, mip_size.1, gh);
+                *y_cache = Some((key, axis));
+                axis
+            }
+        };
+        footprint_from_axes((gw, gh), x_axis, y_axis, mode)
+    }
+
     fn cells(&mut self, slot: usize, index: u8, grid: &LatentGrid<'_>, fp: &Footprint) -> &Cells {
         let key = Some((index, fp.x0, fp.x1, fp.y0, fp.y1));
         match (self.keys.get_mut(slot), self.cells.get_mut(slot)) {
             (Some(k), Some(cells)) => {
-                if *k != key {
-                    decode_cells(grid, fp, cells);
-                    *k = key;
+                match *k {
+                    Some(old) if Some(old) == key => {}
+                    // One cell to the right: the old right column is the new left one.
+                    Some((g, _, x1, y0, y1))
+                        if (g, x1, y0, y1) == (index, fp.x0, fp.y0, fp.y1) =>
+                    {
+                        let [c00, c10, c01, c11] = cells;
+                        *c00 = *c10;
+                        *c01 = *c11;
+                        grid.cell_values(fp.x1, fp.y0, c10);
+                        grid.cell_values(fp.x1, fp.y1, c11);
+                    }
+                    _ => decode_cells(grid, fp, cells),
                 }
+                *k = key;
                 cells
             }
             _ => {

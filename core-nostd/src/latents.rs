@@ -120,6 +120,59 @@ fn axis(x: u32, mip_size: u32, grid_size: u32) -> (i64, i32) {
     (pos >> 8, (pos & 255) as i32)
 }
 
+/// [`axis`] for consecutive texels of a span without a division per texel: the numerator grows
+/// by a constant, so quotient and remainder are stepped exactly. Any other `x` is computed
+/// directly and restarts the stepping.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct AxisStepper {
+    /// (mip size, grid size) the state belongs to; `None` before the first use.
+    key: Option<(u32, u32)>,
+    x: u32,
+    quotient: u64,
+    remainder: u64,
+}
+
+impl AxisStepper {
+    pub(crate) fn at(&mut self, x: u32, mip_size: u32, grid_size: u32) -> (i64, i32) {
+        let den = 2 * u64::from(mip_size.max(1));
+        let step = 2 * u64::from(grid_size) * 256;
+        if self.key == Some((mip_size, grid_size)) && x == self.x.wrapping_add(1) {
+            self.remainder += step % den;
+            self.quotient += step / den;
+            if self.remainder >= den {
+                self.remainder -= den;
+                self.quotient += 1;
+            }
+        } else {
+            let num = (2 * u64::from(x) + 1) * u64::from(grid_size) * 256;
+            self.quotient = num / den;
+            self.remainder = num % den;
+            self.key = Some((mip_size, grid_size));
+        }
+        self.x = x;
+        let pos = self.quotient as i64 - 128;
+        (pos >> 8, (pos & 255) as i32)
+    }
+}
+
+/// The footprint from the two axes (FORMAT.md §6.2), as [`footprint`] computes it.
+pub(crate) fn footprint_from_axes(
+    (gw, gh): (u32, u32),
+    (i, fx): (i64, i32),
+    (j, fy): (i64, i32),
+    mode: AddressMode,
+) -> Footprint {
+    let (gw, gh) = (gw.max(1), gh.max(1));
+    Footprint {
+        x0: address(i, gw, mode),
+        x1: address(i + 1, gw, mode),
+        y0: address(j, gh, mode),
+        y1: address(j + 1, gh, mode),
+        fx,
+        fy,
+    }
+}
+
 /// Brings index `i` into `[0, size)` by the address mode (FORMAT.md §6.1); `size` ≥ 1.
 pub fn address(i: i64, size: u32, mode: AddressMode) -> u32 {
     let size = i64::from(size.max(1));
@@ -139,14 +192,30 @@ pub fn footprint(
     mode: AddressMode,
 ) -> Footprint {
     let (gw, gh) = (grid_size.0.max(1), grid_size.1.max(1));
-    let (i, fx) = axis(x, mip_size.0, gw);
-    let (j, fy) = axis(y, mip_size.1, gh);
-    Footprint {
-        x0: address(i, gw, mode),
-        x1: address(i + 1, gw, mode),
-        y0: address(j, gh, mode),
-        y1: address(j + 1, gh, mode),
-        fx,
-        fy,
+    footprint_from_axes((gw, gh), axis(x, mip_size.0, gw), axis(y, mip_size.1, gh), mode)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Stepping equals dividing for every texel, with grids finer and coarser than the mip, and
+    /// restarts correctly after a jump.
+    #[test]
+    fn axis_stepper_matches_axis() {
+        for mip in [1u32, 2, 3, 7, 40, 97, 16384] {
+            for grid in [1u32, 2, 5, 33, 64, 70, 4096, 16384] {
+                let mut s = AxisStepper::default();
+                let xs =
+                    (0..mip.min(300)).chain([0, 5, 6, 2, 3, 4].into_iter().filter(|&x| x < mip));
+                for x in xs {
+                    assert_eq!(
+                        s.at(x, mip, grid),
+                        axis(x, mip, grid),
+                        "mip {mip} grid {grid} x {x}"
+                    );
+                }
+            }
+        }
     }
 }

@@ -99,6 +99,89 @@ fn block<const B: usize, const S: usize>(
     }
 }
 
+/// One integer layer for a group of `G` texels: each weight vector is loaded once and used for
+/// every texel of the group (the batched form of [`forward`]; same results texel by texel).
+pub(super) fn forward_group<const G: usize>(
+    l: &PackedLayer,
+    x: &[[i16; MAX_WIDTH]; G],
+    y: &mut [[i16; MAX_WIDTH]; G],
+    blocks: u32,
+) {
+    debug_assert!(super::Kernel::Avx512Vnni.is_available());
+    // SAFETY: as in `forward`.
+    unsafe { forward_group_avx512(l, x, y, blocks) }
+}
+
+#[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
+fn forward_group_avx512<const G: usize>(
+    l: &PackedLayer,
+    x: &[[i16; MAX_WIDTH]; G],
+    y: &mut [[i16; MAX_WIDTH]; G],
+    blocks: u32,
+) {
+    let count = l.out_pad / 16;
+    let selected = |b: usize| (blocks >> (2 * b)) & 3 != 0;
+    let mut b = 0;
+    while b < count {
+        if b + 4 <= count && (b..b + 4).all(selected) {
+            group_block::<G, 4>(l, x, y, b);
+            b += 4;
+        } else if b + 2 <= count && (b..b + 2).all(selected) {
+            group_block::<G, 2>(l, x, y, b);
+            b += 2;
+        } else {
+            if selected(b) {
+                group_block::<G, 1>(l, x, y, b);
+            }
+            b += 1;
+        }
+    }
+}
+
+/// Rows `16·first .. 16·(first + B)` for `G` texels: G·B independent `vpdpwssd` chains.
+#[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
+fn group_block<const G: usize, const B: usize>(
+    l: &PackedLayer,
+    x: &[[i16; MAX_WIDTH]; G],
+    y: &mut [[i16; MAX_WIDTH]; G],
+    first: usize,
+) {
+    // Bounds as in `block`.
+    debug_assert!(16 * (first + B) <= l.out_pad && l.out_pad <= MAX_WIDTH);
+    debug_assert!(2 * l.in_pairs <= MAX_WIDTH && l.weights.len() == l.in_pairs * l.out_pad * 2);
+    let mut acc = [[_mm512_setzero_si512(); B]; G];
+    // SAFETY (all pointer accesses below): within the bounds stated above.
+    unsafe {
+        let bias = l.bias.as_ptr().add(16 * first);
+        for texel in acc.iter_mut() {
+            for (k, a) in texel.iter_mut().enumerate() {
+                *a = _mm512_loadu_si512(bias.add(16 * k).cast());
+            }
+        }
+        let mut row = l.weights.as_ptr().add(32 * first);
+        for p in 0..l.in_pairs {
+            let mut w = [_mm512_setzero_si512(); B];
+            for (k, v) in w.iter_mut().enumerate() {
+                *v = _mm512_loadu_si512(row.add(32 * k).cast());
+            }
+            for (texel, inputs) in acc.iter_mut().zip(x) {
+                let both = _mm512_set1_epi32(inputs.as_ptr().cast::<i32>().add(p).read_unaligned());
+                for (a, &w) in texel.iter_mut().zip(&w) {
+                    *a = _mm512_dpwssd_epi32(*a, w, both);
+                }
+            }
+            row = row.add(2 * l.out_pad);
+        }
+    }
+    for (texel, out) in acc.into_iter().zip(y.iter_mut()) {
+        for (k, a) in texel.into_iter().enumerate() {
+            let values = requantize(l, a, first + k);
+            // SAFETY: 16·(first + k) + 16 ≤ MAX_WIDTH.
+            unsafe { _mm256_storeu_si256(out.as_mut_ptr().add(16 * (first + k)).cast(), values) };
+        }
+    }
+}
+
 /// Requantization, saturation and activation of the 16 accumulators of block `b`, exactly as
 /// `Requant::apply`, `saturate_i16` and `hard_gelu_q`.
 #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
