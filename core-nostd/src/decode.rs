@@ -114,16 +114,17 @@ impl<'a> Material<'a> {
                         let [c00, c10, c01, c11] = cells.cells(slot, g, grid, &fp);
                         let (fx, fy) = (fp.fx, fp.fy);
                         let (gx, gy) = (256 - fx, 256 - fy);
-                        for (c, sum) in sums.iter_mut().enumerate().take(channels) {
-                            let v =
-                                |cell: &[i32; MAX_GRID_CHANNELS]| cell.get(c).copied().unwrap_or(0);
-                            // Exact: weights in 1/65536 summing to 65536, values i16, so the
-                            // sum lies in [−2^31, 2^31 − 2^16] (an i32 cannot overflow).
-                            let b = gx * gy * v(c00)
-                                + fx * gy * v(c10)
-                                + gx * fy * v(c01)
-                                + fx * fy * v(c11);
-                            *sum += i64::from(b);
+                        let w = [gx * gy, fx * gy, gx * fy, fx * fy];
+                        // All 16 lanes (the compiler vectorizes a fixed-length loop); lanes past
+                        // the grid's channels are never pushed. Exact: weights in 1/65536 summing
+                        // to 65536 and values i16 keep each sum in [−2^31, 2^31 − 2^16].
+                        let lanes = sums.iter_mut().zip(c00).zip(c10).zip(c01).zip(c11);
+                        for ((((sum, &a), &b), &c), &d) in lanes {
+                            let v = (w[0].wrapping_mul(a))
+                                .wrapping_add(w[1].wrapping_mul(b))
+                                .wrapping_add(w[2].wrapping_mul(c))
+                                .wrapping_add(w[3].wrapping_mul(d));
+                            *sum += i64::from(v);
                         }
                     }
                     for &sum in sums.iter().take(channels) {
@@ -348,6 +349,9 @@ impl CellSource for DirectCells {
     }
 }
 
+/// (y, mip height, grid height) → (first cell index, fraction): the y axis of a footprint.
+type YAxis = ((u32, u32, u32), (i64, i32));
+
 /// A grid number and the cells (x0, x1, y0, y1) of a footprint on it.
 type CellKey = (u8, u32, u32, u32, u32);
 
@@ -357,8 +361,8 @@ pub(crate) struct CachedCells {
     keys: [Option<CellKey>; MAX_TERMS * MAX_CHAIN],
     cells: [Cells; MAX_TERMS * MAX_CHAIN],
     x_axes: [AxisStepper; MAX_TERMS * MAX_CHAIN],
-    /// The last y axis of each slot: (y, mip height, grid height) → (index, fraction).
-    y_axes: [Option<((u32, u32, u32), (i64, i32))>; MAX_TERMS * MAX_CHAIN],
+    /// The last y axis of each slot.
+    y_axes: [Option<YAxis>; MAX_TERMS * MAX_CHAIN],
     scratch: Cells,
 }
 

@@ -130,24 +130,34 @@ pub(crate) struct AxisStepper {
     x: u32,
     quotient: u64,
     remainder: u64,
+    /// Denominator, and quotient and remainder of the per-texel step by it.
+    den: u64,
+    step_quotient: u64,
+    step_remainder: u64,
 }
 
 impl AxisStepper {
     pub(crate) fn at(&mut self, x: u32, mip_size: u32, grid_size: u32) -> (i64, i32) {
-        let den = 2 * u64::from(mip_size.max(1));
-        let step = 2 * u64::from(grid_size) * 256;
         if self.key == Some((mip_size, grid_size)) && x == self.x.wrapping_add(1) {
-            self.remainder += step % den;
-            self.quotient += step / den;
-            if self.remainder >= den {
-                self.remainder -= den;
+            self.remainder += self.step_remainder;
+            self.quotient += self.step_quotient;
+            if self.remainder >= self.den {
+                self.remainder -= self.den;
                 self.quotient += 1;
             }
         } else {
+            let den = 2 * u64::from(mip_size.max(1));
+            let step = 2 * u64::from(grid_size) * 256;
             let num = (2 * u64::from(x) + 1) * u64::from(grid_size) * 256;
-            self.quotient = num / den;
-            self.remainder = num % den;
-            self.key = Some((mip_size, grid_size));
+            *self = AxisStepper {
+                key: Some((mip_size, grid_size)),
+                x,
+                quotient: num / den,
+                remainder: num % den,
+                den,
+                step_quotient: step / den,
+                step_remainder: step % den,
+            };
         }
         self.x = x;
         let pos = self.quotient as i64 - 128;
@@ -176,6 +186,9 @@ pub(crate) fn footprint_from_axes(
 /// Brings index `i` into `[0, size)` by the address mode (FORMAT.md §6.1); `size` ≥ 1.
 pub fn address(i: i64, size: u32, mode: AddressMode) -> u32 {
     let size = i64::from(size.max(1));
+    if (0..size).contains(&i) {
+        return i as u32; // the common case, without a division
+    }
     match mode {
         AddressMode::Wrap => i.rem_euclid(size) as u32,
         AddressMode::Clamp => i.clamp(0, size - 1) as u32,
