@@ -737,6 +737,26 @@ mod tests {
             let blocks = if trial % 3 == 0 { rng.next() as u32 } else { u32::MAX };
             let mut scalar = [7i16; MAX_WIDTH];
             l.forward_scalar(&x, &mut scalar, blocks);
+            #[cfg(target_arch = "x86_64")]
+            if Kernel::Avx512Vnni.is_available() {
+                // The group form: texel 2 is `x`, the others are other random inputs.
+                let mut xs = [[0i16; MAX_WIDTH]; GROUP];
+                for (t, v) in xs.iter_mut().enumerate() {
+                    for (i, slot) in v.iter_mut().enumerate().take(2 * l.in_pairs) {
+                        *slot = if t == 2 { x[i] } else { rng.edgy(-32768, 32767) as i16 };
+                    }
+                }
+                let mut ys = [[7i16; MAX_WIDTH]; GROUP];
+                avx512::forward_group(&l, &xs, &mut ys, blocks);
+                for (t, (xt, yt)) in xs.iter().zip(&ys).enumerate() {
+                    let mut want = [7i16; MAX_WIDTH];
+                    l.forward_scalar(xt, &mut want, blocks);
+                    for b in (0..l.out_pad / 8).filter(|b| blocks & (1 << b) != 0) {
+                        let rows = 8 * b..8 * b + 8;
+                        assert_eq!(yt[rows.clone()], want[rows], "group texel {t} trial {trial}");
+                    }
+                }
+            }
             for kernel in simd_kernels() {
                 let mut simd = [7i16; MAX_WIDTH];
                 run(kernel, &l, &x, &mut simd, blocks);

@@ -81,7 +81,7 @@ impl<'a> Material<'a> {
         y: u32,
         mip: u32,
         cells: &mut impl CellSource,
-        mut push: impl FnMut(i64),
+        sink: &mut impl FeatureSink,
     ) {
         let mip_size = self.mip_size(mip);
         let mode = self.address_mode;
@@ -100,9 +100,7 @@ impl<'a> Material<'a> {
                     let Some(grid) = self.grids.get(usize::from(g)) else { continue };
                     let fp = cells.footprint(t * MAX_CHAIN, grid, (x, y), mip_size, mode);
                     for cell in cells.cells(t * MAX_CHAIN, g, grid, &fp) {
-                        for &v in cell.iter().take(channels) {
-                            push(i64::from(v) << RAW_SHIFT);
-                        }
+                        sink.push_latents(cell.get(..channels).unwrap_or(&[]));
                     }
                 }
                 TermMode::Bilinear => {
@@ -115,20 +113,30 @@ impl<'a> Material<'a> {
                         let (fx, fy) = (fp.fx, fp.fy);
                         let (gx, gy) = (256 - fx, 256 - fy);
                         let w = [gx * gy, fx * gy, gx * fy, fx * fy];
-                        // All 16 lanes (the compiler vectorizes a fixed-length loop); lanes past
-                        // the grid's channels are never pushed. Exact: weights in 1/65536 summing
-                        // to 65536 and values i16 keep each sum in [−2^31, 2^31 − 2^16].
-                        let lanes = sums.iter_mut().zip(c00).zip(c10).zip(c01).zip(c11);
-                        for ((((sum, &a), &b), &c), &d) in lanes {
-                            let v = (w[0].wrapping_mul(a))
-                                .wrapping_add(w[1].wrapping_mul(b))
-                                .wrapping_add(w[2].wrapping_mul(c))
-                                .wrapping_add(w[3].wrapping_mul(d));
-                            *sum += i64::from(v);
+                        // By groups of 4 channels (fixed-length inner loops the compiler
+                        // vectorizes); lanes past the grid's channels are never pushed. Exact:
+                        // weights in 1/65536 summing to 65536 and values i16 keep each sum in
+                        // [−2^31, 2^31 − 2^16].
+                        let quads = sums
+                            .chunks_exact_mut(4)
+                            .zip(c00.chunks_exact(4))
+                            .zip(c10.chunks_exact(4))
+                            .zip(c01.chunks_exact(4))
+                            .zip(c11.chunks_exact(4))
+                            .take(channels.div_ceil(4));
+                        for ((((sum, a), b), c), d) in quads {
+                            let lanes = sum.iter_mut().zip(a).zip(b).zip(c).zip(d);
+                            for ((((sum, &a), &b), &c), &d) in lanes {
+                                let v = (w[0].wrapping_mul(a))
+                                    .wrapping_add(w[1].wrapping_mul(b))
+                                    .wrapping_add(w[2].wrapping_mul(c))
+                                    .wrapping_add(w[3].wrapping_mul(d));
+                                *sum += i64::from(v);
+                            }
                         }
                     }
                     for &sum in sums.iter().take(channels) {
-                        push(sum);
+                        sink.push(sum);
                     }
                 }
             }
@@ -141,12 +149,12 @@ impl<'a> Material<'a> {
                 triangle_q(y, k, 0, f),
                 triangle_q(y, k, 1, f),
             ] {
-                push(i64::from(v) << RAW_SHIFT);
+                sink.push(i64::from(v) << RAW_SHIFT);
             }
         }
         if self.mlp.lod_input {
             // mip / 16 in Q.f (f ≥ 4, mip ≤ 14).
-            push(i64::from(mip << (f - 4)) << RAW_SHIFT);
+            sink.push(i64::from(mip << (f - 4)) << RAW_SHIFT);
         }
     }
 
@@ -174,12 +182,7 @@ impl<'a> Material<'a> {
         io: &mut [i16; MAX_WIDTH],
     ) {
         let (x, y, mip) = self.address_texel(x, y, mip);
-        let mut slots = io.iter_mut();
-        self.gather(x, y, mip, cells, |r| {
-            if let Some(v) = slots.next() {
-                *v = saturate_i16((r + (1 << (RAW_SHIFT - 1))) >> RAW_SHIFT);
-            }
-        });
+        self.gather(x, y, mip, cells, &mut IntSink { io, next: 0 });
     }
 
     /// The float network's input vector for texel (x, y) of `mip`.
@@ -196,7 +199,7 @@ impl<'a> Material<'a> {
         let scale = 1.0 / (1u64 << (RAW_SHIFT + u32::from(self.mlp.input_frac_bits))) as f32;
         let mut io = [0f32; MAX_WIDTH];
         let mut slots = io.iter_mut();
-        self.gather(x, y, mip, cells, |r| {
+        self.gather(x, y, mip, cells, &mut |r: i64| {
             if let Some(v) = slots.next() {
                 *v = r.clamp(lo, hi) as f32 * scale;
             }
@@ -306,6 +309,50 @@ impl<'a> Material<'a> {
     }
 }
 
+/// Where `gather` puts the input features, in input order.
+pub(crate) trait FeatureSink {
+    /// One feature in units of 2^-(16+f).
+    fn push(&mut self, raw: i64);
+    /// Dequantized latent values (each an i16 on the input grid, FORMAT.md §4).
+    fn push_latents(&mut self, values: &[i32]) {
+        for &v in values {
+            self.push(i64::from(v) << RAW_SHIFT);
+        }
+    }
+}
+
+impl<F: FnMut(i64)> FeatureSink for F {
+    fn push(&mut self, raw: i64) {
+        self(raw)
+    }
+}
+
+/// The integer input vector (§6.3: round half up onto the input grid, saturate).
+struct IntSink<'o> {
+    io: &'o mut [i16; MAX_WIDTH],
+    next: usize,
+}
+
+impl FeatureSink for IntSink<'_> {
+    fn push(&mut self, raw: i64) {
+        if let Some(v) = self.io.get_mut(self.next) {
+            *v = saturate_i16((raw + (1 << (RAW_SHIFT - 1))) >> RAW_SHIFT);
+        }
+        self.next += 1;
+    }
+
+    /// A latent is already on the input grid: rounding and saturation leave it unchanged.
+    fn push_latents(&mut self, values: &[i32]) {
+        let end = (self.next + values.len()).min(MAX_WIDTH);
+        if let Some(slots) = self.io.get_mut(self.next..end) {
+            for (slot, &v) in slots.iter_mut().zip(values) {
+                *slot = saturate_i16(i64::from(v));
+            }
+        }
+        self.next += values.len();
+    }
+}
+
 /// The dequantized latent values of the 4 footprint cells of a grid, in the order (x0, y0),
 /// (x1, y0), (x0, y1), (x1, y1); channels past the grid's are 0.
 pub(crate) type Cells = [[i32; MAX_GRID_CHANNELS]; 4];
@@ -412,9 +459,7 @@ impl CellSource for CachedCells {
                 match *k {
                     Some(old) if Some(old) == key => {}
                     // One cell to the right: the old right column is the new left one.
-                    Some((g, _, x1, y0, y1))
-                        if (g, x1, y0, y1) == (index, fp.x0, fp.y0, fp.y1) =>
-                    {
+                    Some((g, _, x1, y0, y1)) if (g, x1, y0, y1) == (index, fp.x0, fp.y0, fp.y1) => {
                         let [c00, c10, c01, c11] = cells;
                         *c00 = *c10;
                         *c01 = *c11;

@@ -1,0 +1,30 @@
+//! Decodes mip 0 of a .nmat file through `Decoder` spans, repeatedly: a steady load to attach a
+//! profiler to (`perf record cargo run --release -p nmat-tests --example span_profile -- FILE`).
+//! Prints the mean time per texel of the passes.
+
+use nmat_core::{ChannelMask, Container, Decoder};
+use std::time::Instant;
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let path = std::env::args().nth(1).ok_or("usage: span_profile FILE.nmat [PASSES]")?;
+    let passes: usize = std::env::args().nth(2).map_or(Ok(5), |s| s.parse())?;
+    let bytes = std::fs::read(&path)?;
+    let m = Container::parse(&bytes)?;
+    let d = Decoder::new(&m);
+    let (w, h) = m.mip_size(0);
+    let mut row = vec![0u8; w as usize * m.channel_count()];
+    let start = Instant::now();
+    for _ in 0..passes {
+        for y in 0..h {
+            d.decode_span_u8(&m, 0, i64::from(y), 0, w as usize, ChannelMask::ALL, &mut row)?;
+        }
+    }
+    let texels = f64::from(w) * f64::from(h) * passes as f64;
+    println!(
+        "{}: {:.1} ns/texel ({})",
+        path,
+        start.elapsed().as_secs_f64() * 1e9 / texels,
+        d.kernel().name()
+    );
+    Ok(())
+}
