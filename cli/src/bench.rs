@@ -397,12 +397,13 @@ fn filter_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>) {
                 channels: ChannelMask::ALL,
             }
         };
+        let decoder = Decoder::new(m);
         let decode_all = |precision| {
             let mut out = vec![0f32; setup.texels() * c];
             let secs = time(runs, || {
                 for (t, texel) in out.chunks_exact_mut(c).enumerate() {
                     let (x, y) = (t as u32 % w, t as u32 / w);
-                    let _ = m.sample(&request(x, y, precision), texel);
+                    let _ = decoder.sample(m, &request(x, y, precision), texel);
                 }
             });
             (secs, out)
@@ -420,7 +421,10 @@ fn filter_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>) {
             })
             .max();
         rows.push(Row {
-            mode: format!("sample {filter:?} (lod {lod}), integer, per texel"),
+            mode: format!(
+                "sample {filter:?} (lod {lod}), integer, {} per texel",
+                decoder.kernel().name()
+            ),
             seconds_per_texel: secs / texels,
             macs_per_texel: macs(m, c) as f64 * taps,
             psnr: None,

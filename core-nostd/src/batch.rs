@@ -12,8 +12,11 @@ extern crate alloc;
 
 use alloc::vec::Vec;
 
-use crate::decode::{CachedCells, CellSource, ChannelMask, DirectCells, code, write_selected};
+use crate::decode::{
+    CachedCells, CellSource, ChannelMask, DirectCells, code, unit, write_selected,
+};
 use crate::error::{Argument, Error};
+use crate::filter::{Precision, SampleRequest};
 use crate::limits::MAX_WIDTH;
 use crate::material::Material;
 use crate::mlp::{Activation, Layer, Requant, hard_gelu_f32, hard_gelu_q, saturate_i16};
@@ -503,6 +506,35 @@ impl Decoder {
         self.check(material)?;
         let rows = material.check_out(channels, out.len())?;
         Ok(self.texel_float(material, (x, y, mip), &mut DirectCells::default(), rows, out))
+    }
+
+    /// Filtered sample, equal to [`Material::sample`] but decoding its texels with this
+    /// decoder (a bilinear sample is 4 texel decodes, a trilinear one 8).
+    pub fn sample(
+        &self,
+        material: &Material<'_>,
+        req: &SampleRequest,
+        out: &mut [f32],
+    ) -> Result<usize, Error> {
+        self.check(material)?;
+        material.sample_with(req, out, &|x, y, mip, channels, precision, out| {
+            let rows = material.check_out(channels, out.len())?;
+            let mut cells = DirectCells::default();
+            Ok(match precision {
+                Precision::Float => {
+                    let mut io = material.float_inputs(x, y, mip, &mut cells);
+                    self.forward_float(&mut io);
+                    write_selected(rows, &io, out, |v| unit(*v))
+                }
+                Precision::Integer => {
+                    let full = 255;
+                    let f = material.last_frac_bits();
+                    let mut io = material.int_inputs(x, y, mip, &mut cells);
+                    self.forward_int(&mut io, rows);
+                    write_selected(rows, &io, out, |&v| code(v, f, full) as f32 / 255.0)
+                }
+            })
+        })
     }
 
     /// Integer decode of `count` consecutive texels of row `y` from column `x0` (addressed like

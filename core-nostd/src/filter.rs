@@ -45,6 +45,10 @@ pub struct SampleRequest {
     pub channels: ChannelMask,
 }
 
+/// A texel decoder in unit scale: (x, y, mip, channels, precision, out) → values written.
+pub(crate) type TexelUnit<'f> =
+    dyn Fn(i64, i64, u32, ChannelMask, Precision, &mut [f32]) -> Result<usize, Error> + 'f;
+
 fn finite_or_zero(v: f32) -> f64 {
     if v.is_nan() { 0.0 } else { f64::from(v) }
 }
@@ -60,6 +64,20 @@ fn axis(u: f32, size: u32, centred: bool) -> (i64, f64) {
 impl<'a> Material<'a> {
     /// Filtered sample: values in each channel's range, packed for the channels selected.
     pub fn sample(&self, req: &SampleRequest, out: &mut [f32]) -> Result<usize, Error> {
+        self.sample_with(req, out, &|x, y, mip, channels, precision, out| {
+            self.texel_unit(x, y, mip, channels, precision, out)
+        })
+    }
+
+    /// [`Material::sample`] with texels in unit scale from `texel` (x, y, mip, channels,
+    /// precision, out), which must decode like [`Material::decode_texel_unit`] (float) or
+    /// `decode_texel_u8 / 255` (integer).
+    pub(crate) fn sample_with(
+        &self,
+        req: &SampleRequest,
+        out: &mut [f32],
+        texel: &TexelUnit<'_>,
+    ) -> Result<usize, Error> {
         let rows = self.resolve_channels(req.channels)?;
         let n = rows.count_ones() as usize;
         if out.len() < n {
@@ -82,7 +100,7 @@ impl<'a> Material<'a> {
                 return Ok(());
             }
             let mut vals = [0f32; MAX_CHANNELS];
-            self.texel_unit(x, y, mip, ChannelMask(rows), req.precision, &mut vals)?;
+            texel(x, y, mip, ChannelMask(rows), req.precision, &mut vals)?;
             for (a, v) in acc.iter_mut().zip(vals).take(n) {
                 *a += w * f64::from(v);
             }

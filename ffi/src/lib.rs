@@ -448,7 +448,7 @@ pub extern "C" fn nmat_sample(
     out_len: usize,
 ) -> nmat_status {
     guard(|| {
-        let m = material(m)?;
+        let Handle { material: m, decoder, .. } = handle(m)?;
         let out = slice_mut(out, out_len)?;
         let (channels, _) = mask(m, channel_mask)?;
         let filter = match filter {
@@ -472,7 +472,7 @@ pub extern "C" fn nmat_sample(
             nmat_mode::NMAT_MODE_FLOAT => Precision::Float,
         };
         let req = SampleRequest { u, v, lod, filter, precision, random, channels };
-        m.sample(&req, out).map(|_| ()).map_err(fail)
+        decoder.sample(m, &req, out).map(|_| ()).map_err(fail)
     })
 }
 

@@ -139,3 +139,42 @@ fn kernel_choice_is_reported_and_unavailable_kernels_are_refused() {
         }
     }
 }
+
+#[test]
+fn decoder_samples_equal_material_samples() {
+    use nmat_core::{Filter, Precision, SampleRequest};
+    let mut r = Rng::new(80);
+    for cfg in golden_configs() {
+        let bytes = generate(&cfg).to_bytes().unwrap();
+        let m = Container::parse(&bytes).unwrap();
+        for kernel in kernels() {
+            let d = Decoder::with_kernel(&m, kernel).unwrap();
+            for _ in 0..60 {
+                let u = |r: &mut Rng| r.range(-1500, 2500) as f32 / 1000.0;
+                let req = SampleRequest {
+                    u: u(&mut r),
+                    v: u(&mut r),
+                    lod: r.range(-10, 120) as f32 / 10.0,
+                    filter: [
+                        Filter::Nearest,
+                        Filter::Bilinear,
+                        Filter::Trilinear,
+                        Filter::Stochastic,
+                    ][r.range(0, 3) as usize],
+                    precision: if r.range(0, 1) == 0 {
+                        Precision::Integer
+                    } else {
+                        Precision::Float
+                    },
+                    random: [r.unit() as f32, r.unit() as f32, r.unit() as f32],
+                    channels: random_mask(&mut r, &m),
+                };
+                let (mut a, mut b) = ([0f32; 16], [0f32; 16]);
+                let n = m.sample(&req, &mut a).unwrap();
+                assert_eq!(d.sample(&m, &req, &mut b).unwrap(), n);
+                let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&a[..n]), bits(&b[..n]), "{kernel:?} {req:?}");
+            }
+        }
+    }
+}
