@@ -1,10 +1,11 @@
 //! Parse fuzzer-chosen bytes (checksum not verified), then decode texels and samples at
 //! fuzzer-chosen coordinates, mips, LODs, filters and channel masks through both decoders; the
-//! integer decoder must equal the independent reference decoder on every accepted file.
+//! integer decoder must equal the independent reference decoder on every accepted file, and the
+//! prepared `Decoder` (fastest kernel of the machine, and the scalar one) must equal `Material`.
 #![no_main]
 use arbitrary::{Arbitrary, Unstructured};
 use libfuzzer_sys::fuzz_target;
-use nmat_core::{ChannelMask, Container, Filter, ParseOptions, Precision, SampleRequest};
+use nmat_core::{ChannelMask, Container, Decoder, Filter, Kernel, ParseOptions, Precision, SampleRequest};
 
 #[derive(Arbitrary, Debug)]
 struct Request {
@@ -33,6 +34,7 @@ fuzz_target!(|data: &[u8]| {
     }
     let Ok(m) = Container::parse_with(file, ParseOptions { verify_checksum: false }) else { return };
     let spec = m.to_spec();
+    let decoders = [Decoder::new(&m), Decoder::with_kernel(&m, Kernel::Scalar).expect("always available")];
     for r in &requests {
         let mask = ChannelMask(r.mask);
         let (mut f, mut c8, mut c16) = ([0f32; 16], [0u8; 16], [0u16; 16]);
@@ -40,6 +42,27 @@ fuzz_target!(|data: &[u8]| {
         let _ = m.decode_texel_u16(r.x, r.y, r.mip, mask, &mut c16);
         if let Ok(n) = m.decode_texel_u8(r.x, r.y, r.mip, ChannelMask::ALL, &mut c8) {
             assert_eq!(c8[..n].to_vec(), nmat_tests::reference::decode_u8(&spec, r.x, r.y, r.mip));
+        }
+        for d in &decoders {
+            let (mut g, mut d16) = ([0f32; 16], [0u16; 16]);
+            let float = (m.decode_texel(r.x, r.y, r.mip, mask, &mut f), d.decode_texel(&m, r.x, r.y, r.mip, mask, &mut g));
+            if let (Ok(n), Ok(k)) = float {
+                assert_eq!(n, k);
+                assert_eq!(f[..n].iter().map(|v| v.to_bits()).collect::<Vec<_>>(), g[..n].iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+            }
+            if let (Ok(n), Ok(_)) = (m.decode_texel_u16(r.x, r.y, r.mip, mask, &mut c16), d.decode_texel_u16(&m, r.x, r.y, r.mip, mask, &mut d16)) {
+                assert_eq!(c16[..n], d16[..n]);
+            }
+            // A span of 6 texels from x equals 6 single decodes.
+            let mut span = [0u8; 6 * 16];
+            if let Ok(total) = d.decode_span_u8(&m, r.x, r.y, r.mip, 6, mask, &mut span) {
+                let n = total / 6;
+                for i in 0..6 {
+                    let mut one = [0u8; 16];
+                    m.decode_texel_u8(r.x.wrapping_add(i as i64), r.y, r.mip, mask, &mut one).expect("span succeeded");
+                    assert_eq!(span[i * n..(i + 1) * n], one[..n]);
+                }
+            }
         }
         let filter = [Filter::Nearest, Filter::Bilinear, Filter::Trilinear, Filter::Stochastic][usize::from(r.filter % 4)];
         for precision in [Precision::Float, Precision::Integer] {
