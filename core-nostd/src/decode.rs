@@ -497,7 +497,17 @@ pub fn code(y: i16, f: u32, max: i32) -> i32 {
 }
 
 pub(crate) fn selected<T>(items: &[T], rows: u16) -> impl Iterator<Item = &T> {
-    items.iter().enumerate().filter(move |(i, _)| *i < 16 && rows & (1 << i) != 0).map(|(_, t)| t)
+    // The set bits of `rows`, lowest first: one step per selected item, not one per item.
+    let mut bits = rows;
+    core::iter::from_fn(move || {
+        if bits == 0 {
+            return None;
+        }
+        let i = bits.trailing_zeros() as usize;
+        bits &= bits - 1;
+        Some(i)
+    })
+    .filter_map(move |i| items.get(i))
 }
 
 pub(crate) fn write_selected<S, T>(

@@ -75,20 +75,32 @@ impl<'a> LatentGrid<'a> {
         let bits = u32::from(self.bits);
         let mask = (1u64 << bits) - 1;
         let cell = u64::from(y) * u64::from(self.width) + u64::from(x);
-        let mut bit = cell * u64::from(self.channels) * u64::from(bits);
-        for (c, slot) in out.iter_mut().take(self.channels()).enumerate() {
-            let word = (bit / 32) as usize;
+        let first = cell * u64::from(self.channels) * u64::from(bits);
+        // Read 64 bits at the first latent's word: with ≤ 8-bit latents, every latent starting
+        // within the first 56 bits past it (bits 0–31 of the word + up to 3 more bytes) lies
+        // inside them; further latents start a new window. Bytes past the data read as 0, as
+        // in `code` (only latents ending inside the data are real).
+        let mut window_start = u64::MAX;
+        let mut window = 0u64;
+        let quant = self.quant.chunks_exact(4);
+        for (c, (slot, q)) in out.iter_mut().zip(quant).take(self.channels()).enumerate() {
+            let bit = first + c as u64 * u64::from(bits);
             let code = if inside {
-                // As in `code`: the second word is read only when the latent straddles into it.
-                let lo = u64::from(u32_at(self.data, word * 4));
-                let hi = u64::from(u32_at(self.data, word * 4 + 4));
-                (((hi << 32) | lo) >> (bit % 32)) & mask
+                if bit + u64::from(bits) > window_start.saturating_add(64) || bit < window_start {
+                    window_start = bit & !31;
+                    let word = (window_start / 32) as usize * 4;
+                    window = u64::from(u32_at(self.data, word))
+                        | u64::from(u32_at(self.data, word + 4)) << 32;
+                }
+                (window >> (bit - window_start)) & mask
             } else {
                 0
             };
-            let (offset, step) = self.quantization(c);
+            let (offset, step) = match *q {
+                [o0, o1, s0, s1] => (i16::from_le_bytes([o0, o1]), i16::from_le_bytes([s0, s1])),
+                _ => (0, 0),
+            };
             *slot = i32::from(offset) + code as i32 * i32::from(step);
-            bit += u64::from(bits);
         }
     }
 
