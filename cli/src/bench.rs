@@ -74,6 +74,8 @@ struct Row {
     psnr: Option<f64>,
     /// Largest |difference| from the float decoder, in 8-bit codes.
     max_delta: Option<u32>,
+    /// Threads working: the roofline scales with them (one core's peak each).
+    threads: usize,
 }
 
 /// The benchmark region and what every mode is compared with.
@@ -135,7 +137,7 @@ pub fn run(opts: &Options) -> Result<()> {
     }
     let roofline = peaks.iter().map(|p| p.1).fold(0.0, f64::max);
     println!(
-        "  roofline = MACs per texel ÷ {:.1} GMAC/s (the fastest of these; % roofline = roofline time ÷ measured time)\n",
+        "  roofline = MACs per texel ÷ {:.1} GMAC/s per thread (the fastest of these; % roofline = roofline time ÷ measured time)\n",
         roofline / 1e9
     );
     for input in &opts.inputs {
@@ -260,14 +262,17 @@ fn region_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>) {
     let texels = setup.texels() as f64;
     let (w, _) = setup.side;
     let all: Vec<usize> = (0..c).collect();
+    let threads_now = std::cell::Cell::new(1);
     let mut push = |mode: String, secs: f64, outputs: usize, units: &[f32], chans: &[usize]| {
         let (psnr, max_delta) = setup.judge(units, chans);
+        let threads = threads_now.get();
         rows.push(Row {
             mode,
             seconds_per_texel: secs / texels,
             macs_per_texel: macs(m, outputs) as f64,
             psnr,
             max_delta,
+            threads,
         });
     };
     let best = Decoder::new(m);
@@ -308,7 +313,9 @@ fn region_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>) {
     let (secs, units) = time_codes(setup, c, runs, 2, &|y, row| {
         let _ = best.decode_span_u8(m, 0, i64::from(y), 0, w as usize, ChannelMask::ALL, row);
     });
+    threads_now.set(2);
     push(format!("integer {kernel} region, all {c} ch, 2 threads"), secs, c, &units, &all);
+    threads_now.set(1);
     // Random access: the same texels in a scattered order, one call each.
     let order = scattered_order(setup.texels());
     let (secs, units) = time_random(setup, runs, &order, &|x, y, out| {
@@ -429,6 +436,7 @@ fn filter_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>) {
             macs_per_texel: macs(m, c) as f64 * taps,
             psnr: None,
             max_delta: delta,
+            threads: 1,
         });
     }
 }
@@ -439,7 +447,7 @@ fn print_rows(rows: &[Row], roofline: f64, bytes: usize) {
         "mode", "ns/texel", "texels/s", "%roofline", "PSNR dB", "max|Δ|", "bytes"
     );
     for r in rows {
-        let ideal = r.macs_per_texel / roofline;
+        let ideal = r.macs_per_texel / (roofline * r.threads as f64);
         println!(
             "  {:52} {:10.1} {:12.0} {:8.1}% {:>8} {:>9} {:>7}",
             r.mode,
