@@ -172,7 +172,7 @@ fn bad_inputs_give_errors_that_name_the_file() {
 #[test]
 fn pixel_formats_are_packed_as_documented() {
     let dir = temp_dir("formats");
-    // 16-bit gray, palette PNG (expanded to RGB), gray stored as RGB, constant alpha, constant map.
+    // 16-bit gray, gray stored as RGB, constant alpha, constant map (palette and CMYK: below).
     let h16 = dir.join("s_height.png");
     image::ImageBuffer::<image::Luma<u16>, _>::from_fn(8, 8, |x, y| {
         image::Luma([(x * 8000 + y * 100) as u16])
@@ -232,4 +232,50 @@ fn source_maps_never_name_a_path() {
     maps[0].file_name = "ok.png".into();
     assert_eq!(source_maps::decode(&source_maps::encode(&maps)).unwrap(), maps);
     assert_eq!(source_maps::decode(&[1, 0, 5, 0]), None, "count beyond the bytes");
+}
+
+/// Issue 3, point 7: a palette PNG is expanded to its colours (a documented conversion), and a
+/// CMYK JPEG either arrives converted to RGB or is refused with an error naming the file — never
+/// a panic.
+#[test]
+fn palette_and_cmyk_inputs_are_converted_or_refused_clearly() {
+    let dir = temp_dir("palette_cmyk");
+    // An 8×8 indexed PNG: 4 palette entries, index = (x + y) % 4.
+    let palette: [[u8; 3]; 4] = [[255, 0, 0], [0, 255, 0], [0, 0, 255], [128, 128, 128]];
+    let albedo = dir.join("p_albedo.png");
+    {
+        let file = std::io::BufWriter::new(std::fs::File::create(&albedo).unwrap());
+        let mut enc = png::Encoder::new(file, 8, 8);
+        enc.set_color(png::ColorType::Indexed);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.set_palette(palette.concat());
+        let mut writer = enc.write_header().unwrap();
+        let indices: Vec<u8> = (0..64).map(|i| ((i % 8 + i / 8) % 4) as u8).collect();
+        writer.write_image_data(&indices).unwrap();
+    }
+    let roles = vec![(Role::Albedo, albedo.clone())];
+    let set = texset::load(&roles, &LoadOptions::default()).unwrap();
+    let names: Vec<&str> = set.channels.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(names, ["albedo.r", "albedo.g", "albedo.b"], "palette expanded to RGB");
+    let top = &set.mips[0];
+    for (i, texel) in top.data.chunks_exact(3).enumerate() {
+        let want = palette[(i % 8 + i / 8) % 4].map(|v| f32::from(v) / 255.0);
+        assert_eq!(texel, want, "texel {i}");
+    }
+
+    // A CMYK JPEG (Adobe-style, as print workflows write them).
+    let cmyk = dir.join("c_albedo.jpg");
+    let pixels: Vec<u8> = (0..16 * 16).flat_map(|i| [(i % 256) as u8, 40, 200, 10]).collect();
+    jpeg_encoder::Encoder::new_file(&cmyk, 90)
+        .unwrap()
+        .encode(&pixels, 16, 16, jpeg_encoder::ColorType::Cmyk)
+        .unwrap();
+    match texset::load(&[(Role::Albedo, cmyk.clone())], &LoadOptions::default()) {
+        Ok(set) => {
+            assert_eq!(set.channels.len(), 3, "CMYK arrives as RGB");
+            assert!(set.mips[0].data.iter().all(|v| (0.0..=1.0).contains(v)));
+        }
+        Err(e) => assert!(e.to_string().contains("c_albedo.jpg"), "{e}"),
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
 }
