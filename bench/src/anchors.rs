@@ -283,12 +283,13 @@ fn main() {
     }
     for (label, target) in &targets {
         let (label, target) = (format!("@{label}"), *target);
-        // One quality setting for the material; the rate grows with the setting (JXL q 1..100)
-        // or shrinks with it (AVIF quantizer 0..63). Bisect for the best rate ≤ target.
+        // One quality setting for the material; the rate grows with the setting (JXL q 15..99:
+        // below 15 cjxl's distance would exceed its limit of 25 and it refuses) or shrinks with
+        // it (AVIF quantizer 0..63). Bisect for the best rate ≤ target.
         for make in [Codec::Jxl as fn(u32) -> Codec, Codec::Avif] {
             let t = Instant::now();
             let increasing = matches!(make(0), Codec::Jxl(_));
-            let (mut lo, mut hi) = if increasing { (1u32, 99u32) } else { (0u32, 63u32) };
+            let (mut lo, mut hi) = if increasing { (15u32, 99u32) } else { (0u32, 63u32) };
             let mut best: Option<(Codec, (f64, f64))> = None;
             while lo <= hi {
                 let mid = (lo + hi) / 2;
