@@ -1,12 +1,14 @@
 //! A prepared decoder for throughput (issue 7, docs/PERFORMANCE.md): the MLP's weights are
 //! re-laid once — int8 widened to i16 and interleaved by input pairs so one SIMD multiply-add
-//! serves 8 output rows, f16 widened to f32 and transposed — and kept hot across texels.
+//! serves 8 or 16 output rows, f16 widened to f32 and transposed — and kept hot across texels;
+//! spans go through the network 4 texels at a time.
 //!
 //! Every result is bit-identical to the per-texel definition on [`Material`] (FORMAT.md §6): the
-//! integer sums are exact and the float sums keep the input order of `Layer::row_float`. Two
+//! integer sums are exact and the float sums keep the input order of `Layer::row_float`. Three
 //! kernels compute the integer layers: [`Kernel::Scalar`], portable Rust over the prepared
-//! layout (the twin every SIMD kernel is tested against), and [`Kernel::Avx2`] (x86-64,
-//! `core::arch`, chosen at run time with the `std` feature, at compile time without it).
+//! layout (the twin every SIMD kernel is tested against), [`Kernel::Avx2`] and
+//! [`Kernel::Avx512Vnni`] (x86-64, `core::arch`, chosen at run time with the `std` feature, at
+//! compile time without it).
 
 extern crate alloc;
 
@@ -156,6 +158,8 @@ const GROUP: usize = 4;
 /// most `MAX_WIDTH`; `weights` holds `in_pairs · out_pad · 2` values; the per-row vectors hold
 /// `out_pad`; padding rows and columns are zero (multiplier 0, shift 1), so they decode to 0.
 #[derive(Clone, Debug)]
+// The lane vectors and `in_pairs` serve the x86-64 kernels only.
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 struct PackedLayer {
     in_pairs: usize,
     outputs: usize,
