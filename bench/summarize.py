@@ -1,18 +1,56 @@
 #!/usr/bin/env python3
-"""Averages bench/quality.sh rows per codec: mean BPPC, mean whole-chain PSNR, mean seconds,
-and the count of materials, as a Markdown table."""
+"""Summaries of bench/quality.sh rows, as Markdown:
+1. per codec: materials, mean BPPC, mean whole-chain PSNR, mean seconds;
+2. head to head on the materials both sides have: nmat at ≈0.2 BPPC against JPEG XL and AVIF at
+   the same rate, nmat at ≈1 BPPC against BC1/BC4, ASTC 8×8, JPEG XL and AVIF (mean Δ dB, wins);
+3. encode seconds per profile for the materials named in --big (e.g. the 1024² ones).
+
+Usage: summarize.py results.csv [--big m1,m2,...]"""
 import csv
 import sys
 from collections import defaultdict
 
-rows = list(csv.DictReader(open(sys.argv[1])))
-groups = defaultdict(list)
+path = sys.argv[1]
+big = []
+if "--big" in sys.argv:
+    big = sys.argv[sys.argv.index("--big") + 1].split(",")
+rows = list(csv.DictReader(open(path)))
+by = defaultdict(dict)  # codec -> material -> row
 for r in rows:
-    groups[r["codec"]].append(r)
+    by[r["codec"]][r["material"]] = r
+
 print("| codec | materials | mean BPPC | mean PSNR (dB, whole chain) | mean seconds |")
 print("|---|---:|---:|---:|---:|")
-for codec in sorted(groups, key=lambda c: sum(float(r["bppc"]) for r in groups[c]) / len(groups[c])):
-    g = groups[codec]
-    n = len(g)
-    mean = lambda k: sum(float(r[k]) for r in g) / n
-    print(f"| {codec} | {n} | {mean('bppc'):.3f} | {mean('psnr_db'):.2f} | {mean('seconds'):.1f} |")
+for codec in sorted(by, key=lambda c: sum(float(r["bppc"]) for r in by[c].values()) / len(by[c])):
+    g = list(by[codec].values())
+    mean = lambda k: sum(float(r[k]) for r in g) / len(g)
+    print(f"| {codec} | {len(g)} | {mean('bppc'):.3f} | {mean('psnr_db'):.2f} | {mean('seconds'):.1f} |")
+
+pairs = [
+    ("nmat-ntc-0.2", "jpegxl@ntc-0.2"), ("nmat-ntc-0.2", "avif@ntc-0.2"),
+    ("nmat-ntc-1.0", "bc1/bc4"), ("nmat-ntc-1.0", "astc8x8"),
+    ("nmat-ntc-1.0", "jpegxl@ntc-1.0"), ("nmat-ntc-1.0", "avif@ntc-1.0"),
+    ("nmat-ntc-0.5", "astc12x12"), ("nmat-ntc-2.25", "bc1/bc4"),
+]
+print()
+print("| nmat | against | common materials | mean BPPC (nmat / other) | mean Δ PSNR dB (nmat − other) | nmat wins |")
+print("|---|---|---:|---:|---:|---:|")
+for a, b in pairs:
+    common = sorted(set(by.get(a, {})) & set(by.get(b, {})))
+    if not common:
+        continue
+    d = [float(by[a][m]["psnr_db"]) - float(by[b][m]["psnr_db"]) for m in common]
+    ra = sum(float(by[a][m]["bppc"]) for m in common) / len(common)
+    rb = sum(float(by[b][m]["bppc"]) for m in common) / len(common)
+    wins = sum(1 for x in d if x > 0)
+    print(f"| {a} | {b} | {len(common)} | {ra:.3f} / {rb:.3f} | {sum(d) / len(d):+.2f} | {wins} of {len(common)} |")
+
+if big:
+    print()
+    print("| profile | " + " | ".join(big) + " | mean |")
+    print("|---|" + "---:|" * (len(big) + 1))
+    for codec in sorted(c for c in by if c.startswith("nmat-")):
+        cells = [by[codec].get(m) for m in big]
+        secs = [float(c["seconds"]) for c in cells if c]
+        mean = f"{sum(secs) / len(secs):.0f}" if secs else "–"
+        print(f"| {codec} | " + " | ".join(f"{float(c['seconds']):.0f}" if c else "–" for c in cells) + f" | {mean} |")

@@ -3,8 +3,12 @@
 //! a parsed material: any coordinate, mip and mask gives a value or a `BadArgument` error.
 
 use crate::error::{Argument, Error};
-use crate::latents::{AxisStepper, Footprint, LatentGrid, address, footprint, footprint_from_axes};
-use crate::limits::{MAX_CHAIN, MAX_GRID_CHANNELS, MAX_TERMS, MAX_WIDTH};
+#[cfg(feature = "alloc")]
+use crate::latents::{AxisStepper, footprint_from_axes};
+use crate::latents::{Footprint, LatentGrid, address, footprint};
+#[cfg(feature = "alloc")]
+use crate::limits::MAX_TERMS;
+use crate::limits::{MAX_CHAIN, MAX_GRID_CHANNELS, MAX_WIDTH};
 use crate::material::{AddressMode, Material, TermMode};
 use crate::mlp::{forward_float, forward_int, saturate_i16};
 use crate::posenc::triangle_q;
@@ -397,13 +401,16 @@ impl CellSource for DirectCells {
 }
 
 /// (y, mip height, grid height) → (first cell index, fraction): the y axis of a footprint.
+#[cfg(feature = "alloc")]
 type YAxis = ((u32, u32, u32), (i64, i32));
 
 /// A grid number and the cells (x0, x1, y0, y1) of a footprint on it.
+#[cfg(feature = "alloc")]
 type CellKey = (u8, u32, u32, u32, u32);
 
 /// Remembers the last footprint of each term and chain position (span calls), and steps the
-/// footprint's x axis from texel to texel instead of dividing.
+/// footprint's x axis from texel to texel instead of dividing. Used by `Decoder` spans.
+#[cfg(feature = "alloc")]
 pub(crate) struct CachedCells {
     keys: [Option<CellKey>; MAX_TERMS * MAX_CHAIN],
     cells: [Cells; MAX_TERMS * MAX_CHAIN],
@@ -413,6 +420,7 @@ pub(crate) struct CachedCells {
     scratch: Cells,
 }
 
+#[cfg(feature = "alloc")]
 impl Default for CachedCells {
     fn default() -> Self {
         CachedCells {
@@ -425,6 +433,7 @@ impl Default for CachedCells {
     }
 }
 
+#[cfg(feature = "alloc")]
 impl CellSource for CachedCells {
     fn footprint(
         &mut self,

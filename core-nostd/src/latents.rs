@@ -135,6 +135,7 @@ fn axis(x: u32, mip_size: u32, grid_size: u32) -> (i64, i32) {
 /// [`axis`] for consecutive texels of a span without a division per texel: the numerator grows
 /// by a constant, so quotient and remainder are stepped exactly. Any other `x` is computed
 /// directly and restarts the stepping.
+#[cfg(feature = "alloc")]
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct AxisStepper {
     /// (mip size, grid size) the state belongs to; `None` before the first use.
@@ -148,6 +149,7 @@ pub(crate) struct AxisStepper {
     step_remainder: u64,
 }
 
+#[cfg(feature = "alloc")]
 impl AxisStepper {
     pub(crate) fn at(&mut self, x: u32, mip_size: u32, grid_size: u32) -> (i64, i32) {
         if self.key == Some((mip_size, grid_size)) && x == self.x.wrapping_add(1) {
@@ -220,7 +222,7 @@ pub fn footprint(
     footprint_from_axes((gw, gh), axis(x, mip_size.0, gw), axis(y, mip_size.1, gh), mode)
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "alloc"))]
 mod tests {
     use super::*;
 
