@@ -531,11 +531,9 @@ impl Decoder {
                     write_selected(rows, &io, out, |v| unit(*v))
                 }
                 Precision::Integer => {
-                    let full = 255;
-                    let f = material.last_frac_bits();
-                    let mut io = material.int_inputs(x, y, mip, &mut cells);
-                    self.forward_int(&mut io, rows);
-                    write_selected(rows, &io, out, |&v| code(v, f, full) as f32 / 255.0)
+                    self.texel_codes(material, (x, y, mip), &mut cells, rows, out, 255, |c| {
+                        c as f32 / 255.0
+                    })
                 }
             })
         })
