@@ -14,9 +14,7 @@ extern crate alloc;
 
 use alloc::vec::Vec;
 
-use crate::decode::{
-    CachedCells, CellSource, ChannelMask, DirectCells, code, unit, write_selected,
-};
+use crate::decode::{ChannelMask, code, unit, write_selected};
 use crate::error::{Argument, Error};
 use crate::filter::{Precision, SampleRequest};
 use crate::limits::MAX_WIDTH;
@@ -27,6 +25,9 @@ use crate::mlp::{Activation, Layer, Requant, hard_gelu_f32, hard_gelu_q, saturat
 mod avx2;
 #[cfg(target_arch = "x86_64")]
 mod avx512;
+mod span;
+
+use span::SpanGather;
 
 /// Which code computes the integer layers of a [`Decoder`].
 #[non_exhaustive]
@@ -426,14 +427,13 @@ impl Decoder {
         full_scale: i32,
         narrow: impl Fn(i32) -> T,
     ) {
-        let mut cells = CachedCells::default();
+        let mut gather = SpanGather::new(material, y, mip);
         let f = material.last_frac_bits();
         let mut xs = [[0i16; MAX_WIDTH]; GROUP];
         for (g, texels) in out.chunks_mut(GROUP * n).take(count.div_ceil(GROUP)).enumerate() {
             let k = (count - g * GROUP).min(GROUP);
             for (i, x) in xs.iter_mut().enumerate().take(k) {
-                let at = x0.wrapping_add((g * GROUP + i) as i64);
-                material.fill_int_inputs(at, y, mip, &mut cells, x);
+                gather.inputs(x0.wrapping_add((g * GROUP + i) as i64), x);
             }
             self.forward_int_group(&mut xs, k, rows);
             for (x, texel) in xs.iter().zip(texels.chunks_exact_mut(n)) {
@@ -462,15 +462,7 @@ impl Decoder {
     ) -> Result<usize, Error> {
         self.check(material)?;
         let rows = material.check_out(channels, out.len())?;
-        Ok(self.texel_codes(
-            material,
-            (x, y, mip),
-            &mut DirectCells::default(),
-            rows,
-            out,
-            255,
-            |c| c as u8,
-        ))
+        Ok(self.texel_codes(material, (x, y, mip), rows, out, 255, |c| c as u8))
     }
 
     /// Integer decode to 16-bit codes, bit-identical to [`Material::decode_texel_u16`].
@@ -485,15 +477,7 @@ impl Decoder {
     ) -> Result<usize, Error> {
         self.check(material)?;
         let rows = material.check_out(channels, out.len())?;
-        Ok(self.texel_codes(
-            material,
-            (x, y, mip),
-            &mut DirectCells::default(),
-            rows,
-            out,
-            65535,
-            |c| c as u16,
-        ))
+        Ok(self.texel_codes(material, (x, y, mip), rows, out, 65535, |c| c as u16))
     }
 
     /// Float decode (values in channel ranges) with f32 weights, bit-identical to
@@ -509,7 +493,7 @@ impl Decoder {
     ) -> Result<usize, Error> {
         self.check(material)?;
         let rows = material.check_out(channels, out.len())?;
-        Ok(self.texel_float(material, (x, y, mip), &mut DirectCells::default(), rows, out))
+        Ok(self.texel_float(material, (x, y, mip), rows, out))
     }
 
     /// Filtered sample, equal to [`Material::sample`] but decoding its texels with this
@@ -523,17 +507,14 @@ impl Decoder {
         self.check(material)?;
         material.sample_with(req, out, &|x, y, mip, channels, precision, out| {
             let rows = material.check_out(channels, out.len())?;
-            let mut cells = DirectCells::default();
             Ok(match precision {
                 Precision::Float => {
-                    let mut io = material.float_inputs(x, y, mip, &mut cells);
+                    let mut io = material.inputs(x, y, mip);
                     self.forward_float(&mut io);
                     write_selected(rows, &io, out, |v| unit(*v))
                 }
                 Precision::Integer => {
-                    self.texel_codes(material, (x, y, mip), &mut cells, rows, out, 255, |c| {
-                        c as f32 / 255.0
-                    })
+                    self.texel_codes(material, (x, y, mip), rows, out, 255, |c| c as f32 / 255.0)
                 }
             })
         })
@@ -587,15 +568,12 @@ impl Decoder {
         out: &mut [f32],
     ) -> Result<usize, Error> {
         let (rows, n) = self.check_span(material, count, channels, out.len())?;
-        let mut cells = CachedCells::default();
+        let mut gather = SpanGather::new(material, y, mip);
+        let mut io = [0f32; MAX_WIDTH];
         for (i, texel) in out.chunks_exact_mut(n).take(count).enumerate() {
-            self.texel_float(
-                material,
-                (x0.wrapping_add(i as i64), y, mip),
-                &mut cells,
-                rows,
-                texel,
-            );
+            gather.inputs(x0.wrapping_add(i as i64), &mut io);
+            self.forward_float(&mut io);
+            material.write_ranged(rows, &io, texel);
         }
         Ok(count * n)
     }
@@ -626,13 +604,12 @@ impl Decoder {
         &self,
         material: &Material<'_>,
         (x, y, mip): (i64, i64, u32),
-        cells: &mut impl CellSource,
         rows: u16,
         out: &mut [T],
         full_scale: i32,
         narrow: impl Fn(i32) -> T,
     ) -> usize {
-        let mut io = material.int_inputs(x, y, mip, cells);
+        let mut io = material.inputs(x, y, mip);
         self.forward_int(&mut io, rows);
         let f = material.last_frac_bits();
         write_selected(rows, &io, out, |&v| narrow(code(v, f, full_scale)))
@@ -642,11 +619,10 @@ impl Decoder {
         &self,
         material: &Material<'_>,
         (x, y, mip): (i64, i64, u32),
-        cells: &mut impl CellSource,
         rows: u16,
         out: &mut [f32],
     ) -> usize {
-        let mut io = material.float_inputs(x, y, mip, cells);
+        let mut io = material.inputs(x, y, mip);
         self.forward_float(&mut io);
         material.write_ranged(rows, &io, out)
     }

@@ -3,12 +3,8 @@
 //! a parsed material: any coordinate, mip and mask gives a value or a `BadArgument` error.
 
 use crate::error::{Argument, Error};
-#[cfg(feature = "alloc")]
-use crate::latents::{AxisStepper, footprint_from_axes};
 use crate::latents::{Footprint, LatentGrid, address, footprint};
-#[cfg(feature = "alloc")]
-use crate::limits::MAX_TERMS;
-use crate::limits::{MAX_CHAIN, MAX_GRID_CHANNELS, MAX_WIDTH};
+use crate::limits::{MAX_GRID_CHANNELS, MAX_WIDTH};
 use crate::material::{AddressMode, Material, TermMode};
 use crate::mlp::{forward_float, forward_int, saturate_i16};
 use crate::posenc::triangle_q;
@@ -39,7 +35,7 @@ impl ChannelMask {
 
 /// Raw features are kept in units of 2^-(16 + f): bilinear sums carry 16 extra fraction bits
 /// (their weights sum to 2^16), every other feature is an exact multiple of 2^16.
-const RAW_SHIFT: u32 = 16;
+pub(crate) const RAW_SHIFT: u32 = 16;
 
 impl<'a> Material<'a> {
     /// The mask with every bit naming a real channel, or `BadArgument` (empty mask, or a bit at or
@@ -78,21 +74,15 @@ impl<'a> Material<'a> {
     }
 
     /// Input features of texel (x, y) of `mip` (already addressed) in units of 2^-(16+f), passed
-    /// to `push` in input order; `cells` supplies the latent values of footprint cells.
-    pub(crate) fn gather(
-        &self,
-        x: u32,
-        y: u32,
-        mip: u32,
-        cells: &mut impl CellSource,
-        sink: &mut impl FeatureSink,
-    ) {
+    /// to `sink` in input order. The definition; `Decoder` spans have a faster twin
+    /// (`batch/span.rs`).
+    pub(crate) fn gather<T: Feature>(&self, x: u32, y: u32, mip: u32, sink: &mut Inputs<'_, T>) {
         let mip_size = self.mip_size(mip);
         let mode = self.address_mode;
         let Some(level) = self.levels.get(self.level_for_mip(mip)) else {
             return;
         };
-        for (t, term) in level.terms.iter().enumerate() {
+        for term in &level.terms {
             let channels = term
                 .grids
                 .first()
@@ -102,18 +92,19 @@ impl<'a> Material<'a> {
                 TermMode::Nearest4 => {
                     let Some(&g) = term.grids.first() else { continue };
                     let Some(grid) = self.grids.get(usize::from(g)) else { continue };
-                    let fp = cells.footprint(t * MAX_CHAIN, grid, (x, y), mip_size, mode);
-                    for cell in cells.cells(t * MAX_CHAIN, g, grid, &fp) {
-                        sink.push_latents(cell.get(..channels).unwrap_or(&[]));
+                    let (_, cells) = footprint_cells(grid, x, y, mip_size, mode);
+                    for cell in &cells {
+                        for &v in cell.iter().take(channels) {
+                            sink.push(i64::from(v) << RAW_SHIFT);
+                        }
                     }
                 }
                 TermMode::Bilinear => {
                     let mut sums = [0i64; MAX_GRID_CHANNELS];
-                    for (k, &g) in term.grids.iter().enumerate() {
+                    for &g in &term.grids {
                         let Some(grid) = self.grids.get(usize::from(g)) else { continue };
-                        let slot = t * MAX_CHAIN + k;
-                        let fp = cells.footprint(slot, grid, (x, y), mip_size, mode);
-                        let [c00, c10, c01, c11] = cells.cells(slot, g, grid, &fp);
+                        let (fp, [c00, c10, c01, c11]) =
+                            footprint_cells(grid, x, y, mip_size, mode);
                         let (fx, fy) = (fp.fx, fp.fy);
                         let (gx, gy) = (256 - fx, 256 - fy);
                         let w = [gx * gy, fx * gy, gx * fy, fx * fy];
@@ -162,65 +153,27 @@ impl<'a> Material<'a> {
         }
     }
 
-    /// The integer network's input vector for texel (x, y) of `mip` (§6.3): addressed, gathered,
-    /// rounded half up onto the input grid and saturated. Entries past the input width are 0.
-    pub(crate) fn int_inputs(
-        &self,
-        x: i64,
-        y: i64,
-        mip: u32,
-        cells: &mut impl CellSource,
-    ) -> [i16; MAX_WIDTH] {
-        let mut io = [0i16; MAX_WIDTH];
-        self.fill_int_inputs(x, y, mip, cells, &mut io);
-        io
-    }
-
-    /// [`Material::int_inputs`] into `io`; entries past the input width are left as they were.
-    pub(crate) fn fill_int_inputs(
-        &self,
-        x: i64,
-        y: i64,
-        mip: u32,
-        cells: &mut impl CellSource,
-        io: &mut [i16; MAX_WIDTH],
-    ) {
+    /// The input vector for texel (x, y) of `mip`: addressed, gathered and converted (for the
+    /// integer network: rounded half up onto the input grid and saturated, §6.3). Entries past
+    /// the input width are 0.
+    pub(crate) fn inputs<T: Feature>(&self, x: i64, y: i64, mip: u32) -> [T; MAX_WIDTH] {
         let (x, y, mip) = self.address_texel(x, y, mip);
-        self.gather(x, y, mip, cells, &mut IntSink { io, next: 0 });
-    }
-
-    /// The float network's input vector for texel (x, y) of `mip`.
-    pub(crate) fn float_inputs(
-        &self,
-        x: i64,
-        y: i64,
-        mip: u32,
-        cells: &mut impl CellSource,
-    ) -> [f32; MAX_WIDTH] {
-        let (x, y, mip) = self.address_texel(x, y, mip);
-        let lo = i64::from(i16::MIN) << RAW_SHIFT;
-        let hi = i64::from(i16::MAX) << RAW_SHIFT;
-        let scale = 1.0 / (1u64 << (RAW_SHIFT + u32::from(self.mlp.input_frac_bits))) as f32;
-        let mut io = [0f32; MAX_WIDTH];
-        let mut slots = io.iter_mut();
-        self.gather(x, y, mip, cells, &mut |r: i64| {
-            if let Some(v) = slots.next() {
-                *v = r.clamp(lo, hi) as f32 * scale;
-            }
-        });
+        let mut io = [T::default(); MAX_WIDTH];
+        let input_frac_bits = self.mlp.input_frac_bits;
+        self.gather(x, y, mip, &mut Inputs { io: &mut io, next: 0, input_frac_bits });
         io
     }
 
     /// The integer network's outputs (Q.`out_frac_bits` of the last layer) for the rows in `rows`.
     fn run_int(&self, x: i64, y: i64, mip: u32, rows: u16) -> [i16; MAX_WIDTH] {
-        let mut io = self.int_inputs(x, y, mip, &mut DirectCells::default());
+        let mut io = self.inputs(x, y, mip);
         forward_int(&self.mlp.layers, &mut io, rows);
         io
     }
 
     /// The float network's outputs for the rows in `rows`, in unit scale (1.0 = top of range).
     fn run_float(&self, x: i64, y: i64, mip: u32, rows: u16) -> [f32; MAX_WIDTH] {
-        let mut io = self.float_inputs(x, y, mip, &mut DirectCells::default());
+        let mut io = self.inputs(x, y, mip);
         forward_float(&self.mlp.layers, &mut io, rows);
         io
     }
@@ -313,179 +266,63 @@ impl<'a> Material<'a> {
     }
 }
 
-/// Where `gather` puts the input features, in input order.
-pub(crate) trait FeatureSink {
-    /// One feature in units of 2^-(16+f).
-    fn push(&mut self, raw: i64);
-    /// Dequantized latent values (each an i16 on the input grid, FORMAT.md §4).
-    fn push_latents(&mut self, values: &[i32]) {
-        for &v in values {
-            self.push(i64::from(v) << RAW_SHIFT);
-        }
+/// An input feature of the network: i16 on the input grid (integer decode) or f32 (float).
+pub(crate) trait Feature: Copy + Default {
+    /// The feature from a raw value in units of 2^-(16 + `input_frac_bits`).
+    fn from_raw(raw: i64, input_frac_bits: u8) -> Self;
+}
+
+impl Feature for i16 {
+    /// §6.3: rounded half up onto the input grid, saturated.
+    fn from_raw(raw: i64, _: u8) -> i16 {
+        saturate_i16((raw + (1 << (RAW_SHIFT - 1))) >> RAW_SHIFT)
     }
 }
 
-impl<F: FnMut(i64)> FeatureSink for F {
-    fn push(&mut self, raw: i64) {
-        self(raw)
+impl Feature for f32 {
+    /// Saturated to the i16 range of the input grid and scaled to real units (the nearest f32;
+    /// the scale is a power of two).
+    fn from_raw(raw: i64, input_frac_bits: u8) -> f32 {
+        let (lo, hi) = (i64::from(i16::MIN) << RAW_SHIFT, i64::from(i16::MAX) << RAW_SHIFT);
+        let scale = 1.0 / (1u64 << (RAW_SHIFT + u32::from(input_frac_bits))) as f32;
+        raw.clamp(lo, hi) as f32 * scale
     }
 }
 
-/// The integer input vector (§6.3: round half up onto the input grid, saturate).
-struct IntSink<'o> {
-    io: &'o mut [i16; MAX_WIDTH],
+/// Where `gather` puts the input features: an input vector filled in order from its first
+/// entry (entries past the features pushed are left alone).
+pub(crate) struct Inputs<'o, T> {
+    io: &'o mut [T; MAX_WIDTH],
     next: usize,
+    input_frac_bits: u8,
 }
 
-impl FeatureSink for IntSink<'_> {
+impl<T: Feature> Inputs<'_, T> {
     fn push(&mut self, raw: i64) {
         if let Some(v) = self.io.get_mut(self.next) {
-            *v = saturate_i16((raw + (1 << (RAW_SHIFT - 1))) >> RAW_SHIFT);
+            *v = T::from_raw(raw, self.input_frac_bits);
         }
         self.next += 1;
     }
-
-    /// A latent is already on the input grid: rounding and saturation leave it unchanged.
-    fn push_latents(&mut self, values: &[i32]) {
-        let end = (self.next + values.len()).min(MAX_WIDTH);
-        if let Some(slots) = self.io.get_mut(self.next..end) {
-            for (slot, &v) in slots.iter_mut().zip(values) {
-                *slot = saturate_i16(i64::from(v));
-            }
-        }
-        self.next += values.len();
-    }
 }
 
-/// The dequantized latent values of the 4 footprint cells of a grid, in the order (x0, y0),
-/// (x1, y0), (x0, y1), (x1, y1); channels past the grid's are 0.
-pub(crate) type Cells = [[i32; MAX_GRID_CHANNELS]; 4];
-
-/// Where `gather` gets footprint cells from: decoded on the spot, or remembered across the
-/// texels of a span (neighbouring texels share cells on grids coarser than the mip).
-pub(crate) trait CellSource {
-    /// The cells of `fp` on `grid` (number `index` in the material); `slot` names the term and
-    /// chain position asking, so a cache can keep one entry per position.
-    fn cells(&mut self, slot: usize, index: u8, grid: &LatentGrid<'_>, fp: &Footprint) -> &Cells;
-
-    /// The footprint of texel `at` on `grid` (what [`footprint`] computes).
-    fn footprint(
-        &mut self,
-        _slot: usize,
-        grid: &LatentGrid<'_>,
-        (x, y): (u32, u32),
-        mip_size: (u32, u32),
-        mode: AddressMode,
-    ) -> Footprint {
-        footprint((grid.width(), grid.height()), x, y, mip_size, mode)
-    }
-}
-
-fn decode_cells(grid: &LatentGrid<'_>, fp: &Footprint, out: &mut Cells) {
-    for (cell, (x, y)) in
-        out.iter_mut().zip([(fp.x0, fp.y0), (fp.x1, fp.y0), (fp.x0, fp.y1), (fp.x1, fp.y1)])
+/// The footprint of texel (x, y) (addressed) on `grid` and the dequantized latent values of its 4
+/// cells, in the order (x0, y0), (x1, y0), (x0, y1), (x1, y1); channels past the grid's are 0.
+fn footprint_cells(
+    grid: &LatentGrid<'_>,
+    x: u32,
+    y: u32,
+    mip_size: (u32, u32),
+    mode: AddressMode,
+) -> (Footprint, [[i32; MAX_GRID_CHANNELS]; 4]) {
+    let fp = footprint((grid.width(), grid.height()), x, y, mip_size, mode);
+    let mut cells = [[0; MAX_GRID_CHANNELS]; 4];
+    for (cell, (cx, cy)) in
+        cells.iter_mut().zip([(fp.x0, fp.y0), (fp.x1, fp.y0), (fp.x0, fp.y1), (fp.x1, fp.y1)])
     {
-        grid.cell_values(x, y, cell);
+        grid.cell_values(cx, cy, cell);
     }
-}
-
-/// Decodes every footprint on the spot (single-texel calls).
-#[derive(Default)]
-pub(crate) struct DirectCells(Cells);
-
-impl CellSource for DirectCells {
-    fn cells(&mut self, _slot: usize, _index: u8, grid: &LatentGrid<'_>, fp: &Footprint) -> &Cells {
-        decode_cells(grid, fp, &mut self.0);
-        &self.0
-    }
-}
-
-/// (y, mip height, grid height) → (first cell index, fraction): the y axis of a footprint.
-#[cfg(feature = "alloc")]
-type YAxis = ((u32, u32, u32), (i64, i32));
-
-/// A grid number and the cells (x0, x1, y0, y1) of a footprint on it.
-#[cfg(feature = "alloc")]
-type CellKey = (u8, u32, u32, u32, u32);
-
-/// Remembers the last footprint of each term and chain position (span calls), and steps the
-/// footprint's x axis from texel to texel instead of dividing. Used by `Decoder` spans.
-#[cfg(feature = "alloc")]
-pub(crate) struct CachedCells {
-    keys: [Option<CellKey>; MAX_TERMS * MAX_CHAIN],
-    cells: [Cells; MAX_TERMS * MAX_CHAIN],
-    x_axes: [AxisStepper; MAX_TERMS * MAX_CHAIN],
-    /// The last y axis of each slot.
-    y_axes: [Option<YAxis>; MAX_TERMS * MAX_CHAIN],
-    scratch: Cells,
-}
-
-#[cfg(feature = "alloc")]
-impl Default for CachedCells {
-    fn default() -> Self {
-        CachedCells {
-            keys: [None; MAX_TERMS * MAX_CHAIN],
-            cells: [[[0; MAX_GRID_CHANNELS]; 4]; MAX_TERMS * MAX_CHAIN],
-            x_axes: [AxisStepper::default(); MAX_TERMS * MAX_CHAIN],
-            y_axes: [None; MAX_TERMS * MAX_CHAIN],
-            scratch: [[0; MAX_GRID_CHANNELS]; 4],
-        }
-    }
-}
-
-#[cfg(feature = "alloc")]
-impl CellSource for CachedCells {
-    fn footprint(
-        &mut self,
-        slot: usize,
-        grid: &LatentGrid<'_>,
-        (x, y): (u32, u32),
-        mip_size: (u32, u32),
-        mode: AddressMode,
-    ) -> Footprint {
-        let (gw, gh) = (grid.width().max(1), grid.height().max(1));
-        let (Some(stepper), Some(y_cache)) = (self.x_axes.get_mut(slot), self.y_axes.get_mut(slot))
-        else {
-            return footprint((gw, gh), x, y, mip_size, mode);
-        };
-        let x_axis = stepper.at(x, mip_size.0, gw);
-        let key = (y, mip_size.1, gh);
-        let y_axis = match *y_cache {
-            Some((k, axis)) if k == key => axis,
-            _ => {
-                let axis = AxisStepper::default().at(y, mip_size.1, gh);
-                *y_cache = Some((key, axis));
-                axis
-            }
-        };
-        footprint_from_axes((gw, gh), x_axis, y_axis, mode)
-    }
-
-    fn cells(&mut self, slot: usize, index: u8, grid: &LatentGrid<'_>, fp: &Footprint) -> &Cells {
-        let key = Some((index, fp.x0, fp.x1, fp.y0, fp.y1));
-        match (self.keys.get_mut(slot), self.cells.get_mut(slot)) {
-            (Some(k), Some(cells)) => {
-                match *k {
-                    Some(old) if Some(old) == key => {}
-                    // One cell to the right: the old right column is the new left one.
-                    Some((g, _, x1, y0, y1)) if (g, x1, y0, y1) == (index, fp.x0, fp.y0, fp.y1) => {
-                        let [c00, c10, c01, c11] = cells;
-                        *c00 = *c10;
-                        *c01 = *c11;
-                        grid.cell_values(fp.x1, fp.y0, c10);
-                        grid.cell_values(fp.x1, fp.y1, c11);
-                    }
-                    _ => decode_cells(grid, fp, cells),
-                }
-                *k = key;
-                cells
-            }
-            _ => {
-                decode_cells(grid, fp, &mut self.scratch);
-                &self.scratch
-            }
-        }
-    }
+    (fp, cells)
 }
 
 /// Unit-scale clamp; NaN (impossible for validated weights, but cheap to rule out) maps to 0.

@@ -125,7 +125,7 @@ pub struct Footprint {
 
 /// One axis of the footprint: the first cell index (−1 ≤ i0 < grid_size) and the fraction in
 /// 1/256. `x < mip_size` and both sizes are in 1..=16384, so the numerator is below 2^38.
-fn axis(x: u32, mip_size: u32, grid_size: u32) -> (i64, i32) {
+pub(crate) fn axis(x: u32, mip_size: u32, grid_size: u32) -> (i64, i32) {
     let num = (2 * u64::from(x) + 1) * u64::from(grid_size) * 256;
     let den = 2 * u64::from(mip_size.max(1));
     let pos = (num / den) as i64 - 128;
@@ -179,24 +179,6 @@ impl AxisStepper {
     }
 }
 
-/// The footprint from the two axes (FORMAT.md §6.2), as [`footprint`] computes it.
-pub(crate) fn footprint_from_axes(
-    (gw, gh): (u32, u32),
-    (i, fx): (i64, i32),
-    (j, fy): (i64, i32),
-    mode: AddressMode,
-) -> Footprint {
-    let (gw, gh) = (gw.max(1), gh.max(1));
-    Footprint {
-        x0: address(i, gw, mode),
-        x1: address(i + 1, gw, mode),
-        y0: address(j, gh, mode),
-        y1: address(j + 1, gh, mode),
-        fx,
-        fy,
-    }
-}
-
 /// Brings index `i` into `[0, size)` by the address mode (FORMAT.md §6.1); `size` ≥ 1.
 pub fn address(i: i64, size: u32, mode: AddressMode) -> u32 {
     let size = i64::from(size.max(1));
@@ -219,7 +201,15 @@ pub fn footprint(
     mode: AddressMode,
 ) -> Footprint {
     let (gw, gh) = (grid_size.0.max(1), grid_size.1.max(1));
-    footprint_from_axes((gw, gh), axis(x, mip_size.0, gw), axis(y, mip_size.1, gh), mode)
+    let ((i, fx), (j, fy)) = (axis(x, mip_size.0, gw), axis(y, mip_size.1, gh));
+    Footprint {
+        x0: address(i, gw, mode),
+        x1: address(i + 1, gw, mode),
+        y0: address(j, gh, mode),
+        y1: address(j + 1, gh, mode),
+        fx,
+        fy,
+    }
 }
 
 #[cfg(all(test, feature = "alloc"))]

@@ -1,6 +1,8 @@
 //! Decodes mip 0 of a .nmat file through `Decoder` spans, repeatedly: a steady load to attach a
 //! profiler to (`perf record cargo run --release -p nmat-tests --example span_profile -- FILE`).
-//! Prints the mean time per texel of the passes.
+//! Prints the mean time per texel of the passes, and the fastest and median time of one row
+//! (single rows are short enough that the fastest one is rarely disturbed by other work on a
+//! shared machine: the figure to compare two builds with).
 
 use nmat_core::{ChannelMask, Container, Decoder};
 use std::time::Instant;
@@ -13,18 +15,24 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let d = Decoder::new(&m);
     let (w, h) = m.mip_size(0);
     let mut row = vec![0u8; w as usize * m.channel_count()];
+    let mut rows = Vec::with_capacity(passes * h as usize);
     let start = Instant::now();
     for _ in 0..passes {
         for y in 0..h {
+            let row_start = Instant::now();
             d.decode_span_u8(&m, 0, i64::from(y), 0, w as usize, ChannelMask::ALL, &mut row)?;
+            rows.push(row_start.elapsed().as_secs_f64() * 1e9 / f64::from(w));
         }
     }
     let texels = f64::from(w) * f64::from(h) * passes as f64;
+    rows.sort_by(f64::total_cmp);
     println!(
-        "{}: {:.1} ns/texel ({})",
+        "{}: {:.1} ns/texel ({}); one row: fastest {:.1}, median {:.1} ns/texel",
         path,
         start.elapsed().as_secs_f64() * 1e9 / texels,
-        d.kernel().name()
+        d.kernel().name(),
+        rows.first().copied().unwrap_or(0.0),
+        rows.get(rows.len() / 2).copied().unwrap_or(0.0),
     );
     Ok(())
 }
