@@ -154,6 +154,34 @@ fn scalar_probe(rounds: u64) -> i64 {
 /// Texels a span decodes together (the batched kernel's group).
 const GROUP: usize = 4;
 
+/// Work run inside a function compiled for a kernel's instruction set (`avx2::with_avx2`,
+/// `avx512::with_avx512`); `run` is inlined there, and with it what it calls inline.
+trait Job {
+    type Output;
+    fn run(self) -> Self::Output;
+}
+
+/// The arguments of [`Decoder::span_codes`].
+struct SpanJob<'j, 'a, T, N> {
+    decoder: &'j Decoder,
+    material: &'j Material<'a>,
+    at: (i64, i64, u32),
+    count: usize,
+    rows: (u16, usize),
+    out: &'j mut [T],
+    full_scale: i32,
+    narrow: N,
+}
+
+impl<T, N: Fn(i32) -> T> Job for SpanJob<'_, '_, T, N> {
+    type Output = ();
+    #[inline(always)]
+    fn run(self) {
+        let SpanJob { decoder, material, at, count, rows, out, full_scale, narrow } = self;
+        decoder.span_codes_here(material, at, count, rows, out, full_scale, narrow);
+    }
+}
+
 /// One layer in the prepared layout. Invariants (established by [`PackedLayer::new`], relied on
 /// by the SIMD kernels): `out_pad` is a multiple of 16 and at most `MAX_WIDTH`; `2·in_pairs` is at
 /// most `MAX_WIDTH`; `weights` holds `in_pairs · out_pad · 2` values; the per-row vectors hold
@@ -415,9 +443,32 @@ impl Decoder {
         }
     }
 
-    /// The integer codes of `count` texels of a span into `out` (`n` values each).
+    /// The integer codes of `count` texels of a span into `out` (`n` values each), all of it
+    /// compiled for the kernel's instruction set.
     #[allow(clippy::too_many_arguments)]
     fn span_codes<T>(
+        &self,
+        material: &Material<'_>,
+        at: (i64, i64, u32),
+        count: usize,
+        rows: (u16, usize),
+        out: &mut [T],
+        full_scale: i32,
+        narrow: impl Fn(i32) -> T,
+    ) {
+        let job = SpanJob { decoder: self, material, at, count, rows, out, full_scale, narrow };
+        match self.kernel {
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx2 => avx2::with_avx2(job),
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx512Vnni => avx512::with_avx512(job),
+            _ => job.run(),
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn span_codes_here<T>(
         &self,
         material: &Material<'_>,
         (x0, y, mip): (i64, i64, u32),
@@ -429,6 +480,8 @@ impl Decoder {
     ) {
         let mut gather = SpanGather::new(material, y, mip);
         let f = material.last_frac_bits();
+        // Rows 0..n: the outputs are the first n values.
+        let first_rows = rows & rows.wrapping_add(1) == 0;
         let mut xs = [[0i16; MAX_WIDTH]; GROUP];
         for (g, texels) in out.chunks_mut(GROUP * n).take(count.div_ceil(GROUP)).enumerate() {
             let k = (count - g * GROUP).min(GROUP);
@@ -437,7 +490,18 @@ impl Decoder {
             }
             self.forward_int_group(&mut xs, k, rows);
             for (x, texel) in xs.iter().zip(texels.chunks_exact_mut(n)) {
-                write_selected(rows, x, texel, |&v| narrow(code(v, f, full_scale)));
+                if first_rows {
+                    // All 16 lanes at once (fixed length: vector code), then the n wanted.
+                    let mut codes = [0i32; 16];
+                    for (c, &v) in codes.iter_mut().zip(x) {
+                        *c = code(v, f, full_scale);
+                    }
+                    for (out, &c) in texel.iter_mut().zip(&codes) {
+                        *out = narrow(c);
+                    }
+                } else {
+                    write_selected(rows, x, texel, |&v| narrow(code(v, f, full_scale)));
+                }
             }
         }
     }

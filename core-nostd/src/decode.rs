@@ -270,12 +270,33 @@ impl<'a> Material<'a> {
 pub(crate) trait Feature: Copy + Default {
     /// The feature from a raw value in units of 2^-(16 + `input_frac_bits`).
     fn from_raw(raw: i64, input_frac_bits: u8) -> Self;
+    /// [`Feature::from_raw`] of `high·2^16 + low`.
+    fn from_parts(high: i32, low: i32, input_frac_bits: u8) -> Self {
+        Self::from_raw((i64::from(high) << RAW_SHIFT) + i64::from(low), input_frac_bits)
+    }
+    /// [`Feature::from_raw`] of a dequantized latent (an i16 on the input grid, FORMAT.md §4).
+    fn from_latent(value: i32, input_frac_bits: u8) -> Self {
+        Self::from_raw(i64::from(value) << RAW_SHIFT, input_frac_bits)
+    }
 }
 
 impl Feature for i16 {
     /// §6.3: rounded half up onto the input grid, saturated.
     fn from_raw(raw: i64, _: u8) -> i16 {
         saturate_i16((raw + (1 << (RAW_SHIFT - 1))) >> RAW_SHIFT)
+    }
+
+    /// In i32: `(high·2^16 + low + 2^15) >> 16 = high + ((low + 2^15) >> 16)`, for `high` and
+    /// `low` far enough from the i32 limits (as the span gather's are: |high| ≤ 8·2^15,
+    /// 0 ≤ low < 8·2^16).
+    fn from_parts(high: i32, low: i32, _: u8) -> i16 {
+        let v = high + ((low + (1 << (RAW_SHIFT - 1))) >> RAW_SHIFT);
+        v.clamp(i32::from(i16::MIN), i32::from(i16::MAX)) as i16
+    }
+
+    /// A latent is already on the input grid: rounding and saturation leave it unchanged.
+    fn from_latent(value: i32, _: u8) -> i16 {
+        value as i16
     }
 }
 
@@ -337,6 +358,7 @@ pub(crate) fn unit(v: f32) -> f32 {
 }
 
 /// Output code of a Q.`f` value for a full scale of `max` (255 or 65535). |y·max| < 2^31.
+#[inline(always)]
 pub fn code(y: i16, f: u32, max: i32) -> i32 {
     let half = 1i32 << (f.clamp(1, 14) - 1);
     ((i32::from(y) * max + half) >> f.clamp(1, 14)).clamp(0, max)

@@ -132,53 +132,6 @@ pub(crate) fn axis(x: u32, mip_size: u32, grid_size: u32) -> (i64, i32) {
     (pos >> 8, (pos & 255) as i32)
 }
 
-/// [`axis`] for consecutive texels of a span without a division per texel: the numerator grows
-/// by a constant, so quotient and remainder are stepped exactly. Any other `x` is computed
-/// directly and restarts the stepping.
-#[cfg(feature = "alloc")]
-#[derive(Clone, Copy, Debug, Default)]
-pub(crate) struct AxisStepper {
-    /// (mip size, grid size) the state belongs to; `None` before the first use.
-    key: Option<(u32, u32)>,
-    x: u32,
-    quotient: u64,
-    remainder: u64,
-    /// Denominator, and quotient and remainder of the per-texel step by it.
-    den: u64,
-    step_quotient: u64,
-    step_remainder: u64,
-}
-
-#[cfg(feature = "alloc")]
-impl AxisStepper {
-    pub(crate) fn at(&mut self, x: u32, mip_size: u32, grid_size: u32) -> (i64, i32) {
-        if self.key == Some((mip_size, grid_size)) && x == self.x.wrapping_add(1) {
-            self.remainder += self.step_remainder;
-            self.quotient += self.step_quotient;
-            if self.remainder >= self.den {
-                self.remainder -= self.den;
-                self.quotient += 1;
-            }
-        } else {
-            let den = 2 * u64::from(mip_size.max(1));
-            let step = 2 * u64::from(grid_size) * 256;
-            let num = (2 * u64::from(x) + 1) * u64::from(grid_size) * 256;
-            *self = AxisStepper {
-                key: Some((mip_size, grid_size)),
-                x,
-                quotient: num / den,
-                remainder: num % den,
-                den,
-                step_quotient: step / den,
-                step_remainder: step % den,
-            };
-        }
-        self.x = x;
-        let pos = self.quotient as i64 - 128;
-        (pos >> 8, (pos & 255) as i32)
-    }
-}
-
 /// Brings index `i` into `[0, size)` by the address mode (FORMAT.md §6.1); `size` ≥ 1.
 pub fn address(i: i64, size: u32, mode: AddressMode) -> u32 {
     let size = i64::from(size.max(1));
@@ -209,30 +162,5 @@ pub fn footprint(
         y1: address(j + 1, gh, mode),
         fx,
         fy,
-    }
-}
-
-#[cfg(all(test, feature = "alloc"))]
-mod tests {
-    use super::*;
-
-    /// Stepping equals dividing for every texel, with grids finer and coarser than the mip, and
-    /// restarts correctly after a jump.
-    #[test]
-    fn axis_stepper_matches_axis() {
-        for mip in [1u32, 2, 3, 7, 40, 97, 16384] {
-            for grid in [1u32, 2, 5, 33, 64, 70, 4096, 16384] {
-                let mut s = AxisStepper::default();
-                let xs =
-                    (0..mip.min(300)).chain([0, 5, 6, 2, 3, 4].into_iter().filter(|&x| x < mip));
-                for x in xs {
-                    assert_eq!(
-                        s.at(x, mip, grid),
-                        axis(x, mip, grid),
-                        "mip {mip} grid {grid} x {x}"
-                    );
-                }
-            }
-        }
     }
 }

@@ -1,18 +1,24 @@
 //! Decodes mip 0 of a .nmat file through `Decoder` spans, repeatedly: a steady load to attach a
 //! profiler to (`perf record cargo run --release -p nmat-tests --example span_profile -- FILE`).
-//! Prints the mean time per texel of the passes, and the fastest and median time of one row
+//! An optional kernel name (`scalar`, `avx2`, `avx512-vnni`) picks the kernel, e.g. to count
+//! instructions under valgrind, which lacks AVX-512. Prints the mean time per texel of the passes, and the fastest and median time of one row
 //! (single rows are short enough that the fastest one is rarely disturbed by other work on a
 //! shared machine: the figure to compare two builds with).
 
-use nmat_core::{ChannelMask, Container, Decoder};
+use nmat_core::{ChannelMask, Container, Decoder, Kernel};
 use std::time::Instant;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let path = std::env::args().nth(1).ok_or("usage: span_profile FILE.nmat [PASSES]")?;
+    let usage = "usage: span_profile FILE.nmat [PASSES [KERNEL]]";
+    let path = std::env::args().nth(1).ok_or(usage)?;
     let passes: usize = std::env::args().nth(2).map_or(Ok(5), |s| s.parse())?;
+    let kernel = match std::env::args().nth(3) {
+        None => Kernel::best(),
+        Some(name) => Kernel::ALL.into_iter().find(|k| k.name() == name).ok_or(usage)?,
+    };
     let bytes = std::fs::read(&path)?;
     let m = Container::parse(&bytes)?;
-    let d = Decoder::new(&m);
+    let d = Decoder::with_kernel(&m, kernel)?;
     let (w, h) = m.mip_size(0);
     let mut row = vec![0u8; w as usize * m.channel_count()];
     let mut rows = Vec::with_capacity(passes * h as usize);

@@ -8,6 +8,19 @@ use core::arch::x86_64::*;
 use super::PackedLayer;
 use crate::limits::MAX_WIDTH;
 
+/// Runs `job` in code compiled for AVX2: what it inlines (the span gather, the output
+/// conversion) gets the wider instructions too.
+pub(super) fn with_avx2<J: super::Job>(job: J) -> J::Output {
+    debug_assert!(super::Kernel::Avx2.is_available());
+    // SAFETY: as in `forward`.
+    unsafe { run_avx2(job) }
+}
+
+#[target_feature(enable = "avx2")]
+fn run_avx2<J: super::Job>(job: J) -> J::Output {
+    job.run()
+}
+
 /// One integer layer: `y[o]` for every 8-row block selected in `blocks`.
 pub(super) fn forward(
     l: &PackedLayer,

@@ -9,6 +9,19 @@ use core::arch::x86_64::*;
 use super::PackedLayer;
 use crate::limits::MAX_WIDTH;
 
+/// Runs `job` in code compiled for AVX-512: what it inlines (the span gather, the output
+/// conversion) gets the wider instructions too.
+pub(super) fn with_avx512<J: super::Job>(job: J) -> J::Output {
+    debug_assert!(super::Kernel::Avx512Vnni.is_available());
+    // SAFETY: as in `forward`.
+    unsafe { run_avx512(job) }
+}
+
+#[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
+fn run_avx512<J: super::Job>(job: J) -> J::Output {
+    job.run()
+}
+
 /// One integer layer: `y[o]` for every 16-row block holding an 8-row block selected in `blocks`.
 pub(super) fn forward(
     l: &PackedLayer,

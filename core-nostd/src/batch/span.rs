@@ -14,39 +14,153 @@
 //!
 //! [`Decoder`]: super::Decoder
 
+use crate::bytes::arr;
 use crate::decode::{Feature, RAW_SHIFT};
-use crate::latents::{AxisStepper, LatentGrid, address, axis};
+use crate::latents::{LatentGrid, address, axis};
 use crate::limits::{MAX_CHAIN, MAX_GRID_CHANNELS, MAX_TERMS, MAX_WIDTH};
 use crate::material::{AddressMode, Material, TermMode};
 use crate::posenc::triangle_q;
 
 type Column = [i32; MAX_GRID_CHANNELS];
 
+/// The x axis of a footprint ([`axis`]) for consecutive texels without a division per texel:
+/// the numerator `(2x + 1)·grid·256` grows by a constant, so quotient and remainder by the
+/// denominator `2·mip` are stepped exactly. Any other `x` is computed directly.
+#[derive(Clone, Copy, Debug)]
+struct XAxis {
+    /// The texel the state is for, plus one: the texel that can be stepped to.
+    next: Option<u32>,
+    quotient: u64,
+    remainder: u64,
+    mip_width: u32,
+    grid_width: u32,
+    den: u64,
+    step_quotient: u64,
+    step_remainder: u64,
+}
+
+impl XAxis {
+    fn new(mip_width: u32, grid_width: u32) -> XAxis {
+        let den = 2 * u64::from(mip_width.max(1));
+        let step = 2 * u64::from(grid_width) * 256;
+        XAxis {
+            next: None,
+            quotient: 0,
+            remainder: 0,
+            mip_width,
+            grid_width,
+            den,
+            step_quotient: step / den,
+            step_remainder: step % den,
+        }
+    }
+
+    /// `axis(x, mip_width, grid_width)`: the first cell index and the fraction in 1/256.
+    #[inline(always)]
+    fn at(&mut self, x: u32) -> (i64, i32) {
+        if self.next == Some(x) {
+            self.remainder += self.step_remainder;
+            self.quotient += self.step_quotient;
+            if self.remainder >= self.den {
+                self.remainder -= self.den;
+                self.quotient += 1;
+            }
+        } else {
+            let num = (2 * u64::from(x) + 1) * u64::from(self.grid_width) * 256;
+            (self.quotient, self.remainder) = (num / self.den, num % self.den);
+        }
+        self.next = x.checked_add(1);
+        debug_assert_eq!(
+            (self.quotient as i64 - 128) >> 8,
+            axis(x, self.mip_width, self.grid_width).0
+        );
+        let pos = self.quotient as i64 - 128;
+        (pos >> 8, (pos & 255) as i32)
+    }
+}
+
 /// One grid of one term, for the row of the span.
 #[derive(Clone, Copy)]
 struct Slot<'a> {
+    /// The grid's number in the material, and whether it is sampled bilinearly.
+    key: (u8, bool),
     grid: LatentGrid<'a>,
+    /// Dequantization (offset, step) of each channel.
+    quant: [(i32, i32); MAX_GRID_CHANNELS],
     bilinear: bool,
     /// The two cell rows (addressed) and the vertical fraction in 1/256.
     rows: (u32, u32),
     fy: i32,
-    x_axis: AxisStepper,
+    x_axis: XAxis,
     /// The first cell index (before addressing) of the columns held, if any.
     held: Option<i64>,
-    /// Left and right columns: (top, bottom) cells, or for a bilinear grid the blended column in
-    /// `.0` (`.1` unused).
+    /// Left and right columns: (top, bottom) cells. For a bilinear grid, `.0` is the column
+    /// blended vertically (`gy·top + fy·bottom`).
     columns: [(Column, Column); 2],
+    /// For a bilinear grid: `256·left` and `right − left` of the blended columns, so that a texel
+    /// at fraction fx is `base + fx·slope` (= `(256 − fx)·left + fx·right`, wrapping like it).
+    base: Column,
+    slope: Column,
+    /// After `advance`: whether the columns changed, and for a bilinear grid its value at the
+    /// texel (`base + fx·slope`, per channel).
+    changed: bool,
+    value: Column,
 }
 
-impl Slot<'_> {
-    /// Steps to texel `x` of a `mip_width` row: the horizontal fraction in 1/256, and whether
-    /// the columns changed.
-    fn advance(&mut self, x: u32, mip_width: u32, mode: AddressMode) -> (i32, bool) {
-        let width = self.grid.width().max(1);
-        let (i, fx) = self.x_axis.at(x, mip_width, width);
-        if self.held == Some(i) {
-            return (fx, false);
+impl<'a> Slot<'a> {
+    /// Grid `grid` of a term, for row `y` of a `mip_size` mip.
+    fn new(
+        index: u8,
+        grid: &LatentGrid<'a>,
+        bilinear: bool,
+        y: u32,
+        mip_size: (u32, u32),
+        mode: AddressMode,
+    ) -> Slot<'a> {
+        let (width, height) = (grid.width().max(1), grid.height().max(1));
+        let (j, fy) = axis(y, mip_size.1, height);
+        let mut quant = [(0, 0); MAX_GRID_CHANNELS];
+        for (c, q) in quant.iter_mut().enumerate().take(grid.channels()) {
+            let (offset, step) = grid.quantization(c);
+            *q = (i32::from(offset), i32::from(step));
         }
+        Slot {
+            key: (index, bilinear),
+            grid: *grid,
+            quant,
+            bilinear,
+            rows: (address(j, height, mode), address(j + 1, height, mode)),
+            fy,
+            x_axis: XAxis::new(mip_size.0, width),
+            held: None,
+            columns: [([0; MAX_GRID_CHANNELS], [0; MAX_GRID_CHANNELS]); 2],
+            base: [0; MAX_GRID_CHANNELS],
+            slope: [0; MAX_GRID_CHANNELS],
+            changed: false,
+            value: [0; MAX_GRID_CHANNELS],
+        }
+    }
+
+    /// Steps to texel `x`: sets `changed`, and for a bilinear grid `value`.
+    #[inline(always)]
+    fn advance(&mut self, x: u32, mode: AddressMode) {
+        let (i, fx) = self.x_axis.at(x);
+        self.changed = self.held != Some(i);
+        if self.changed {
+            self.enter(i, mode);
+        }
+        if self.bilinear {
+            // All 16 lanes (unused ones are 0): fixed-length, one or a few vector operations.
+            let lanes = self.value.iter_mut().zip(&self.base).zip(&self.slope);
+            for ((v, &b), &s) in lanes {
+                *v = b.wrapping_add(fx.wrapping_mul(s));
+            }
+        }
+    }
+
+    /// Loads the columns of first cell index `i` (reusing the right one when it moves by one).
+    fn enter(&mut self, i: i64, mode: AddressMode) {
+        let width = self.grid.width().max(1);
         if self.held == Some(i - 1) {
             let [left, right] = &mut self.columns;
             *left = *right;
@@ -55,14 +169,22 @@ impl Slot<'_> {
         }
         self.load(1, address(i + 1, width, mode));
         self.held = Some(i);
-        (fx, true)
+        if self.bilinear {
+            let [(left, _), (right, _)] = &self.columns;
+            for (((b, s), &l), &r) in self.base.iter_mut().zip(&mut self.slope).zip(left).zip(right)
+            {
+                *b = l.wrapping_mul(256);
+                *s = r.wrapping_sub(l);
+            }
+        }
     }
 
     fn load(&mut self, side: usize, column: u32) {
         let (fy, bilinear) = (self.fy, self.bilinear);
+        let (grid, quant, rows) = (&self.grid, &self.quant, self.rows);
         let Some((top, bottom)) = self.columns.get_mut(side) else { return };
-        self.grid.cell_values(column, self.rows.0, top);
-        self.grid.cell_values(column, self.rows.1, bottom);
+        cell_values(grid, quant, column, rows.0, top);
+        cell_values(grid, quant, column, rows.1, bottom);
         if bilinear {
             let gy = 256 - fy;
             for (t, &b) in top.iter_mut().zip(bottom.iter()) {
@@ -72,11 +194,47 @@ impl Slot<'_> {
     }
 }
 
-/// A term: its mode, its slots, its channels and where its features start in the input vector.
-#[derive(Clone, Copy)]
+/// [`LatentGrid::cell_values`] with the dequantization prepared: a cell whose codes span at most
+/// 57 bits (with its first bit's offset in a byte, at most 64) comes from one 64-bit read.
+fn cell_values(
+    grid: &LatentGrid<'_>,
+    quant: &[(i32, i32); MAX_GRID_CHANNELS],
+    x: u32,
+    y: u32,
+    out: &mut Column,
+) {
+    let (bits, channels) = (grid.bits_per_latent(), grid.channels());
+    let cell_bits = bits * channels as u32;
+    if cell_bits > 57 || x >= grid.width() || y >= grid.height() {
+        grid.cell_values(x, y, out);
+        return;
+    }
+    let first = (u64::from(y) * u64::from(grid.width()) + u64::from(x)) * u64::from(cell_bits);
+    let data = grid.packed_data();
+    let byte = (first / 8) as usize;
+    // The bytes from `byte` on, zero past the end (the cell's own bits are inside the data).
+    let window = if byte + 8 <= data.len() {
+        u64::from_le_bytes(arr(data, byte))
+    } else {
+        let mut tail = [0u8; 8];
+        for (t, &b) in tail.iter_mut().zip(data.get(byte..).unwrap_or(&[])) {
+            *t = b;
+        }
+        u64::from_le_bytes(tail)
+    } >> (first % 8);
+    let mask = (1u64 << bits) - 1;
+    for (c, (slot, &(offset, step))) in out.iter_mut().zip(quant).take(channels).enumerate() {
+        let code = ((window >> (c as u32 * bits)) & mask) as i32;
+        *slot = offset + code * step;
+    }
+}
+
+/// A term: its mode, its grids (as slot numbers), its channels and where its features start in
+/// the input vector.
+#[derive(Clone)]
 struct TermPlan {
     mode: TermMode,
-    slots: usize,
+    chain: heapless::Vec<usize, MAX_CHAIN>,
     channels: usize,
     first: usize,
 }
@@ -86,11 +244,15 @@ pub(super) struct SpanGather<'a, T> {
     mip_width: u32,
     mode: AddressMode,
     terms: heapless::Vec<TermPlan, MAX_TERMS>,
+    /// One slot per grid and sampling mode: a grid in several chains (NBC's feature reuse) is
+    /// stepped and blended once per texel.
     slots: heapless::Vec<Slot<'a>, { MAX_TERMS * MAX_CHAIN }>,
     pe_frequencies: u8,
     input_frac_bits: u8,
     /// Where the positional encoding starts in the input vector.
     pe_first: usize,
+    /// The input width in chunks of 32 entries.
+    chunks: usize,
     template: [T; MAX_WIDTH],
 }
 
@@ -100,36 +262,34 @@ impl<'a, T: Feature> SpanGather<'a, T> {
         let (mip_width, mip_height) = material.mip_size(mip);
         let mode = material.address_mode;
         let mut terms = heapless::Vec::new();
-        let mut slots = heapless::Vec::new();
+        let mut slots: heapless::Vec<Slot<'a>, { MAX_TERMS * MAX_CHAIN }> = heapless::Vec::new();
         let mut first = 0;
         let level = material.levels.get(material.level_for_mip(mip));
         for term in level.map_or(&[][..], |l| l.terms.as_slice()) {
             let bilinear = term.mode == TermMode::Bilinear;
-            let grid = |&g: &u8| material.grids.get(usize::from(g));
-            let channels = term.grids.first().and_then(grid).map_or(0, LatentGrid::channels);
+            let grid_of = |g: u8| material.grids.get(usize::from(g));
+            let channels = term.grids.first().and_then(|&g| grid_of(g)).map_or(0, |g| g.channels());
             // Nearest4 reads the first grid only; a bilinear term sums its whole chain.
-            let chain =
+            let grids =
                 if bilinear { term.grids.as_slice() } else { term.grids.get(..1).unwrap_or(&[]) };
-            let mut count = 0;
-            for grid in chain.iter().filter_map(grid) {
-                let height = grid.height().max(1);
-                let (j, fy) = axis(y, mip_height, height);
-                let slot = Slot {
-                    grid: *grid,
-                    bilinear,
-                    rows: (address(j, height, mode), address(j + 1, height, mode)),
-                    fy,
-                    x_axis: AxisStepper::default(),
-                    held: None,
-                    columns: [([0; MAX_GRID_CHANNELS], [0; MAX_GRID_CHANNELS]); 2],
+            let mut chain = heapless::Vec::new();
+            for &g in grids {
+                let Some(grid) = grid_of(g) else { continue };
+                let known = slots.iter().position(|s| s.key == (g, bilinear));
+                let index = match known {
+                    Some(i) => i,
+                    None => {
+                        let slot = Slot::new(g, grid, bilinear, y, (mip_width, mip_height), mode);
+                        // Capacity: a level has at most MAX_TERMS terms of at most MAX_CHAIN
+                        // grids, so at most that many distinct slots.
+                        let _ = slots.push(slot);
+                        slots.len() - 1
+                    }
                 };
-                // Capacity: a level has at most MAX_TERMS terms of at most MAX_CHAIN grids.
-                if slots.push(slot).is_ok() {
-                    count += 1;
-                }
+                let _ = chain.push(index);
             }
-            let width = if bilinear { channels } else { 4 * channels * count };
-            let _ = terms.push(TermPlan { mode: term.mode, slots: count, channels, first });
+            let width = if bilinear { channels } else { 4 * channels * chain.len() };
+            let _ = terms.push(TermPlan { mode: term.mode, chain, channels, first });
             first += width;
         }
         let f = material.mlp.input_frac_bits;
@@ -157,55 +317,50 @@ impl<'a, T: Feature> SpanGather<'a, T> {
             pe_frequencies: material.mlp.pe_frequencies,
             input_frac_bits: f,
             pe_first: first,
+            chunks: material.mlp.layers.first().map_or(0, |l| l.inputs()).div_ceil(32),
             template,
         }
     }
 
     /// The input vector of texel `x` of the span's row into `io` (entries past the input width
     /// are 0).
+    #[inline(always)]
     pub(super) fn inputs(&mut self, x: i64, io: &mut [T; MAX_WIDTH]) {
-        let (mip_width, mode, f) = (self.mip_width, self.mode, self.input_frac_bits);
-        let x = address(x, mip_width, mode);
+        let (mode, f) = (self.mode, self.input_frac_bits);
+        let x = address(x, self.mip_width, mode);
+        for slot in &mut self.slots {
+            slot.advance(x, mode);
+        }
         let template = &mut self.template;
-        let mut slots = self.slots.iter_mut();
         for term in &self.terms {
             let features = template.get_mut(term.first..).unwrap_or(&mut []);
             let channels = term.channels;
+            let mut chain = term.chain.iter().filter_map(|&i| self.slots.get(i));
             match term.mode {
                 TermMode::Nearest4 => {
-                    for slot in slots.by_ref().take(term.slots) {
-                        if !slot.advance(x, mip_width, mode).1 {
-                            continue;
-                        }
-                        let [(l0, l1), (r0, r1)] = &slot.columns;
-                        let cells =
-                            [l0, r0, l1, r1].into_iter().flat_map(|c| c.iter().take(channels));
-                        for (v, &latent) in features.iter_mut().zip(cells) {
-                            *v = T::from_raw(i64::from(latent) << RAW_SHIFT, f);
+                    let Some(slot) = chain.next().filter(|s| s.changed) else { continue };
+                    let [(l0, l1), (r0, r1)] = &slot.columns;
+                    let places = features.chunks_exact_mut(channels.max(1));
+                    for (cell, places) in [l0, r0, l1, r1].into_iter().zip(places) {
+                        for (v, &latent) in places.iter_mut().zip(cell) {
+                            *v = T::from_latent(latent, f);
                         }
                     }
                 }
                 TermMode::Bilinear => {
-                    let mut sums = [0i64; MAX_GRID_CHANNELS];
-                    for slot in slots.by_ref().take(term.slots) {
-                        let (fx, _) = slot.advance(x, mip_width, mode);
-                        let gx = 256 - fx;
-                        let [(left, _), (right, _)] = &slot.columns;
-                        // By groups of 4 channels, as in `Material::gather`.
-                        let quads = sums
-                            .chunks_exact_mut(4)
-                            .zip(left.chunks_exact(4))
-                            .zip(right.chunks_exact(4))
-                            .take(channels.div_ceil(4));
-                        for ((sum, l), r) in quads {
-                            for ((sum, &l), &r) in sum.iter_mut().zip(l).zip(r) {
-                                let v = gx.wrapping_mul(l).wrapping_add(fx.wrapping_mul(r));
-                                *sum += i64::from(v);
-                            }
+                    // The chain's sum split as Σ(v >> 16)·2^16 + Σ(v & 0xFFFF): both parts stay
+                    // in i32 for any chain (≤ 8 grids), so all 16 lanes add without widening.
+                    let (mut high, mut low) =
+                        ([0i32; MAX_GRID_CHANNELS], [0i32; MAX_GRID_CHANNELS]);
+                    for slot in chain {
+                        for ((h, l), &v) in high.iter_mut().zip(&mut low).zip(&slot.value) {
+                            *h += v >> RAW_SHIFT;
+                            *l += v & 0xFFFF;
                         }
                     }
-                    for (v, &sum) in features.iter_mut().zip(sums.iter().take(channels)) {
-                        *v = T::from_raw(sum, f);
+                    let parts = high.iter().zip(&low).take(channels);
+                    for (v, (&h, &l)) in features.iter_mut().zip(parts) {
+                        *v = T::from_parts(h, l, f);
                     }
                 }
             }
@@ -217,6 +372,31 @@ impl<'a, T: Feature> SpanGather<'a, T> {
                 *x1 = T::from_raw(i64::from(triangle_q(x, k, 1, f)) << RAW_SHIFT, f);
             }
         }
-        *io = *template;
+        // The input width rounded up to 32 entries: whole chunks copy without a call.
+        let copied = io.chunks_exact_mut(32).zip(template.chunks_exact(32)).take(self.chunks);
+        for (to, from) in copied {
+            to.copy_from_slice(from);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Stepping equals dividing for every texel, with grids finer and coarser than the mip, and
+    /// restarts correctly after a jump.
+    #[test]
+    fn x_axis_steps_like_axis() {
+        for mip in [1u32, 2, 3, 7, 40, 97, 16384] {
+            for grid in [1u32, 2, 5, 33, 64, 70, 4096, 16384] {
+                let mut s = XAxis::new(mip, grid);
+                let xs =
+                    (0..mip.min(300)).chain([0, 5, 6, 2, 3, 4].into_iter().filter(|&x| x < mip));
+                for x in xs {
+                    assert_eq!(s.at(x), axis(x, mip, grid), "mip {mip} grid {grid} x {x}");
+                }
+            }
+        }
     }
 }
