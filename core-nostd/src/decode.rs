@@ -4,7 +4,7 @@
 
 use crate::error::{Argument, Error};
 use crate::latents::{Footprint, LatentGrid, address, footprint};
-use crate::limits::{MAX_GRID_CHANNELS, MAX_WIDTH};
+use crate::limits::{MAX_GRID_CHANNELS, MAX_GRIDS, MAX_WIDTH};
 use crate::material::{AddressMode, Material, TermMode};
 use crate::mlp::{forward_float, forward_int, saturate_i16};
 use crate::posenc::triangle_q;
@@ -82,6 +82,8 @@ impl<'a> Material<'a> {
         let Some(level) = self.levels.get(self.level_for_mip(mip)) else {
             return;
         };
+        // The bilinear samples taken so far (a level holds at most MAX_GRIDS grids).
+        let mut sampled = heapless::Vec::<(u8, [i32; MAX_GRID_CHANNELS]), MAX_GRIDS>::new();
         for term in &level.terms {
             let channels = term
                 .grids
@@ -103,31 +105,18 @@ impl<'a> Material<'a> {
                     let mut sums = [0i64; MAX_GRID_CHANNELS];
                     for &g in &term.grids {
                         let Some(grid) = self.grids.get(usize::from(g)) else { continue };
-                        let (fp, [c00, c10, c01, c11]) =
-                            footprint_cells(grid, x, y, mip_size, mode);
-                        let (fx, fy) = (fp.fx, fp.fy);
-                        let (gx, gy) = (256 - fx, 256 - fy);
-                        let w = [gx * gy, fx * gy, gx * fy, fx * fy];
-                        // By groups of 4 channels (fixed-length inner loops the compiler
-                        // vectorizes); lanes past the grid's channels are never pushed. Exact:
-                        // weights in 1/65536 summing to 65536 and values i16 keep each sum in
-                        // [−2^31, 2^31 − 2^16].
-                        let quads = sums
-                            .chunks_exact_mut(4)
-                            .zip(c00.chunks_exact(4))
-                            .zip(c10.chunks_exact(4))
-                            .zip(c01.chunks_exact(4))
-                            .zip(c11.chunks_exact(4))
-                            .take(channels.div_ceil(4));
-                        for ((((sum, a), b), c), d) in quads {
-                            let lanes = sum.iter_mut().zip(a).zip(b).zip(c).zip(d);
-                            for ((((sum, &a), &b), &c), &d) in lanes {
-                                let v = (w[0].wrapping_mul(a))
-                                    .wrapping_add(w[1].wrapping_mul(b))
-                                    .wrapping_add(w[2].wrapping_mul(c))
-                                    .wrapping_add(w[3].wrapping_mul(d));
-                                *sum += i64::from(v);
+                        // A grid in several chains (NBC's feature reuse) is sampled once.
+                        let known = sampled.iter().find(|(index, _)| *index == g);
+                        let values = match known {
+                            Some((_, values)) => *values,
+                            None => {
+                                let values = bilinear(grid, x, y, mip_size, mode);
+                                let _ = sampled.push((g, values));
+                                values
                             }
+                        };
+                        for (sum, &v) in sums.iter_mut().zip(&values).take(channels) {
+                            *sum += i64::from(v);
                         }
                     }
                     for &sum in sums.iter().take(channels) {
@@ -325,6 +314,32 @@ impl<T: Feature> Inputs<'_, T> {
         }
         self.next += 1;
     }
+}
+
+/// The bilinear sample of texel (x, y) (addressed) on `grid`, per channel, in units of 2^-(16+f):
+/// the footprint's 4 cells weighted by products of 1/256 fractions (§6.2). Exact: weights in
+/// 1/65536 summing to 65536 and values i16 keep each sum in [−2^31, 2^31 − 2^16].
+fn bilinear(
+    grid: &LatentGrid<'_>,
+    x: u32,
+    y: u32,
+    mip_size: (u32, u32),
+    mode: AddressMode,
+) -> [i32; MAX_GRID_CHANNELS] {
+    let (fp, [c00, c10, c01, c11]) = footprint_cells(grid, x, y, mip_size, mode);
+    let (fx, fy) = (fp.fx, fp.fy);
+    let (gx, gy) = (256 - fx, 256 - fy);
+    let w = [gx * gy, fx * gy, gx * fy, fx * fy];
+    let mut values = [0i32; MAX_GRID_CHANNELS];
+    // All 16 lanes (fixed length: vector code); lanes past the grid's channels are 0.
+    let lanes = values.iter_mut().zip(&c00).zip(&c10).zip(&c01).zip(&c11);
+    for ((((v, &a), &b), &c), &d) in lanes {
+        *v = (w[0].wrapping_mul(a))
+            .wrapping_add(w[1].wrapping_mul(b))
+            .wrapping_add(w[2].wrapping_mul(c))
+            .wrapping_add(w[3].wrapping_mul(d));
+    }
+    values
 }
 
 /// The footprint of texel (x, y) (addressed) on `grid` and the dequantized latent values of its 4

@@ -1,7 +1,7 @@
 //! Latent grids: bit-packed codes, their dequantization, and where a texel lands on a grid
 //! (docs/FORMAT.md §4 and §6.2).
 
-use crate::bytes::{i16_at, u32_at};
+use crate::bytes::{arr, i16_at, u32_at};
 use crate::material::AddressMode;
 
 /// A validated view of one latent grid inside the file.
@@ -71,9 +71,23 @@ impl<'a> LatentGrid<'a> {
     /// left alone): the cell's codes are consecutive bits, read with one index computation.
     /// Out-of-range cells read as codes 0.
     pub fn cell_values(&self, x: u32, y: u32, out: &mut [i32]) {
-        let inside = x < self.width() && y < self.height();
+        let quant = self.quant.chunks_exact(4).map(|q| match *q {
+            [o0, o1, s0, s1] => {
+                (i32::from(i16::from_le_bytes([o0, o1])), i32::from(i16::from_le_bytes([s0, s1])))
+            }
+            _ => (0, 0),
+        });
         let bits = u32::from(self.bits);
         let mask = (1u64 << bits) - 1;
+        if let Some(window) = self.cell_window(x, y) {
+            // The common case: every code of the cell in one 64-bit read.
+            for (c, (slot, (offset, step))) in out.iter_mut().zip(quant).enumerate() {
+                let code = ((window >> (c as u32 * bits)) & mask) as i32;
+                *slot = offset + code * step;
+            }
+            return;
+        }
+        let inside = x < self.width() && y < self.height();
         let cell = u64::from(y) * u64::from(self.width) + u64::from(x);
         let first = cell * u64::from(self.channels) * u64::from(bits);
         // Read 64 bits at the first latent's word: with ≤ 8-bit latents, every latent starting
@@ -82,8 +96,7 @@ impl<'a> LatentGrid<'a> {
         // in `code` (only latents ending inside the data are real).
         let mut window_start = u64::MAX;
         let mut window = 0u64;
-        let quant = self.quant.chunks_exact(4);
-        for (c, (slot, q)) in out.iter_mut().zip(quant).take(self.channels()).enumerate() {
+        for (c, (slot, (offset, step))) in out.iter_mut().zip(quant).enumerate() {
             let bit = first + c as u64 * u64::from(bits);
             let code = if inside {
                 if bit + u64::from(bits) > window_start.saturating_add(64) || bit < window_start {
@@ -96,12 +109,33 @@ impl<'a> LatentGrid<'a> {
             } else {
                 0
             };
-            let (offset, step) = match *q {
-                [o0, o1, s0, s1] => (i16::from_le_bytes([o0, o1]), i16::from_le_bytes([s0, s1])),
-                _ => (0, 0),
-            };
-            *slot = i32::from(offset) + code as i32 * i32::from(step);
+            *slot = offset + code as i32 * step;
         }
+    }
+
+    /// The codes of cell (x, y) as the low bits of one value (channel c at bit c · bits), when the
+    /// cell is inside the grid and its codes span at most 57 bits (so that, wherever they start
+    /// in a byte, one 64-bit read from that byte holds them).
+    pub(crate) fn cell_window(&self, x: u32, y: u32) -> Option<u64> {
+        let cell_bits = u32::from(self.bits) * u32::from(self.channels);
+        if cell_bits > 57 || x >= self.width() || y >= self.height() {
+            return None;
+        }
+        let cell = u64::from(y) * u64::from(self.width) + u64::from(x);
+        let first = cell * u64::from(cell_bits);
+        let byte = (first / 8) as usize;
+        // Bytes past the end of the data read as 0 (the cell's own bits are inside it).
+        let bytes = match self.data.get(byte..byte + 8) {
+            Some(b) => arr(b, 0),
+            None => {
+                let mut tail = [0u8; 8];
+                for (t, &b) in tail.iter_mut().zip(self.data.get(byte..).unwrap_or(&[])) {
+                    *t = b;
+                }
+                tail
+            }
+        };
+        Some(u64::from_le_bytes(bytes) >> (first % 8))
     }
 
     /// The dequantized value `offset + code · step`; parse guarantees it fits an i16.

@@ -14,7 +14,6 @@
 //!
 //! [`Decoder`]: super::Decoder
 
-use crate::bytes::arr;
 use crate::decode::{Feature, RAW_SHIFT};
 use crate::latents::{LatentGrid, address, axis};
 use crate::limits::{MAX_CHAIN, MAX_GRID_CHANNELS, MAX_TERMS, MAX_WIDTH};
@@ -194,8 +193,7 @@ impl<'a> Slot<'a> {
     }
 }
 
-/// [`LatentGrid::cell_values`] with the dequantization prepared: a cell whose codes span at most
-/// 57 bits (with its first bit's offset in a byte, at most 64) comes from one 64-bit read.
+/// [`LatentGrid::cell_values`] with the dequantization prepared.
 fn cell_values(
     grid: &LatentGrid<'_>,
     quant: &[(i32, i32); MAX_GRID_CHANNELS],
@@ -203,27 +201,14 @@ fn cell_values(
     y: u32,
     out: &mut Column,
 ) {
-    let (bits, channels) = (grid.bits_per_latent(), grid.channels());
-    let cell_bits = bits * channels as u32;
-    if cell_bits > 57 || x >= grid.width() || y >= grid.height() {
+    let Some(window) = grid.cell_window(x, y) else {
         grid.cell_values(x, y, out);
         return;
-    }
-    let first = (u64::from(y) * u64::from(grid.width()) + u64::from(x)) * u64::from(cell_bits);
-    let data = grid.packed_data();
-    let byte = (first / 8) as usize;
-    // The bytes from `byte` on, zero past the end (the cell's own bits are inside the data).
-    let window = if byte + 8 <= data.len() {
-        u64::from_le_bytes(arr(data, byte))
-    } else {
-        let mut tail = [0u8; 8];
-        for (t, &b) in tail.iter_mut().zip(data.get(byte..).unwrap_or(&[])) {
-            *t = b;
-        }
-        u64::from_le_bytes(tail)
-    } >> (first % 8);
+    };
+    let bits = grid.bits_per_latent();
     let mask = (1u64 << bits) - 1;
-    for (c, (slot, &(offset, step))) in out.iter_mut().zip(quant).take(channels).enumerate() {
+    let values = out.iter_mut().zip(quant).take(grid.channels()).enumerate();
+    for (c, (slot, &(offset, step))) in values {
         let code = ((window >> (c as u32 * bits)) & mask) as i32;
         *slot = offset + code * step;
     }
