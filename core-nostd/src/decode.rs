@@ -260,10 +260,12 @@ pub(crate) trait Feature: Copy + Default {
     /// The feature from a raw value in units of 2^-(16 + `input_frac_bits`).
     fn from_raw(raw: i64, input_frac_bits: u8) -> Self;
     /// [`Feature::from_raw`] of `high·2^16 + low`.
+    #[cfg(feature = "alloc")]
     fn from_parts(high: i32, low: i32, input_frac_bits: u8) -> Self {
         Self::from_raw((i64::from(high) << RAW_SHIFT) + i64::from(low), input_frac_bits)
     }
     /// [`Feature::from_raw`] of a dequantized latent (an i16 on the input grid, FORMAT.md §4).
+    #[cfg(feature = "alloc")]
     fn from_latent(value: i32, input_frac_bits: u8) -> Self {
         Self::from_raw(i64::from(value) << RAW_SHIFT, input_frac_bits)
     }
@@ -278,12 +280,14 @@ impl Feature for i16 {
     /// In i32: `(high·2^16 + low + 2^15) >> 16 = high + ((low + 2^15) >> 16)`, for `high` and
     /// `low` far enough from the i32 limits (as the span gather's are: |high| ≤ 8·2^15,
     /// 0 ≤ low < 8·2^16).
+    #[cfg(feature = "alloc")]
     fn from_parts(high: i32, low: i32, _: u8) -> i16 {
         let v = high + ((low + (1 << (RAW_SHIFT - 1))) >> RAW_SHIFT);
         v.clamp(i32::from(i16::MIN), i32::from(i16::MAX)) as i16
     }
 
     /// A latent is already on the input grid: rounding and saturation leave it unchanged.
+    #[cfg(feature = "alloc")]
     fn from_latent(value: i32, _: u8) -> i16 {
         value as i16
     }
