@@ -182,6 +182,51 @@ impl<T, N: Fn(i32) -> T> Job for SpanJob<'_, '_, T, N> {
     }
 }
 
+/// The requantization constants of each row (multiplier m, shift s: `(acc·m + 2^(s−1)) >> s`)
+/// in the lane orders of the 64-bit SIMD multiplies, which take the even 32-bit lanes:
+/// - `avx2::requantize`, per 8-row block, rows 0, 2, 4, 6, 1, 3, 5, 7: `round` = 2^(s−1),
+///   `shift` = s, `correction` = 2^(63−s);
+/// - `avx512::requantize`, per 16-row block, rows 0, 2, …, 14, 1, 3, …, 15: `wide_multiplier`
+///   = m (as i64; the multiply reads its low half), `wide_round` = 2^(s−1), `wide_shift` = s.
+#[derive(Clone, Debug)]
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+struct Lanes {
+    round: Vec<i64>,
+    shift: Vec<u64>,
+    correction: Vec<i64>,
+    wide_multiplier: Vec<i64>,
+    wide_round: Vec<i64>,
+    wide_shift: Vec<u64>,
+}
+
+impl Lanes {
+    /// From per-row multipliers and shifts (equal lengths, a multiple of 16; shifts in 1..=62).
+    fn new(multiplier: &[i32], shift: &[u32]) -> Lanes {
+        let rows = multiplier.len().min(shift.len());
+        let pick = |o: usize| {
+            (i64::from(multiplier.get(o).copied().unwrap_or(0)), shift.get(o).copied().unwrap_or(1))
+        };
+        // Lane i of a block of `width` rows holds row 2i (first half) or 2(i − width/2) + 1.
+        let order = |width: usize| {
+            (0..rows).map(move |i| {
+                let (block, lane) = (i / width, i % width);
+                let half = width / 2;
+                width * block + if lane < half { 2 * lane } else { 2 * (lane - half) + 1 }
+            })
+        };
+        let narrow: Vec<u32> = order(8).map(|o| pick(o).1).collect();
+        let wide: Vec<(i64, u32)> = order(16).map(pick).collect();
+        Lanes {
+            round: narrow.iter().map(|&s| 1i64 << (s - 1)).collect(),
+            shift: narrow.iter().map(|&s| u64::from(s)).collect(),
+            correction: narrow.iter().map(|&s| 1i64 << (63 - s)).collect(),
+            wide_multiplier: wide.iter().map(|&(m, _)| m).collect(),
+            wide_round: wide.iter().map(|&(_, s)| 1i64 << (s - 1)).collect(),
+            wide_shift: wide.iter().map(|&(_, s)| u64::from(s)).collect(),
+        }
+    }
+}
+
 /// One layer in the prepared layout. Invariants (established by [`PackedLayer::new`], relied on
 /// by the SIMD kernels): `out_pad` is a multiple of 16 and at most `MAX_WIDTH`; `2·in_pairs` is at
 /// most `MAX_WIDTH`; `weights` holds `in_pairs · out_pad · 2` values; the per-row vectors hold
@@ -198,11 +243,8 @@ struct PackedLayer {
     bias: Vec<i32>,
     multiplier: Vec<i32>,
     shift: Vec<u32>,
-    /// Per 8-row block, even rows then odd rows (the lane order of a 64-bit SIMD multiply):
-    /// `2^(shift−1)`, `shift`, and `2^(63−shift)` (see `avx2::requantize`).
-    lane_round: Vec<i64>,
-    lane_shift: Vec<u64>,
-    lane_correction: Vec<i64>,
+    /// Per-row requantization constants in the lane orders of the SIMD kernels.
+    lanes: Lanes,
     out_frac_bits: u8,
     activation: Activation,
     /// `[input][row]` f32 weights (exact widenings of the f16 ones), rows padded to `out_pad`.
@@ -235,17 +277,9 @@ impl PackedLayer {
         let requant =
             |o: usize| row(o).map_or(Requant { multiplier: 0, shift: 1 }, |o| layer.requant(o));
         let bias = (0..out_pad).map(|o| row(o).map_or(0, |o| layer.bias(o))).collect();
-        let multiplier = (0..out_pad).map(|o| requant(o).multiplier).collect();
+        let multiplier: Vec<i32> = (0..out_pad).map(|o| requant(o).multiplier).collect();
         let shift: Vec<u32> = (0..out_pad).map(|o| requant(o).shift).collect();
-        // Lane order inside each block of 8 rows: 0, 2, 4, 6, 1, 3, 5, 7.
-        let lane_rows = (0..out_pad).map(|i| {
-            let (block, lane) = (i / 8, i % 8);
-            8 * block + if lane < 4 { 2 * lane } else { 2 * (lane - 4) + 1 }
-        });
-        let lane_shift: Vec<u64> =
-            lane_rows.map(|o| u64::from(shift.get(o).copied().unwrap_or(1))).collect();
-        let lane_round = lane_shift.iter().map(|&s| 1i64 << (s - 1)).collect();
-        let lane_correction = lane_shift.iter().map(|&s| 1i64 << (63 - s)).collect();
+        let lanes = Lanes::new(&multiplier, &shift);
         let float_bias =
             (0..out_pad).map(|o| row(o).map_or(0.0, |o| layer.float_bias(o))).collect();
         PackedLayer {
@@ -256,9 +290,7 @@ impl PackedLayer {
             bias,
             multiplier,
             shift,
-            lane_round,
-            lane_shift,
-            lane_correction,
+            lanes,
             out_frac_bits: layer.out_frac_bits(),
             activation: layer.activation(),
             float_weights,
@@ -765,24 +797,15 @@ mod tests {
         let shift: Vec<u32> = (0..out_pad)
             .map(|o| if live(o) && multiplier[o] != 0 { rng.edgy(1, 62) as u32 } else { 1 })
             .collect();
-        let lane_shift: Vec<u64> = (0..out_pad)
-            .map(|i| {
-                let (b, lane) = (i / 8, i % 8);
-                let o = 8 * b + if lane < 4 { 2 * lane } else { 2 * (lane - 4) + 1 };
-                u64::from(shift[o])
-            })
-            .collect();
         PackedLayer {
             in_pairs,
             outputs,
             out_pad,
             weights,
             bias,
+            lanes: Lanes::new(&multiplier, &shift),
             multiplier,
             shift,
-            lane_round: lane_shift.iter().map(|&s| 1i64 << (s - 1)).collect(),
-            lane_correction: lane_shift.iter().map(|&s| 1i64 << (63 - s)).collect(),
-            lane_shift,
             out_frac_bits: rng.edgy(1, 14) as u8,
             activation: if rng.next().is_multiple_of(2) {
                 Activation::None
@@ -858,9 +881,7 @@ mod tests {
                     l.multiplier[o] = rng.edgy(1 << 30, i64::from(i32::MAX)) as i32;
                     l.shift[o] = shift;
                 }
-                l.lane_shift.iter_mut().for_each(|s| *s = u64::from(shift));
-                l.lane_round.iter_mut().for_each(|r| *r = 1 << (shift - 1));
-                l.lane_correction.iter_mut().for_each(|c| *c = 1 << (63 - shift));
+                l.lanes = Lanes::new(&l.multiplier, &l.shift);
                 for _ in 0..64 {
                     for b in l.bias.iter_mut().take(live) {
                         let e = rng.range(0, 31) as u32;

@@ -118,16 +118,16 @@ fn block<const B: usize, const S: usize>(
 /// 2^(63−s) removes the added part exactly (2^63 is a multiple of 2^s).
 #[target_feature(enable = "avx2")]
 fn requantize(l: &PackedLayer, acc: __m256i, b: usize) -> __m128i {
-    debug_assert!(l.lane_round.len() >= 8 * b + 8 && l.multiplier.len() >= 8 * b + 8);
+    debug_assert!(l.lanes.round.len() >= 8 * b + 8 && l.multiplier.len() >= 8 * b + 8);
     // SAFETY: every per-row vector holds out_pad ≥ 8·b + 8 entries.
     let (m, round, shift, correction) = unsafe {
         let lanes =
             |v: *const i64| (_mm256_loadu_si256(v.cast()), _mm256_loadu_si256(v.add(4).cast()));
         (
             _mm256_loadu_si256(l.multiplier.as_ptr().add(8 * b).cast()),
-            lanes(l.lane_round.as_ptr().add(8 * b)),
-            lanes(l.lane_shift.as_ptr().add(8 * b).cast()),
-            lanes(l.lane_correction.as_ptr().add(8 * b)),
+            lanes(l.lanes.round.as_ptr().add(8 * b)),
+            lanes(l.lanes.shift.as_ptr().add(8 * b).cast()),
+            lanes(l.lanes.correction.as_ptr().add(8 * b)),
         )
     };
     let even = _mm256_mul_epi32(acc, m);

@@ -196,35 +196,33 @@ fn group_block<const G: usize, const B: usize>(
 }
 
 /// Requantization, saturation and activation of the 16 accumulators of block `b`, exactly as
-/// `Requant::apply`, `saturate_i16` and `hard_gelu_q`.
+/// `Requant::apply`, `saturate_i16` and `hard_gelu_q`. The 64-bit products of even and odd rows
+/// are rounded and shifted with per-lane constants (`Lanes`), saturated to i16 while narrowing
+/// (`vpmovsqw`) and interleaved back into row order.
 #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
 fn requantize(l: &PackedLayer, acc: __m512i, b: usize) -> __m256i {
-    debug_assert!(l.multiplier.len() >= 16 * b + 16 && l.shift.len() >= 16 * b + 16);
-    // SAFETY: the per-row vectors hold out_pad ≥ 16·b + 16 entries.
-    let (m, s) = unsafe {
-        (
-            _mm512_loadu_si512(l.multiplier.as_ptr().add(16 * b).cast()),
-            _mm512_loadu_si512(l.shift.as_ptr().add(16 * b).cast()),
-        )
-    };
-    let low = _mm512_set1_epi64(0xFFFF_FFFF);
-    let one = _mm512_set1_epi64(1);
-    let (hi, lo) = (_mm512_set1_epi64(i64::from(i16::MAX)), _mm512_set1_epi64(i64::from(i16::MIN)));
-    // 64-bit lanes: even rows in the low halves, odd rows in the high halves.
-    let finish = |product: __m512i, shift: __m512i| {
-        let round = _mm512_sllv_epi64(one, _mm512_sub_epi64(shift, one));
-        let v = _mm512_srav_epi64(_mm512_add_epi64(product, round), shift);
-        _mm512_max_epi64(_mm512_min_epi64(v, hi), lo)
-    };
-    let even = finish(_mm512_mul_epi32(acc, m), _mm512_and_si512(s, low));
-    let odd = finish(
-        _mm512_mul_epi32(_mm512_srli_epi64::<32>(acc), _mm512_srli_epi64::<32>(m)),
-        _mm512_srli_epi64::<32>(s),
+    let lanes = &l.lanes;
+    debug_assert!(lanes.wide_multiplier.len() >= 16 * b + 16);
+    debug_assert!(lanes.wide_round.len() >= 16 * b + 16 && lanes.wide_shift.len() >= 16 * b + 16);
+    // SAFETY: the lane vectors hold out_pad ≥ 16·b + 16 entries.
+    let load =
+        |v: *const i64, half: usize| unsafe { _mm512_loadu_si512(v.add(16 * b + 8 * half).cast()) };
+    let (m, r, s) = (
+        lanes.wide_multiplier.as_ptr(),
+        lanes.wide_round.as_ptr(),
+        lanes.wide_shift.as_ptr().cast::<i64>(),
     );
-    let mut z = _mm512_mask_blend_epi32(0xAAAA, even, _mm512_slli_epi64::<32>(odd));
-    if l.activation == crate::mlp::Activation::HardGelu {
-        z = hard_gelu(z, u32::from(l.out_frac_bits.clamp(1, 14)));
+    // Even rows sit in the low halves of the 64-bit lanes, odd rows in the high halves.
+    let even = _mm512_mul_epi32(acc, load(m, 0));
+    let odd = _mm512_mul_epi32(_mm512_srli_epi64::<32>(acc), load(m, 1));
+    let even = _mm512_srav_epi64(_mm512_add_epi64(even, load(r, 0)), load(s, 0));
+    let odd = _mm512_srav_epi64(_mm512_add_epi64(odd, load(r, 1)), load(s, 1));
+    let (even, odd) = (_mm512_cvtsepi64_epi16(even), _mm512_cvtsepi64_epi16(odd));
+    let rows = _mm256_set_m128i(_mm_unpackhi_epi16(even, odd), _mm_unpacklo_epi16(even, odd));
+    if l.activation != crate::mlp::Activation::HardGelu {
+        return rows;
     }
+    let z = hard_gelu(_mm512_cvtepi16_epi32(rows), u32::from(l.out_frac_bits.clamp(1, 14)));
     // Every value is in i16 range, so truncating to 16 bits is exact.
     _mm512_cvtepi32_epi16(z)
 }
