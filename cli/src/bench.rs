@@ -22,17 +22,18 @@ pub struct Options {
     pub runs: usize,
 }
 
+/// One probe of a kernel's peak multiply-add rate (MACs per second), over `macs` multiply-adds.
+fn probe_rate(kernel: Kernel, macs: u64) -> Option<f64> {
+    let rounds = macs / kernel.probe_macs_per_round().max(1);
+    let start = Instant::now();
+    black_box(kernel.probe(black_box(rounds))?);
+    Some((rounds * kernel.probe_macs_per_round()) as f64 / start.elapsed().as_secs_f64())
+}
+
 /// Peak multiply-add rate of a kernel's instruction, in MACs per second (median of 5 probes).
 fn peak_rate(kernel: Kernel) -> Option<f64> {
-    let rounds = 4_000_000 / kernel.probe_macs_per_round().max(1) * 64;
-    let mut rates = Vec::new();
-    for _ in 0..5 {
-        let start = Instant::now();
-        black_box(kernel.probe(black_box(rounds))?);
-        let secs = start.elapsed().as_secs_f64();
-        rates.push((rounds * kernel.probe_macs_per_round()) as f64 / secs);
-    }
-    Some(median(rates))
+    let rates: Option<Vec<f64>> = (0..5).map(|_| probe_rate(kernel, 256_000_000)).collect();
+    Some(median(rates?))
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -40,18 +41,30 @@ fn median(mut v: Vec<f64>) -> f64 {
     v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
-/// Median seconds of `runs` calls of `f`, after one warm-up call.
-fn time(runs: usize, mut f: impl FnMut()) -> f64 {
+/// A timed mode: the median seconds of its runs, and the median over runs of (seconds × the
+/// peak rate measured just before that run): the product the share of the roofline divides.
+/// Measuring the peak next to each run keeps the share honest on a shared machine, whose speed
+/// drifts between the start of the benchmark and any one row.
+#[derive(Clone, Copy)]
+struct Timing {
+    secs: f64,
+    peak_macs: f64,
+}
+
+/// `runs` calls of `f` after one warm-up call, each preceded by a short probe of the fastest
+/// kernel's peak rate (about a millisecond).
+fn time(runs: usize, mut f: impl FnMut()) -> Timing {
     f();
-    median(
-        (0..runs.max(1))
-            .map(|_| {
-                let start = Instant::now();
-                f();
-                start.elapsed().as_secs_f64()
-            })
-            .collect(),
-    )
+    let (mut secs, mut products) = (Vec::new(), Vec::new());
+    for _ in 0..runs.max(1) {
+        let peak = probe_rate(Kernel::best(), 64_000_000).unwrap_or(f64::NAN);
+        let start = Instant::now();
+        f();
+        let t = start.elapsed().as_secs_f64();
+        secs.push(t);
+        products.push(t * peak);
+    }
+    Timing { secs: median(secs), peak_macs: median(products) }
 }
 
 /// Multiply-adds of one texel decode with `outputs` rows in the last layer.
@@ -69,6 +82,8 @@ fn macs(m: &Material<'_>, outputs: usize) -> usize {
 struct Row {
     mode: String,
     seconds_per_texel: f64,
+    /// Median over runs of seconds × peak rate, per texel: MACs the peak rate would do.
+    peak_macs_per_texel: f64,
     macs_per_texel: f64,
     /// PSNR (dB) of this mode's texels against the source maps, if measurable.
     psnr: Option<f64>,
@@ -135,13 +150,13 @@ pub fn run(opts: &Options) -> Result<()> {
             peaks.push((kernel, rate));
         }
     }
-    let roofline = peaks.iter().map(|p| p.1).fold(0.0, f64::max);
+    let best = Kernel::best();
     println!(
-        "  roofline = MACs per texel ÷ {:.1} GMAC/s per thread (the fastest of these; % roofline = roofline time ÷ measured time)\n",
-        roofline / 1e9
+        "  roofline = MACs per texel ÷ the {} peak rate per thread; % roofline = roofline time ÷ measured time, each run against the peak measured just before it (median of the runs)\n",
+        best.name()
     );
     for input in &opts.inputs {
-        bench_one(input, opts, roofline)?;
+        bench_one(input, opts)?;
     }
     Ok(())
 }
@@ -158,7 +173,7 @@ fn cpu_name() -> String {
         .unwrap_or_else(|| std::env::consts::ARCH.to_string())
 }
 
-fn bench_one(input: &Path, opts: &Options, roofline: f64) -> Result<()> {
+fn bench_one(input: &Path, opts: &Options) -> Result<()> {
     let bytes = crate::read_nmat(input)?;
     let m = crate::parse(&bytes, input)?;
     let (w, h) = m.mip_size(0);
@@ -194,7 +209,7 @@ fn bench_one(input: &Path, opts: &Options, roofline: f64) -> Result<()> {
     let mut rows = Vec::new();
     region_rows(&setup, opts.runs, &mut rows);
     filter_rows(&setup, opts.runs, &mut rows);
-    print_rows(&rows, roofline, bytes.len());
+    print_rows(&rows, bytes.len());
     reference_rows(&setup, &float_units_to_codes(&setup.float_units), opts.runs, png);
     crate::bench_gpu(&m, &|name, secs| {
         let texels = f64::from(w) * f64::from(h);
@@ -231,7 +246,7 @@ fn time_codes(
     runs: usize,
     threads: usize,
     decode_row: &(dyn Fn(u32, &mut [u8]) + Sync),
-) -> (f64, Vec<f32>) {
+) -> (Timing, Vec<f32>) {
     let (w, h) = setup.side;
     let mut codes = vec![0u8; (w * h) as usize * n];
     let row_len = w as usize * n;
@@ -263,12 +278,13 @@ fn region_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>) {
     let (w, _) = setup.side;
     let all: Vec<usize> = (0..c).collect();
     let threads_now = std::cell::Cell::new(1);
-    let mut push = |mode: String, secs: f64, outputs: usize, units: &[f32], chans: &[usize]| {
+    let mut push = |mode: String, t: Timing, outputs: usize, units: &[f32], chans: &[usize]| {
         let (psnr, max_delta) = setup.judge(units, chans);
         let threads = threads_now.get();
         rows.push(Row {
             mode,
-            seconds_per_texel: secs / texels,
+            seconds_per_texel: t.secs / texels,
+            peak_macs_per_texel: t.peak_macs / texels,
             macs_per_texel: macs(m, outputs) as f64,
             psnr,
             max_delta,
@@ -365,7 +381,7 @@ fn time_random(
     runs: usize,
     order: &[usize],
     decode: &dyn Fn(i64, i64, &mut [u8]),
-) -> (f64, Vec<f32>) {
+) -> (Timing, Vec<f32>) {
     let c = setup.m.channel_count();
     let w = setup.side.0 as usize;
     let mut codes = vec![0u8; setup.texels() * c];
@@ -415,7 +431,7 @@ fn filter_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>) {
             });
             (secs, out)
         };
-        let (secs, ints) = decode_all(Precision::Integer);
+        let (timing, ints) = decode_all(Precision::Integer);
         let (_, floats) = decode_all(Precision::Float);
         let delta = ints
             .iter()
@@ -432,7 +448,8 @@ fn filter_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>) {
                 "sample {filter:?} (lod {lod}), integer, {} per texel",
                 decoder.kernel().name()
             ),
-            seconds_per_texel: secs / texels,
+            seconds_per_texel: timing.secs / texels,
+            peak_macs_per_texel: timing.peak_macs / texels,
             macs_per_texel: macs(m, c) as f64 * taps,
             psnr: None,
             max_delta: delta,
@@ -441,19 +458,18 @@ fn filter_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>) {
     }
 }
 
-fn print_rows(rows: &[Row], roofline: f64, bytes: usize) {
+fn print_rows(rows: &[Row], bytes: usize) {
     println!(
         "  {:52} {:>10} {:>12} {:>9} {:>8} {:>9} {:>7}",
         "mode", "ns/texel", "texels/s", "%roofline", "PSNR dB", "max|Δ|", "bytes"
     );
     for r in rows {
-        let ideal = r.macs_per_texel / (roofline * r.threads as f64);
         println!(
             "  {:52} {:10.1} {:12.0} {:8.1}% {:>8} {:>9} {:>7}",
             r.mode,
             r.seconds_per_texel * 1e9,
             1.0 / r.seconds_per_texel,
-            100.0 * ideal / r.seconds_per_texel,
+            100.0 * r.macs_per_texel / (r.peak_macs_per_texel * r.threads as f64),
             r.psnr.map_or("—".into(), |p| format!("{p:.2}")),
             r.max_delta.map_or("—".into(), |d| d.to_string()),
             bytes,
@@ -493,7 +509,7 @@ fn reference_rows(setup: &Setup<'_, '_>, codes: &[u8], runs: usize, png: Option<
             }
             black_box((&rgba, &gray));
         });
-        let per = secs / (w * h) as f64;
+        let per = secs.secs / (w * h) as f64;
         println!(
             "  {:52} {:10.1} {:12.0}   ({bc1}× BC1 + {bc4}× BC4 for {c} channels, 4 bits/texel each)",
             "reference: BC1/BC4 decode (bcdec_rs), all channels",
@@ -600,7 +616,7 @@ fn png_seconds(m: &Material<'_>, dir: &Path, runs: usize) -> Result<Option<(f64,
         }
     });
     let (w, h) = m.mip_size(0);
-    Ok(Some((secs, u64::from(w) * u64::from(h))))
+    Ok(Some((secs.secs, u64::from(w) * u64::from(h))))
 }
 
 #[cfg(test)]

@@ -207,10 +207,11 @@ fn cell_values(
     };
     let bits = grid.bits_per_latent();
     let mask = (1u64 << bits) - 1;
-    let values = out.iter_mut().zip(quant).take(grid.channels()).enumerate();
-    for (c, (slot, &(offset, step))) in values {
-        let code = ((window >> (c as u32 * bits)) & mask) as i32;
-        *slot = offset + code * step;
+    let mut codes = window;
+    // Lanes past the grid's channels have (offset, step) = (0, 0) and read as 0.
+    for (slot, &(offset, step)) in out.iter_mut().zip(quant) {
+        *slot = offset + (codes & mask) as i32 * step;
+        codes >>= bits;
     }
 }
 
