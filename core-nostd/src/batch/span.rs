@@ -208,8 +208,7 @@ fn cell_values(
     let bits = grid.bits_per_latent();
     let mask = (1u64 << bits) - 1;
     let mut codes = window;
-    // Lanes past the grid's channels have (offset, step) = (0, 0) and read as 0.
-    for (slot, &(offset, step)) in out.iter_mut().zip(quant) {
+    for (slot, &(offset, step)) in out.iter_mut().zip(quant).take(grid.channels()) {
         *slot = offset + (codes & mask) as i32 * step;
         codes >>= bits;
     }
