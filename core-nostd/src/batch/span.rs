@@ -93,8 +93,8 @@ struct Slot<'a> {
     x_axis: XAxis,
     /// The first cell index (before addressing) of the columns held, if any.
     held: Option<i64>,
-    /// Left and right columns: (top, bottom) cells. For a bilinear grid, `.0` is the column
-    /// blended vertically (`gy·top + fy·bottom`).
+    /// Left and right columns: (top, bottom) cells. For a bilinear grid only `columns[1].0` is
+    /// used: the right column blended vertically (`gy·top + fy·bottom`).
     columns: [(Column, Column); 2],
     /// For a bilinear grid: `256·left` and `right − left` of the blended columns, so that a texel
     /// at fraction fx is `base + fx·slope` (= `(256 − fx)·left + fx·right`, wrapping like it).
@@ -158,38 +158,48 @@ impl<'a> Slot<'a> {
     }
 
     /// Loads the columns of first cell index `i` (reusing the right one when it moves by one).
+    /// Only the grid's channels are touched: the other lanes stay 0.
     fn enter(&mut self, i: i64, mode: AddressMode) {
         let width = self.grid.width().max(1);
-        if self.held == Some(i - 1) {
-            let [left, right] = &mut self.columns;
-            *left = *right;
-        } else {
-            self.load(0, address(i, width, mode));
-        }
-        self.load(1, address(i + 1, width, mode));
+        let channels = self.grid.channels();
+        let step = self.held == Some(i - 1);
         self.held = Some(i);
         if self.bilinear {
-            let [(left, _), (right, _)] = &self.columns;
-            for (((b, s), &l), &r) in self.base.iter_mut().zip(&mut self.slope).zip(left).zip(right)
-            {
+            // Only the blended columns are kept: `columns[1].0` is the right one.
+            let left = if step { self.columns[1].0 } else { self.blended(address(i, width, mode)) };
+            let right = self.blended(address(i + 1, width, mode));
+            let lanes = self.base.iter_mut().zip(&mut self.slope).zip(&left).zip(&right);
+            for (((b, s), &l), &r) in lanes.take(channels) {
                 *b = l.wrapping_mul(256);
                 *s = r.wrapping_sub(l);
             }
+            self.columns[1].0 = right;
+            return;
         }
+        let [(l0, l1), (r0, r1)] = &mut self.columns;
+        if step {
+            l0.copy_from_slice(r0);
+            l1.copy_from_slice(r1);
+        } else {
+            let column = address(i, width, mode);
+            cell_values(&self.grid, &self.quant, column, self.rows.0, l0);
+            cell_values(&self.grid, &self.quant, column, self.rows.1, l1);
+        }
+        let column = address(i + 1, width, mode);
+        cell_values(&self.grid, &self.quant, column, self.rows.0, r0);
+        cell_values(&self.grid, &self.quant, column, self.rows.1, r1);
     }
 
-    fn load(&mut self, side: usize, column: u32) {
-        let (fy, bilinear) = (self.fy, self.bilinear);
-        let (grid, quant, rows) = (&self.grid, &self.quant, self.rows);
-        let Some((top, bottom)) = self.columns.get_mut(side) else { return };
-        cell_values(grid, quant, column, rows.0, top);
-        cell_values(grid, quant, column, rows.1, bottom);
-        if bilinear {
-            let gy = 256 - fy;
-            for (t, &b) in top.iter_mut().zip(bottom.iter()) {
-                *t = gy.wrapping_mul(*t).wrapping_add(fy.wrapping_mul(b));
-            }
+    /// The column of cells `column` blended vertically: `gy·top + fy·bottom` per channel.
+    fn blended(&self, column: u32) -> Column {
+        let (mut top, mut bottom) = ([0; MAX_GRID_CHANNELS], [0; MAX_GRID_CHANNELS]);
+        cell_values(&self.grid, &self.quant, column, self.rows.0, &mut top);
+        cell_values(&self.grid, &self.quant, column, self.rows.1, &mut bottom);
+        let (fy, gy) = (self.fy, 256 - self.fy);
+        for (t, &b) in top.iter_mut().zip(&bottom).take(self.grid.channels()) {
+            *t = gy.wrapping_mul(*t).wrapping_add(fy.wrapping_mul(b));
         }
+        top
     }
 }
 
