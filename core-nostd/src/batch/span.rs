@@ -14,6 +14,10 @@
 //!
 //! [`Decoder`]: super::Decoder
 
+extern crate alloc;
+
+use alloc::vec::Vec;
+
 use crate::decode::{Feature, RAW_SHIFT};
 use crate::latents::{LatentGrid, address, axis};
 use crate::limits::{MAX_CHAIN, MAX_GRID_CHANNELS, MAX_TERMS, MAX_WIDTH};
@@ -240,8 +244,9 @@ pub(super) struct SpanGather<'a, T> {
     mode: AddressMode,
     terms: heapless::Vec<TermPlan, MAX_TERMS>,
     /// One slot per grid and sampling mode: a grid in several chains (NBC's feature reuse) is
-    /// stepped and blended once per texel.
-    slots: heapless::Vec<Slot<'a>, { MAX_TERMS * MAX_CHAIN }>,
+    /// stepped and blended once per texel. On the heap: the span gather is built for every
+    /// span, and moving room for every possible slot (tens of KiB) would cost more than that.
+    slots: Vec<Slot<'a>>,
     pe_frequencies: u8,
     input_frac_bits: u8,
     /// Where the positional encoding starts in the input vector.
@@ -257,7 +262,7 @@ impl<'a, T: Feature> SpanGather<'a, T> {
         let (mip_width, mip_height) = material.mip_size(mip);
         let mode = material.address_mode;
         let mut terms = heapless::Vec::new();
-        let mut slots: heapless::Vec<Slot<'a>, { MAX_TERMS * MAX_CHAIN }> = heapless::Vec::new();
+        let mut slots: Vec<Slot<'a>> = Vec::new();
         let mut first = 0;
         let level = material.levels.get(material.level_for_mip(mip));
         for term in level.map_or(&[][..], |l| l.terms.as_slice()) {
@@ -274,10 +279,7 @@ impl<'a, T: Feature> SpanGather<'a, T> {
                 let index = match known {
                     Some(i) => i,
                     None => {
-                        let slot = Slot::new(g, grid, bilinear, y, (mip_width, mip_height), mode);
-                        // Capacity: a level has at most MAX_TERMS terms of at most MAX_CHAIN
-                        // grids, so at most that many distinct slots.
-                        let _ = slots.push(slot);
+                        slots.push(Slot::new(g, grid, bilinear, y, (mip_width, mip_height), mode));
                         slots.len() - 1
                     }
                 };
@@ -367,10 +369,12 @@ impl<'a, T: Feature> SpanGather<'a, T> {
                 *x1 = T::from_raw(i64::from(triangle_q(x, k, 1, f)) << RAW_SHIFT, f);
             }
         }
-        // The input width rounded up to 32 entries: whole chunks copy without a call.
-        let copied = io.chunks_exact_mut(32).zip(template.chunks_exact(32)).take(self.chunks);
-        for (to, from) in copied {
-            to.copy_from_slice(from);
+        // The input width rounded up to 32 entries, in chunks of a size known at compile time
+        // (copied without a call).
+        let (to, _) = io.as_chunks_mut::<32>();
+        let (from, _) = template.as_chunks::<32>();
+        for (to, from) in to.iter_mut().zip(from).take(self.chunks) {
+            *to = *from;
         }
     }
 }
