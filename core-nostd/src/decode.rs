@@ -335,9 +335,9 @@ fn bilinear(
     let (gx, gy) = (256 - fx, 256 - fy);
     let w = [gx * gy, fx * gy, gx * fy, fx * fy];
     let mut values = [0i32; MAX_GRID_CHANNELS];
-    // All 16 lanes (fixed length: vector code); lanes past the grid's channels are 0.
+    // Lanes past the grid's channels stay 0.
     let lanes = values.iter_mut().zip(&c00).zip(&c10).zip(&c01).zip(&c11);
-    for ((((v, &a), &b), &c), &d) in lanes {
+    for ((((v, &a), &b), &c), &d) in lanes.take(grid.channels()) {
         *v = (w[0].wrapping_mul(a))
             .wrapping_add(w[1].wrapping_mul(b))
             .wrapping_add(w[2].wrapping_mul(c))
@@ -357,11 +357,9 @@ fn footprint_cells(
 ) -> (Footprint, [[i32; MAX_GRID_CHANNELS]; 4]) {
     let fp = footprint((grid.width(), grid.height()), x, y, mip_size, mode);
     let mut cells = [[0; MAX_GRID_CHANNELS]; 4];
-    for (cell, (cx, cy)) in
-        cells.iter_mut().zip([(fp.x0, fp.y0), (fp.x1, fp.y0), (fp.x0, fp.y1), (fp.x1, fp.y1)])
-    {
-        grid.cell_values(cx, cy, cell);
-    }
+    let [c00, c10, c01, c11] = &mut cells;
+    grid.cell_pair_values((fp.x0, fp.x1), fp.y0, (c00, c10));
+    grid.cell_pair_values((fp.x0, fp.x1), fp.y1, (c01, c11));
     (fp, cells)
 }
 

@@ -71,6 +71,11 @@ impl<'a> LatentGrid<'a> {
     /// left alone): the cell's codes are consecutive bits, read with one index computation.
     /// Out-of-range cells read as codes 0.
     pub fn cell_values(&self, x: u32, y: u32, out: &mut [i32]) {
+        if let Some(codes) = self.cells_window(x, y, 1) {
+            // The common case: every code of the cell in one 64-bit read.
+            self.dequantize(codes, out);
+            return;
+        }
         let quant = self.quant.chunks_exact(4).map(|q| match *q {
             [o0, o1, s0, s1] => {
                 (i32::from(i16::from_le_bytes([o0, o1])), i32::from(i16::from_le_bytes([s0, s1])))
@@ -79,14 +84,6 @@ impl<'a> LatentGrid<'a> {
         });
         let bits = u32::from(self.bits);
         let mask = (1u64 << bits) - 1;
-        if let Some(window) = self.cell_window(x, y) {
-            // The common case: every code of the cell in one 64-bit read.
-            for (c, (slot, (offset, step))) in out.iter_mut().zip(quant).enumerate() {
-                let code = ((window >> (c as u32 * bits)) & mask) as i32;
-                *slot = offset + code * step;
-            }
-            return;
-        }
         let inside = x < self.width() && y < self.height();
         let cell = u64::from(y) * u64::from(self.width) + u64::from(x);
         let first = cell * u64::from(self.channels) * u64::from(bits);
@@ -113,18 +110,58 @@ impl<'a> LatentGrid<'a> {
         }
     }
 
-    /// The codes of cell (x, y) as the low bits of one value (channel c at bit c · bits), when the
-    /// cell is inside the grid and its codes span at most 57 bits (so that, wherever they start
-    /// in a byte, one 64-bit read from that byte holds them).
-    pub(crate) fn cell_window(&self, x: u32, y: u32) -> Option<u64> {
+    /// The values of cells (x0, y) and (x1, y) into `out.0` and `out.1`, as
+    /// [`LatentGrid::cell_values`]: with one read when x1 is the cell after x0 and the two cells'
+    /// codes span at most 57 bits.
+    pub(crate) fn cell_pair_values(
+        &self,
+        (x0, x1): (u32, u32),
+        y: u32,
+        out: (&mut [i32], &mut [i32]),
+    ) {
+        let window = if x1 == x0.wrapping_add(1) { self.cells_window(x0, y, 2) } else { None };
+        match window {
+            Some(codes) => {
+                let rest = self.dequantize(codes, out.0);
+                self.dequantize(rest, out.1);
+            }
+            None => {
+                self.cell_values(x0, y, out.0);
+                self.cell_values(x1, y, out.1);
+            }
+        }
+    }
+
+    /// Dequantizes the codes of one cell, lowest bits first, into `out`; returns the bits left.
+    fn dequantize(&self, mut codes: u64, out: &mut [i32]) -> u64 {
+        let bits = u32::from(self.bits);
+        let mask = (1u64 << bits) - 1;
+        for (slot, q) in out.iter_mut().zip(self.quant.chunks_exact(4)) {
+            let (offset, step) = match *q {
+                [o0, o1, s0, s1] => (i16::from_le_bytes([o0, o1]), i16::from_le_bytes([s0, s1])),
+                _ => (0, 0),
+            };
+            *slot = i32::from(offset) + (codes & mask) as i32 * i32::from(step);
+            codes >>= bits;
+        }
+        codes
+    }
+
+    /// The codes of `count` consecutive cells from (x, y) as the low bits of one value (cell k,
+    /// channel c at bit (k · channels + c) · bits), when the cells are inside the grid and their
+    /// codes span at most 57 bits (so that, wherever they start in a byte, one 64-bit read from
+    /// that byte holds them).
+    pub(crate) fn cells_window(&self, x: u32, y: u32, count: u32) -> Option<u64> {
         let cell_bits = u32::from(self.bits) * u32::from(self.channels);
-        if cell_bits > 57 || x >= self.width() || y >= self.height() {
+        let inside =
+            u64::from(x) + u64::from(count) <= u64::from(self.width()) && y < self.height();
+        if count * cell_bits > 57 || !inside {
             return None;
         }
         let cell = u64::from(y) * u64::from(self.width) + u64::from(x);
         let first = cell * u64::from(cell_bits);
         let byte = (first / 8) as usize;
-        // Bytes past the end of the data read as 0 (the cell's own bits are inside it).
+        // Bytes past the end of the data read as 0 (the cells' own bits are inside it).
         let bytes = match self.data.get(byte..byte + 8) {
             Some(b) => arr(b, 0),
             None => {

@@ -215,7 +215,7 @@ fn cell_values(
     y: u32,
     out: &mut Column,
 ) {
-    let Some(window) = grid.cell_window(x, y) else {
+    let Some(window) = grid.cells_window(x, y, 1) else {
         grid.cell_values(x, y, out);
         return;
     };
