@@ -96,9 +96,7 @@ impl<'a> Material<'a> {
                     let Some(grid) = self.grids.get(usize::from(g)) else { continue };
                     let (_, cells) = footprint_cells(grid, x, y, mip_size, mode);
                     for cell in &cells {
-                        for &v in cell.iter().take(channels) {
-                            sink.push(i64::from(v) << RAW_SHIFT);
-                        }
+                        sink.push_latents(cell.get(..channels).unwrap_or(&[]));
                     }
                 }
                 TermMode::Bilinear => {
@@ -265,7 +263,6 @@ pub(crate) trait Feature: Copy + Default {
         Self::from_raw((i64::from(high) << RAW_SHIFT) + i64::from(low), input_frac_bits)
     }
     /// [`Feature::from_raw`] of a dequantized latent (an i16 on the input grid, FORMAT.md §4).
-    #[cfg(feature = "alloc")]
     fn from_latent(value: i32, input_frac_bits: u8) -> Self {
         Self::from_raw(i64::from(value) << RAW_SHIFT, input_frac_bits)
     }
@@ -287,7 +284,6 @@ impl Feature for i16 {
     }
 
     /// A latent is already on the input grid: rounding and saturation leave it unchanged.
-    #[cfg(feature = "alloc")]
     fn from_latent(value: i32, _: u8) -> i16 {
         value as i16
     }
@@ -317,6 +313,17 @@ impl<T: Feature> Inputs<'_, T> {
             *v = T::from_raw(raw, self.input_frac_bits);
         }
         self.next += 1;
+    }
+
+    /// Dequantized latents (each an i16 on the input grid, FORMAT.md §4), in one pass.
+    fn push_latents(&mut self, values: &[i32]) {
+        let end = (self.next + values.len()).min(MAX_WIDTH);
+        if let Some(slots) = self.io.get_mut(self.next..end) {
+            for (slot, &v) in slots.iter_mut().zip(values) {
+                *slot = T::from_latent(v, self.input_frac_bits);
+            }
+        }
+        self.next += values.len();
     }
 }
 
