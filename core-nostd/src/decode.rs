@@ -4,7 +4,7 @@
 
 use crate::error::{Argument, Error};
 use crate::latents::{Footprint, LatentGrid, address, footprint};
-use crate::limits::{MAX_GRID_CHANNELS, MAX_GRIDS, MAX_WIDTH};
+use crate::limits::{MAX_FRAC_BITS, MAX_GRID_CHANNELS, MAX_GRIDS, MAX_WIDTH};
 use crate::material::{AddressMode, Material, TermMode};
 use crate::mlp::{forward_float, forward_int, saturate_i16};
 use crate::posenc::triangle_q;
@@ -294,8 +294,9 @@ impl Feature for f32 {
     /// the scale is a power of two).
     fn from_raw(raw: i64, input_frac_bits: u8) -> f32 {
         let (lo, hi) = (i64::from(i16::MIN) << RAW_SHIFT, i64::from(i16::MAX) << RAW_SHIFT);
-        let scale = 1.0 / (1u64 << (RAW_SHIFT + u32::from(input_frac_bits))) as f32;
-        raw.clamp(lo, hi) as f32 * scale
+        // 2^-(16 + f) built from its exponent (f ≤ 14: a normal f32), without a division.
+        let exponent = 127 - RAW_SHIFT - u32::from(input_frac_bits.min(MAX_FRAC_BITS));
+        raw.clamp(lo, hi) as f32 * f32::from_bits(exponent << 23)
     }
 }
 
