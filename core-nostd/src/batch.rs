@@ -27,7 +27,7 @@ mod avx2;
 mod avx512;
 mod span;
 
-use span::SpanGather;
+use span::{Slots, SpanGather};
 
 /// Which code computes the integer layers of a [`Decoder`].
 #[non_exhaustive]
@@ -510,7 +510,8 @@ impl Decoder {
         full_scale: i32,
         narrow: impl Fn(i32) -> T,
     ) {
-        let mut gather = SpanGather::new(material, y, mip);
+        let mut slots = Slots::new();
+        let mut gather = SpanGather::new(material, y, mip, &mut slots);
         let f = material.last_frac_bits();
         // Rows 0..n: the outputs are the first n values.
         let first_rows = rows & rows.wrapping_add(1) == 0;
@@ -664,7 +665,8 @@ impl Decoder {
         out: &mut [f32],
     ) -> Result<usize, Error> {
         let (rows, n) = self.check_span(material, count, channels, out.len())?;
-        let mut gather = SpanGather::new(material, y, mip);
+        let mut slots = Slots::new();
+        let mut gather = SpanGather::new(material, y, mip, &mut slots);
         let mut io = [0f32; MAX_WIDTH];
         for (i, texel) in out.chunks_exact_mut(n).take(count).enumerate() {
             gather.inputs(x0.wrapping_add(i as i64), &mut io);

@@ -14,10 +14,6 @@
 //!
 //! [`Decoder`]: super::Decoder
 
-extern crate alloc;
-
-use alloc::vec::Vec;
-
 use crate::decode::{Feature, RAW_SHIFT};
 use crate::latents::{LatentGrid, address, axis};
 use crate::limits::{MAX_CHAIN, MAX_GRID_CHANNELS, MAX_TERMS, MAX_WIDTH};
@@ -84,7 +80,7 @@ impl XAxis {
 
 /// One grid of one term, for the row of the span.
 #[derive(Clone, Copy)]
-struct Slot<'a> {
+pub(super) struct Slot<'a> {
     /// The grid's number in the material, and whether it is sampled bilinearly.
     key: (u8, bool),
     grid: LatentGrid<'a>,
@@ -238,15 +234,18 @@ struct TermPlan {
     first: usize,
 }
 
+/// Room for the slots of one span, declared by the caller (on its stack: no allocation, and
+/// nothing to move — the room for every possible slot is tens of KiB).
+pub(super) type Slots<'a> = heapless::Vec<Slot<'a>, { MAX_TERMS * MAX_CHAIN }>;
+
 /// The input vectors of texels `(x, y)` of one mip, for any `x`; consecutive `x` are fast.
-pub(super) struct SpanGather<'a, T> {
+pub(super) struct SpanGather<'s, 'a, T> {
     mip_width: u32,
     mode: AddressMode,
     terms: heapless::Vec<TermPlan, MAX_TERMS>,
     /// One slot per grid and sampling mode: a grid in several chains (NBC's feature reuse) is
-    /// stepped and blended once per texel. On the heap: the span gather is built for every
-    /// span, and moving room for every possible slot (tens of KiB) would cost more than that.
-    slots: Vec<Slot<'a>>,
+    /// stepped and blended once per texel.
+    slots: &'s mut Slots<'a>,
     pe_frequencies: u8,
     input_frac_bits: u8,
     /// Where the positional encoding starts in the input vector.
@@ -256,13 +255,19 @@ pub(super) struct SpanGather<'a, T> {
     template: [T; MAX_WIDTH],
 }
 
-impl<'a, T: Feature> SpanGather<'a, T> {
-    pub(super) fn new(material: &Material<'a>, y: i64, mip: u32) -> SpanGather<'a, T> {
+impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
+    /// The gather of row `y` of `mip`, keeping its slots in `slots` (emptied first).
+    pub(super) fn new(
+        material: &Material<'a>,
+        y: i64,
+        mip: u32,
+        slots: &'s mut Slots<'a>,
+    ) -> SpanGather<'s, 'a, T> {
         let (_, y, mip) = material.address_texel(0, y, mip);
         let (mip_width, mip_height) = material.mip_size(mip);
         let mode = material.address_mode;
         let mut terms = heapless::Vec::new();
-        let mut slots: Vec<Slot<'a>> = Vec::new();
+        slots.clear();
         let mut first = 0;
         let level = material.levels.get(material.level_for_mip(mip));
         for term in level.map_or(&[][..], |l| l.terms.as_slice()) {
@@ -279,7 +284,10 @@ impl<'a, T: Feature> SpanGather<'a, T> {
                 let index = match known {
                     Some(i) => i,
                     None => {
-                        slots.push(Slot::new(g, grid, bilinear, y, (mip_width, mip_height), mode));
+                        let slot = Slot::new(g, grid, bilinear, y, (mip_width, mip_height), mode);
+                        // Capacity: a level has at most MAX_TERMS terms of at most MAX_CHAIN
+                        // grids, so at most that many distinct slots.
+                        let _ = slots.push(slot);
                         slots.len() - 1
                     }
                 };
@@ -325,7 +333,7 @@ impl<'a, T: Feature> SpanGather<'a, T> {
     pub(super) fn inputs(&mut self, x: i64, io: &mut [T; MAX_WIDTH]) {
         let (mode, f) = (self.mode, self.input_frac_bits);
         let x = address(x, self.mip_width, mode);
-        for slot in &mut self.slots {
+        for slot in self.slots.iter_mut() {
             slot.advance(x, mode);
         }
         let template = &mut self.template;
