@@ -36,6 +36,23 @@ fn peak_rate(kernel: Kernel) -> Option<f64> {
     Some(median(rates?))
 }
 
+/// The median over `runs` of (seconds of `b`) ÷ (seconds of `a`), each run timing `a` then `b`
+/// back to back (after one warm-up call of each).
+fn interleaved_ratio(runs: usize, a: &mut dyn FnMut(), b: &mut dyn FnMut()) -> f64 {
+    a();
+    b();
+    let mut ratios = Vec::new();
+    for _ in 0..runs.max(1) {
+        let start = Instant::now();
+        a();
+        let ta = start.elapsed().as_secs_f64();
+        let start = Instant::now();
+        b();
+        ratios.push(start.elapsed().as_secs_f64() / ta);
+    }
+    median(ratios)
+}
+
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
@@ -207,9 +224,13 @@ fn bench_one(input: &Path, opts: &Options) -> Result<()> {
     );
     println!("  region {}×{} of mip 0, median of {} runs", side.0, side.1, opts.runs);
     let mut rows = Vec::new();
-    region_rows(&setup, opts.runs, &mut rows);
+    let mut notes = Vec::new();
+    region_rows(&setup, opts.runs, &mut rows, &mut notes);
     filter_rows(&setup, opts.runs, &mut rows);
     print_rows(&rows, bytes.len());
+    for note in &notes {
+        println!("  {note}");
+    }
     reference_rows(&setup, &float_units_to_codes(&setup.float_units), opts.runs, png);
     crate::bench_gpu(&m, &|name, secs| {
         let texels = f64::from(w) * f64::from(h);
@@ -271,7 +292,7 @@ fn time_codes(
     (secs, codes.iter().map(|&v| f32::from(v) / 255.0).collect())
 }
 
-fn region_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>) {
+fn region_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>, notes: &mut Vec<String>) {
     let m = setup.m;
     let c = m.channel_count();
     let texels = setup.texels() as f64;
@@ -338,6 +359,27 @@ fn region_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>) {
         let _ = best.decode_texel_u8(m, x, y, 0, ChannelMask::ALL, out);
     });
     push(format!("integer {kernel} random access per texel, all {c} ch"), secs, c, &units, &all);
+    // The two costs issue 7 compares, timed in alternation so that both meet the same machine.
+    let mut codes = vec![0u8; setup.texels() * c];
+    let ratio = interleaved_ratio(
+        runs,
+        &mut || {
+            for (y, row) in codes.chunks_exact_mut(w as usize * c).enumerate() {
+                let _ = best.decode_span_u8(m, 0, y as i64, 0, w as usize, ChannelMask::ALL, row);
+            }
+        },
+        &mut || {
+            let mut texel = [0u8; 16];
+            for &t in &order {
+                let (x, y) = ((t % w as usize) as i64, (t / w as usize) as i64);
+                let _ = best.decode_texel_u8(m, x, y, 0, ChannelMask::ALL, &mut texel);
+                black_box(&texel);
+            }
+        },
+    );
+    notes.push(format!(
+        "random access ÷ region per texel, {kernel}, runs alternated: {ratio:.2}× (median of {runs})"
+    ));
     let (secs, units) = time_random(setup, runs, &order, &|x, y, out| {
         let _ = m.decode_texel_u8(x, y, 0, ChannelMask::ALL, out);
     });
