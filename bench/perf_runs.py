@@ -2,7 +2,8 @@
 """Summarizes repeated `nmat bench` runs of the same files (a shared machine's speed drifts from
 run to run, so one run is not enough to judge a target): for every material, the median and the
 range over the runs of the one-thread region decode (ns/texel and % of the roofline) and of
-random access, and the ratio of the two within each run.
+random access, and their ratio (timed in alternation within each run when the output has that
+line, else the ratio of the two rows).
 
 Usage: python3 bench/perf_runs.py OUTPUT.txt [OUTPUT.txt ...]   (any order, any number of files
 per material; rows are matched by material file name)
@@ -15,6 +16,7 @@ ROW = re.compile(r"^  (.+?)\s{2,}(\d+\.\d)\s+(\d+)\s+(\d+\.\d)%\s+(\S+)\s+(\S+)\
 HEAD = re.compile(r"^(\S+\.nmat): ")
 REGION = re.compile(r"^integer (\S+) region, all \d+ ch, 1 thread$")
 RANDOM = re.compile(r"^integer (\S+) random access per texel, all \d+ ch$")
+ALTERNATED = re.compile(r"^  random access ÷ region per texel, \S+, runs alternated: (\d+\.\d+)×")
 
 
 def parse(path):
@@ -26,6 +28,10 @@ def parse(path):
             if m:
                 material, kernel = m.group(1).split("/")[-1], None
                 runs[material] = {}
+                continue
+            alternated = ALTERNATED.match(line)
+            if alternated and material:
+                runs[material]["alternated"] = float(alternated.group(1))
                 continue
             m = ROW.match(line)
             if not (m and material):
@@ -50,13 +56,14 @@ def main(paths):
         for material, rows in parse(path).items():
             if "region" in rows and "random" in rows:
                 by_material.setdefault(material, []).append(rows)
-    print("| material | runs | region ns/texel | region % roofline | random access ns/texel | random ÷ region |")
+    print("| material | runs | region ns/texel | region % roofline | random access ns/texel | random ÷ region (runs alternated) |")
     print("|---|---:|---:|---:|---:|---:|")
     for material, runs in sorted(by_material.items()):
         region_ns = [r["region"][0] for r in runs]
         roof = [r["region"][1] for r in runs]
         random_ns = [r["random"][0] for r in runs]
-        ratio = [r["random"][0] / r["region"][0] for r in runs]
+        # The alternated measurement when the output has it, else the ratio of the two rows.
+        ratio = [r.get("alternated", r["random"][0] / r["region"][0]) for r in runs]
         print(
             f"| {material} | {len(runs)} | {span(region_ns, '{:.0f}')} | {span(roof, '{:.1f}')} "
             f"| {span(random_ns, '{:.0f}')} | {span(ratio, '{:.2f}')} |"

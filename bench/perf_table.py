@@ -9,9 +9,20 @@ import sys
 
 ROW = re.compile(r"^  (.+?)\s{2,}(\d+\.\d)\s+(\d+)\s+(\d+\.\d)%\s+(\S+)\s+(\S+)\s+(\d+)$")
 REF = re.compile(r"^  (reference: .+?)\s{2,}(\d+\.\d)\s+(\d+)\s+\((.+)\)$")
+NOTE = re.compile(r"^  (random access ÷ region .+)$")
 
 def main(paths):
     seen_machine = False
+    notes = []
+
+    def flush():
+        # Notes printed under a material's table (after its last row).
+        if notes:
+            print()
+            for note in notes:
+                print(note + "  ")
+            notes.clear()
+
     for path in paths:
         with open(path, encoding="utf-8") as f:
             lines = f.read().splitlines()
@@ -21,6 +32,7 @@ def main(paths):
                 continue
             if line.endswith(".nmat") or ".nmat:" in line:
                 seen_machine = True
+                flush()
                 print()
                 print(f"**{line.split(': ', 1)[0].split('/')[-1]}** — {line.split(': ', 1)[1]}")
                 print()
@@ -36,6 +48,11 @@ def main(paths):
             if m:
                 mode, ns, tps, note = m.groups()
                 print(f"| {mode} ({note}) | {ns} | {int(tps):,} | | | | |")
+                continue
+            m = NOTE.match(line)
+            if m:
+                notes.append(m.group(1))
+    flush()
 
 if __name__ == "__main__":
     main(sys.argv[1:])

@@ -18,7 +18,7 @@
 //!
 //! `no_std`, no allocation on any decode or parse path; the writer needs the `alloc` feature.
 #![no_std]
-// Unsafe code is denied everywhere but in the one SIMD module (`batch/avx2.rs`).
+// Unsafe code is denied everywhere but in the two SIMD modules (`batch/avx2.rs`, `batch/avx512.rs`).
 #![deny(unsafe_code)]
 #![cfg_attr(
     not(test),
