@@ -3,14 +3,16 @@
 //! everything that does not change from texel to texel computed only when it changes.
 //!
 //! The span keeps an input vector (the template) between texels. Once per span: the addressed
-//! row, each grid's two cell rows and vertical fraction, and the features of y (positional
-//! encoding, LOD) written into the template. Per texel: each grid's x axis (stepped, not
-//! divided); a new column of cells (two cells) decoded only when the texel crosses into it, and
-//! a nearest term's features rewritten only then; the bilinear features and the positional
-//! encoding of x; then the template is copied out. A bilinear column is kept blended vertically
-//! (`gy·top + fy·bottom`), so a texel costs two multiply-adds per channel: `gx·left + fx·right`
-//! is the definition's `Σ w·cell` exactly (the same integer, in the i32 range the definition
-//! states).
+//! row, each grid's two cell rows, vertical fraction and dequantization constants, and the
+//! features of y (positional encoding, LOD) written into the template. Each distinct grid of the
+//! level is one slot, however many chains use it. Per texel: each slot's x axis (stepped, not
+//! divided); a new column of cells decoded only when the texel crosses into it, and a nearest
+//! term's features rewritten only then; the bilinear features and the positional encoding of x;
+//! then the template is copied out. A bilinear slot keeps its columns blended vertically
+//! (`gy·top + fy·bottom`) as `base = 256·left` and `slope = right − left`, so its value at a
+//! texel is `base + fx·slope` per channel: the definition's `Σ w·cell` exactly (the same
+//! integer; intermediate wrapping cancels, as the sum lies in the i32 range the definition
+//! states). Chain sums are split into `Σ (v >> 16)` and `Σ (v & 0xFFFF)`, both within i32.
 //!
 //! [`Decoder`]: super::Decoder
 
