@@ -255,7 +255,16 @@ pub(super) struct SpanGather<'s, 'a, T> {
     /// The input width in chunks of 32 entries.
     chunks: usize,
     template: [T; MAX_WIDTH],
+    /// The x features (phase 0, phase 1 of each frequency) of texels 0 … `x_period` − 1, or
+    /// `x_period` 0 when the period is too long to tabulate.
+    x_table: [T; X_TABLE],
+    x_period: u32,
 }
+
+/// Frequencies up to which the encoding of x is tabulated: a period of at most 32 texels.
+const X_TABLE_FREQUENCIES: u8 = 4;
+/// Entries of the table: 2 per frequency per texel of the period.
+const X_TABLE: usize = 2 * X_TABLE_FREQUENCIES as usize * (2 << X_TABLE_FREQUENCIES);
 
 impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
     /// The gather of row `y` of `mip`, keeping its slots in `slots` (emptied first).
@@ -309,6 +318,19 @@ impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
                 *y1 = feature(i64::from(triangle_q(y, k, 1, f)));
             }
         }
+        // The encoding of x repeats every 2^(K+1) texels (K frequencies, periods 4 … 2^(K+1)):
+        // for K ≤ X_TABLE_FREQUENCIES one period is tabulated and looked up by x's low bits.
+        let frequencies = material.mlp.pe_frequencies;
+        let mut x_table = [T::default(); X_TABLE];
+        let x_period = if frequencies <= X_TABLE_FREQUENCIES { 2u32 << frequencies } else { 0 };
+        let per_texel = 2 * usize::from(frequencies);
+        for (x, row) in (0..x_period).zip(x_table.chunks_exact_mut(per_texel.max(1))) {
+            for (k, pair) in (0..frequencies).zip(row.chunks_exact_mut(2)) {
+                for (phase, v) in (0..2).zip(pair) {
+                    *v = feature(i64::from(triangle_q(x, k, phase, f)));
+                }
+            }
+        }
         if material.mlp.lod_input {
             let lod = first + 4 * usize::from(material.mlp.pe_frequencies);
             if let Some(v) = template.get_mut(lod) {
@@ -326,6 +348,8 @@ impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
             pe_first: first,
             chunks: material.mlp.layers.first().map_or(0, |l| l.inputs()).div_ceil(32),
             template,
+            x_table,
+            x_period,
         }
     }
 
@@ -373,10 +397,21 @@ impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
             }
         }
         let pe = template.get_mut(self.pe_first..).unwrap_or(&mut []).chunks_exact_mut(4);
-        for (k, features) in (0..self.pe_frequencies).zip(pe) {
-            if let [x0, x1, _, _] = features {
-                *x0 = T::from_raw(i64::from(triangle_q(x, k, 0, f)) << RAW_SHIFT, f);
-                *x1 = T::from_raw(i64::from(triangle_q(x, k, 1, f)) << RAW_SHIFT, f);
+        if self.x_period > 0 {
+            let per_texel = 2 * usize::from(self.pe_frequencies);
+            let at = (x & (self.x_period - 1)) as usize * per_texel;
+            let row = self.x_table.get(at..at + per_texel).unwrap_or(&[]).chunks_exact(2);
+            for (features, pair) in pe.zip(row) {
+                if let ([x0, x1, _, _], [v0, v1]) = (features, pair) {
+                    (*x0, *x1) = (*v0, *v1);
+                }
+            }
+        } else {
+            for (k, features) in (0..self.pe_frequencies).zip(pe) {
+                if let [x0, x1, _, _] = features {
+                    *x0 = T::from_raw(i64::from(triangle_q(x, k, 0, f)) << RAW_SHIFT, f);
+                    *x1 = T::from_raw(i64::from(triangle_q(x, k, 1, f)) << RAW_SHIFT, f);
+                }
             }
         }
         // The input width rounded up to 32 entries, in chunks of a size known at compile time
