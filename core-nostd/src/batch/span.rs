@@ -88,7 +88,6 @@ pub(super) struct Slot<'a> {
     grid: LatentGrid<'a>,
     /// Dequantization (offset, step) of each channel.
     quant: [(i32, i32); MAX_GRID_CHANNELS],
-    bilinear: bool,
     /// The two cell rows (addressed) and the vertical fraction in 1/256.
     rows: (u32, u32),
     fy: i32,
@@ -129,7 +128,6 @@ impl<'a> Slot<'a> {
             key: (index, bilinear),
             grid: *grid,
             quant,
-            bilinear,
             rows: (address(j, height, mode), address(j + 1, height, mode)),
             fy,
             x_axis: XAxis::new(mip_size.0, width),
@@ -142,6 +140,10 @@ impl<'a> Slot<'a> {
         }
     }
 
+    fn bilinear(&self) -> bool {
+        self.key.1
+    }
+
     /// Steps to texel `x`: sets `changed`, and for a bilinear grid `value`.
     #[inline(always)]
     fn advance(&mut self, x: u32, mode: AddressMode) {
@@ -150,7 +152,7 @@ impl<'a> Slot<'a> {
         if self.changed {
             self.enter(i, mode);
         }
-        if self.bilinear {
+        if self.bilinear() {
             // All 16 lanes (unused ones are 0): fixed-length, one or a few vector operations.
             let lanes = self.value.iter_mut().zip(&self.base).zip(&self.slope);
             for ((v, &b), &s) in lanes {
@@ -166,7 +168,7 @@ impl<'a> Slot<'a> {
         let channels = self.grid.channels();
         let step = self.held == Some(i - 1);
         self.held = Some(i);
-        if self.bilinear {
+        if self.bilinear() {
             // Only the blended columns are kept: `columns[1].0` is the right one.
             let left = if step { self.columns[1].0 } else { self.blended(address(i, width, mode)) };
             let right = self.blended(address(i + 1, width, mode));
