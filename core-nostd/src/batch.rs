@@ -27,7 +27,7 @@ mod avx2;
 mod avx512;
 mod span;
 
-use span::{Slots, SpanGather};
+use span::{MAX_X_PERIOD, Slots, SpanGather};
 
 /// Which code computes the integer layers of a [`Decoder`].
 #[non_exhaustive]
@@ -153,6 +153,25 @@ fn scalar_probe(rounds: u64) -> i64 {
 
 /// Texels a span decodes together (the batched kernel's group).
 const GROUP: usize = 4;
+
+/// The first layer's accumulators for the inputs of a span that repeat along x (the positional
+/// encoding, whose period is at most `MAX_X_PERIOD` texels, and the span-constant features of y
+/// and the LOD): bias plus their weighted sum, one row per texel of the period. Per texel only
+/// the first `pairs` input pairs (the latent features) are left to sum; integer sums do not
+/// depend on their order, so the result is the layer's to the bit.
+struct PeriodicSums<'t> {
+    pairs: usize,
+    /// The period minus one (a power of two).
+    mask: u32,
+    table: &'t [[i32; MAX_WIDTH]; MAX_X_PERIOD],
+}
+
+impl PeriodicSums<'_> {
+    /// The row of the texel at addressed x.
+    fn at(&self, x: u32) -> &[i32] {
+        self.table.get((x & self.mask) as usize).map_or(&[], |row| row.as_slice())
+    }
+}
 
 /// Work run inside a function compiled for a kernel's instruction set (`avx2::with_avx2`,
 /// `avx512::with_avx512`); `run` is inlined there, and with it what it calls inline.
@@ -316,16 +335,31 @@ impl PackedLayer {
 
     /// The scalar twin: exactly the integer layer of FORMAT.md §6.6 over the prepared layout.
     fn forward_scalar(&self, x: &[i16; MAX_WIDTH], y: &mut [i16; MAX_WIDTH], blocks: u32) {
+        self.forward_scalar_from(x, &self.bias, self.in_pairs, y, blocks);
+    }
+
+    /// The layer with the accumulators starting at `init` (per row) instead of the bias, and
+    /// only input pairs `0..pairs` summed: with `init` = bias + the sum over the other pairs
+    /// (`partial_sums`) this is the whole layer, as integer sums do not depend on their order.
+    fn forward_scalar_from(
+        &self,
+        x: &[i16; MAX_WIDTH],
+        init: &[i32],
+        pairs: usize,
+        y: &mut [i16; MAX_WIDTH],
+        blocks: u32,
+    ) {
         let row_len = 2 * self.out_pad;
         for (b, out) in y.chunks_exact_mut(8).take(self.out_pad / 8).enumerate() {
             if blocks & (1 << b) == 0 {
                 continue;
             }
             let mut acc = [0i32; 8];
-            for (a, &bias) in acc.iter_mut().zip(self.bias.iter().skip(8 * b)) {
-                *a = bias;
+            for (a, &start) in acc.iter_mut().zip(init.iter().skip(8 * b)) {
+                *a = start;
             }
-            for (pair, x) in self.weights.chunks_exact(row_len).zip(x.chunks_exact(2)) {
+            let weights = self.weights.chunks_exact(row_len).take(pairs);
+            for (pair, x) in weights.zip(x.chunks_exact(2)) {
                 let (x0, x1) = match x {
                     [x0, x1] => (i32::from(*x0), i32::from(*x1)),
                     _ => (0, 0),
@@ -349,6 +383,28 @@ impl PackedLayer {
                     Activation::None => v,
                     Activation::HardGelu => hard_gelu_q(v, self.out_frac_bits),
                 };
+            }
+        }
+    }
+
+    /// Per row: the bias plus the sum over input pairs `first_pair..` of `x` (wrapping, like every
+    /// accumulator), into the first `out_pad` entries of `sums`: the `init` of
+    /// [`PackedLayer::forward_scalar_from`] for inputs that do not change between texels.
+    fn partial_sums(&self, x: &[i16; MAX_WIDTH], first_pair: usize, sums: &mut [i32; MAX_WIDTH]) {
+        for (s, &b) in sums.iter_mut().zip(&self.bias) {
+            *s = b;
+        }
+        let pairs = self.weights.chunks_exact(2 * self.out_pad).zip(x.chunks_exact(2));
+        for (pair, x) in pairs.skip(first_pair) {
+            let (x0, x1) = match x {
+                [x0, x1] => (i32::from(*x0), i32::from(*x1)),
+                _ => (0, 0),
+            };
+            for (s, w) in sums.iter_mut().zip(pair.chunks_exact(2)) {
+                if let [w0, w1] = w {
+                    let term = i32::from(*w0) * x0 + i32::from(*w1) * x1;
+                    *s = s.wrapping_add(term);
+                }
             }
         }
     }
@@ -454,15 +510,31 @@ impl Decoder {
     }
 
     /// [`Decoder::forward_int`] for the first `count` texels of a group, batched when the
-    /// kernel has a group form.
-    fn forward_int_group(&self, xs: &mut [[i16; MAX_WIDTH]; GROUP], count: usize, rows: u16) {
+    /// kernel has a group form. With `periodic`, the first layer starts from the span's sums
+    /// over the periodic inputs of each texel's addressed x (the whole group is computed then;
+    /// texels from `count` on are ignored).
+    fn forward_int_group(
+        &self,
+        xs: &mut [[i16; MAX_WIDTH]; GROUP],
+        count: usize,
+        rows: u16,
+        periodic: Option<(&PeriodicSums<'_>, &[u32; GROUP])>,
+    ) {
         #[cfg(target_arch = "x86_64")]
-        if self.kernel == Kernel::Avx512Vnni && count == GROUP {
+        if self.kernel != Kernel::Scalar && (count == GROUP || periodic.is_some()) {
             let mut spare = [[0i16; MAX_WIDTH]; GROUP];
             let (mut from, mut to) = (&mut *xs, &mut spare);
             let layers = self.layers.len();
             for (li, layer) in self.layers.iter().enumerate() {
-                avx512::forward_group(layer, from, to, layer.blocks(li + 1 == layers, rows));
+                let blocks = layer.blocks(li + 1 == layers, rows);
+                let (init, pairs) = match periodic.filter(|_| li == 0) {
+                    Some((sums, at)) => (at.map(|x| sums.at(x)), sums.pairs),
+                    None => ([layer.bias.as_slice(); GROUP], layer.in_pairs),
+                };
+                match self.kernel {
+                    Kernel::Avx2 => avx2::forward_group_from(layer, from, init, pairs, to, blocks),
+                    _ => avx512::forward_group_from(layer, from, init, pairs, to, blocks),
+                }
                 core::mem::swap(&mut from, &mut to);
             }
             if layers % 2 == 1 {
@@ -473,6 +545,34 @@ impl Decoder {
         for x in xs.iter_mut().take(count) {
             self.forward_int(x, rows);
         }
+    }
+
+    /// The first layer's sums over the inputs of `gather` that repeat along the row (positional
+    /// encoding, LOD), one row of `table` per texel of the period — when the kernel has a group
+    /// form, the inputs have such a tail, and the span is long enough to repay the table.
+    fn periodic_sums<'t>(
+        &self,
+        gather: &SpanGather<'_, '_, i16>,
+        count: usize,
+        table: &'t mut [[i32; MAX_WIDTH]; MAX_X_PERIOD],
+    ) -> Option<PeriodicSums<'t>> {
+        if self.kernel == Kernel::Scalar || cfg!(not(target_arch = "x86_64")) {
+            return None;
+        }
+        let (latents, period) = gather.periodic_tail()?;
+        let layer = self.layers.first()?;
+        // Per texel: the pairs holding a latent feature (one may hold x's first feature too).
+        let pairs = latents.div_ceil(2);
+        // Building the table costs `period` texels' worth of the pairs it saves.
+        if pairs >= layer.in_pairs || count < 2 * period as usize {
+            return None;
+        }
+        let mut x = [0i16; MAX_WIDTH];
+        for (phase, sums) in (0..period).zip(table.iter_mut()) {
+            gather.fixed_inputs(phase, &mut x);
+            layer.partial_sums(&x, pairs, sums);
+        }
+        Some(PeriodicSums { pairs, mask: period - 1, table })
     }
 
     /// The integer codes of `count` texels of a span into `out` (`n` values each), all of it
@@ -515,13 +615,16 @@ impl Decoder {
         let f = material.last_frac_bits();
         // Rows 0..n: the outputs are the first n values.
         let first_rows = rows & rows.wrapping_add(1) == 0;
+        let mut table = [[0i32; MAX_WIDTH]; MAX_X_PERIOD];
+        let periodic = self.periodic_sums(&gather, count, &mut table);
         let mut xs = [[0i16; MAX_WIDTH]; GROUP];
+        let mut at = [0u32; GROUP];
         for (g, texels) in out.chunks_mut(GROUP * n).take(count.div_ceil(GROUP)).enumerate() {
             let k = (count - g * GROUP).min(GROUP);
-            for (i, x) in xs.iter_mut().enumerate().take(k) {
-                gather.inputs(x0.wrapping_add((g * GROUP + i) as i64), x);
+            for ((i, x), at) in xs.iter_mut().enumerate().zip(&mut at).take(k) {
+                *at = gather.inputs(x0.wrapping_add((g * GROUP + i) as i64), x);
             }
-            self.forward_int_group(&mut xs, k, rows);
+            self.forward_int_group(&mut xs, k, rows, periodic.as_ref().map(|p| (p, &at)));
             for (x, texel) in xs.iter().zip(texels.chunks_exact_mut(n)) {
                 if first_rows {
                     // All 16 lanes at once (fixed length: vector code), then the n wanted.
@@ -750,6 +853,24 @@ mod tests {
         }
     }
 
+    fn run_group(
+        kernel: Kernel,
+        l: &PackedLayer,
+        xs: &[[i16; MAX_WIDTH]; GROUP],
+        init: [&[i32]; GROUP],
+        pairs: usize,
+        ys: &mut [[i16; MAX_WIDTH]; GROUP],
+        blocks: u32,
+    ) {
+        match kernel {
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx2 => avx2::forward_group_from(l, xs, init, pairs, ys, blocks),
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx512Vnni => avx512::forward_group_from(l, xs, init, pairs, ys, blocks),
+            _ => unreachable!("no group form"),
+        }
+    }
+
     struct Rng(u64);
     impl Rng {
         fn next(&mut self) -> u64 {
@@ -836,23 +957,39 @@ mod tests {
             let blocks = if trial % 3 == 0 { rng.next() as u32 } else { u32::MAX };
             let mut scalar = [7i16; MAX_WIDTH];
             l.forward_scalar(&x, &mut scalar, blocks);
-            #[cfg(target_arch = "x86_64")]
-            if Kernel::Avx512Vnni.is_available() {
-                // The group form: texel 2 is `x`, the others are other random inputs.
-                let mut xs = [[0i16; MAX_WIDTH]; GROUP];
-                for (t, v) in xs.iter_mut().enumerate() {
-                    for (i, slot) in v.iter_mut().enumerate().take(2 * l.in_pairs) {
-                        *slot = if t == 2 { x[i] } else { rng.edgy(-32768, 32767) as i16 };
-                    }
+            // The group forms: texel 2 is `x` from the bias; in even trials the others start
+            // from random rows, and all sum a random number of pairs.
+            let mut xs = [[0i16; MAX_WIDTH]; GROUP];
+            let starts: Vec<Vec<i32>> = (0..GROUP)
+                .map(|_| (0..l.out_pad).map(|_| rng.edgy(-(1 << 30), 1 << 30) as i32).collect())
+                .collect();
+            let mut init = [l.bias.as_slice(); GROUP];
+            for (t, v) in xs.iter_mut().enumerate() {
+                for (i, slot) in v.iter_mut().enumerate().take(2 * l.in_pairs) {
+                    *slot = if t == 2 { x[i] } else { rng.edgy(-32768, 32767) as i16 };
                 }
+                if t != 2 && trial % 2 == 0 {
+                    init[t] = &starts[t];
+                }
+            }
+            let pairs =
+                if trial % 2 == 0 { rng.range(0, l.in_pairs as i64) as usize } else { l.in_pairs };
+            for kernel in simd_kernels() {
                 let mut ys = [[7i16; MAX_WIDTH]; GROUP];
-                avx512::forward_group(&l, &xs, &mut ys, blocks);
+                run_group(kernel, &l, &xs, init, pairs, &mut ys, blocks);
                 for (t, (xt, yt)) in xs.iter().zip(&ys).enumerate() {
                     let mut want = [7i16; MAX_WIDTH];
-                    l.forward_scalar(xt, &mut want, blocks);
+                    l.forward_scalar_from(xt, init[t], pairs, &mut want, blocks);
+                    if t == 2 && pairs == l.in_pairs {
+                        assert_eq!(want, scalar, "the scalar forms differ, trial {trial}");
+                    }
                     for b in (0..l.out_pad / 8).filter(|b| blocks & (1 << b) != 0) {
                         let rows = 8 * b..8 * b + 8;
-                        assert_eq!(yt[rows.clone()], want[rows], "group texel {t} trial {trial}");
+                        assert_eq!(
+                            yt[rows.clone()],
+                            want[rows],
+                            "{kernel:?} group texel {t} trial {trial}"
+                        );
                     }
                 }
             }

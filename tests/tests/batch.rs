@@ -1,8 +1,11 @@
 //! The prepared `Decoder` (issue 7) against the per-texel definition on `Material`: every kernel,
 //! every output type, spans, channel subsets, out-of-range coordinates, accumulator extremes.
 
+use nmat_core::AddressMode;
 use nmat_core::{Argument, ChannelMask, Container, Decoder, Error, Kernel, Material};
-use nmat_tests::generate::{Rng, generate, golden_configs, wide_constant_material};
+use nmat_tests::generate::{
+    FixtureConfig, Layout, Rng, generate, golden_configs, wide_constant_material,
+};
 
 fn kernels() -> Vec<Kernel> {
     Kernel::ALL.into_iter().filter(|k| k.is_available()).collect()
@@ -96,6 +99,52 @@ fn spans_equal_texel_by_texel_decodes() {
                     m.decode_texel(x0 + i as i64, y, mip, mask, &mut tf).unwrap();
                     assert_eq!(span8[i * n..(i + 1) * n], t8[..n]);
                     assert_eq!(spanf[i * n..(i + 1) * n], tf[..n]);
+                }
+            }
+        }
+    }
+}
+
+/// Long spans, where the first layer starts from the span's sums over the positional encoding
+/// and LOD (`PeriodicSums`): every tabulated period of x (0 to 4 frequencies) and one beyond it
+/// (5), latent features ending mid-pair (odd widths) or not, mip widths that the period does not
+/// divide, wrap and clamp, spans starting outside the mip.
+#[test]
+fn long_spans_equal_texel_by_texel_decodes_for_every_period() {
+    let mut r = Rng::new(80);
+    let layouts = [
+        Layout::Nbc { channels: 5, bits_coarse_to_fine: vec![4, 2] },
+        Layout::Ntc { hi_channels: 3, lo_channels: 3, hi_bits: 4, lo_bits: 3 },
+        Layout::Nbc { channels: 4, bits_coarse_to_fine: vec![8, 4, 2, 1] },
+    ];
+    for frequencies in 0..=5u8 {
+        for (l, layout) in layouts.iter().enumerate() {
+            let cfg = FixtureConfig {
+                layout: layout.clone(),
+                pe_frequencies: frequencies,
+                lod_input: l != 1,
+                address_mode: if l == 2 { AddressMode::Clamp } else { AddressMode::Wrap },
+                ..FixtureConfig::ntc("periodic", 100 + u64::from(frequencies), 72, 20, 3)
+            };
+            let bytes = generate(&cfg).to_bytes().unwrap();
+            let m = Container::parse(&bytes).unwrap();
+            for kernel in kernels() {
+                let d = Decoder::with_kernel(&m, kernel).unwrap();
+                for _ in 0..6 {
+                    let mip = r.range(0, 1) as u32;
+                    let (x0, y, count) = (r.range(-50, 50), r.range(-5, 25), r.range(60, 230));
+                    let count = count as usize;
+                    let mask = random_mask(&mut r, &m);
+                    let n = m.required_len(mask).unwrap();
+                    let mut span = vec![0u8; count * n];
+                    d.decode_span_u8(&m, x0, y, mip, count, mask, &mut span).unwrap();
+                    for i in 0..count {
+                        let mut t = [0u8; 16];
+                        m.decode_texel_u8(x0 + i as i64, y, mip, mask, &mut t).unwrap();
+                        let what =
+                            format!("{kernel:?} K={frequencies} layout {l} x={}", x0 + i as i64);
+                        assert_eq!(span[i * n..(i + 1) * n], t[..n], "{what}");
+                    }
                 }
             }
         }

@@ -109,6 +109,97 @@ fn block<const B: usize, const S: usize>(
     }
 }
 
+/// [`forward`] for a group of `G` texels, with texel `t`'s accumulators starting at `init[t]`
+/// (per row; the bias for a plain layer) and only input pairs `0..pairs` summed: each weight
+/// vector is loaded once and used for every texel (`PackedLayer::forward_scalar_from` for a
+/// group). An `init` shorter than the layer's padded width counts as the bias.
+pub(super) fn forward_group_from<const G: usize>(
+    l: &PackedLayer,
+    x: &[[i16; MAX_WIDTH]; G],
+    init: [&[i32]; G],
+    pairs: usize,
+    y: &mut [[i16; MAX_WIDTH]; G],
+    blocks: u32,
+) {
+    debug_assert!(super::Kernel::Avx2.is_available());
+    let init = init.map(|s| if s.len() >= l.out_pad { s.as_ptr() } else { l.bias.as_ptr() });
+    // SAFETY: as in `forward`; every `init` row holds out_pad entries (checked above).
+    unsafe { forward_group_avx2(l, x, init, pairs.min(l.in_pairs), y, blocks) }
+}
+
+#[target_feature(enable = "avx2")]
+fn forward_group_avx2<const G: usize>(
+    l: &PackedLayer,
+    x: &[[i16; MAX_WIDTH]; G],
+    init: [*const i32; G],
+    pairs: usize,
+    y: &mut [[i16; MAX_WIDTH]; G],
+    blocks: u32,
+) {
+    let count = l.out_pad / 8;
+    let mut b = 0;
+    while b < count {
+        // Two blocks per pass: G·2 accumulators, 2 weight vectors and a broadcast fit the 16
+        // registers.
+        if b + 2 <= count && (blocks >> b) & 3 == 3 {
+            group_block::<G, 2>(l, x, init, pairs, y, b);
+            b += 2;
+        } else {
+            if (blocks >> b) & 1 != 0 {
+                group_block::<G, 1>(l, x, init, pairs, y, b);
+            }
+            b += 1;
+        }
+    }
+}
+
+/// Rows `8·first .. 8·(first + B)` for `G` texels: G·B independent chains.
+#[target_feature(enable = "avx2")]
+fn group_block<const G: usize, const B: usize>(
+    l: &PackedLayer,
+    x: &[[i16; MAX_WIDTH]; G],
+    init: [*const i32; G],
+    pairs: usize,
+    y: &mut [[i16; MAX_WIDTH]; G],
+    first: usize,
+) {
+    // Bounds as in `block`; each `init` row holds out_pad entries and pairs ≤ in_pairs (callers).
+    debug_assert!(8 * (first + B) <= l.out_pad && l.out_pad <= MAX_WIDTH);
+    debug_assert!(2 * l.in_pairs <= MAX_WIDTH && l.weights.len() == l.in_pairs * l.out_pad * 2);
+    debug_assert!(pairs <= l.in_pairs);
+    let mut acc = [[_mm256_setzero_si256(); B]; G];
+    // SAFETY (all pointer accesses below): within the bounds stated above.
+    unsafe {
+        for (texel, start) in acc.iter_mut().zip(init) {
+            let start = start.add(8 * first);
+            for (k, a) in texel.iter_mut().enumerate() {
+                *a = _mm256_loadu_si256(start.add(8 * k).cast());
+            }
+        }
+        let mut row = l.weights.as_ptr().add(16 * first);
+        for p in 0..pairs {
+            let mut w = [_mm256_setzero_si256(); B];
+            for (k, v) in w.iter_mut().enumerate() {
+                *v = _mm256_loadu_si256(row.add(16 * k).cast());
+            }
+            for (texel, inputs) in acc.iter_mut().zip(x) {
+                let both = _mm256_set1_epi32(inputs.as_ptr().cast::<i32>().add(p).read_unaligned());
+                for (a, &w) in texel.iter_mut().zip(&w) {
+                    *a = _mm256_add_epi32(*a, _mm256_madd_epi16(w, both));
+                }
+            }
+            row = row.add(2 * l.out_pad);
+        }
+    }
+    for (texel, out) in acc.into_iter().zip(y.iter_mut()) {
+        for (k, a) in texel.into_iter().enumerate() {
+            let values = requantize(l, a, first + k);
+            // SAFETY: 8·(first + k) + 8 ≤ MAX_WIDTH.
+            unsafe { _mm_storeu_si128(out.as_mut_ptr().add(8 * (first + k)).cast(), values) };
+        }
+    }
+}
+
 /// Requantization, saturation and activation of the 8 accumulators of block `b`, exactly as
 /// `Requant::apply`, `saturate_i16` and `hard_gelu_q`.
 ///

@@ -112,23 +112,30 @@ fn block<const B: usize, const S: usize>(
     }
 }
 
-/// One integer layer for a group of `G` texels: each weight vector is loaded once and used for
-/// every texel of the group (the batched form of [`forward`]; same results texel by texel).
-pub(super) fn forward_group<const G: usize>(
+/// [`forward`] for a group of `G` texels, with texel `t`'s accumulators starting at `init[t]`
+/// (per row; the bias for a plain layer) and only input pairs `0..pairs` summed: each weight
+/// vector is loaded once and used for every texel (`PackedLayer::forward_scalar_from` for a
+/// group). An `init` shorter than the layer's padded width counts as the bias.
+pub(super) fn forward_group_from<const G: usize>(
     l: &PackedLayer,
     x: &[[i16; MAX_WIDTH]; G],
+    init: [&[i32]; G],
+    pairs: usize,
     y: &mut [[i16; MAX_WIDTH]; G],
     blocks: u32,
 ) {
     debug_assert!(super::Kernel::Avx512Vnni.is_available());
-    // SAFETY: as in `forward`.
-    unsafe { forward_group_avx512(l, x, y, blocks) }
+    let init = init.map(|s| if s.len() >= l.out_pad { s.as_ptr() } else { l.bias.as_ptr() });
+    // SAFETY: as in `forward`; every `init` row holds out_pad entries (checked above).
+    unsafe { forward_group_avx512(l, x, init, pairs.min(l.in_pairs), y, blocks) }
 }
 
 #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
 fn forward_group_avx512<const G: usize>(
     l: &PackedLayer,
     x: &[[i16; MAX_WIDTH]; G],
+    init: [*const i32; G],
+    pairs: usize,
     y: &mut [[i16; MAX_WIDTH]; G],
     blocks: u32,
 ) {
@@ -137,14 +144,14 @@ fn forward_group_avx512<const G: usize>(
     let mut b = 0;
     while b < count {
         if b + 4 <= count && (b..b + 4).all(selected) {
-            group_block::<G, 4>(l, x, y, b);
+            group_block::<G, 4>(l, x, init, pairs, y, b);
             b += 4;
         } else if b + 2 <= count && (b..b + 2).all(selected) {
-            group_block::<G, 2>(l, x, y, b);
+            group_block::<G, 2>(l, x, init, pairs, y, b);
             b += 2;
         } else {
             if selected(b) {
-                group_block::<G, 1>(l, x, y, b);
+                group_block::<G, 1>(l, x, init, pairs, y, b);
             }
             b += 1;
         }
@@ -156,23 +163,26 @@ fn forward_group_avx512<const G: usize>(
 fn group_block<const G: usize, const B: usize>(
     l: &PackedLayer,
     x: &[[i16; MAX_WIDTH]; G],
+    init: [*const i32; G],
+    pairs: usize,
     y: &mut [[i16; MAX_WIDTH]; G],
     first: usize,
 ) {
-    // Bounds as in `block`.
+    // Bounds as in `block`; each `init` row holds out_pad entries and pairs ≤ in_pairs (callers).
     debug_assert!(16 * (first + B) <= l.out_pad && l.out_pad <= MAX_WIDTH);
     debug_assert!(2 * l.in_pairs <= MAX_WIDTH && l.weights.len() == l.in_pairs * l.out_pad * 2);
+    debug_assert!(pairs <= l.in_pairs);
     let mut acc = [[_mm512_setzero_si512(); B]; G];
     // SAFETY (all pointer accesses below): within the bounds stated above.
     unsafe {
-        let bias = l.bias.as_ptr().add(16 * first);
-        for texel in acc.iter_mut() {
+        for (texel, start) in acc.iter_mut().zip(init) {
+            let start = start.add(16 * first);
             for (k, a) in texel.iter_mut().enumerate() {
-                *a = _mm512_loadu_si512(bias.add(16 * k).cast());
+                *a = _mm512_loadu_si512(start.add(16 * k).cast());
             }
         }
         let mut row = l.weights.as_ptr().add(32 * first);
-        for p in 0..l.in_pairs {
+        for p in 0..pairs {
             let mut w = [_mm512_setzero_si512(); B];
             for (k, v) in w.iter_mut().enumerate() {
                 *v = _mm512_loadu_si512(row.add(32 * k).cast());

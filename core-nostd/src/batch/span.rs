@@ -265,8 +265,10 @@ pub(super) struct SpanGather<'s, 'a, T> {
 
 /// Frequencies up to which the encoding of x is tabulated: a period of at most 32 texels.
 const X_TABLE_FREQUENCIES: u8 = 4;
+/// The longest tabulated period of the encoding of x, in texels.
+pub(super) const MAX_X_PERIOD: usize = 2 << X_TABLE_FREQUENCIES;
 /// Entries of the table: 2 per frequency per texel of the period.
-const X_TABLE: usize = 2 * X_TABLE_FREQUENCIES as usize * (2 << X_TABLE_FREQUENCIES);
+const X_TABLE: usize = 2 * X_TABLE_FREQUENCIES as usize * MAX_X_PERIOD;
 
 impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
     /// The gather of row `y` of `mip`, keeping its slots in `slots` (emptied first).
@@ -356,9 +358,9 @@ impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
     }
 
     /// The input vector of texel `x` of the span's row into `io` (entries past the input width
-    /// are 0).
+    /// are 0). Returns the addressed x.
     #[inline(always)]
-    pub(super) fn inputs(&mut self, x: i64, io: &mut [T; MAX_WIDTH]) {
+    pub(super) fn inputs(&mut self, x: i64, io: &mut [T; MAX_WIDTH]) -> u32 {
         let (mode, f) = (self.mode, self.input_frac_bits);
         let x = address(x, self.mip_width, mode);
         for slot in self.slots.iter_mut() {
@@ -398,30 +400,63 @@ impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
                 }
             }
         }
-        let pe = template.get_mut(self.pe_first..).unwrap_or(&mut []).chunks_exact_mut(4);
-        if self.x_period > 0 {
-            let per_texel = 2 * usize::from(self.pe_frequencies);
-            let at = (x & (self.x_period - 1)) as usize * per_texel;
-            let row = self.x_table.get(at..at + per_texel).unwrap_or(&[]).chunks_exact(2);
-            for (features, pair) in pe.zip(row) {
-                if let ([x0, x1, _, _], [v0, v1]) = (features, pair) {
-                    (*x0, *x1) = (*v0, *v1);
-                }
-            }
-        } else {
-            for (k, features) in (0..self.pe_frequencies).zip(pe) {
-                if let [x0, x1, _, _] = features {
-                    *x0 = T::from_raw(i64::from(triangle_q(x, k, 0, f)) << RAW_SHIFT, f);
-                    *x1 = T::from_raw(i64::from(triangle_q(x, k, 1, f)) << RAW_SHIFT, f);
-                }
-            }
-        }
+        let pe = template.get_mut(self.pe_first..).unwrap_or(&mut []);
+        write_x_features(&self.x_table, self.x_period, self.pe_frequencies, f, x, pe);
         // The input width rounded up to 32 entries, in chunks of a size known at compile time
         // (copied without a call).
         let (to, _) = io.as_chunks_mut::<32>();
         let (from, _) = template.as_chunks::<32>();
         for (to, from) in to.iter_mut().zip(from).take(self.chunks) {
             *to = *from;
+        }
+        x
+    }
+
+    /// How many leading inputs depend on x other than through its positional encoding (the
+    /// latent features), if the encoding of x repeats with a tabulated period: then the rest of
+    /// the input vector of texel x is [`SpanGather::fixed_inputs`] of `x % period`.
+    pub(super) fn periodic_tail(&self) -> Option<(usize, u32)> {
+        (self.x_period > 0).then_some((self.pe_first, self.x_period))
+    }
+
+    /// The input vector of any texel whose addressed x is `phase` modulo the period, with the
+    /// latent features (the first `periodic_tail().0` entries) set to 0.
+    pub(super) fn fixed_inputs(&self, phase: u32, io: &mut [T; MAX_WIDTH]) {
+        *io = self.template;
+        let (latents, pe) = io.split_at_mut(self.pe_first.min(MAX_WIDTH));
+        latents.fill(T::default());
+        let f = self.input_frac_bits;
+        write_x_features(&self.x_table, self.x_period, self.pe_frequencies, f, phase, pe);
+    }
+}
+
+/// The positional encoding of x into the (x0, x1, y0, y1) groups of `pe`: looked up in the
+/// one-period `table` when `period` > 0, computed otherwise.
+#[inline(always)]
+fn write_x_features<T: Feature>(
+    table: &[T; X_TABLE],
+    period: u32,
+    frequencies: u8,
+    f: u8,
+    x: u32,
+    pe: &mut [T],
+) {
+    let pe = pe.chunks_exact_mut(4);
+    if period > 0 {
+        let per_texel = 2 * usize::from(frequencies);
+        let at = (x & (period - 1)) as usize * per_texel;
+        let row = table.get(at..at + per_texel).unwrap_or(&[]).chunks_exact(2);
+        for (features, pair) in pe.zip(row) {
+            if let ([x0, x1, _, _], [v0, v1]) = (features, pair) {
+                (*x0, *x1) = (*v0, *v1);
+            }
+        }
+    } else {
+        for (k, features) in (0..frequencies).zip(pe) {
+            if let [x0, x1, _, _] = features {
+                *x0 = T::from_raw(i64::from(triangle_q(x, k, 0, f)) << RAW_SHIFT, f);
+                *x1 = T::from_raw(i64::from(triangle_q(x, k, 1, f)) << RAW_SHIFT, f);
+            }
         }
     }
 }
