@@ -201,25 +201,39 @@ impl<T, N: Fn(i32) -> T> Job for SpanJob<'_, '_, T, N> {
     }
 }
 
-/// The requantization constants of each row (multiplier m, shift s: `(acc·m + 2^(s−1)) >> s`)
-/// in the lane orders of the 64-bit SIMD multiplies, which take the even 32-bit lanes:
-/// - `avx2::requantize`, per 8-row block, rows 0, 2, 4, 6, 1, 3, 5, 7: `round` = 2^(s−1),
-///   `shift` = s, `correction` = 2^(63−s);
-/// - `avx512::requantize`, per 16-row block, rows 0, 2, …, 14, 1, 3, …, 15: `wide_multiplier`
-///   = m (as i64; the multiply reads its low half), `wide_round` = 2^(s−1), `wide_shift` = s.
+/// The requantization constants of each row (multiplier m, shift s: `(acc·m + 2^(s−1)) >> s`,
+/// then saturated to i16) for the SIMD kernels, some in the lane orders of their 64-bit
+/// multiplies (which take the even 32-bit lanes).
+///
+/// `avx2::requantize`, per 8-row block, works in 32-bit lanes where it can: the accumulator is
+/// first clamped to `[clamp_lo, clamp_hi]`, the widest range outside which the row saturates
+/// anyway, so the requantized value fits an i32 (see `clamp_range`) and the i16 saturation is
+/// a 32-bit one. The 64-bit product plus `round` = 2^(s−1) (lane order rows 0, 2, 4, 6, 1, 3,
+/// 5, 7; `odd_multiplier` holds row 2i + 1's m at entry 2i) is shifted left by `lift` =
+/// max(0, 32 − s) (exact: the value fits an i32, so the shifted one fits an i64), its high
+/// half taken, and that shifted right by `post_shift` = max(0, s − 32) (row order).
+///
+/// `avx512::requantize`, per 16-row block, rows 0, 2, …, 14, 1, 3, …, 15: `wide_multiplier`
+/// = m (as i64; the multiply reads its low half), `wide_round` = 2^(s−1), `wide_shift` = s.
 #[derive(Clone, Debug)]
 #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 struct Lanes {
+    clamp_lo: Vec<i32>,
+    clamp_hi: Vec<i32>,
+    odd_multiplier: Vec<i32>,
     round: Vec<i64>,
-    shift: Vec<u64>,
-    correction: Vec<i64>,
+    lift: Vec<u64>,
+    /// Whether any `lift` is non-zero (else the left shift is skipped).
+    lifted: bool,
+    post_shift: Vec<u32>,
     wide_multiplier: Vec<i64>,
     wide_round: Vec<i64>,
     wide_shift: Vec<u64>,
 }
 
 impl Lanes {
-    /// From per-row multipliers and shifts (equal lengths, a multiple of 16; shifts in 1..=62).
+    /// From per-row multipliers and shifts (equal lengths, a multiple of 16; multipliers in
+    /// [2^30, 2^31) or 0, shifts in 1..=62, as `Requant` guarantees).
     fn new(multiplier: &[i32], shift: &[u32]) -> Lanes {
         let rows = multiplier.len().min(shift.len());
         let pick = |o: usize| {
@@ -235,15 +249,57 @@ impl Lanes {
         };
         let narrow: Vec<u32> = order(8).map(|o| pick(o).1).collect();
         let wide: Vec<(i64, u32)> = order(16).map(pick).collect();
+        let (clamp_lo, clamp_hi) = (0..rows).map(|o| clamp_range(pick(o).0, pick(o).1)).unzip();
+        let lift: Vec<u64> = narrow.iter().map(|&s| u64::from(32u32.saturating_sub(s))).collect();
         Lanes {
+            clamp_lo,
+            clamp_hi,
+            odd_multiplier: (0..rows)
+                .map(|o| if o % 2 == 0 { pick(o + 1).0 as i32 } else { 0 })
+                .collect(),
             round: narrow.iter().map(|&s| 1i64 << (s - 1)).collect(),
-            shift: narrow.iter().map(|&s| u64::from(s)).collect(),
-            correction: narrow.iter().map(|&s| 1i64 << (63 - s)).collect(),
+            lifted: lift.iter().any(|&u| u != 0),
+            lift,
+            post_shift: (0..rows).map(|o| pick(o).1.saturating_sub(32)).collect(),
             wide_multiplier: wide.iter().map(|&(m, _)| m).collect(),
             wide_round: wide.iter().map(|&(_, s)| 1i64 << (s - 1)).collect(),
             wide_shift: wide.iter().map(|&(_, s)| u64::from(s)).collect(),
         }
     }
+}
+
+/// For a row with multiplier `m` (≥ 0) and shift `s`: the accumulators `[lo, hi]` such that
+/// clamping an accumulator to them leaves its saturated requantized value unchanged — `hi` is
+/// the least accumulator whose value saturates at the top (i32::MAX if none does), `lo` the
+/// greatest one saturating at the bottom. The value is non-decreasing in the accumulator and
+/// grows by at most ⌈m / 2^s⌉ ≤ 2^30 per step, so over `[lo, hi]` it stays within
+/// (−2^31, 2^31).
+fn clamp_range(m: i64, s: u32) -> (i32, i32) {
+    let value = |acc: i32| (i64::from(acc) * m + (1i64 << (s - 1))) >> s;
+    let top = i64::from(i16::MAX);
+    let bottom = i64::from(i16::MIN);
+    let hi = if value(i32::MAX) < top {
+        i32::MAX
+    } else {
+        // The least acc with value(acc) ≥ top, by bisection of the monotone value.
+        let (mut below, mut at) = (i64::from(i32::MIN) - 1, i64::from(i32::MAX));
+        while at - below > 1 {
+            let mid = below + (at - below) / 2;
+            if value(mid as i32) >= top { at = mid } else { below = mid }
+        }
+        at as i32
+    };
+    let lo = if value(i32::MIN) > bottom {
+        i32::MIN
+    } else {
+        let (mut at, mut above) = (i64::from(i32::MIN), i64::from(i32::MAX) + 1);
+        while above - at > 1 {
+            let mid = at + (above - at) / 2;
+            if value(mid as i32) <= bottom { at = mid } else { above = mid }
+        }
+        at as i32
+    };
+    (lo, hi)
 }
 
 /// One layer in the prepared layout. Invariants (established by [`PackedLayer::new`], relied on

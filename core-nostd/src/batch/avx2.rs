@@ -201,45 +201,51 @@ fn group_block<const G: usize, const B: usize>(
 }
 
 /// Requantization, saturation and activation of the 8 accumulators of block `b`, exactly as
-/// `Requant::apply`, `saturate_i16` and `hard_gelu_q`.
-///
-/// `(acc·m + 2^(s−1)) >> s` needs a 64-bit arithmetic shift by a per-row amount, which AVX2
-/// lacks; with |acc·m + 2^(s−1)| < 2^63, adding 2^63 (flipping the top bit) makes the value
-/// non-negative as an unsigned number, a logical shift then floors it, and subtracting
-/// 2^(63−s) removes the added part exactly (2^63 is a multiple of 2^s).
+/// `Requant::apply`, `saturate_i16` and `hard_gelu_q`, mostly in 32-bit lanes (the constants
+/// and why each step is exact: `Lanes`). AVX2 has no 64-bit arithmetic shift; here the only
+/// 64-bit steps are the multiply, the rounding add and the left shift, and the high halves hold
+/// the result.
 #[target_feature(enable = "avx2")]
 fn requantize(l: &PackedLayer, acc: __m256i, b: usize) -> __m128i {
-    debug_assert!(l.lanes.round.len() >= 8 * b + 8 && l.multiplier.len() >= 8 * b + 8);
+    let lanes = &l.lanes;
+    debug_assert!(lanes.round.len() >= 8 * b + 8 && lanes.lift.len() >= 8 * b + 8);
+    debug_assert!(lanes.clamp_lo.len() >= 8 * b + 8 && lanes.clamp_hi.len() >= 8 * b + 8);
+    debug_assert!(lanes.odd_multiplier.len() >= 8 * b + 8 && l.multiplier.len() >= 8 * b + 8);
+    debug_assert!(lanes.post_shift.len() >= 8 * b + 8);
     // SAFETY: every per-row vector holds out_pad ≥ 8·b + 8 entries.
-    let (m, round, shift, correction) = unsafe {
-        let lanes =
-            |v: *const i64| (_mm256_loadu_si256(v.cast()), _mm256_loadu_si256(v.add(4).cast()));
-        (
-            _mm256_loadu_si256(l.multiplier.as_ptr().add(8 * b).cast()),
-            lanes(l.lanes.round.as_ptr().add(8 * b)),
-            lanes(l.lanes.shift.as_ptr().add(8 * b).cast()),
-            lanes(l.lanes.correction.as_ptr().add(8 * b)),
-        )
+    let row = |v: *const i32| unsafe { _mm256_loadu_si256(v.add(8 * b).cast()) };
+    let wide = |v: *const i64| unsafe {
+        let v = v.add(8 * b);
+        (_mm256_loadu_si256(v.cast()), _mm256_loadu_si256(v.add(4).cast()))
     };
-    let even = _mm256_mul_epi32(acc, m);
-    let odd = _mm256_mul_epi32(_mm256_srli_epi64::<32>(acc), _mm256_srli_epi64::<32>(m));
-    let top = _mm256_set1_epi64x(i64::MIN);
-    let (hi, lo) =
-        (_mm256_set1_epi64x(i64::from(i16::MAX)), _mm256_set1_epi64x(i64::from(i16::MIN)));
-    let finish = |p: __m256i, round: __m256i, shift: __m256i, correction: __m256i| {
-        let biased = _mm256_xor_si256(_mm256_add_epi64(p, round), top);
-        let v = _mm256_sub_epi64(_mm256_srlv_epi64(biased, shift), correction);
-        let v = _mm256_blendv_epi8(v, hi, _mm256_cmpgt_epi64(v, hi));
-        _mm256_blendv_epi8(v, lo, _mm256_cmpgt_epi64(lo, v))
-    };
-    let even = finish(even, round.0, shift.0, correction.0);
-    let odd = finish(odd, round.1, shift.1, correction.1);
-    let mut z = _mm256_blend_epi32::<0b1010_1010>(even, _mm256_slli_epi64::<32>(odd));
-    if l.activation == crate::mlp::Activation::HardGelu {
-        z = hard_gelu(z, u32::from(l.out_frac_bits.clamp(1, 14)));
+    let acc = _mm256_min_epi32(
+        _mm256_max_epi32(acc, row(lanes.clamp_lo.as_ptr())),
+        row(lanes.clamp_hi.as_ptr()),
+    );
+    let round = wide(lanes.round.as_ptr());
+    let mut even = _mm256_add_epi64(_mm256_mul_epi32(acc, row(l.multiplier.as_ptr())), round.0);
+    let odd_acc = _mm256_srli_epi64::<32>(acc);
+    let mut odd =
+        _mm256_add_epi64(_mm256_mul_epi32(odd_acc, row(lanes.odd_multiplier.as_ptr())), round.1);
+    if lanes.lifted {
+        let lift = wide(lanes.lift.as_ptr().cast());
+        even = _mm256_sllv_epi64(even, lift.0);
+        odd = _mm256_sllv_epi64(odd, lift.1);
     }
-    // Every value is in i16 range, so the saturating pack is exact; it interleaves 128-bit
-    // halves, and the permute puts rows 0–3 and 4–7 back together.
+    // The high halves: row 2i's from `even` moved down, row 2i + 1's in place.
+    let high = _mm256_blend_epi32::<0b1010_1010>(_mm256_srli_epi64::<32>(even), odd);
+    let v = _mm256_srav_epi32(high, row(lanes.post_shift.as_ptr().cast()));
+    let z = if l.activation == crate::mlp::Activation::HardGelu {
+        let v = _mm256_min_epi32(
+            _mm256_max_epi32(v, _mm256_set1_epi32(i32::from(i16::MIN))),
+            _mm256_set1_epi32(i32::from(i16::MAX)),
+        );
+        hard_gelu(v, u32::from(l.out_frac_bits.clamp(1, 14)))
+    } else {
+        v
+    };
+    // The saturating pack is the i16 saturation (a no-op after hardGELU); it interleaves
+    // 128-bit halves, and the permute puts rows 0–3 and 4–7 back together.
     let packed = _mm256_packs_epi32(z, z);
     _mm256_castsi256_si128(_mm256_permute4x64_epi64::<0b00_00_10_00>(packed))
 }
