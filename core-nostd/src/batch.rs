@@ -201,6 +201,26 @@ impl<T, N: Fn(i32) -> T> Job for SpanJob<'_, '_, T, N> {
     }
 }
 
+/// The arguments of [`Decoder::texel_codes`].
+struct TexelJob<'j, 'a, T, N> {
+    decoder: &'j Decoder,
+    material: &'j Material<'a>,
+    at: (i64, i64, u32),
+    rows: u16,
+    out: &'j mut [T],
+    full_scale: i32,
+    narrow: N,
+}
+
+impl<T, N: Fn(i32) -> T> Job for TexelJob<'_, '_, T, N> {
+    type Output = usize;
+    #[inline(always)]
+    fn run(self) -> usize {
+        let TexelJob { decoder, material, at, rows, out, full_scale, narrow } = self;
+        decoder.texel_codes_here(material, at, rows, out, full_scale, narrow)
+    }
+}
+
 /// The requantization constants of each row (multiplier m, shift s: `(acc·m + 2^(s−1)) >> s`,
 /// then saturated to i16) for the SIMD kernels, some in the lane orders of their 64-bit
 /// multiplies (which take the even 32-bit lanes).
@@ -565,10 +585,10 @@ impl Decoder {
         }
     }
 
-    /// [`Decoder::forward_int`] for the first `count` texels of a group, batched when the
-    /// kernel has a group form. With `periodic`, the first layer starts from the span's sums
-    /// over the periodic inputs of each texel's addressed x (the whole group is computed then;
-    /// texels from `count` on are ignored).
+    /// [`Decoder::forward_int`] for the first `count` texels of a group, batched (each weight
+    /// loaded once for the group) by the SIMD kernels. With `periodic`, the first layer starts
+    /// from the span's sums over the periodic inputs of each texel's addressed x; the SIMD
+    /// kernels then compute the whole group (texels from `count` on are ignored).
     fn forward_int_group(
         &self,
         xs: &mut [[i16; MAX_WIDTH]; GROUP],
@@ -576,45 +596,51 @@ impl Decoder {
         rows: u16,
         periodic: Option<(&PeriodicSums<'_>, &[u32; GROUP])>,
     ) {
-        #[cfg(target_arch = "x86_64")]
-        if self.kernel != Kernel::Scalar && (count == GROUP || periodic.is_some()) {
-            let mut spare = [[0i16; MAX_WIDTH]; GROUP];
-            let (mut from, mut to) = (&mut *xs, &mut spare);
-            let layers = self.layers.len();
-            for (li, layer) in self.layers.iter().enumerate() {
-                let blocks = layer.blocks(li + 1 == layers, rows);
-                let (init, pairs) = match periodic.filter(|_| li == 0) {
-                    Some((sums, at)) => (at.map(|x| sums.at(x)), sums.pairs),
-                    None => ([layer.bias.as_slice(); GROUP], layer.in_pairs),
-                };
-                match self.kernel {
-                    Kernel::Avx2 => avx2::forward_group_from(layer, from, init, pairs, to, blocks),
-                    _ => avx512::forward_group_from(layer, from, init, pairs, to, blocks),
-                }
-                core::mem::swap(&mut from, &mut to);
-            }
-            if layers % 2 == 1 {
-                *xs = spare;
+        if count < GROUP && periodic.is_none() {
+            for x in xs.iter_mut().take(count) {
+                self.forward_int(x, rows);
             }
             return;
         }
-        for x in xs.iter_mut().take(count) {
-            self.forward_int(x, rows);
+        let mut spare = [[0i16; MAX_WIDTH]; GROUP];
+        let (mut from, mut to) = (&mut *xs, &mut spare);
+        let layers = self.layers.len();
+        for (li, layer) in self.layers.iter().enumerate() {
+            let blocks = layer.blocks(li + 1 == layers, rows);
+            let (init, pairs) = match periodic.filter(|_| li == 0) {
+                Some((sums, at)) => (at.map(|x| sums.at(x)), sums.pairs),
+                None => ([layer.bias.as_slice(); GROUP], layer.in_pairs),
+            };
+            match self.kernel {
+                #[cfg(target_arch = "x86_64")]
+                Kernel::Avx2 => avx2::forward_group_from(layer, from, init, pairs, to, blocks),
+                #[cfg(target_arch = "x86_64")]
+                Kernel::Avx512Vnni => {
+                    avx512::forward_group_from(layer, from, init, pairs, to, blocks)
+                }
+                _ => {
+                    let texels = from.iter().zip(to.iter_mut()).zip(init).take(count);
+                    for ((x, y), init) in texels {
+                        layer.forward_scalar_from(x, init, pairs, y, blocks);
+                    }
+                }
+            }
+            core::mem::swap(&mut from, &mut to);
+        }
+        if layers % 2 == 1 {
+            *xs = spare;
         }
     }
 
     /// The first layer's sums over the inputs of `gather` that repeat along the row (positional
-    /// encoding, LOD), one row of `table` per texel of the period — when the kernel has a group
-    /// form, the inputs have such a tail, and the span is long enough to repay the table.
+    /// encoding, LOD), one row of `table` per texel of the period — when the inputs have such a
+    /// tail and the span is long enough to repay the table.
     fn periodic_sums<'t>(
         &self,
         gather: &SpanGather<'_, '_, i16>,
         count: usize,
         table: &'t mut [[i32; MAX_WIDTH]; MAX_X_PERIOD],
     ) -> Option<PeriodicSums<'t>> {
-        if self.kernel == Kernel::Scalar || cfg!(not(target_arch = "x86_64")) {
-            return None;
-        }
         let (latents, period) = gather.periodic_tail()?;
         let layer = self.layers.first()?;
         // Per texel: the pairs holding a latent feature (one may hold x's first feature too).
@@ -856,8 +882,31 @@ impl Decoder {
         Ok((rows, n))
     }
 
+    /// The integer codes of one texel into `out`, all of it (the gather too) compiled for the
+    /// kernel's instruction set. Returns how many values were written.
     #[allow(clippy::too_many_arguments)]
     fn texel_codes<T>(
+        &self,
+        material: &Material<'_>,
+        at: (i64, i64, u32),
+        rows: u16,
+        out: &mut [T],
+        full_scale: i32,
+        narrow: impl Fn(i32) -> T,
+    ) -> usize {
+        let job = TexelJob { decoder: self, material, at, rows, out, full_scale, narrow };
+        match self.kernel {
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx2 => avx2::with_avx2(job),
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx512Vnni => avx512::with_avx512(job),
+            _ => job.run(),
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn texel_codes_here<T>(
         &self,
         material: &Material<'_>,
         (x, y, mip): (i64, i64, u32),
@@ -923,7 +972,11 @@ mod tests {
             Kernel::Avx2 => avx2::forward_group_from(l, xs, init, pairs, ys, blocks),
             #[cfg(target_arch = "x86_64")]
             Kernel::Avx512Vnni => avx512::forward_group_from(l, xs, init, pairs, ys, blocks),
-            _ => unreachable!("no group form"),
+            _ => {
+                for ((x, y), init) in xs.iter().zip(ys.iter_mut()).zip(init) {
+                    l.forward_scalar_from(x, init, pairs, y, blocks);
+                }
+            }
         }
     }
 

@@ -331,6 +331,7 @@ impl<T: Feature> Inputs<'_, T> {
 /// The bilinear sample of texel (x, y) (addressed) on `grid`, per channel, in units of 2^-(16+f):
 /// the footprint's 4 cells weighted by products of 1/256 fractions (§6.2). Exact: weights in
 /// 1/65536 summing to 65536 and values i16 keep each sum in [−2^31, 2^31 − 2^16].
+#[inline(always)]
 fn bilinear(
     grid: &LatentGrid<'_>,
     x: u32,
