@@ -671,13 +671,7 @@ impl Decoder {
         narrow: impl Fn(i32) -> T,
     ) {
         let job = SpanJob { decoder: self, material, at, count, rows, out, full_scale, narrow };
-        match self.kernel {
-            #[cfg(target_arch = "x86_64")]
-            Kernel::Avx2 => avx2::with_avx2(job),
-            #[cfg(target_arch = "x86_64")]
-            Kernel::Avx512Vnni => avx512::with_avx512(job),
-            _ => job.run(),
-        }
+        self.run_compiled(job);
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -895,6 +889,11 @@ impl Decoder {
         narrow: impl Fn(i32) -> T,
     ) -> usize {
         let job = TexelJob { decoder: self, material, at, rows, out, full_scale, narrow };
+        self.run_compiled(job)
+    }
+
+    /// Runs `job` in code compiled for the kernel's instruction set.
+    fn run_compiled<J: Job>(&self, job: J) -> J::Output {
         match self.kernel {
             #[cfg(target_arch = "x86_64")]
             Kernel::Avx2 => avx2::with_avx2(job),
