@@ -633,13 +633,13 @@ impl Decoder {
     }
 
     /// The first layer's sums over the inputs of `gather` that repeat along the row (positional
-    /// encoding, LOD), one row of `table` per texel of the period — when the inputs have such a
-    /// tail and the span is long enough to repay the table.
+    /// encoding, LOD), one row per texel of the period, kept in `room` — when the inputs have
+    /// such a tail and the span is long enough to repay the table.
     fn periodic_sums<'t>(
         &self,
         gather: &SpanGather<'_, '_, i16>,
         count: usize,
-        table: &'t mut [[i32; MAX_WIDTH]; MAX_X_PERIOD],
+        room: &'t mut Option<[[i32; MAX_WIDTH]; MAX_X_PERIOD]>,
     ) -> Option<PeriodicSums<'t>> {
         let (latents, period) = gather.periodic_tail()?;
         let layer = self.layers.first()?;
@@ -649,6 +649,7 @@ impl Decoder {
         if pairs >= layer.in_pairs || count < 2 * period as usize {
             return None;
         }
+        let table = room.insert([[0; MAX_WIDTH]; MAX_X_PERIOD]);
         let mut x = [0i16; MAX_WIDTH];
         for (phase, sums) in (0..period).zip(table.iter_mut()) {
             gather.fixed_inputs(phase, &mut x);
@@ -691,7 +692,8 @@ impl Decoder {
         let f = material.last_frac_bits();
         // Rows 0..n: the outputs are the first n values.
         let first_rows = rows & rows.wrapping_add(1) == 0;
-        let mut table = [[0i32; MAX_WIDTH]; MAX_X_PERIOD];
+        // Room for the table, filled (and zeroed first) only if the span uses it.
+        let mut table = None;
         let periodic = self.periodic_sums(&gather, count, &mut table);
         let mut xs = [[0i16; MAX_WIDTH]; GROUP];
         let mut at = [0u32; GROUP];
