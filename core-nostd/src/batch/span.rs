@@ -14,6 +14,10 @@
 //! integer; intermediate wrapping cancels, as the sum lies in the i32 range the definition
 //! states). Chain sums are split into `Σ (v >> 16)` and `Σ (v & 0xFFFF)`, both within i32.
 //!
+//! Everything past the latent features (the positional encoding and the LOD) repeats along the
+//! row with the period of the encoding of x; `periodic_tail` and `fixed_inputs` let the decoder
+//! fold that part into the first layer's sums once per span (`PeriodicSums` in `batch.rs`).
+//!
 //! [`Decoder`]: super::Decoder
 
 use crate::decode::{Feature, RAW_SHIFT};
