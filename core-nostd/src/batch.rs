@@ -229,7 +229,7 @@ impl<T, N: Fn(i32) -> T> Job for TexelJob<'_, '_, T, N> {
 /// first clamped to `[clamp_lo, clamp_hi]`, the widest range outside which the row saturates
 /// anyway, so the requantized value fits an i32 (see `clamp_range`) and the i16 saturation is
 /// a 32-bit one. The 64-bit product plus `round` = 2^(s−1) (lane order rows 0, 2, 4, 6, 1, 3,
-/// 5, 7; `odd_multiplier` holds row 2i + 1's m at entry 2i) is shifted left by `lift` =
+/// 5, 7) is shifted left by `lift` =
 /// max(0, 32 − s) (exact: the value fits an i32, so the shifted one fits an i64), its high
 /// half taken, and that shifted right by `post_shift` = max(0, s − 32) (row order).
 ///
@@ -240,7 +240,6 @@ impl<T, N: Fn(i32) -> T> Job for TexelJob<'_, '_, T, N> {
 struct Lanes {
     clamp_lo: Vec<i32>,
     clamp_hi: Vec<i32>,
-    odd_multiplier: Vec<i32>,
     round: Vec<i64>,
     lift: Vec<u64>,
     /// Whether any `lift` is non-zero (else the left shift is skipped).
@@ -274,9 +273,6 @@ impl Lanes {
         Lanes {
             clamp_lo,
             clamp_hi,
-            odd_multiplier: (0..rows)
-                .map(|o| if o % 2 == 0 { pick(o + 1).0 as i32 } else { 0 })
-                .collect(),
             round: narrow.iter().map(|&s| 1i64 << (s - 1)).collect(),
             lifted: lift.iter().any(|&u| u != 0),
             lift,

@@ -210,8 +210,7 @@ fn requantize(l: &PackedLayer, acc: __m256i, b: usize) -> __m128i {
     let lanes = &l.lanes;
     debug_assert!(lanes.round.len() >= 8 * b + 8 && lanes.lift.len() >= 8 * b + 8);
     debug_assert!(lanes.clamp_lo.len() >= 8 * b + 8 && lanes.clamp_hi.len() >= 8 * b + 8);
-    debug_assert!(lanes.odd_multiplier.len() >= 8 * b + 8 && l.multiplier.len() >= 8 * b + 8);
-    debug_assert!(lanes.post_shift.len() >= 8 * b + 8);
+    debug_assert!(lanes.post_shift.len() >= 8 * b + 8 && l.multiplier.len() >= 8 * b + 8);
     // SAFETY: every per-row vector holds out_pad ≥ 8·b + 8 entries.
     let row = |v: *const i32| unsafe { _mm256_loadu_si256(v.add(8 * b).cast()) };
     let wide = |v: *const i64| unsafe {
@@ -223,10 +222,11 @@ fn requantize(l: &PackedLayer, acc: __m256i, b: usize) -> __m128i {
         row(lanes.clamp_hi.as_ptr()),
     );
     let round = wide(lanes.round.as_ptr());
-    let mut even = _mm256_add_epi64(_mm256_mul_epi32(acc, row(l.multiplier.as_ptr())), round.0);
-    let odd_acc = _mm256_srli_epi64::<32>(acc);
-    let mut odd =
-        _mm256_add_epi64(_mm256_mul_epi32(odd_acc, row(lanes.odd_multiplier.as_ptr())), round.1);
+    // The multiply reads the even 32-bit lanes: rows 2i as they are, rows 2i + 1 shifted down.
+    let m = row(l.multiplier.as_ptr());
+    let mut even = _mm256_add_epi64(_mm256_mul_epi32(acc, m), round.0);
+    let (odd_acc, odd_m) = (_mm256_srli_epi64::<32>(acc), _mm256_srli_epi64::<32>(m));
+    let mut odd = _mm256_add_epi64(_mm256_mul_epi32(odd_acc, odd_m), round.1);
     if lanes.lifted {
         let lift = wide(lanes.lift.as_ptr().cast());
         even = _mm256_sllv_epi64(even, lift.0);
