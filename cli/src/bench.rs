@@ -384,7 +384,7 @@ fn region_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>, notes: &
         let _ = m.decode_texel_u8(x, y, 0, ChannelMask::ALL, out);
     });
     push(format!("integer per-texel definition (Material), all {c} ch"), secs, c, &units, &all);
-    // Float: prepared f32 weights vs f16 weights widened at every use.
+    // Float: prepared f32 weights vs int8 weights dequantized at every use.
     let mut floats = vec![0f32; setup.texels() * c];
     let secs = time(runs, || {
         for (y, row) in floats.chunks_exact_mut(w as usize * c).enumerate() {
@@ -402,7 +402,13 @@ fn region_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>, notes: &
     });
     let units: Vec<f32> =
         floats.iter().enumerate().map(|(i, &v)| unit_from_range(m, i % c, v)).collect();
-    push(format!("float, f16 weights (Material) per texel, all {c} ch"), secs, c, &units, &all);
+    push(
+        format!("float, dequantized at use (Material) per texel, all {c} ch"),
+        secs,
+        c,
+        &units,
+        &all,
+    );
 }
 
 /// A permutation of 0..n that jumps around (multiplicative stride coprime with n).

@@ -117,6 +117,9 @@ struct EncodeArgs {
     /// Texture addressing at the edges.
     #[arg(long, value_enum, default_value = "wrap")]
     address: Address,
+    /// Solve the layout and print the file's byte budget without training; writes nothing.
+    #[arg(long, conflicts_with = "target_psnr")]
+    dry_run: bool,
     #[command(flatten)]
     train: TrainArgs,
 }
@@ -268,8 +271,15 @@ fn cmd_encode(args: EncodeArgs) -> Result<()> {
             }
             (None, None) => profile_named(nmat_encode::DEFAULT_PROFILE)?,
         };
+        if args.dry_run {
+            print!("{}", plan(&set, profile));
+            return Ok(());
+        }
         encode_with_progress(&set, &EncodeOptions { profile, train, address_mode })?
     };
+    if let Some(note) = rate_note(&encoded) {
+        eprintln!("{note}");
+    }
     output::write_atomic(&args.output, &encoded.bytes)?;
     println!(
         "wrote {} ({} bytes) in {:.1} s",
@@ -279,6 +289,59 @@ fn cmd_encode(args: EncodeArgs) -> Result<()> {
     );
     print!("{}", output::quality_table(&set, &encoded.quality, Some(encoded.config.profile)));
     Ok(())
+}
+
+/// What `encode --dry-run` prints: the solved layout of `profile` for `set` and its byte budget.
+fn plan(set: &TextureSet, profile: Profile) -> String {
+    let shape = nmat_encode::shape_of(set);
+    let cfg = nmat_encode::configure(profile, &shape);
+    let budget = cfg.byte_budget(&shape);
+    let texel_channels = f64::from(set.width) * f64::from(set.height) * set.channel_count() as f64;
+    let mut s = format!(
+        "{}: {}×{}, {} channels ({} learned), nominal {} BPPC, this file {:.4} BPPC ({:+.1} %)\n",
+        profile.name(),
+        set.width,
+        set.height,
+        set.channel_count(),
+        shape.learned,
+        profile.bppc(),
+        budget.total() as f64 * 8.0 / texel_channels,
+        100.0 * (budget.total() as f64 * 8.0 / shape.budget_bits(profile.bppc()) - 1.0)
+    );
+    s.push_str(&format!(
+        "network {} → {:?} → {}\n",
+        cfg.input_width(),
+        cfg.hidden,
+        set.channel_count()
+    ));
+    for (i, g) in cfg.grids.iter().enumerate() {
+        s.push_str(&format!(
+            "  grid {i:2} {:5}×{:<5} {:2} channels × {} bits  {:8} bytes\n",
+            g.width,
+            g.height,
+            g.channels,
+            g.bits,
+            4 * g.bits().div_ceil(32)
+        ));
+    }
+    s.push_str(&output::budget_table(&budget, texel_channels));
+    s
+}
+
+/// A note when a material is too small for its profile's rate (the network and headers alone
+/// exceed it), so the file lands more than 5 % away from the nominal rate.
+fn rate_note(e: &Encoded) -> Option<String> {
+    let nominal = Profile::by_name(e.config.profile)?.bppc();
+    let off = e.quality.bppc / nominal - 1.0;
+    (off.abs() > 0.05).then(|| {
+        format!(
+            "note: {} BPPC is {:+.0} % from {}'s nominal {nominal}: the material is too small for \
+             that rate (its smallest network and grids are the file)",
+            format_args!("{:.3}", e.quality.bppc),
+            100.0 * off,
+            e.config.profile
+        )
+    })
 }
 
 /// Encodes with profiles from the smallest rate up until the whole-chain PSNR reaches `target`.

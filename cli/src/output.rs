@@ -1,10 +1,10 @@
 //! What the CLI prints and writes: descriptions, quality tables, decoded maps, atomic files.
 
-use nmat_core::{ChannelMask, Decoder, Material};
-use nmat_encode::TextureSet;
+use nmat_core::{ChannelMask, Decoder, Material, SectionKind};
 use nmat_encode::metrics::{ChainQuality, unit_of};
 use nmat_encode::source_maps;
 use nmat_encode::texset::{FileLayout, Role, SourceMap};
+use nmat_encode::{ByteBudget, TextureSet};
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -215,8 +215,9 @@ pub fn describe(path: &Path, m: &Material<'_>) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "{}: .nmat format 1.{}, {} bytes",
+        "{}: .nmat format {}.{}, {} bytes",
         path.display(),
+        m.version_major(),
         m.version_minor(),
         m.file_len()
     );
@@ -260,9 +261,7 @@ pub fn describe(path: &Path, m: &Material<'_>) -> String {
         }
     }
     let _ = writeln!(s, "\nlatent grids:");
-    let mut latent_bytes = 0;
     for (i, g) in m.grids().iter().enumerate() {
-        latent_bytes += g.packed_data().len();
         let _ = writeln!(
             s,
             "  {i:2} {:5}×{:<5} {:2} channels × {} bits  {:8} bytes",
@@ -283,8 +282,6 @@ pub fn describe(path: &Path, m: &Material<'_>) -> String {
         let _ = writeln!(s, "  level {l} (mips {}): {}", mips.join(","), terms.join(" + "));
     }
     let mlp = m.mlp();
-    let weight_bytes: usize =
-        mlp.layers().iter().map(|l| l.inputs() * l.outputs() * 3 + l.outputs() * 12).sum();
     let shape: Vec<String> =
         mlp.layers().iter().map(|l| format!("{}→{}", l.inputs(), l.outputs())).collect();
     let _ = writeln!(
@@ -296,11 +293,50 @@ pub fn describe(path: &Path, m: &Material<'_>) -> String {
         mlp.pe_frequencies(),
         mlp.lod_input()
     );
-    let _ = writeln!(
-        s,
-        "bytes: latents {latent_bytes}, weights {weight_bytes}, other {}",
-        m.file_len().saturating_sub(latent_bytes + weight_bytes)
-    );
+    s.push_str(&budget_table(&file_budget(m), texel_channels(m)));
+    s
+}
+
+pub fn texel_channels(m: &Material<'_>) -> f64 {
+    f64::from(m.width()) * f64::from(m.height()) * m.channel_count() as f64
+}
+
+/// Where the bytes of a parsed file go, by section (header = header, section table, padding).
+pub fn file_budget(m: &Material<'_>) -> ByteBudget {
+    let len = |k| m.section_len(k).unwrap_or(0);
+    let optional: usize = m.optional_sections().iter().map(|(_, d)| d.len()).sum();
+    let b = ByteBudget {
+        header: 0,
+        material: len(SectionKind::MATERIAL),
+        levels: len(SectionKind::LEVELS),
+        network: len(SectionKind::MLP),
+        latents: len(SectionKind::LATENTS),
+        optional,
+    };
+    ByteBudget { header: m.file_len().saturating_sub(b.total()), ..b }
+}
+
+/// The byte budget as `info` and `encode --dry-run` print it: bytes, share of the file and bits
+/// per pixel per channel of each part (`texel_channels` = width · height · channels of mip 0).
+pub fn budget_table(b: &ByteBudget, texel_channels: f64) -> String {
+    let total = b.total().max(1);
+    let mut s = String::from("\nbyte budget:\n");
+    for (name, bytes) in [
+        ("latents", b.latents),
+        ("network (int8 weights, row scales, biases)", b.network),
+        ("grid and level records", b.levels),
+        ("channel records", b.material),
+        ("header and section table", b.header),
+        ("source maps", b.optional),
+        ("file", b.total()),
+    ] {
+        let _ = writeln!(
+            s,
+            "  {name:44} {bytes:9} bytes  {:5.1} %  {:.4} BPPC",
+            100.0 * bytes as f64 / total as f64,
+            bytes as f64 * 8.0 / texel_channels.max(1.0)
+        );
+    }
     s
 }
 

@@ -127,6 +127,72 @@ fn encode_info_decode_eval_round_trip() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// Issue 13, point 1: channels by content. Gray maps of colour roles (albedo, normal, specular,
+/// emissive; 8- and 16-bit; with and without alpha) are one channel each and come back in their
+/// own layout; a map that is gray except for one component of one texel stays RGB.
+#[test]
+fn gray_maps_of_any_role_are_one_channel_and_come_back_in_their_layout() {
+    let dir = temp_dir("gray");
+    let src = dir.join("src");
+    std::fs::create_dir_all(&src).unwrap();
+    let n = 32u32;
+    let v = |x: u32, y: u32| ((x * 7 + y * 3) % 256) as u8;
+    image::RgbImage::from_fn(n, n, |x, y| image::Rgb([v(x, y); 3]))
+        .save(src.join("m_albedo.png"))
+        .unwrap();
+    image::RgbImage::from_fn(n, n, |x, y| image::Rgb([v(y, x); 3]))
+        .save(src.join("m_normal.png"))
+        .unwrap();
+    // Gray with a varying alpha: two channels (gray, alpha).
+    image::RgbaImage::from_fn(n, n, |x, y| {
+        image::Rgba([v(x + 5, y), v(x + 5, y), v(x + 5, y), 40 + x as u8])
+    })
+    .save(src.join("m_specular.png"))
+    .unwrap();
+    // 16-bit gray RGB.
+    image::ImageBuffer::<image::Rgb<u16>, _>::from_fn(n, n, |x, y| {
+        image::Rgb([(x * 2000 + y * 13) as u16; 3])
+    })
+    .save(src.join("m_emissive.png"))
+    .unwrap();
+    // Gray but for one blue component: stays RGB (no lossy guess).
+    image::RgbImage::from_fn(n, n, |x, y| {
+        let g = v(x, y + 1);
+        image::Rgb([g, g, if (x, y) == (3, 4) { g ^ 1 } else { g }])
+    })
+    .save(src.join("m_gloss.png"))
+    .unwrap();
+    let file = dir.join("m.nmat");
+    let o = nmat(&["encode", src.to_str().unwrap(), "-o", file.to_str().unwrap(), "--steps", "20"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let bytes = std::fs::read(&file).unwrap();
+    let m = nmat_core::Container::parse(&bytes).unwrap();
+    let names: Vec<&str> = m.channels().iter().map(|c| c.name).collect();
+    assert_eq!(
+        names,
+        ["albedo", "normal", "gloss.r", "gloss.g", "gloss.b", "specular", "specular.a", "emissive"]
+    );
+
+    let out = dir.join("out");
+    let o = nmat(&["decode", file.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    for (name, color) in [
+        ("m_albedo.png", image::ColorType::Rgb8),
+        ("m_normal.png", image::ColorType::Rgb8),
+        ("m_specular.png", image::ColorType::Rgba8),
+        ("m_emissive.png", image::ColorType::Rgb16),
+        ("m_gloss.png", image::ColorType::Rgb8),
+    ] {
+        let img = image::open(out.join(name)).unwrap();
+        assert_eq!((img.width(), img.height(), img.color()), (n, n, color), "{name}");
+        if name != "m_gloss.png" {
+            let rgba = img.to_rgba16();
+            assert!(rgba.pixels().all(|p| p[0] == p[1] && p[1] == p[2]), "{name}: R = G = B");
+        }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn the_file_does_not_depend_on_the_thread_count() {
     let dir = temp_dir("threads");

@@ -1,6 +1,7 @@
 //! A prepared decoder for throughput (issue 7, docs/PERFORMANCE.md): the MLP's weights are
 //! re-laid once — int8 widened to i16 and interleaved by input pairs so one SIMD multiply-add
-//! serves 8 or 16 output rows, f16 widened to f32 and transposed — and kept hot across texels;
+//! serves 8 or 16 output rows, dequantized to f32 for the float path and transposed — and kept hot
+//! across texels;
 //! spans go through the network 4 texels at a time.
 //!
 //! Every result is bit-identical to the per-texel definition on [`Material`] (FORMAT.md §6): the
@@ -338,7 +339,8 @@ struct PackedLayer {
     lanes: Lanes,
     out_frac_bits: u8,
     activation: Activation,
-    /// `[input][row]` f32 weights (exact widenings of the f16 ones), rows padded to `out_pad`.
+    /// `[input][row]` f32 weights (the dequantized int8 ones, `Layer::float_weight`), rows padded
+    /// to `out_pad`.
     float_weights: Vec<f32>,
     float_bias: Vec<f32>,
 }
@@ -361,7 +363,7 @@ impl PackedLayer {
         }
         for (i, row) in float_weights.chunks_exact_mut(out_pad).enumerate() {
             for (o, slot) in row.iter_mut().take(outputs).enumerate() {
-                *slot = layer.weight_f16(o, i).to_f32();
+                *slot = layer.float_weight(o, i);
             }
         }
         let row = |o: usize| (o < outputs).then_some(o);
@@ -755,7 +757,7 @@ impl Decoder {
     }
 
     /// Float decode (values in channel ranges) with f32 weights, bit-identical to
-    /// [`Material::decode_texel`] (which widens each f16 weight where it uses it).
+    /// [`Material::decode_texel`] (which dequantizes each weight where it uses it).
     pub fn decode_texel(
         &self,
         material: &Material<'_>,

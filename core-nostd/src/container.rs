@@ -14,8 +14,12 @@ use crate::mlp::{Activation, Layer, Requant};
 
 /// First four bytes of every file.
 pub const MAGIC: [u8; 4] = *b"NMAT";
-/// Major version: a reader rejects any other major.
-pub const VERSION_MAJOR: u16 = 1;
+/// Major version written by this crate. A reader reads this major and [`LEGACY_VERSION_MAJOR`]
+/// and rejects any other (FORMAT.md §1.3).
+pub const VERSION_MAJOR: u16 = 2;
+/// The previous major version, still read: its layer blocks carry a second, f16 copy of the
+/// network, which is validated and skipped (FORMAT.md §10).
+pub const LEGACY_VERSION_MAJOR: u16 = 1;
 /// Minor version written by this crate; a reader accepts every minor of its major (§1.3).
 pub const VERSION_MINOR: u16 = 0;
 pub const HEADER_LEN: usize = 32;
@@ -112,7 +116,7 @@ impl Container {
         let material = sections.material;
         let (width, height, mip_count, address_mode, channels) = parse_material(material)?;
         let levels = parse_levels(sections.levels, sections.latents, mip_count)?;
-        let mlp = parse_mlp(sections.mlp, channels.len())?;
+        let mlp = parse_mlp(sections.mlp, channels.len(), header.version_major)?;
         for (l, width_of_level) in levels.widths.iter().enumerate() {
             let expected =
                 width_of_level + 4 * usize::from(mlp.pe_frequencies) + usize::from(mlp.lod_input);
@@ -121,6 +125,7 @@ impl Container {
             }
         }
         Ok(Material {
+            version_major: header.version_major,
             version_minor: header.version_minor,
             width,
             height,
@@ -132,6 +137,8 @@ impl Container {
             levels: levels.levels,
             mlp,
             file_len: bytes.len(),
+            section_lens: [material, sections.levels, sections.mlp, sections.latents]
+                .map(<[u8]>::len),
             optional_sections: sections.optional,
         })
     }
@@ -155,7 +162,7 @@ fn read_header(bytes: &[u8]) -> Result<Header, Error> {
     if header.magic != MAGIC {
         return Err(malformed(Field::Magic, 0, u32::from_le_bytes(header.magic)));
     }
-    if header.version_major != VERSION_MAJOR {
+    if header.version_major != VERSION_MAJOR && header.version_major != LEGACY_VERSION_MAJOR {
         return Err(unsupported(Field::VersionMajor, 0, header.version_major));
     }
     if header.flags != 0 {
@@ -523,13 +530,19 @@ fn parse_term(rec: &[u8], index: usize, grids: &[LatentGrid<'_>]) -> Result<(Ter
     Ok((Term { mode, grids: chain }, width))
 }
 
-/// Byte length of one layer's parameter block (§5.3).
+/// Byte length of one layer's parameter block (§5.3): int8 weights (padded to 4 bytes), then an f32
+/// scale and an i32 bias per output row.
 pub fn layer_data_len(inputs: usize, outputs: usize) -> usize {
-    let weights = inputs * outputs;
-    align4(weights) + 4 * outputs + 4 * outputs + align4(2 * weights) + 4 * outputs
+    align4(inputs * outputs) + 8 * outputs
 }
 
-fn parse_mlp(s: &[u8], channel_count: usize) -> Result<Mlp<'_>, Error> {
+/// Byte length of a layer block of a version-1 file, which adds f16 weights (padded) and an f32
+/// bias per row after the integer parameters (§10).
+fn legacy_layer_data_len(inputs: usize, outputs: usize) -> usize {
+    layer_data_len(inputs, outputs) + align4(2 * inputs * outputs) + 4 * outputs
+}
+
+fn parse_mlp(s: &[u8], channel_count: usize, version_major: u16) -> Result<Mlp<'_>, Error> {
     need_bytes(s, 0, MLP_HEADER_LEN, Field::LayerCount, 0)?;
     let layer_count = count(Field::LayerCount, u8_at(s, 0), MAX_LAYERS)?;
     let input_frac_bits = u8_at(s, 1);
@@ -583,8 +596,16 @@ fn parse_mlp(s: &[u8], channel_count: usize) -> Result<Mlp<'_>, Error> {
         if u16_at(s, r + 6) != 0 {
             return Err(malformed(Field::LayerReserved, l, u16_at(s, r + 6)));
         }
-        let len = layer_data_len(inputs, outputs);
+        let legacy = version_major == LEGACY_VERSION_MAJOR;
+        let len = if legacy {
+            legacy_layer_data_len(inputs, outputs)
+        } else {
+            layer_data_len(inputs, outputs)
+        };
         let block = take(s, pos, len, Field::LayerOutputs, l)?;
+        if legacy {
+            check_legacy_float_copy(block, l, inputs, outputs)?;
+        }
         let layer = parse_layer(block, l, inputs, outputs, prev_frac, out_frac_bits, activation)?;
         layers.push(layer).map_err(|_| malformed(Field::LayerCount, l, l as i64))?;
         pos += len;
@@ -614,8 +635,6 @@ fn parse_layer(
     let weights_i8 = take(n, align4(n));
     let scales = take(4 * outputs, 4 * outputs);
     let bias = take(4 * outputs, 4 * outputs);
-    let weights_f16 = take(2 * n, align4(2 * n));
-    let float_bias = take(4 * outputs, 4 * outputs);
     if let Some(i) = weights_i8.iter().position(|&w| w as i8 == i8::MIN) {
         // −128 would break the symmetric range the accumulator bound assumes (NUMERICS.md).
         return Err(malformed(Field::WeightInt8, l, i as i64));
@@ -629,14 +648,6 @@ fn parse_layer(
         }
         let b = i64::from(i32_at(bias, 4 * o));
         at_most(Field::Bias, l, b.unsigned_abs(), bias_limit.unsigned_abs())?;
-        if !f32_at(float_bias, 4 * o).is_finite() {
-            return Err(malformed(Field::FloatBias, l, o as i64));
-        }
-    }
-    if let Some(i) =
-        weights_f16.chunks_exact(2).position(|w| !half::f16::from_bits(u16_at(w, 0)).is_finite())
-    {
-        return Err(malformed(Field::FloatWeight, l, i as i64));
     }
     Ok(Layer {
         inputs: inputs as u16,
@@ -647,7 +658,29 @@ fn parse_layer(
         weights_i8,
         scales,
         bias,
-        weights_f16,
-        float_bias,
     })
+}
+
+/// Version 1 stored the float network a second time after the integer one: f16 weights and f32
+/// biases, each finite (§10). A 2.x reader checks that rule and then ignores the copy: both of its
+/// decoders run the int8 network.
+fn check_legacy_float_copy(
+    block: &[u8],
+    l: usize,
+    inputs: usize,
+    outputs: usize,
+) -> Result<(), Error> {
+    let n = inputs * outputs;
+    let at = layer_data_len(inputs, outputs);
+    let weights_f16 = slice(block, at, 2 * n).unwrap_or(&[]);
+    let float_bias = slice(block, at + align4(2 * n), 4 * outputs).unwrap_or(&[]);
+    if let Some(i) =
+        weights_f16.chunks_exact(2).position(|w| !half::f16::from_bits(u16_at(w, 0)).is_finite())
+    {
+        return Err(malformed(Field::FloatWeight, l, i as i64));
+    }
+    if let Some(o) = float_bias.chunks_exact(4).position(|b| !f32_at(b, 0).is_finite()) {
+        return Err(malformed(Field::FloatBias, l, o as i64));
+    }
+    Ok(())
 }

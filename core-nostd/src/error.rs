@@ -66,7 +66,9 @@ pub enum Field {
     WeightInt8,
     WeightScale,
     Bias,
+    /// A version-1 file's f16 weight is not finite (FORMAT.md §10).
     FloatWeight,
+    /// A version-1 file's f32 float bias is not finite (FORMAT.md §10).
     FloatBias,
 }
 
@@ -125,6 +127,14 @@ impl fmt::Display for Error {
             Error::Truncated { field, index, needed, available } => write!(
                 f,
                 "truncated .nmat: {field}[{index}] needs {needed} bytes but only {available} are there"
+            ),
+            Error::Unsupported { field: Field::VersionMajor, value, .. } => write!(
+                f,
+                "unsupported .nmat: format version {value}, this decoder reads versions {} and {} \
+                 (a newer nmat wrote the file: decode it with that version, or re-encode the \
+                 source maps with this one)",
+                crate::container::LEGACY_VERSION_MAJOR,
+                crate::container::VERSION_MAJOR
             ),
             Error::Unsupported { field, index, value } => {
                 write!(f, "unsupported .nmat: field {field}[{index}] has unknown value {value}")

@@ -50,7 +50,9 @@ pub mod writer;
 
 #[cfg(feature = "alloc")]
 pub use batch::{Decoder, Kernel};
-pub use container::{Container, Header, ParseOptions, SectionKind};
+pub use container::{
+    Container, Header, LEGACY_VERSION_MAJOR, ParseOptions, SectionKind, VERSION_MAJOR,
+};
 pub use decode::ChannelMask;
 pub use error::{Argument, Error, Field};
 pub use filter::{Filter, Precision, SampleRequest};

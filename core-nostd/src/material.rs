@@ -123,6 +123,7 @@ impl<'a> Mlp<'a> {
 /// decoded from many threads at once.
 #[derive(Clone, Debug)]
 pub struct Material<'a> {
+    pub(crate) version_major: u16,
     pub(crate) version_minor: u16,
     pub(crate) width: u32,
     pub(crate) height: u32,
@@ -134,12 +135,19 @@ pub struct Material<'a> {
     pub(crate) levels: heapless::Vec<FeatureLevel, MAX_LEVELS>,
     pub(crate) mlp: Mlp<'a>,
     pub(crate) file_len: usize,
+    /// Lengths of the MATERIAL, LEVELS, MLP and LATENTS sections.
+    pub(crate) section_lens: [usize; 4],
     pub(crate) optional_sections:
         heapless::Vec<(crate::SectionKind, &'a [u8]), { crate::limits::MAX_SECTIONS }>,
 }
 
 impl<'a> Material<'a> {
-    /// Minor format version of the file (readers accept any minor of major 1).
+    /// Major format version of the file: [`crate::VERSION_MAJOR`], or 1 for a file written before
+    /// the network was stored once (read all the same, FORMAT.md §10).
+    pub fn version_major(&self) -> u16 {
+        self.version_major
+    }
+    /// Minor format version of the file (readers accept any minor of a major they know).
     pub fn version_minor(&self) -> u16 {
         self.version_minor
     }
@@ -186,6 +194,15 @@ impl<'a> Material<'a> {
     pub fn file_len(&self) -> usize {
         self.file_len
     }
+    /// Length in bytes of a section of the file (a required one, or an optional one it has).
+    pub fn section_len(&self, kind: crate::SectionKind) -> Option<usize> {
+        let required = crate::SectionKind::KNOWN.iter().position(|&k| k == kind);
+        match required {
+            Some(i) => self.section_lens.get(i).copied(),
+            None => self.optional_section(kind).map(<[u8]>::len),
+        }
+    }
+
     /// The bytes of an optional section (one without the REQUIRED flag and of a kind the decoder
     /// does not need, FORMAT.md §1.3 and §9), if the file has one of that kind.
     pub fn optional_section(&self, kind: crate::SectionKind) -> Option<&'a [u8]> {

@@ -1,12 +1,12 @@
-//! The decoder MLP in two arithmetics (docs/FORMAT.md §6.5–§6.7):
-//! - float: f16 weights widened to f32, f32 biases and activations — the accuracy reference;
+//! The decoder MLP in two arithmetics over one stored network (docs/FORMAT.md §6.6–§6.8):
+//! - float: the int8 weights and i32 biases dequantized with their row scales, f32 activations —
+//!   the accuracy reference;
 //! - integer (W8A16): int8 weights, i32 biases and accumulators, i16 activations in a per-layer
 //!   Q-format, round-half-up requantization — defined so every correct implementation agrees
 //!   bit for bit.
 
-use crate::bytes::{f32_at, i32_at, u8_at, u16_at};
+use crate::bytes::{f32_at, i32_at, u8_at};
 use crate::limits::MAX_WIDTH;
-use half::f16;
 
 /// Activation after a layer.
 #[non_exhaustive]
@@ -30,8 +30,6 @@ pub struct Layer<'a> {
     pub(crate) weights_i8: &'a [u8],
     pub(crate) scales: &'a [u8],
     pub(crate) bias: &'a [u8],
-    pub(crate) weights_f16: &'a [u8],
-    pub(crate) float_bias: &'a [u8],
 }
 
 /// The integer requantization of one output row: `y = (acc · multiplier + 2^(shift−1)) >> shift`.
@@ -138,13 +136,16 @@ impl<'a> Layer<'a> {
     pub fn bias(&self, o: usize) -> i32 {
         i32_at(self.bias, 4 * o)
     }
-    /// f16 weight of the float path.
-    pub fn weight_f16(&self, o: usize, i: usize) -> f16 {
-        f16::from_bits(u16_at(self.weights_f16, 2 * (o * self.inputs() + i)))
+    /// Weight of the float decoder: the int8 weight times its row scale, one f32 rounding
+    /// (FORMAT.md §6.8).
+    pub fn float_weight(&self, o: usize, i: usize) -> f32 {
+        f32::from(self.weight_i8(o, i)) * self.scale(o)
     }
-    /// f32 bias of the float path.
+    /// Bias of the float decoder: `bias · scale · 2^−in_frac_bits` (the integer bias is in units of
+    /// the input LSB times the weight LSB), computed in f64 and rounded once to f32.
     pub fn float_bias(&self, o: usize) -> f32 {
-        f32_at(self.float_bias, 4 * o)
+        let lsb = 1.0 / f64::from(1u32 << self.in_frac_bits.min(31));
+        (f64::from(self.bias(o)) * f64::from(self.scale(o)) * lsb) as f32
     }
     /// The requantization of row `o`; parse has checked that it exists.
     pub fn requant(&self, o: usize) -> Requant {
@@ -174,14 +175,13 @@ impl<'a> Layer<'a> {
         }
     }
 
-    /// Float output of row `o`: f32 bias + Σ f32(w_f16)·x in input order, then the activation.
+    /// Float output of row `o`: float bias + Σ float weight·x in input order, then the activation.
     pub fn row_float(&self, o: usize, x: &[f32]) -> f32 {
         let n = self.inputs();
-        let row = self.weights_f16.get(2 * o * n..2 * (o + 1) * n).unwrap_or(&[]);
-        let dot = row
-            .chunks_exact(2)
-            .zip(x)
-            .fold(0.0f32, |acc, (w, &v)| acc + f16::from_bits(u16_at(w, 0)).to_f32() * v);
+        let scale = self.scale(o);
+        let row = self.weights_i8.get(o * n..(o + 1) * n).unwrap_or(&[]);
+        let dot =
+            row.iter().zip(x).fold(0.0f32, |acc, (&w, &v)| acc + f32::from(w as i8) * scale * v);
         let y = dot + self.float_bias(o);
         match self.activation {
             Activation::None => y,

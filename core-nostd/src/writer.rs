@@ -14,7 +14,6 @@ use crate::error::{Argument, Error};
 use crate::latents::packed_len;
 use crate::material::{AddressMode, ColorSpace, Material, Semantic, TermMode};
 use crate::mlp::Activation;
-use half::f16;
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct ChannelSpec {
@@ -58,52 +57,10 @@ pub struct LayerSpec {
     pub activation: Activation,
     /// Row-major `[outputs][inputs]`, in [−127, 127].
     pub weights_i8: Vec<i8>,
+    /// Per output row: the real value of one weight LSB (FORMAT.md §5.3).
     pub scales: Vec<f32>,
+    /// Per output row, in accumulator units (input LSB × weight LSB).
     pub bias: Vec<i32>,
-    pub weights_f16: Vec<f16>,
-    pub float_bias: Vec<f32>,
-}
-
-impl LayerSpec {
-    /// A layer whose float parameters are its dequantized integer ones — `f16(code · scale)` and
-    /// `bias · scale · 2^−in_frac_bits` — as quantization-aware training leaves them: the float and
-    /// integer decoders then model one network and differ only in arithmetic (FORMAT.md §5.3).
-    #[allow(clippy::too_many_arguments)] // every field of the layer but the derived ones
-    pub fn from_quantized(
-        inputs: u16,
-        outputs: u16,
-        in_frac_bits: u8,
-        out_frac_bits: u8,
-        activation: Activation,
-        weights_i8: Vec<i8>,
-        scales: Vec<f32>,
-        bias: Vec<i32>,
-    ) -> LayerSpec {
-        let n = usize::from(inputs.max(1));
-        // One f32 product, one rounding to f16 (identical with and without hardware F16C).
-        let weights_f16 = weights_i8
-            .iter()
-            .enumerate()
-            .map(|(i, &w)| f16::from_f32(f32::from(w) * scales.get(i / n).copied().unwrap_or(0.0)))
-            .collect();
-        let lsb = 1.0 / f64::from(1u32 << in_frac_bits.min(31));
-        let float_bias = bias
-            .iter()
-            .zip(&scales)
-            .map(|(&b, &s)| (f64::from(b) * f64::from(s) * lsb) as f32)
-            .collect();
-        LayerSpec {
-            inputs,
-            outputs,
-            out_frac_bits,
-            activation,
-            weights_i8,
-            scales,
-            bias,
-            weights_f16,
-            float_bias,
-        }
-    }
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -320,13 +277,9 @@ impl MaterialSpec {
         for l in &m.layers {
             let n = usize::from(l.inputs) * usize::from(l.outputs);
             let rows = usize::from(l.outputs);
-            for (len, want) in [
-                (l.weights_i8.len(), n),
-                (l.weights_f16.len(), n),
-                (l.scales.len(), rows),
-                (l.bias.len(), rows),
-                (l.float_bias.len(), rows),
-            ] {
+            for (len, want) in
+                [(l.weights_i8.len(), n), (l.scales.len(), rows), (l.bias.len(), rows)]
+            {
                 if len != want {
                     return Err(spec_error(len, want));
                 }
@@ -335,9 +288,6 @@ impl MaterialSpec {
             pad4(&mut s);
             l.scales.iter().for_each(|v| s.extend_from_slice(&v.to_le_bytes()));
             l.bias.iter().for_each(|v| s.extend_from_slice(&v.to_le_bytes()));
-            l.weights_f16.iter().for_each(|v| s.extend_from_slice(&v.to_bits().to_le_bytes()));
-            pad4(&mut s);
-            l.float_bias.iter().for_each(|v| s.extend_from_slice(&v.to_le_bytes()));
         }
         Ok(s)
     }
@@ -401,8 +351,6 @@ impl<'a> Material<'a> {
                     weights_i8: cells().map(|(o, i)| l.weight_i8(o, i)).collect(),
                     scales: (0..n_out).map(|o| l.scale(o)).collect(),
                     bias: (0..n_out).map(|o| l.bias(o)).collect(),
-                    weights_f16: cells().map(|(o, i)| l.weight_f16(o, i)).collect(),
-                    float_bias: (0..n_out).map(|o| l.float_bias(o)).collect(),
                 }
             })
             .collect();

@@ -20,7 +20,9 @@ pub mod texset;
 pub mod train;
 
 pub use error::EncodeError;
-pub use profile::{DEFAULT_PROFILE, ModelConfig, PROFILES, Profile, configure};
+pub use profile::{
+    ByteBudget, DEFAULT_PROFILE, MaterialShape, ModelConfig, PROFILES, Profile, configure,
+};
 pub use texset::{Role, TextureSet};
 pub use train::{Phase, Progress, TrainOptions};
 
@@ -61,21 +63,25 @@ pub fn encode(
     options: &EncodeOptions,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Encoded, EncodeError> {
-    let learned = set.learned_channels();
-    let config = configure(
-        options.profile,
-        set.width,
-        set.height,
-        set.mips.len() as u32,
-        set.channel_count(),
-        learned.len(),
-    );
+    let config = configure(options.profile, &shape_of(set));
     let mut model = train::Model::new(set, &config, options.address_mode, options.train.seed);
     model.train(&options.train, progress);
     let spec = to_spec(set, &model, options)?;
     let bytes = spec.to_bytes()?;
     let quality = metrics::chain_quality(&Container::parse(&bytes)?, set);
     Ok(Encoded { bytes, config, quality })
+}
+
+/// What the rate solver needs to know of `set` (its file carries a SOURCE_MAPS section).
+pub fn shape_of(set: &TextureSet) -> MaterialShape {
+    MaterialShape {
+        width: set.width,
+        height: set.height,
+        mip_count: set.mips.len() as u32,
+        channels: set.channel_count(),
+        learned: set.learned_channels().len(),
+        optional_bytes: source_maps::encode(&set.maps).len(),
+    }
 }
 
 fn to_spec(

@@ -83,6 +83,54 @@ pub struct ModelConfig {
     pub outputs: usize,
 }
 
+/// What the solver needs to know of a material: its size, channels and what else its file holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MaterialShape {
+    pub width: u32,
+    pub height: u32,
+    pub mip_count: u32,
+    /// Channels of the material (BPPC's denominator), constant ones included.
+    pub channels: usize,
+    /// Channels the network learns (not constant).
+    pub learned: usize,
+    /// Bytes of the optional sections the file will carry (SOURCE_MAPS), each padded to 4.
+    pub optional_bytes: usize,
+}
+
+impl MaterialShape {
+    /// The bits a file of `bppc` bits per pixel per channel has for this material.
+    pub fn budget_bits(&self, bppc: f64) -> f64 {
+        bppc * f64::from(self.width) * f64::from(self.height) * self.channels as f64
+    }
+}
+
+/// Where the bytes of a file go (docs/FORMAT.md §1–§5).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ByteBudget {
+    /// File header and section table.
+    pub header: usize,
+    /// MATERIAL section: size, channel records.
+    pub material: usize,
+    /// LEVELS section: grid records with their quantizers, level records.
+    pub levels: usize,
+    /// MLP section: int8 weights, row scales and biases, layer records.
+    pub network: usize,
+    /// LATENTS section: the packed latent codes.
+    pub latents: usize,
+    /// Optional sections (SOURCE_MAPS).
+    pub optional: usize,
+}
+
+impl ByteBudget {
+    pub fn total(&self) -> usize {
+        self.header + self.material + self.levels + self.network + self.latents + self.optional
+    }
+}
+
+fn align4(n: usize) -> usize {
+    n.div_ceil(4) * 4
+}
+
 impl ModelConfig {
     pub fn input_width(&self) -> usize {
         let level: usize = self.levels[0]
@@ -95,131 +143,305 @@ impl ModelConfig {
         level + 4 * usize::from(self.pe_frequencies) + usize::from(self.lod_input)
     }
 
-    /// Bytes of the MLP in the file (int8 + f16 weights, scales, two biases).
-    pub fn mlp_bytes(&self, channels: usize) -> usize {
+    /// The exact size of the file this model makes for `shape` (the writer's layout; a test
+    /// compares the two on encoded files).
+    pub fn byte_budget(&self, shape: &MaterialShape) -> ByteBudget {
         let mut widths = vec![self.input_width()];
         widths.extend(&self.hidden);
-        widths.push(channels);
-        widths.windows(2).map(|w| w[0] * w[1] * 3 + w[1] * 12 + 8).sum()
+        widths.push(shape.channels);
+        let network =
+            8 + widths.windows(2).map(|w| 8 + align4(w[0] * w[1]) + 8 * w[1]).sum::<usize>();
+        let levels = 20
+            + self.grids.iter().map(|g| 16 + 4 * g.channels).sum::<usize>()
+            + self.levels.iter().map(|terms| 4 + 12 * terms.len()).sum::<usize>();
+        ByteBudget {
+            header: 32 + 16 * (4 + usize::from(shape.optional_bytes > 0)),
+            material: 12 + 32 * shape.channels,
+            levels,
+            network,
+            latents: self.grids.iter().map(|g| 4 * g.bits().div_ceil(32)).sum(),
+            optional: align4(shape.optional_bytes),
+        }
     }
 
     pub fn latent_bits(&self) -> usize {
-        self.grids
-            .iter()
-            .map(|g| (g.width * g.height) as usize * g.channels * usize::from(g.bits))
-            .sum()
+        self.grids.iter().map(GridCfg::bits).sum()
     }
 }
 
-const HIDDEN: [usize; 2] = [64, 64];
-
-fn scaled(size: u32, divisor: u32) -> u32 {
-    size.div_ceil(divisor).max(1)
+impl GridCfg {
+    /// Bits of its codes.
+    pub fn bits(&self) -> usize {
+        (self.width * self.height) as usize * self.channels * usize::from(self.bits)
+    }
 }
 
-/// Solves the layout of `profile` for a `width × height` material with `channels` channels
-/// (`learned` of them not constant) and `mip_count` mips.
-pub fn configure(
-    profile: Profile,
-    width: u32,
-    height: u32,
-    mip_count: u32,
-    channels: usize,
-    learned: usize,
-) -> ModelConfig {
-    let texels = f64::from(width) * f64::from(height);
-    // Bits per mip-0 texel the latents may spend; the MLP (estimated for a mid-size model) is
-    // paid first, so small materials get fewer latent channels at the same nominal rate.
-    let mlp_estimate = ((40 * 64 + 64 * 64 + 64 * channels) * 3 * 8) as f64;
-    let budget = ((profile.bppc() * texels * channels as f64 - mlp_estimate) / texels).max(0.0);
-    match profile {
-        Profile::Ntc { hi_divisor, hi_bits, lo_bits, .. } => {
-            // Level k's high-res grid is mip 2k / divisor per side; all levels together hold
-            // 16/15 of level 0's cells, the low-res grids a quarter of that.
-            let cells = 16.0 / (15.0 * f64::from(hi_divisor * hi_divisor));
-            let per_cell = budget / cells;
-            let c_hi = ((0.8 * per_cell / f64::from(hi_bits)).floor() as usize).clamp(1, 16);
-            let rest = (per_cell - (c_hi * usize::from(hi_bits)) as f64).max(0.0);
-            let c_lo = ((4.0 * rest / f64::from(lo_bits)).floor() as usize).clamp(1, 16);
-            let level_count = mip_count.div_ceil(2) as usize;
-            let mut grids = Vec::new();
-            let mut levels = Vec::new();
-            for k in 0..level_count as u32 {
-                let (mw, mh) = ((width >> (2 * k)).max(1), (height >> (2 * k)).max(1));
-                let hi = grids.len();
-                grids.push(GridCfg {
-                    width: scaled(mw, hi_divisor),
-                    height: scaled(mh, hi_divisor),
-                    channels: c_hi,
-                    bits: hi_bits,
-                });
-                grids.push(GridCfg {
-                    width: scaled(mw, 2 * hi_divisor),
-                    height: scaled(mh, 2 * hi_divisor),
-                    channels: c_lo,
-                    bits: lo_bits,
-                });
-                levels.push(vec![
-                    TermCfg { mode: TermMode::Nearest4, grids: vec![hi] },
-                    TermCfg { mode: TermMode::Bilinear, grids: vec![hi + 1] },
-                ]);
+/// Hidden widths the solver may give the network, widest (the NTC paper's 64) first; multiples of
+/// 16 so the SIMD decoders' row blocks stay full.
+const HIDDEN_WIDTHS: [usize; 4] = [64, 48, 32, 16];
+/// The largest share of a file the network may take. On small materials at low rates a 64-wide
+/// network alone would be most of the file (at `nbc-0.05` on a 512² material with 7 channels,
+/// ≈ 8 KB of 11.5): past this share a narrower network leaves the bits to the latents.
+const MAX_NETWORK_SHARE: f64 = 0.25;
+/// How far from the nominal rate the solver lets a file land. File sizes are exact (no entropy
+/// coding), so this is what a file gets; docs/ENCODING.md promises ±5 %.
+const RATE_TOLERANCE: f64 = 0.02;
+/// Share of the latent bits an NTC layout gives its high-resolution grids (the 4-nearest features
+/// carry the detail; the low-resolution grid is a smooth base).
+const NTC_HI_SHARE: f64 = 0.8;
+
+fn scaled(size: u32, divisor: f64) -> u32 {
+    ((f64::from(size) / divisor).round() as u32).max(1)
+}
+
+/// The model of `profile` for a material of `shape`: the profile fixes the layout (NTC or NBC),
+/// bit depths and the resolution of the grids that the positional encoding is tiled to; the
+/// solver picks the network width, the latent channels and the resolution of the smooth grids so
+/// that the whole file — header, network and latents — lands within ±2 % of the nominal rate
+/// (docs/ENCODING.md). Materials too small for a rate get the closest file the layout can make.
+pub fn configure(profile: Profile, shape: &MaterialShape) -> ModelConfig {
+    let target = shape.budget_bits(profile.bppc()) / 8.0;
+    let error = |cfg: &ModelConfig| {
+        (cfg.byte_budget(shape).total() as f64 - target).abs() / target.max(1.0)
+    };
+    let mut closest: Option<(f64, ModelConfig)> = None;
+    for hidden in HIDDEN_WIDTHS {
+        let candidates = match profile {
+            Profile::Ntc { hi_divisor, hi_bits, lo_bits, .. } => {
+                ntc_candidates(profile.name(), shape, hidden, hi_divisor, hi_bits, lo_bits, target)
             }
-            ModelConfig {
-                profile: profile.name(),
-                grids,
-                levels,
-                mip_to_level: (0..mip_count).map(|m| (m / 2) as u8).collect(),
-                pe_frequencies: 2,
-                lod_input: true,
-                hidden: HIDDEN.to_vec(),
-                outputs: learned,
+            Profile::Nbc { .. } => nbc_candidates(profile.name(), shape, hidden, target),
+        };
+        let mut fitting: Option<(f64, ModelConfig)> = None;
+        for (preference, cfg) in candidates {
+            let e = error(&cfg);
+            if closest.as_ref().is_none_or(|(best, _)| e < *best) {
+                closest = Some((e, cfg.clone()));
+            }
+            if e <= RATE_TOLERANCE && fitting.as_ref().is_none_or(|(p, _)| preference < *p) {
+                fitting = Some((preference, cfg));
             }
         }
-        Profile::Nbc { .. } => {
-            const BITS_FINE_TO_COARSE: [u8; 4] = [1, 2, 4, 8];
-            // Bits per finest-grid cell of one channel over the 4 levels: 1 + 2/4 + 4/16 + 8/64.
-            let per_channel = 1.875;
-            let (mut divisor, mut c) = (4u32, 0usize);
-            for d in [4u32, 2, 1] {
-                divisor = d;
-                c = (budget * f64::from(d * d) / per_channel).floor() as usize;
-                if c <= 16 {
-                    break;
+        if let Some((_, cfg)) = fitting {
+            let share = cfg.byte_budget(shape).network as f64 / target;
+            if share <= MAX_NETWORK_SHARE || hidden == HIDDEN_WIDTHS[HIDDEN_WIDTHS.len() - 1] {
+                return cfg;
+            }
+        }
+    }
+    closest.map(|(_, cfg)| cfg).expect("every width has candidates")
+}
+
+/// The resolution factor of a continuous grid knob that brings the file closest to `target`
+/// bytes: `make(s)` must give files that shrink as `s` grows; `s` is searched in `[lo, hi]`.
+fn solve_scale(
+    shape: &MaterialShape,
+    target: f64,
+    (lo, hi): (f64, f64),
+    make: impl Fn(f64) -> ModelConfig,
+) -> ModelConfig {
+    let size = |s: f64| make(s).byte_budget(shape).total() as f64;
+    let (mut a, mut b) = (lo, hi);
+    // Geometric bisection: the knob divides a grid side, its effect is multiplicative.
+    for _ in 0..40 {
+        let mid = (a * b).sqrt();
+        if size(mid) > target { a = mid } else { b = mid }
+    }
+    let (ea, eb) = ((size(a) - target).abs(), (size(b) - target).abs());
+    make(if ea <= eb { a } else { b })
+}
+
+/// NTC: per level a high-resolution grid (4 nearest cells; one cell per `hi_divisor` texels, the
+/// period the positional encoding tiles) and a bilinear low-resolution grid, one cell per
+/// `2·hi_divisor·lo_scale` texels. Candidates over the channel counts, each with the
+/// low-resolution scale solved for the target size; preference: the high-resolution share of the
+/// latent bits nearest [`NTC_HI_SHARE`], then the smooth grid nearest its nominal resolution.
+fn ntc_candidates(
+    name: &'static str,
+    shape: &MaterialShape,
+    hidden: usize,
+    hi_divisor: u32,
+    hi_bits: u8,
+    lo_bits: u8,
+    target: f64,
+) -> Vec<(f64, ModelConfig)> {
+    let mut out = Vec::new();
+    for c_hi in 1..=16 {
+        for c_lo in 1..=16 {
+            let cfg = solve_scale(shape, target, (0.5, 8.0), |s| {
+                ntc_layout(name, shape, hidden, (hi_divisor, c_hi, hi_bits), (c_lo, lo_bits, s))
+            });
+            let hi: usize = cfg.grids.iter().step_by(2).map(GridCfg::bits).sum();
+            let share = hi as f64 / cfg.latent_bits().max(1) as f64;
+            let nominal = f64::from(cfg.grids[1].width)
+                / f64::from(scaled(shape.width, f64::from(2 * hi_divisor)));
+            out.push(((share - NTC_HI_SHARE).abs() + 0.1 * nominal.log2().abs(), cfg));
+        }
+    }
+    out
+}
+
+fn ntc_layout(
+    name: &'static str,
+    shape: &MaterialShape,
+    hidden: usize,
+    (hi_divisor, c_hi, hi_bits): (u32, usize, u8),
+    (c_lo, lo_bits, lo_scale): (usize, u8, f64),
+) -> ModelConfig {
+    let level_count = shape.mip_count.div_ceil(2) as usize;
+    let mut grids = Vec::new();
+    let mut levels = Vec::new();
+    for k in 0..level_count as u32 {
+        let (mw, mh) = ((shape.width >> (2 * k)).max(1), (shape.height >> (2 * k)).max(1));
+        let hi = grids.len();
+        let d = f64::from(hi_divisor);
+        grids.push(GridCfg {
+            width: scaled(mw, d),
+            height: scaled(mh, d),
+            channels: c_hi,
+            bits: hi_bits,
+        });
+        grids.push(GridCfg {
+            width: scaled(mw, 2.0 * d * lo_scale),
+            height: scaled(mh, 2.0 * d * lo_scale),
+            channels: c_lo,
+            bits: lo_bits,
+        });
+        levels.push(vec![
+            TermCfg { mode: TermMode::Nearest4, grids: vec![hi] },
+            TermCfg { mode: TermMode::Bilinear, grids: vec![hi + 1] },
+        ]);
+    }
+    ModelConfig {
+        profile: name,
+        grids,
+        levels,
+        mip_to_level: (0..shape.mip_count).map(|m| (m / 2) as u8).collect(),
+        pe_frequencies: 2,
+        lod_input: true,
+        hidden: vec![hidden; 2],
+        outputs: shape.learned,
+    }
+}
+
+/// Finest-grid divisor NBC is designed around (NBC's 1/4 resolution).
+const NBC_DIVISOR: f64 = 4.0;
+
+/// NBC: 4 residual levels of 8-4-2-1 bits coarse → fine, the finest one cell per `divisor`
+/// texels. Candidates over the channel count, each with the divisor solved for the target size;
+/// preference: the divisor nearest [`NBC_DIVISOR`].
+fn nbc_candidates(
+    name: &'static str,
+    shape: &MaterialShape,
+    hidden: usize,
+    target: f64,
+) -> Vec<(f64, ModelConfig)> {
+    (1..=16)
+        .map(|c| {
+            let cfg =
+                solve_scale(shape, target, (1.0, 64.0), |d| nbc_layout(name, shape, hidden, c, d));
+            let d = f64::from(shape.width) / f64::from(cfg.grids[0].width);
+            ((d / NBC_DIVISOR).log2().abs(), cfg)
+        })
+        .collect()
+}
+
+fn nbc_layout(
+    name: &'static str,
+    shape: &MaterialShape,
+    hidden: usize,
+    c: usize,
+    divisor: f64,
+) -> ModelConfig {
+    const BITS_FINE_TO_COARSE: [u8; 4] = [1, 2, 4, 8];
+    let level_count = (shape.mip_count as usize).min(4);
+    let grids: Vec<GridCfg> = (0..level_count)
+        .map(|l| GridCfg {
+            width: scaled((shape.width >> l).max(1), divisor),
+            height: scaled((shape.height >> l).max(1), divisor),
+            channels: c,
+            bits: BITS_FINE_TO_COARSE[l],
+        })
+        .collect();
+    let levels = (0..level_count)
+        .map(|l| {
+            let fused: Vec<usize> = (l..level_count).collect();
+            let coarser = if l + 1 < level_count { fused[1..].to_vec() } else { fused.clone() };
+            vec![
+                TermCfg { mode: TermMode::Bilinear, grids: fused },
+                TermCfg { mode: TermMode::Bilinear, grids: coarser },
+            ]
+        })
+        .collect();
+    ModelConfig {
+        profile: name,
+        grids,
+        levels,
+        mip_to_level: (0..shape.mip_count)
+            .map(|m| (m as usize).min(level_count - 1) as u8)
+            .collect(),
+        pe_frequencies: 2,
+        lod_input: true,
+        hidden: vec![hidden; 2],
+        outputs: shape.learned,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn shape(size: u32, channels: usize, learned: usize) -> MaterialShape {
+        MaterialShape {
+            width: size,
+            height: size,
+            mip_count: 32 - size.leading_zeros(),
+            channels,
+            learned,
+            // SOURCE_MAPS of four maps with short names, as the development set has.
+            optional_bytes: 4 + 4 * 20,
+        }
+    }
+
+    /// Issue 13, point 3: every profile lands within ±5 % of its nominal rate — the whole file
+    /// counted — on every material size of the development set (512² and 1024², 4–16 channels,
+    /// some constant), and the 8 profiles are 8 different models.
+    #[test]
+    fn every_profile_holds_its_rate_on_development_sized_materials() {
+        for size in [512, 1024] {
+            for channels in 4..=16 {
+                for learned in [channels, channels - 1] {
+                    let s = shape(size, channels, learned);
+                    let mut configs: Vec<ModelConfig> = Vec::new();
+                    for p in PROFILES {
+                        let cfg = configure(p, &s);
+                        let bits = cfg.byte_budget(&s).total() as f64 * 8.0;
+                        let off = bits / s.budget_bits(p.bppc()) - 1.0;
+                        assert!(
+                            off.abs() <= 0.05,
+                            "{} on {size}² × {channels} ({learned} learned): {:+.1} %",
+                            p.name(),
+                            100.0 * off
+                        );
+                        let same = configs.iter().find(|c| c.grids == cfg.grids);
+                        assert!(same.is_none(), "{} repeats {}", p.name(), same.unwrap().profile);
+                        configs.push(cfg);
+                    }
                 }
             }
-            let c = c.clamp(1, 16);
-            let level_count = (mip_count as usize).min(4);
-            let grids: Vec<GridCfg> = (0..level_count)
-                .map(|l| GridCfg {
-                    width: scaled((width >> l).max(1), divisor),
-                    height: scaled((height >> l).max(1), divisor),
-                    channels: c,
-                    bits: BITS_FINE_TO_COARSE[l],
-                })
-                .collect();
-            let levels = (0..level_count)
-                .map(|l| {
-                    let fused: Vec<usize> = (l..level_count).collect();
-                    let coarser =
-                        if l + 1 < level_count { fused[1..].to_vec() } else { fused.clone() };
-                    vec![
-                        TermCfg { mode: TermMode::Bilinear, grids: fused },
-                        TermCfg { mode: TermMode::Bilinear, grids: coarser },
-                    ]
-                })
-                .collect();
-            ModelConfig {
-                profile: profile.name(),
-                grids,
-                levels,
-                mip_to_level: (0..mip_count)
-                    .map(|m| (m as usize).min(level_count - 1) as u8)
-                    .collect(),
-                pe_frequencies: 2,
-                lod_input: true,
-                hidden: HIDDEN.to_vec(),
-                outputs: learned,
-            }
         }
+    }
+
+    #[test]
+    fn narrow_networks_only_where_the_wide_one_would_crowd_out_the_latents() {
+        let big = shape(1024, 9, 9);
+        for p in PROFILES {
+            assert_eq!(configure(p, &big).hidden, [64, 64], "{} on 1024²", p.name());
+        }
+        let small = shape(512, 4, 4);
+        let cfg = configure(Profile::by_name("nbc-0.05").unwrap(), &small);
+        assert!(cfg.hidden[0] < 64, "{:?}", cfg.hidden);
+        let b = cfg.byte_budget(&small);
+        assert!(b.network as f64 <= MAX_NETWORK_SHARE * b.total() as f64 * 1.05, "{b:?}");
     }
 }

@@ -84,12 +84,6 @@ impl Role {
         if self == Role::Normal && component < 3 { (-1.0, 1.0) } else { (0.0, 1.0) }
     }
 
-    /// Roles whose maps carry one value per texel (an RGB file with equal channels is stored as
-    /// one channel).
-    fn is_scalar(self) -> bool {
-        !matches!(self, Role::Albedo | Role::Normal | Role::Emissive | Role::Specular)
-    }
-
     pub fn parse(text: &str) -> Option<Role> {
         Role::ALL.into_iter().find(|r| r.name() == text.to_ascii_lowercase())
     }
@@ -344,6 +338,14 @@ fn resize_plane(plane: &[f32], from: (u32, u32), to: (u32, u32)) -> Vec<f32> {
     out.into_raw().into_iter().map(|v| v.clamp(0.0, 1.0)).collect()
 }
 
+/// The 8-bit code of a constant alpha, kept out of the channels (SOURCE_MAPS stores it as one
+/// byte); `None` when a byte cannot hold it exactly (a 16-bit alpha between two 8-bit codes), so
+/// the alpha stays a (constant) channel and comes back exactly.
+fn constant_alpha_code(unit: f32) -> Option<u8> {
+    let code = (unit * 255.0).round();
+    (code / 255.0 == unit).then_some(code as u8)
+}
+
 fn is_constant(plane: &[f32]) -> Option<f32> {
     let first = *plane.first()?;
     plane.iter().all(|&v| v == first).then_some(first)
@@ -374,17 +376,17 @@ pub fn load(maps: &[(Role, PathBuf)], options: &LoadOptions) -> Result<TextureSe
         }
         let has_alpha = matches!(layout, FileLayout::GrayAlpha | FileLayout::Rgba);
         let alpha_value = if has_alpha {
-            planes.last().and_then(|a| is_constant(a)).map(|v| (v * 255.0).round() as u8)
+            planes.last().and_then(|a| is_constant(a)).and_then(constant_alpha_code)
         } else {
             None
         };
         if alpha_value.is_some() {
             planes.pop();
         }
-        let gray_rgb = role.is_scalar()
-            && planes.len() >= 3
-            && planes[0] == planes[1]
-            && planes[1] == planes[2];
+        // Channels by content, whatever the role: a colour map whose planes are identical on every
+        // texel is one channel, replicated on the way back. Only exact equality counts: a map
+        // that is gray only approximately stays RGB (no lossy guess).
+        let gray_rgb = planes.len() >= 3 && planes[0] == planes[1] && planes[1] == planes[2];
         if gray_rgb {
             planes.drain(1..3);
         }

@@ -676,16 +676,15 @@ pub fn export_layer(
             }
         }
     }
-    LayerSpec::from_quantized(
-        n as u16,
-        out_rows.len() as u16,
-        in_frac,
-        out_frac,
+    LayerSpec {
+        inputs: n as u16,
+        outputs: out_rows.len() as u16,
+        out_frac_bits: out_frac,
         activation,
         weights_i8,
         scales,
         bias,
-    )
+    }
 }
 
 #[cfg(test)]

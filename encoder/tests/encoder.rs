@@ -55,6 +55,26 @@ fn integer_and_float_decoders_agree_on_a_trained_material() {
     assert!(a.mean.abs() < 0.05);
 }
 
+/// The solver's byte budget is the writer's file size, for every profile (the rate promise of
+/// docs/ENCODING.md rests on it).
+#[test]
+fn predicted_file_sizes_are_the_written_ones() {
+    for size in [64, 96] {
+        let set = demo::bricks(size);
+        let shape = nmat_encode::shape_of(&set);
+        for p in nmat_encode::PROFILES {
+            let out = encode(&set, &options(p.name(), 1, 1), &mut |_| {}).unwrap();
+            let predicted = out.config.byte_budget(&shape);
+            assert_eq!(
+                predicted.total(),
+                out.bytes.len(),
+                "{} at {size}²: {predicted:?}",
+                p.name()
+            );
+        }
+    }
+}
+
 #[test]
 fn roles_are_detected_from_common_names() {
     let cases = [
@@ -221,6 +241,31 @@ fn pixel_formats_are_packed_as_documented() {
     )
     .unwrap();
     assert_eq!(maps, set.maps);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A constant 16-bit alpha that no 8-bit code equals is not folded into SOURCE_MAPS' one-byte
+/// alpha (it would come back changed): it stays a constant channel. One that a byte holds exactly
+/// (a multiple of 257) is folded as usual.
+#[test]
+fn a_constant_sixteen_bit_alpha_is_kept_exactly() {
+    let dir = temp_dir("alpha16");
+    let load = |alpha: u16| {
+        let p = dir.join(format!("a{alpha}_albedo.png"));
+        image::ImageBuffer::<image::Rgba<u16>, _>::from_fn(8, 8, |x, y| {
+            image::Rgba([(x * 3000) as u16, (y * 3000) as u16, 7, alpha])
+        })
+        .save(&p)
+        .unwrap();
+        texset::load(&[(Role::Albedo, p)], &LoadOptions::default()).unwrap()
+    };
+    let set = load(40_000);
+    assert_eq!(set.maps[0].alpha_value, None);
+    assert_eq!(set.channels.len(), 4);
+    assert_eq!(set.channels[3].constant, Some(40_000.0 / 65535.0));
+    let set = load(200 * 257);
+    assert_eq!(set.maps[0].alpha_value, Some(200));
+    assert_eq!(set.channels.len(), 3);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -36,7 +36,7 @@ fn texel_decoding(c: &mut Criterion) {
                 black_box(out)
             })
         });
-        group.bench_function("float f32 (f16 weights), all channels", |b| {
+        group.bench_function("float f32 (dequantized at use), all channels", |b| {
             let mut out = [0f32; 16];
             b.iter(|| {
                 let (x, y) = next();

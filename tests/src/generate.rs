@@ -1,7 +1,7 @@
 //! Deterministic generator of test materials: random but seeded latents and weights in the NTC and
 //! NBC layouts of docs/FORMAT.md §8. The weights are built as a quantization-aware trainer would
-//! leave them: int8 codes with per-row scales, and float weights equal to `f16(code · scale)`, so
-//! the float and integer decoders model the same network and their difference is arithmetic only.
+//! leave them: int8 codes with per-row scales and i32 biases. The file stores that one network;
+//! the float decoder dequantizes it, so the two decoders differ in arithmetic only.
 
 use nmat_core::{
     Activation, AddressMode, ChannelSpec, ColorSpace, GridSpec, LayerSpec, LevelSpec, MaterialSpec,
@@ -208,9 +208,7 @@ fn random_layer(
         .iter()
         .map(|&s| ((center + 0.2 * (rng.unit() - 0.5)) / (f64::from(s) * in_lsb)).round() as i32)
         .collect();
-    LayerSpec::from_quantized(
-        inputs, outputs, in_frac, out_frac, activation, weights_i8, scales, bias,
-    )
+    LayerSpec { inputs, outputs, out_frac_bits: out_frac, activation, weights_i8, scales, bias }
 }
 
 const CHANNEL_NAMES: [(&str, Semantic, ColorSpace); 16] = [
@@ -383,7 +381,6 @@ pub fn wide_constant_material(input: i16, weight: i8, bias: i32) -> MaterialSpec
     spec.levels[0].terms[1].mode = TermMode::Nearest4;
     let layer = &mut spec.mlp.layers[0];
     layer.inputs = 128;
-    layer.weights_f16 = vec![half::f16::from_f32(0.001); 128];
     layer.weights_i8 = vec![weight; 128];
     layer.bias = vec![bias];
     layer.scales = vec![1.0 / 65536.0];

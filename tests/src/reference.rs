@@ -188,12 +188,16 @@ pub fn decode_unit_f64(spec: &MaterialSpec, x: i64, y: i64, mip: u32) -> Vec<f64
         .into_iter()
         .map(|r| (r as f64).clamp(-lim, lim - 65536.0) * scale)
         .collect();
+    let mut frac = i32::from(spec.mlp.input_frac_bits);
     for l in &spec.mlp.layers {
         let n = usize::from(l.inputs);
+        // One network (§5.3): a real weight is code · scale, a real bias bias · scale · 2^−f_in.
+        let lsb = 2f64.powi(-frac);
         act = (0..usize::from(l.outputs))
             .map(|o| {
-                let z = f64::from(l.float_bias[o])
-                    + (0..n).map(|i| l.weights_f16[o * n + i].to_f64() * act[i]).sum::<f64>();
+                let s = f64::from(l.scales[o]);
+                let z = f64::from(l.bias[o]) * s * lsb
+                    + (0..n).map(|i| f64::from(l.weights_i8[o * n + i]) * s * act[i]).sum::<f64>();
                 match l.activation {
                     Activation::HardGelu if z <= -1.5 => 0.0,
                     Activation::HardGelu if z < 1.5 => z * (z + 1.5) / 3.0,
@@ -201,6 +205,7 @@ pub fn decode_unit_f64(spec: &MaterialSpec, x: i64, y: i64, mip: u32) -> Vec<f64
                 }
             })
             .collect();
+        frac = i32::from(l.out_frac_bits);
     }
     act.into_iter().map(|v| v.clamp(0.0, 1.0)).collect()
 }

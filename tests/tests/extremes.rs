@@ -1,6 +1,5 @@
 //! The "extremes worth a test each" of NUMERICS.md, numbered as there.
 
-use half::f16;
 use nmat_core::mlp::{Requant, hard_gelu_q};
 use nmat_core::posenc::triangle_q;
 use nmat_core::{
@@ -166,8 +165,6 @@ fn bilinear_of_a_constant_grid_is_exactly_the_constant() {
         layer.inputs = 1;
         layer.weights_i8 = vec![1];
         layer.bias = vec![0];
-        layer.weights_f16 = vec![f16::ONE];
-        layer.float_bias = vec![0.0];
         layer.out_frac_bits = 14;
         // scale 1 with equal Q-formats: the output is the input feature itself.
         layer.scales = vec![1.0];
@@ -361,28 +358,10 @@ fn bad_scales_are_rejected_and_zero_scale_is_handled() {
 }
 
 #[test]
-fn non_finite_float_parameters_are_rejected() {
-    for (layer, idx) in [(0usize, 0usize), (2, 7)] {
-        for bad in [f16::NAN, f16::INFINITY, f16::NEG_INFINITY] {
-            let mut spec = small("f16");
-            spec.mlp.layers[layer].weights_f16[idx] = bad;
-            assert!(matches!(
-                spec.to_bytes(),
-                Err(Error::Malformed { field: Field::FloatWeight, .. })
-            ));
-        }
-    }
-    let mut spec = small("fb");
-    spec.mlp.layers[0].float_bias[0] = f32::NAN;
-    assert!(matches!(spec.to_bytes(), Err(Error::Malformed { field: Field::FloatBias, .. })));
-}
-
-#[test]
 fn all_zero_weights_give_the_bias() {
     let mut spec = small("zw");
     for l in &mut spec.mlp.layers {
         l.weights_i8.iter_mut().for_each(|w| *w = 0);
-        l.weights_f16.iter_mut().for_each(|w| *w = f16::ZERO);
     }
     let bytes = spec.to_bytes().unwrap();
     let m = Container::parse(&bytes).unwrap();

@@ -134,9 +134,14 @@ fn specific_corruptions_give_specific_errors() {
     };
     assert!(matches!(edit(0, b"NMAX"), Err(Error::Malformed { field: Field::Magic, .. })));
     assert!(matches!(
-        edit(4, &2u16.to_le_bytes()),
-        Err(Error::Unsupported { field: Field::VersionMajor, value: 2, .. })
+        edit(4, &3u16.to_le_bytes()),
+        Err(Error::Unsupported { field: Field::VersionMajor, value: 3, .. })
     ));
+    let message = edit(4, &3u16.to_le_bytes()).unwrap_err().to_string();
+    assert!(
+        message.contains("format version 3") && message.contains("versions 1 and 2"),
+        "{message}"
+    );
     // A newer minor version is accepted (§1.3).
     assert_eq!(edit(6, &7u16.to_le_bytes()), Ok(7));
     assert!(matches!(
