@@ -55,7 +55,7 @@ typedef enum {
 typedef enum {
   // Integer-exact (W8A16): bit-identical on every platform and on the GPU runtime.
   NMAT_MODE_INTEGER = 0,
-  // The float reference decoder (f16 weights, f32 arithmetic).
+  // The float reference decoder (the int8 network dequantized, f32 arithmetic).
   NMAT_MODE_FLOAT = 1,
 } nmat_mode;
 

@@ -308,8 +308,9 @@ fn plan(set: &TextureSet, profile: Profile) -> String {
         budget.total() as f64 * 8.0 / texel_channels,
         100.0 * (budget.total() as f64 * 8.0 / shape.budget_bits(profile.bppc()) - 1.0)
     );
+    s.push_str(&output::map_lines(&set.maps));
     s.push_str(&format!(
-        "network {} → {:?} → {}\n",
+        "\nnetwork {} → {:?} → {}\n",
         cfg.input_width(),
         cfg.hidden,
         set.channel_count()
@@ -328,16 +329,21 @@ fn plan(set: &TextureSet, profile: Profile) -> String {
     s
 }
 
-/// A note when a material is too small for its profile's rate (the network and headers alone
-/// exceed it), so the file lands more than 5 % away from the nominal rate.
+/// A note when the file lands more than 5 % away from its profile's nominal rate: the material is
+/// too small for the rate (the smallest network and grids exceed it) or the layout's largest
+/// grids fall short of it.
 fn rate_note(e: &Encoded) -> Option<String> {
     let nominal = Profile::by_name(e.config.profile)?.bppc();
     let off = e.quality.bppc / nominal - 1.0;
+    let why = if off > 0.0 {
+        "the material is too small for that rate: its smallest network and grids are this file"
+    } else {
+        "the layout's largest grids do not reach that rate on this material"
+    };
     (off.abs() > 0.05).then(|| {
         format!(
-            "note: {} BPPC is {:+.0} % from {}'s nominal {nominal}: the material is too small for \
-             that rate (its smallest network and grids are the file)",
-            format_args!("{:.3}", e.quality.bppc),
+            "note: {:.3} BPPC is {:+.0} % from {}'s nominal {nominal}: {why}",
+            e.quality.bppc,
             100.0 * off,
             e.config.profile
         )

@@ -246,19 +246,7 @@ pub fn describe(path: &Path, m: &Material<'_>) -> String {
         );
     }
     if let Some(maps) = source_maps(m) {
-        let _ = writeln!(s, "\nsource maps:");
-        for map in maps {
-            let _ = writeln!(
-                s,
-                "  {:28} {:9} {:?}{} → channels {}..{}",
-                map.file_name,
-                map.role.name(),
-                map.layout,
-                if map.sixteen_bit { " 16-bit" } else { "" },
-                map.first_channel,
-                map.first_channel + map.channel_count - 1
-            );
-        }
+        s.push_str(&map_lines(&maps));
     }
     let _ = writeln!(s, "\nlatent grids:");
     for (i, g) in m.grids().iter().enumerate() {
@@ -299,6 +287,25 @@ pub fn describe(path: &Path, m: &Material<'_>) -> String {
 
 pub fn texel_channels(m: &Material<'_>) -> f64 {
     f64::from(m.width()) * f64::from(m.height()) * m.channel_count() as f64
+}
+
+/// The source maps and the channels each one occupies, as `info` and `encode --dry-run` print them.
+pub fn map_lines(maps: &[SourceMap]) -> String {
+    let mut s = String::from("\nsource maps:\n");
+    for map in maps {
+        let _ = writeln!(
+            s,
+            "  {:28} {:9} {:?}{}{} → channels {}..{}",
+            map.file_name,
+            map.role.name(),
+            map.layout,
+            if map.sixteen_bit { " 16-bit" } else { "" },
+            if map.gray_rgb { " (R = G = B, stored once)" } else { "" },
+            map.first_channel,
+            map.first_channel + map.channel_count - 1
+        );
+    }
+    s
 }
 
 /// Where the bytes of a parsed file go, by section (header = header, section table, padding).

@@ -88,9 +88,33 @@ fn encode_info_decode_eval_round_trip() {
         "bricks_normal.png",
         "bits per pixel per channel",
         "latent grids",
+        "byte budget",
+        "network (int8 weights, row scales, biases)",
+        ".nmat format 2.0",
     ] {
         assert!(info.contains(needle), "info lacks {needle}: {info}");
     }
+    // The budget's file line is the file's size.
+    let size = std::fs::metadata(&file).unwrap().len();
+    let file_line = info.lines().find(|l| l.trim_start().starts_with("file ")).unwrap();
+    assert!(file_line.contains(&format!(" {size} bytes")), "{file_line} vs {size}");
+
+    // --dry-run prints the same budget for the same layout, and writes nothing.
+    let planned = dir.join("planned.nmat");
+    let o = nmat(&[
+        "encode",
+        src.to_str().unwrap(),
+        "-o",
+        planned.to_str().unwrap(),
+        "--profile",
+        "ntc-1.0",
+        "--dry-run",
+    ]);
+    let plan = text(&o);
+    assert!(o.status.success(), "{plan}");
+    assert!(!planned.exists(), "--dry-run wrote a file");
+    let plan_file_line = plan.lines().find(|l| l.trim_start().starts_with("file ")).unwrap();
+    assert_eq!(plan_file_line, file_line, "{plan}");
 
     let out = dir.join("out");
     let o = nmat(&["decode", file.to_str().unwrap(), "-o", out.to_str().unwrap(), "--mip", "all"]);
@@ -172,6 +196,10 @@ fn gray_maps_of_any_role_are_one_channel_and_come_back_in_their_layout() {
         names,
         ["albedo", "normal", "gloss.r", "gloss.g", "gloss.b", "specular", "specular.a", "emissive"]
     );
+    let info = text(&nmat(&["info", file.to_str().unwrap()]));
+    let line = |name: &str| info.lines().find(|l| l.contains(name)).unwrap_or_default().to_string();
+    assert!(line("m_albedo.png").contains("R = G = B"), "{info}");
+    assert!(!line("m_gloss.png").contains("R = G = B"), "{info}");
 
     let out = dir.join("out");
     let o = nmat(&["decode", file.to_str().unwrap(), "-o", out.to_str().unwrap()]);

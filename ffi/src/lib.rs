@@ -60,7 +60,7 @@ use nmat_status::*;
 pub enum nmat_mode {
     /// Integer-exact (W8A16): bit-identical on every platform and on the GPU runtime.
     NMAT_MODE_INTEGER = 0,
-    /// The float reference decoder (f16 weights, f32 arithmetic).
+    /// The float reference decoder (the int8 network dequantized, f32 arithmetic).
     NMAT_MODE_FLOAT = 1,
 }
 
