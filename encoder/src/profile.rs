@@ -181,7 +181,7 @@ impl GridCfg {
 const HIDDEN_WIDTHS: [usize; 4] = [64, 48, 32, 16];
 /// The largest share of a file the network may take. On small materials at low rates a 64-wide
 /// network alone would be most of the file (at `nbc-0.05` on a 512² material with 7 channels,
-/// ≈ 8 KB of 11.5): past this share a narrower network leaves the bits to the latents.
+/// ≈ 6.5 KB of 11.5): past this share a narrower network leaves the bits to the latents.
 const MAX_NETWORK_SHARE: f64 = 0.25;
 /// How far from the nominal rate the solver lets a file land. File sizes are exact (no entropy
 /// coding), so this is what a file gets; docs/ENCODING.md promises ±5 %.
