@@ -3,7 +3,7 @@
 # (whole-chain PSNR, BPPC of mip 0): docs/QUALITY.md. Commits nothing; writes OUT_DIR.
 #
 # Usage: bench/quality.sh [DEV_DIR] [OUT_DIR]
-#   DEV_DIR   materials from ../shared/scripts/dev-materials.sh (default ~/.cache/nmat-dev)
+#   DEV_DIR   materials from bench/dev-materials.sh (default ~/.cache/nmat-dev)
 #   OUT_DIR   default target/quality; results.csv is appended to, so runs can be resumed
 # Environment: MATERIALS (default: all in DEV_DIR), PROFILES (default: all 8), STEPS (default:
 # the encoder's), THREADS (default 2). Needs: apt-get install -y astcenc libjxl-tools

@@ -359,7 +359,7 @@ fn region_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>, notes: &
         let _ = best.decode_texel_u8(m, x, y, 0, ChannelMask::ALL, out);
     });
     push(format!("integer {kernel} random access per texel, all {c} ch"), secs, c, &units, &all);
-    // The two costs issue 7 compares, timed in alternation so that both meet the same machine.
+    // Random access and region decode, timed in alternation so that both meet the same machine.
     let mut codes = vec![0u8; setup.texels() * c];
     let ratio = interleaved_ratio(
         runs,

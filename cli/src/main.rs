@@ -296,7 +296,8 @@ fn plan(set: &TextureSet, profile: Profile) -> String {
     let shape = nmat_encode::shape_of(set);
     let cfg = nmat_encode::configure(profile, &shape);
     let budget = cfg.byte_budget(&shape);
-    let texel_channels = f64::from(set.width) * f64::from(set.height) * set.channel_count() as f64;
+    // BPPC's denominator: width · height · channels of mip 0.
+    let texel_channels = shape.budget_bits(1.0);
     let mut s = format!(
         "{}: {}×{}, {} channels ({} learned), nominal {} BPPC, this file {:.4} BPPC ({:+.1} %)\n",
         profile.name(),

@@ -151,7 +151,7 @@ fn encode_info_decode_eval_round_trip() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// Issue 13, point 1: channels by content. Gray maps of colour roles (albedo, normal, specular,
+/// Channels by content: gray maps of colour roles (albedo, normal, specular,
 /// emissive; 8- and 16-bit; with and without alpha) are one channel each and come back in their
 /// own layout; a map that is gray except for one component of one texel stays RGB.
 #[test]

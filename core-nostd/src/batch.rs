@@ -1,4 +1,4 @@
-//! A prepared decoder for throughput (issue 7, docs/PERFORMANCE.md): the MLP's weights are
+//! A prepared decoder for throughput (docs/PERFORMANCE.md): the MLP's weights are
 //! re-laid once — int8 widened to i16 and interleaved by input pairs so one SIMD multiply-add
 //! serves 8 or 16 output rows, dequantized to f32 for the float path and transposed — and kept hot
 //! across texels;

@@ -403,7 +403,7 @@ mod tests {
         }
     }
 
-    /// Issue 13, point 3: every profile lands within ±5 % of its nominal rate — the whole file
+    /// Every profile lands within ±5 % of its nominal rate — the whole file
     /// counted — on every material size of the development set (512² and 1024², 4–16 channels,
     /// some constant), and the 8 profiles are 8 different models.
     #[test]

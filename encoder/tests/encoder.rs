@@ -279,7 +279,7 @@ fn source_maps_never_name_a_path() {
     assert_eq!(source_maps::decode(&[1, 0, 5, 0]), None, "count beyond the bytes");
 }
 
-/// Issue 3, point 7: a palette PNG is expanded to its colours (a documented conversion), and a
+/// A palette PNG is expanded to its colours (a documented conversion), and a
 /// CMYK JPEG either arrives converted to RGB or is refused with an error naming the file — never
 /// a panic.
 #[test]

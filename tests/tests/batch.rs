@@ -1,4 +1,4 @@
-//! The prepared `Decoder` (issue 7) against the per-texel definition on `Material`: every kernel,
+//! The prepared `Decoder` against the per-texel definition on `Material`: every kernel,
 //! every output type, spans, channel subsets, out-of-range coordinates, accumulator extremes.
 
 use nmat_core::AddressMode;
