@@ -2,6 +2,7 @@
 //! whole chain on a bundled procedural material (`nmat demo`). See docs/ENCODING.md.
 
 mod bench;
+mod bench_train;
 mod output;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
@@ -10,7 +11,8 @@ use nmat_core::{AddressMode, Container, Material};
 use nmat_encode::metrics::{ChainQuality, chain_quality};
 use nmat_encode::texset::{self, LoadOptions, Role};
 use nmat_encode::{
-    EncodeError, EncodeOptions, Encoded, PROFILES, Profile, TextureSet, TrainOptions, encode,
+    EncodeError, EncodeOptions, Encoded, PROFILES, Profile, TextureSet, TrainKernel, TrainOptions,
+    encode,
 };
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -57,6 +59,26 @@ enum Command {
         region: u32,
         /// Timed runs per row (the median is reported).
         #[arg(long, default_value_t = 5)]
+        runs: usize,
+    },
+    /// The trainer's throughput (docs/PERFORMANCE.md): steps/s, samples/s, GFLOP/s and share of
+    /// the CPU's f32 FMA peak for every matrix-product kernel and thread count, on one material.
+    BenchTrain {
+        /// Folders and/or map files (default: the bundled procedural material at 1024²).
+        inputs: Vec<PathBuf>,
+        #[arg(long, default_value = nmat_encode::DEFAULT_PROFILE)]
+        profile: String,
+        /// Optimizer steps per timed run.
+        #[arg(long, default_value_t = 100)]
+        steps: usize,
+        /// Thread counts to measure, comma-separated.
+        #[arg(long, value_delimiter = ',', default_values_t = [1, 2])]
+        threads: Vec<usize>,
+        /// Kernels to measure, comma-separated (scalar, avx2, avx512), or `all` this CPU runs.
+        #[arg(long, value_delimiter = ',', default_values_t = ["all".to_string()])]
+        kernel: Vec<String>,
+        /// Timed runs per row (the median is reported).
+        #[arg(long, default_value_t = 3)]
         runs: usize,
     },
     /// Encode, decode and evaluate a bundled procedural material, and print a report.
@@ -176,6 +198,9 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Eval { input, reference } => cmd_eval(&input, &reference),
         Command::Demo { out, train, profile } => cmd_demo(&out, &train, &profile),
+        Command::BenchTrain { inputs, profile, steps, threads, kernel, runs } => {
+            cmd_bench_train(inputs, &profile, steps, threads, &kernel, runs)
+        }
         Command::Bench { inputs, reference, region, runs } => {
             if region == 0 || runs == 0 {
                 return Err("--region and --runs must be at least 1".into());
@@ -523,6 +548,56 @@ fn load_reference(m: &Material<'_>, dir: &Path) -> Result<TextureSet> {
         .into());
     }
     Ok(set)
+}
+
+fn cmd_bench_train(
+    inputs: Vec<PathBuf>,
+    profile: &str,
+    steps: usize,
+    threads: Vec<usize>,
+    kernel: &[String],
+    runs: usize,
+) -> Result<()> {
+    if steps == 0 || runs == 0 || threads.contains(&0) {
+        return Err("--steps, --runs and every --threads value must be at least 1".into());
+    }
+    let kernels = if kernel.iter().any(|k| k == "all") {
+        TrainKernel::ALL.into_iter().filter(|k| k.is_available()).collect()
+    } else {
+        kernel
+            .iter()
+            .map(|name| {
+                let k = TrainKernel::by_name(name).ok_or_else(|| {
+                    let names: Vec<&str> = TrainKernel::ALL.iter().map(|k| k.name()).collect();
+                    format!("--kernel {name}: unknown; choose all or any of {}", names.join(", "))
+                })?;
+                if !k.is_available() {
+                    return Err(format!("--kernel {name}: this CPU cannot run it"));
+                }
+                Ok(k)
+            })
+            .collect::<std::result::Result<Vec<_>, _>>()?
+    };
+    let (set, label) = if inputs.is_empty() {
+        (nmat_encode::demo::bricks(1024), "the bundled procedural material".to_string())
+    } else {
+        let files = texset::collect_inputs(&inputs)?;
+        if files.is_empty() {
+            return Err("no input maps: pass a folder or map files".into());
+        }
+        let roles = texset::assign_roles(&files, &[])?;
+        let label = inputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" ");
+        (texset::load(&roles, &LoadOptions { resize: false })?, label)
+    };
+    bench_train::run(&bench_train::Options {
+        set,
+        label,
+        profile: profile_named(profile)?,
+        steps,
+        threads,
+        kernels,
+        runs,
+    })
 }
 
 fn cmd_eval(input: &Path, reference: &Path) -> Result<()> {

@@ -360,3 +360,42 @@ fn demo_runs_end_to_end() {
     assert!(dir.join("bricks_albedo.png").is_file());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn bench_train_reports_every_kernel_row_and_refuses_bad_options() {
+    let dir = temp_dir("bench-train");
+    write_maps(&dir, 32);
+    let d = dir.to_str().unwrap();
+    let o = nmat(&["bench-train", d, "--steps", "3", "--runs", "1", "--threads", "1,2"]);
+    let out = text(&o);
+    assert!(o.status.success(), "{out}");
+    let kernels: Vec<_> =
+        nmat_encode::TrainKernel::ALL.into_iter().filter(|k| k.is_available()).collect();
+    for k in &kernels {
+        for t in [1, 2] {
+            let row = format!("| {} | {t} |", k.name());
+            assert!(out.contains(&row), "missing row {row}:\n{out}");
+        }
+    }
+    assert!(out.contains("f32 FMA peak"), "{out}");
+    for (args, says) in [
+        (vec!["--kernel", "sse9"], "--kernel sse9: unknown"),
+        (vec!["--steps", "0"], "must be at least 1"),
+        (vec!["--threads", "1,0"], "must be at least 1"),
+    ] {
+        let mut all = vec!["bench-train", d];
+        all.extend(args);
+        let o = nmat(&all);
+        assert!(!o.status.success(), "{all:?} succeeded");
+        assert!(text(&o).contains(says), "{all:?}: {}", text(&o));
+    }
+    for k in nmat_encode::TrainKernel::ALL.into_iter().filter(|k| !k.is_available()) {
+        let o = nmat(&["bench-train", d, "--kernel", k.name()]);
+        assert!(text(&o).contains("this CPU cannot run it"), "{}", text(&o));
+    }
+    let empty = dir.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let o = nmat(&["bench-train", empty.to_str().unwrap()]);
+    assert!(!o.status.success() && text(&o).contains("no image maps found"), "{}", text(&o));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

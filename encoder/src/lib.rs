@@ -13,6 +13,7 @@
 
 pub mod demo;
 pub mod error;
+mod gemm;
 pub mod metrics;
 pub mod profile;
 pub mod source_maps;
@@ -20,6 +21,7 @@ pub mod texset;
 pub mod train;
 
 pub use error::EncodeError;
+pub use gemm::TrainKernel;
 pub use profile::{
     ByteBudget, DEFAULT_PROFILE, MaterialShape, ModelConfig, PROFILES, Profile, configure,
 };
@@ -90,7 +92,8 @@ fn to_spec(
     options: &EncodeOptions,
 ) -> Result<MaterialSpec, EncodeError> {
     let cfg = model.cfg;
-    let ranges = model.activation_ranges(8192, options.train.seed);
+    let kernel = options.train.kernel.unwrap_or_else(TrainKernel::best);
+    let ranges = model.activation_ranges(8192, options.train.seed, kernel);
     let mut frac = train::INPUT_FRAC_BITS;
     let mut layers = Vec::new();
     let last = model.layers.len() - 1;

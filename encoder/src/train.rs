@@ -4,11 +4,12 @@
 //! (straight-through estimator) so the integer decoder is the trained model.
 //!
 //! Forward and backward are written by hand (the NTC paper's own trainer was 10× faster than a
-//! general framework): per sample, every matrix product is a sequence of `axpy`s over contiguous
-//! rows that the compiler vectorizes. A step's batch is cut into fixed chunks processed in
-//! parallel; their gradients are summed in chunk order, so the result is the same for any number
-//! of threads.
+//! general framework): a chunk of samples goes through each layer as one matrix product on the
+//! SIMD kernels of `gemm` (fixed fma chains: the same bits on every kernel). A step's batch is
+//! cut into fixed chunks processed in parallel; their gradients are summed in chunk order, so the
+//! result is the same for any number of threads and any kernel.
 
+use crate::gemm::{Matrix, TrainKernel};
 use crate::profile::ModelConfig;
 use crate::texset::TextureSet;
 use nmat_core::latents::footprint;
@@ -36,11 +37,20 @@ pub struct TrainOptions {
     pub seed: u64,
     pub lr_mlp: f32,
     pub lr_latents: f32,
+    /// Matrix-product kernel; `None` picks [`TrainKernel::best`]. The file does not depend on it.
+    pub kernel: Option<TrainKernel>,
 }
 
 impl Default for TrainOptions {
     fn default() -> Self {
-        TrainOptions { steps: DEFAULT_STEPS, batch: 2048, seed: 1, lr_mlp: 1e-2, lr_latents: 2e-2 }
+        TrainOptions {
+            steps: DEFAULT_STEPS,
+            batch: 2048,
+            seed: 1,
+            lr_mlp: 1e-2,
+            lr_latents: 2e-2,
+            kernel: None,
+        }
     }
 }
 
@@ -62,6 +72,33 @@ pub enum Phase {
     FrozenLatents,
     /// MLP with fake-quantized int8 weights.
     QuantizationAware,
+}
+
+impl Phase {
+    /// The phase of step `step` (from 0) of `steps`: 80 % joint, 15 % frozen latents, 5 %
+    /// quantization-aware.
+    pub fn at(step: usize, steps: usize) -> Phase {
+        if step < steps * 80 / 100 {
+            Phase::Joint
+        } else if step < steps * 95 / 100 {
+            Phase::FrozenLatents
+        } else {
+            Phase::QuantizationAware
+        }
+    }
+}
+
+/// Floating-point operations (2 per multiply-add) of the MLP's matrix products per training
+/// sample in `phase`: forward, weight gradients, and input gradients of every layer but the
+/// first — of the first too while latents train. What `nmat bench-train` counts as work.
+pub fn mlp_flops_per_sample(cfg: &ModelConfig, phase: Phase) -> u64 {
+    let mut widths = vec![cfg.input_width()];
+    widths.extend(&cfg.hidden);
+    widths.push(cfg.outputs.max(1));
+    let products: Vec<u64> = widths.windows(2).map(|w| (w[0] * w[1]) as u64).collect();
+    let all: u64 = products.iter().sum();
+    let input_grads = if phase == Phase::Joint { all } else { all - products[0] };
+    2 * (2 * all + input_grads)
 }
 
 /// SplitMix64, seeded per (seed, step, chunk) so work can be split freely.
@@ -132,8 +169,11 @@ struct EvalLayer {
     inputs: usize,
     outputs: usize,
     hidden: bool,
-    w: Vec<f32>,
-    wt: Vec<f32>,
+    /// `[inputs][outputs]`: the forward product `x · wᵀ`.
+    wt: Matrix,
+    /// `[outputs][inputs]`: the backward product `g · w`.
+    w: Matrix,
+    /// Padded to the columns of `wt`.
     b: Vec<f32>,
 }
 
@@ -160,20 +200,17 @@ fn eval_layers(layers: &[Dense], fake_quant: bool) -> Vec<EvalLayer> {
                     row.iter_mut().for_each(|v| *v = (*v / s).round().clamp(-127.0, 127.0) * s);
                 }
             }
-            let mut wt = vec![0f32; w.len()];
-            for o in 0..l.outputs {
-                for i in 0..l.inputs {
-                    wt[i * l.outputs + o] = w[o * l.inputs + i];
+            let mut wt = Matrix::zeros(l.inputs, l.outputs);
+            let mut wo = Matrix::zeros(l.outputs, l.inputs);
+            for (o, row) in w.chunks(l.inputs).enumerate() {
+                wo.row_mut(o)[..l.inputs].copy_from_slice(row);
+                for (i, &v) in row.iter().enumerate() {
+                    wt.row_mut(i)[o] = v;
                 }
             }
-            EvalLayer {
-                inputs: l.inputs,
-                outputs: l.outputs,
-                hidden: l.hidden,
-                w,
-                wt,
-                b: l.b.clone(),
-            }
+            let mut b = vec![0f32; wt.stride()];
+            b[..l.outputs].copy_from_slice(&l.b);
+            EvalLayer { inputs: l.inputs, outputs: l.outputs, hidden: l.hidden, wt, w: wo, b }
         })
         .collect()
 }
@@ -198,18 +235,20 @@ fn hard_gelu_grad(x: f32) -> f32 {
     }
 }
 
-#[inline]
-fn axpy(y: &mut [f32], a: f32, x: &[f32]) {
-    for (y, x) in y.iter_mut().zip(x) {
-        *y += a * x;
-    }
-}
-
 /// How latents enter the forward pass.
 #[derive(Clone, Copy, PartialEq)]
 enum LatentMode {
     Noisy,
     Quantized,
+}
+
+/// How a step runs its chunks.
+#[derive(Clone, Copy)]
+struct ChunkMode {
+    kernel: TrainKernel,
+    latents: LatentMode,
+    /// Whether gradients flow back to the latents (the joint phase).
+    train_latents: bool,
 }
 
 /// The model being trained.
@@ -230,29 +269,74 @@ struct Adam {
     v: Vec<f32>,
 }
 
+/// One step's Adam constants: learning rate and the bias corrections 1 − β^t.
+#[derive(Clone, Copy)]
+struct AdamStep {
+    lr: f32,
+    c1: f32,
+    c2: f32,
+}
+
+const B1: f32 = 0.9;
+const B2: f32 = 0.999;
+
+impl AdamStep {
+    fn new(lr: f32, t: i32) -> AdamStep {
+        AdamStep { lr, c1: 1.0 - B1.powi(t), c2: 1.0 - B2.powi(t) }
+    }
+}
+
 impl Adam {
     fn new(n: usize) -> Adam {
         Adam { m: vec![0.0; n], v: vec![0.0; n] }
     }
-    fn update(&mut self, i: usize, p: &mut f32, g: f32, lr: f32, t: i32) {
-        const B1: f32 = 0.9;
-        const B2: f32 = 0.999;
-        let m = &mut self.m[i];
-        let v = &mut self.v[i];
-        *m = B1 * *m + (1.0 - B1) * g;
-        *v = B2 * *v + (1.0 - B2) * g * g;
-        let mh = *m / (1.0 - B1.powi(t));
-        let vh = *v / (1.0 - B2.powi(t));
-        *p -= lr * mh / (vh.sqrt() + 1e-8);
+    fn update(&mut self, i: usize, p: &mut f32, g: f32, step: AdamStep) {
+        adam(&mut self.m[i], &mut self.v[i], p, g, step);
+    }
+}
+
+/// One Adam update of parameter `p` with gradient `g` and moments `m`, `v`.
+fn adam(m: &mut f32, v: &mut f32, p: &mut f32, g: f32, step: AdamStep) {
+    *m = B1 * *m + (1.0 - B1) * g;
+    *v = B2 * *v + (1.0 - B2) * g * g;
+    let mh = *m / step.c1;
+    let vh = *v / step.c2;
+    *p -= step.lr * mh / (vh.sqrt() + 1e-8);
+}
+
+/// A latent's optimizer state, kept together so a sparse update touches one cache line: Adam's
+/// moments, this step's summed gradient, and the step that last touched it.
+#[derive(Clone, Copy)]
+struct LatentSlot {
+    m: f32,
+    v: f32,
+    grad: f32,
+    touched: u32,
+}
+
+impl Default for LatentSlot {
+    fn default() -> Self {
+        LatentSlot { m: 0.0, v: 0.0, grad: 0.0, touched: u32::MAX }
     }
 }
 
 /// One chunk's gradients.
 struct Grads {
-    w: Vec<Vec<f32>>,
+    /// `[outputs][inputs]` per layer.
+    w: Vec<Matrix>,
     b: Vec<Vec<f32>>,
     latents: Vec<(u32, f32)>,
     loss: f64,
+}
+
+/// A latent's share in one input feature of one sample of a chunk.
+#[derive(Clone, Copy)]
+struct Tap {
+    sample: u32,
+    feature: u16,
+    latent: u32,
+    /// ∂feature/∂(unit latent).
+    coeff: f32,
 }
 
 fn cosine(lr: f32, t: usize, total: usize) -> f32 {
@@ -423,84 +507,111 @@ impl<'a> Model<'a> {
         m.data[(y * m.width + x) as usize * self.set.channel_count() + c]
     }
 
-    /// Forward (and backward, if `grads`) over one chunk of samples.
-    fn run_chunk(
+    /// Draws `samples` texels: their input features (one row each) and, if `taps`, every
+    /// latent's share in them.
+    fn gather(
         &self,
-        layers: &[EvalLayer],
         mode: LatentMode,
         rng: &mut Rng,
         samples: usize,
-        train_latents: bool,
-        mut grads: Option<&mut Grads>,
-    ) -> f64 {
+        mut taps: Option<&mut Vec<Tap>>,
+    ) -> (Vec<(u32, u32, u32)>, Matrix) {
+        let mut x = Matrix::zeros(samples, self.cfg.input_width());
+        let mut draws = Vec::with_capacity(samples);
         let mut feats = Vec::new();
-        let mut taps = Vec::new();
-        let mut acts: Vec<Vec<f32>> = layers.iter().map(|l| vec![0.0; l.inputs]).collect();
-        let mut pres: Vec<Vec<f32>> = layers.iter().map(|l| vec![0.0; l.outputs]).collect();
-        let mut loss = 0.0f64;
-        let outputs = self.learned.len().max(1);
-        for _ in 0..samples {
-            let s = self.draw(rng);
-            self.features(s, mode, rng, &mut feats, &mut taps);
-            acts[0].copy_from_slice(&feats);
-            for (k, l) in layers.iter().enumerate() {
-                let pre = &mut pres[k];
-                pre.copy_from_slice(&l.b);
-                for (i, &xi) in acts[k].iter().enumerate() {
-                    if xi != 0.0 {
-                        axpy(pre, xi, &l.wt[i * l.outputs..(i + 1) * l.outputs]);
-                    }
-                }
-                if k + 1 < layers.len() {
-                    let (head, tail) = acts.split_at_mut(k + 1);
-                    let _ = head;
-                    for (a, &p) in tail[0].iter_mut().zip(pre.iter()) {
-                        *a = if l.hidden { hard_gelu(p) } else { p };
-                    }
-                }
+        let mut sample_taps = Vec::new();
+        for s in 0..samples {
+            let d = self.draw(rng);
+            self.features(d, mode, rng, &mut feats, &mut sample_taps);
+            x.row_mut(s)[..feats.len()].copy_from_slice(&feats);
+            if let Some(taps) = taps.as_deref_mut() {
+                taps.extend(sample_taps.iter().map(|&(feature, latent, coeff)| Tap {
+                    sample: s as u32,
+                    feature,
+                    latent,
+                    coeff,
+                }));
             }
-            let out = &pres[layers.len() - 1];
-            let mut g: Vec<f32> = Vec::with_capacity(outputs);
-            for (o, &c) in self.learned.iter().enumerate() {
-                let d = out[o] - self.target(s, c);
-                loss += f64::from(d * d);
-                g.push(2.0 * d / outputs as f32);
-            }
-            if self.learned.is_empty() {
-                g.push(0.0);
-            }
-            let Some(gr) = grads.as_deref_mut() else { continue };
-            for k in (0..layers.len()).rev() {
-                let l = &layers[k];
+            draws.push(d);
+        }
+        (draws, x)
+    }
+
+    /// Forward over a chunk: the input of every layer (`x0` first) and every pre-activation.
+    fn forward(
+        layers: &[EvalLayer],
+        kernel: TrainKernel,
+        x0: Matrix,
+    ) -> (Vec<Matrix>, Vec<Matrix>) {
+        let samples = x0.rows();
+        let mut xs = vec![x0];
+        let mut pres = Vec::with_capacity(layers.len());
+        for (k, l) in layers.iter().enumerate() {
+            let mut pre = Matrix::zeros(samples, l.outputs);
+            kernel.matmul(&xs[k], l.inputs, &l.wt, Some(&l.b), &mut pre);
+            if k + 1 < layers.len() {
+                let mut next = pre.clone();
                 if l.hidden {
-                    for (gv, &p) in g.iter_mut().zip(&pres[k]) {
-                        *gv *= hard_gelu_grad(p);
-                    }
+                    next.as_mut_slice().iter_mut().for_each(|v| *v = hard_gelu(*v));
                 }
-                let x = &acts[k];
-                for (o, &go) in g.iter().enumerate() {
-                    if go != 0.0 {
-                        gr.b[k][o] += go;
-                        axpy(&mut gr.w[k][o * l.inputs..(o + 1) * l.inputs], go, x);
-                    }
-                }
-                if k == 0 && !train_latents {
-                    break;
-                }
-                let mut gin = vec![0f32; l.inputs];
-                for (o, &go) in g.iter().enumerate() {
-                    if go != 0.0 {
-                        axpy(&mut gin, go, &l.w[o * l.inputs..(o + 1) * l.inputs]);
-                    }
-                }
-                g = gin;
+                xs.push(next);
             }
-            if train_latents {
-                for &(f, idx, coeff) in &taps {
-                    let gv = g[usize::from(f)] * coeff;
-                    if gv != 0.0 {
-                        gr.latents.push((idx, gv));
-                    }
+            pres.push(pre);
+        }
+        (xs, pres)
+    }
+
+    /// Forward and backward over one chunk of samples; returns the mean squared error.
+    fn run_chunk(
+        &self,
+        layers: &[EvalLayer],
+        how: ChunkMode,
+        rng: &mut Rng,
+        samples: usize,
+        gr: &mut Grads,
+    ) -> f64 {
+        let ChunkMode { kernel, latents: mode, train_latents } = how;
+        let mut taps = Vec::new();
+        let (draws, x0) = self.gather(mode, rng, samples, train_latents.then_some(&mut taps));
+        let (xs, pres) = Self::forward(layers, kernel, x0);
+        let last = layers.len() - 1;
+        let outputs = self.learned.len().max(1);
+        let mut loss = 0.0f64;
+        let mut g = Matrix::zeros(samples, layers[last].outputs);
+        for (s, &d) in draws.iter().enumerate() {
+            let out = pres[last].row(s);
+            let row = g.row_mut(s);
+            for (o, &c) in self.learned.iter().enumerate() {
+                let e = out[o] - self.target(d, c);
+                loss += f64::from(e * e);
+                row[o] = 2.0 * e / outputs as f32;
+            }
+        }
+        for k in (0..layers.len()).rev() {
+            let l = &layers[k];
+            if l.hidden {
+                for (gv, &p) in g.as_mut_slice().iter_mut().zip(pres[k].as_slice()) {
+                    *gv *= hard_gelu_grad(p);
+                }
+            }
+            kernel.matmul_at_acc(&g, &xs[k], &mut gr.w[k]);
+            for s in 0..samples {
+                for (b, &gv) in gr.b[k].iter_mut().zip(g.row(s)) {
+                    *b += gv;
+                }
+            }
+            if k == 0 && !train_latents {
+                break;
+            }
+            let mut gin = Matrix::zeros(samples, l.inputs);
+            kernel.matmul(&g, l.outputs, &l.w, None, &mut gin);
+            g = gin;
+        }
+        if train_latents {
+            for t in &taps {
+                let gv = g.row(t.sample as usize)[usize::from(t.feature)] * t.coeff;
+                if gv != 0.0 {
+                    gr.latents.push((t.latent, gv));
                 }
             }
         }
@@ -511,22 +622,14 @@ impl<'a> Model<'a> {
     pub fn train(&mut self, opts: &TrainOptions, progress: &mut dyn FnMut(Progress)) {
         let steps = opts.steps.max(1);
         let joint_end = steps * 80 / 100;
-        let frozen_end = steps * 95 / 100;
         let mut adam_w: Vec<Adam> = self.layers.iter().map(|l| Adam::new(l.w.len())).collect();
         let mut adam_b: Vec<Adam> = self.layers.iter().map(|l| Adam::new(l.b.len())).collect();
-        let mut adam_lat = Adam::new(self.latents.len());
-        let mut touched_at = vec![usize::MAX; self.latents.len()];
-        let mut latent_grad = vec![0f32; self.latents.len()];
+        let mut latent_slots = vec![LatentSlot::default(); self.latents.len()];
         let mut running = None::<f64>;
         let chunks = opts.batch.div_ceil(CHUNK);
+        let kernel = opts.kernel.unwrap_or_else(TrainKernel::best);
         for step in 0..steps {
-            let phase = if step < joint_end {
-                Phase::Joint
-            } else if step < frozen_end {
-                Phase::FrozenLatents
-            } else {
-                Phase::QuantizationAware
-            };
+            let phase = Phase::at(step, steps);
             let layers = eval_layers(&self.layers, phase == Phase::QuantizationAware);
             let mode =
                 if phase == Phase::Joint { LatentMode::Noisy } else { LatentMode::Quantized };
@@ -537,53 +640,56 @@ impl<'a> Model<'a> {
                     let mut rng = Rng::new(opts.seed, step as u64 + 1, c as u64);
                     let n = CHUNK.min(opts.batch - c * CHUNK);
                     let mut g = Grads {
-                        w: self.layers.iter().map(|l| vec![0.0; l.w.len()]).collect(),
-                        b: self.layers.iter().map(|l| vec![0.0; l.b.len()]).collect(),
+                        w: self.layers.iter().map(|l| Matrix::zeros(l.outputs, l.inputs)).collect(),
+                        b: self.layers.iter().map(|l| vec![0.0; l.outputs]).collect(),
                         latents: Vec::new(),
                         loss: 0.0,
                     };
-                    g.loss =
-                        self.run_chunk(&layers, mode, &mut rng, n, train_latents, Some(&mut g));
+                    let how = ChunkMode { kernel, latents: mode, train_latents };
+                    g.loss = self.run_chunk(&layers, how, &mut rng, n, &mut g);
                     g
                 })
                 .collect();
             // Sum in chunk order: the same floating-point result for any thread count.
             let inv = 1.0 / opts.batch as f32;
             let t = step as i32 + 1;
-            let lr = cosine(opts.lr_mlp, step, steps);
+            let adam_mlp = AdamStep::new(cosine(opts.lr_mlp, step, steps), t);
             let mut mse = 0.0;
             for k in 0..self.layers.len() {
-                let mut gw = vec![0f32; self.layers[k].w.len()];
-                let mut gb = vec![0f32; self.layers[k].b.len()];
-                for r in &results {
-                    axpy(&mut gw, 1.0, &r.w[k]);
-                    axpy(&mut gb, 1.0, &r.b[k]);
-                }
                 let layer = &mut self.layers[k];
-                for (i, (p, g)) in layer.w.iter_mut().zip(&gw).enumerate() {
-                    adam_w[k].update(i, p, g * inv, lr, t);
+                let mut gw = Matrix::zeros(layer.outputs, layer.inputs);
+                let mut gb = vec![0f32; layer.outputs];
+                for r in &results {
+                    gw.as_mut_slice().iter_mut().zip(r.w[k].as_slice()).for_each(|(a, b)| *a += b);
+                    gb.iter_mut().zip(&r.b[k]).for_each(|(a, b)| *a += b);
+                }
+                for (o, row) in layer.w.chunks_mut(layer.inputs).enumerate() {
+                    for (i, (p, g)) in row.iter_mut().zip(gw.row(o)).enumerate() {
+                        adam_w[k].update(o * layer.inputs + i, p, g * inv, adam_mlp);
+                    }
                 }
                 for (i, (p, g)) in layer.b.iter_mut().zip(&gb).enumerate() {
-                    adam_b[k].update(i, p, g * inv, lr, t);
+                    adam_b[k].update(i, p, g * inv, adam_mlp);
                 }
             }
             if train_latents {
-                let lr_lat = cosine(opts.lr_latents, step, joint_end);
+                let adam_latents = AdamStep::new(cosine(opts.lr_latents, step, joint_end), t);
                 let mut touched = Vec::new();
+                let stamp = step as u32;
                 for r in &results {
                     for &(idx, g) in &r.latents {
-                        let i = idx as usize;
-                        if touched_at[i] != step {
-                            touched_at[i] = step;
-                            latent_grad[i] = 0.0;
-                            touched.push(i);
+                        let slot = &mut latent_slots[idx as usize];
+                        if slot.touched != stamp {
+                            *slot = LatentSlot { grad: 0.0, touched: stamp, ..*slot };
+                            touched.push(idx);
                         }
-                        latent_grad[i] += g;
+                        slot.grad += g;
                     }
                 }
                 for i in touched {
-                    let p = &mut self.latents[i];
-                    adam_lat.update(i, p, latent_grad[i] * inv, lr_lat, t);
+                    let slot = &mut latent_slots[i as usize];
+                    let p = &mut self.latents[i as usize];
+                    adam(&mut slot.m, &mut slot.v, p, slot.grad * inv, adam_latents);
                     *p = p.clamp(0.0, 1.0);
                 }
             }
@@ -605,24 +711,19 @@ impl<'a> Model<'a> {
 
     /// Largest |pre-activation| of each hidden layer over `samples` texels, with the final
     /// (fake-quantized) weights and quantized latents: sets the hidden Q-formats.
-    pub fn activation_ranges(&self, samples: usize, seed: u64) -> Vec<f32> {
+    pub fn activation_ranges(&self, samples: usize, seed: u64, kernel: TrainKernel) -> Vec<f32> {
         let layers = eval_layers(&self.layers, true);
         let mut rng = Rng::new(seed, u64::MAX, 7);
-        let mut feats = Vec::new();
-        let mut taps = Vec::new();
         let mut max = vec![0f32; layers.len()];
-        for _ in 0..samples {
-            let s = self.draw(&mut rng);
-            self.features(s, LatentMode::Quantized, &mut rng, &mut feats, &mut taps);
-            let mut x = feats.clone();
-            for (k, l) in layers.iter().enumerate() {
-                let mut pre = l.b.clone();
-                for (i, &xi) in x.iter().enumerate() {
-                    axpy(&mut pre, xi, &l.wt[i * l.outputs..(i + 1) * l.outputs]);
-                }
-                max[k] = pre.iter().fold(max[k], |m, v| m.max(v.abs()));
-                x = pre.into_iter().map(|p| if l.hidden { hard_gelu(p) } else { p }).collect();
+        let mut done = 0;
+        while done < samples {
+            let n = CHUNK.min(samples - done);
+            let (_, x0) = self.gather(LatentMode::Quantized, &mut rng, n, None);
+            let (_, pres) = Self::forward(&layers, kernel, x0);
+            for (m, p) in max.iter_mut().zip(&pres) {
+                *m = p.as_slice().iter().fold(*m, |m, v| m.max(v.abs()));
             }
+            done += n;
         }
         max
     }

@@ -3,7 +3,9 @@
 
 use nmat_core::{ChannelMask, Container};
 use nmat_encode::texset::{self, FileLayout, LoadOptions, Role, role_from_name};
-use nmat_encode::{EncodeError, EncodeOptions, Profile, TrainOptions, demo, encode, source_maps};
+use nmat_encode::{
+    EncodeError, EncodeOptions, Profile, TrainKernel, TrainOptions, demo, encode, source_maps,
+};
 use std::path::{Path, PathBuf};
 
 fn options(profile: &str, steps: usize, seed: u64) -> EncodeOptions {
@@ -15,16 +17,23 @@ fn options(profile: &str, steps: usize, seed: u64) -> EncodeOptions {
 }
 
 #[test]
-fn same_inputs_seed_and_steps_give_identical_files_for_any_thread_count() {
+fn same_inputs_seed_and_steps_give_identical_files_for_any_thread_count_and_kernel() {
     let set = demo::bricks(64);
-    let opts = options("ntc-0.5", 60, 7);
-    let run = |threads: usize| {
+    let run = |threads: usize, kernel: TrainKernel| {
+        let mut opts = options("ntc-0.5", 60, 7);
+        opts.train.kernel = Some(kernel);
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         pool.install(|| encode(&set, &opts, &mut |_| {}).unwrap().bytes)
     };
-    let one = run(1);
-    assert_eq!(one, run(1), "same thread count");
-    assert_eq!(one, run(2), "other thread count");
+    // The portable twin is the reference; every kernel this CPU has must give its bytes.
+    let one = run(1, TrainKernel::Scalar);
+    assert_eq!(one, run(2, TrainKernel::Scalar), "other thread count");
+    let kernels: Vec<_> = TrainKernel::ALL.into_iter().filter(|k| k.is_available()).collect();
+    eprintln!("kernels on this CPU: {:?}", kernels);
+    for kernel in kernels {
+        assert_eq!(one, run(1, kernel), "{} on 1 thread", kernel.name());
+        assert_eq!(one, run(2, kernel), "{} on 2 threads", kernel.name());
+    }
     let other_seed = encode(&set, &options("ntc-0.5", 60, 8), &mut |_| {}).unwrap().bytes;
     assert_ne!(one, other_seed, "the seed matters");
 }

@@ -1,0 +1,115 @@
+//! `nmat bench-train`: the trainer's throughput (docs/PERFORMANCE.md, "Training"). For every
+//! matrix-product kernel this CPU runs and every thread count asked for, a fixed number of
+//! optimizer steps on one material and profile: steps and samples per second, the MLP's useful
+//! GFLOP/s (`train::mlp_flops_per_sample`) and its share of the f32 FMA peak measured in the same
+//! run with the same number of threads.
+
+use crate::Result;
+use nmat_core::AddressMode;
+use nmat_encode::train::{Model, Phase, mlp_flops_per_sample};
+use nmat_encode::{Profile, TextureSet, TrainKernel, TrainOptions, configure, shape_of};
+use std::hint::black_box;
+use std::time::Instant;
+
+/// What to measure.
+pub struct Options {
+    pub set: TextureSet,
+    /// Shown in the header: where the material came from.
+    pub label: String,
+    pub profile: Profile,
+    pub steps: usize,
+    pub threads: Vec<usize>,
+    pub kernels: Vec<TrainKernel>,
+    /// Timed runs per row; the median is reported.
+    pub runs: usize,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
+/// f32 FMA peak of `kernel` on `threads` threads running its probe at once, in FLOP/s (2 per
+/// fused multiply-add; median of 5).
+fn fma_peak(kernel: TrainKernel, threads: usize) -> f64 {
+    let rounds = 200_000_000 / kernel.probe_fmas_per_round().max(1);
+    let rates = (0..5)
+        .map(|_| {
+            let start = Instant::now();
+            std::thread::scope(|s| {
+                for _ in 0..threads {
+                    s.spawn(|| black_box(kernel.probe(black_box(rounds))));
+                }
+            });
+            (threads as u64 * rounds * kernel.probe_fmas_per_round() * 2) as f64
+                / start.elapsed().as_secs_f64()
+        })
+        .collect();
+    median(rates)
+}
+
+pub fn run(o: &Options) -> Result<()> {
+    let cfg = configure(o.profile, &shape_of(&o.set));
+    let batch = TrainOptions::default().batch;
+    let flops: u64 = (0..o.steps)
+        .map(|s| mlp_flops_per_sample(&cfg, Phase::at(s, o.steps)) * batch as u64)
+        .sum();
+    println!(
+        "material: {} ({}×{}, {} channels), profile {}, network {} → {:?} → {}, batch {batch}, {} steps per run (80 % joint, 15 % frozen latents, 5 % quantization-aware), median of {}",
+        o.label,
+        o.set.width,
+        o.set.height,
+        o.set.channel_count(),
+        o.profile.name(),
+        cfg.input_width(),
+        cfg.hidden,
+        cfg.outputs,
+        o.steps,
+        o.runs
+    );
+    println!(
+        "MLP work: {:.1} kFLOP per sample on average ({} GFLOP per run)",
+        flops as f64 / (o.steps * batch) as f64 / 1e3,
+        flops / 1_000_000_000
+    );
+    let best = TrainKernel::best();
+    let peaks: Vec<(usize, f64)> = o.threads.iter().map(|&t| (t, fma_peak(best, t))).collect();
+    for (t, p) in &peaks {
+        println!(
+            "f32 FMA peak ({} probe, {t} thread{}): {:.1} GFLOP/s",
+            best.name(),
+            if *t == 1 { "" } else { "s" },
+            p / 1e9
+        );
+    }
+    println!();
+    println!("| kernel | threads | steps/s | samples/s | MLP GFLOP/s | % of FMA peak |");
+    println!("|---|---:|---:|---:|---:|---:|");
+    for &kernel in &o.kernels {
+        for &(threads, peak) in &peaks {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
+            let opts =
+                TrainOptions { steps: o.steps, kernel: Some(kernel), ..TrainOptions::default() };
+            let times: Vec<f64> = (0..o.runs)
+                .map(|_| {
+                    let mut model = Model::new(&o.set, &cfg, AddressMode::Wrap, opts.seed);
+                    let start = Instant::now();
+                    pool.install(|| model.train(&opts, &mut |_| {}));
+                    black_box(&model.latents);
+                    start.elapsed().as_secs_f64()
+                })
+                .collect();
+            let t = median(times);
+            let gflops = flops as f64 / t / 1e9;
+            println!(
+                "| {} | {threads} | {:.1} | {:.0} | {:.1} | {:.1} |",
+                kernel.name(),
+                o.steps as f64 / t,
+                (o.steps * batch) as f64 / t,
+                gflops,
+                100.0 * gflops * 1e9 / peak
+            );
+        }
+    }
+    Ok(())
+}
