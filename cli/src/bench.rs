@@ -53,7 +53,7 @@ fn interleaved_ratio(runs: usize, a: &mut dyn FnMut(), b: &mut dyn FnMut()) -> f
     median(ratios)
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
+pub(crate) fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }

@@ -5,6 +5,7 @@
 //! run with the same number of threads.
 
 use crate::Result;
+use crate::bench::median;
 use nmat_core::AddressMode;
 use nmat_encode::train::{Model, Phase, mlp_flops_per_sample};
 use nmat_encode::{Profile, TextureSet, TrainKernel, TrainOptions, configure, shape_of};
@@ -22,11 +23,6 @@ pub struct Options {
     pub kernels: Vec<TrainKernel>,
     /// Timed runs per row; the median is reported.
     pub runs: usize,
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
 /// f32 FMA peak of `kernel` on `threads` threads running its probe at once, in FLOP/s (2 per
