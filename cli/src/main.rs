@@ -582,9 +582,6 @@ fn cmd_bench_train(
         (nmat_encode::demo::bricks(1024), "the bundled procedural material".to_string())
     } else {
         let files = texset::collect_inputs(&inputs)?;
-        if files.is_empty() {
-            return Err("no input maps: pass a folder or map files".into());
-        }
         let roles = texset::assign_roles(&files, &[])?;
         let label = inputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" ");
         (texset::load(&roles, &LoadOptions { resize: false })?, label)

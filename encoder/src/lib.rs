@@ -92,8 +92,7 @@ fn to_spec(
     options: &EncodeOptions,
 ) -> Result<MaterialSpec, EncodeError> {
     let cfg = model.cfg;
-    let kernel = options.train.kernel.unwrap_or_else(TrainKernel::best);
-    let ranges = model.activation_ranges(8192, options.train.seed, kernel);
+    let ranges = model.activation_ranges(8192, options.train.seed, options.train.kernel());
     let mut frac = train::INPUT_FRAC_BITS;
     let mut layers = Vec::new();
     let last = model.layers.len() - 1;

@@ -41,6 +41,13 @@ pub struct TrainOptions {
     pub kernel: Option<TrainKernel>,
 }
 
+impl TrainOptions {
+    /// The kernel that runs: the one asked for, else the fastest this CPU has.
+    pub fn kernel(&self) -> TrainKernel {
+        self.kernel.unwrap_or_else(TrainKernel::best)
+    }
+}
+
 impl Default for TrainOptions {
     fn default() -> Self {
         TrainOptions {
@@ -627,7 +634,7 @@ impl<'a> Model<'a> {
         let mut latent_slots = vec![LatentSlot::default(); self.latents.len()];
         let mut running = None::<f64>;
         let chunks = opts.batch.div_ceil(CHUNK);
-        let kernel = opts.kernel.unwrap_or_else(TrainKernel::best);
+        let kernel = opts.kernel();
         for step in 0..steps {
             let phase = Phase::at(step, steps);
             let layers = eval_layers(&self.layers, phase == Phase::QuantizationAware);
