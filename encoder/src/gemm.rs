@@ -184,6 +184,11 @@ impl Matrix {
     pub fn as_mut_slice(&mut self) -> &mut [f32] {
         &mut self.data
     }
+    /// `f` applied to every element, padding included (so `f(0)` must be 0).
+    pub fn map(&self, f: impl Fn(f32) -> f32) -> Matrix {
+        debug_assert!(f(0.0) == 0.0, "Matrix::map: f(0) must keep the padding zero");
+        Matrix { data: self.data.iter().map(|&v| f(v)).collect(), ..*self }
+    }
 }
 
 #[cfg(test)]

@@ -15,6 +15,7 @@ pub mod demo;
 pub mod error;
 mod gemm;
 pub mod metrics;
+mod prefetch;
 pub mod profile;
 pub mod source_maps;
 pub mod texset;

@@ -10,6 +10,7 @@
 //! result is the same for any number of threads and any kernel.
 
 use crate::gemm::{Matrix, TrainKernel};
+use crate::prefetch::prefetch;
 use crate::profile::ModelConfig;
 use crate::texset::TextureSet;
 use nmat_core::latents::footprint;
@@ -222,23 +223,27 @@ fn eval_layers(layers: &[Dense], fake_quant: bool) -> Vec<EvalLayer> {
         .collect()
 }
 
+// Both activations compute the middle piece unconditionally, so a loop over a chunk can select
+// instead of branch.
 fn hard_gelu(x: f32) -> f32 {
+    let mid = x * (x + 1.5) / 3.0;
     if x <= -1.5 {
         0.0
     } else if x >= 1.5 {
         x
     } else {
-        x * (x + 1.5) / 3.0
+        mid
     }
 }
 
 fn hard_gelu_grad(x: f32) -> f32 {
+    let mid = (2.0 * x + 1.5) / 3.0;
     if x <= -1.5 {
         0.0
     } else if x >= 1.5 {
         1.0
     } else {
-        (2.0 * x + 1.5) / 3.0
+        mid
     }
 }
 
@@ -297,8 +302,19 @@ impl Adam {
     fn new(n: usize) -> Adam {
         Adam { m: vec![0.0; n], v: vec![0.0; n] }
     }
-    fn update(&mut self, i: usize, p: &mut f32, g: f32, step: AdamStep) {
-        adam(&mut self.m[i], &mut self.v[i], p, g, step);
+    /// Updates `params` with `grads` (one each, in order).
+    fn update(&mut self, params: &mut [f32], grads: &[f32], step: AdamStep) {
+        adam_block(&mut self.m, &mut self.v, params, grads, step);
+    }
+}
+
+/// [`adam`] over slices of equal length; a plain loop the compiler vectorizes (division and
+/// square root are exact in every lane, so the results are those of [`adam`]).
+fn adam_block(m: &mut [f32], v: &mut [f32], p: &mut [f32], g: &[f32], step: AdamStep) {
+    let n = p.len();
+    assert!(m.len() == n && v.len() == n && g.len() == n, "adam_block: lengths");
+    for i in 0..n {
+        adam(&mut m[i], &mut v[i], &mut p[i], g[i], step);
     }
 }
 
@@ -332,18 +348,94 @@ struct Grads {
     /// `[outputs][inputs]` per layer.
     w: Vec<Matrix>,
     b: Vec<Vec<f32>>,
-    latents: Vec<(u32, f32)>,
+    /// (latent, gradient) in tap order, cut into [`LATENT_BUCKETS`] ranges of latents.
+    latents: Vec<Vec<(u32, f32)>>,
     loss: f64,
+}
+
+/// The latents are updated in this many ranges side by side (a fixed number: every latent's
+/// gradient is summed in chunk order, then tap order, whatever the thread count).
+const LATENT_BUCKETS: usize = 16;
+
+/// Latents per bucket.
+fn latent_bucket_len(latents: usize) -> usize {
+    latents.div_ceil(LATENT_BUCKETS).max(1)
+}
+
+/// One step's sparse Adam update of the latents: only those a sample read move.
+struct LatentUpdate {
+    stamp: u32,
+    /// 1 / batch.
+    inv: f32,
+    adam: AdamStep,
+}
+
+impl LatentUpdate {
+    /// Sums the gradients of `bucket` over `results` (in chunk order) and updates the latents it
+    /// touched; `slots` and `latents` are that bucket's range, which starts at latent `base`.
+    fn apply(
+        &self,
+        results: &[Grads],
+        (bucket, base): (usize, usize),
+        slots: &mut [LatentSlot],
+        latents: &mut [f32],
+    ) {
+        // Slots are read in random order: ask for them far enough ahead to cover a miss to
+        // memory (an entry costs a few cycles, an update a few tens).
+        const AHEAD: usize = 64;
+        let mut touched = Vec::new();
+        for r in results {
+            let entries = &r.latents[bucket];
+            for (j, &(idx, g)) in entries.iter().enumerate() {
+                if let Some(&(next, _)) = entries.get(j + AHEAD) {
+                    prefetch(slots, next as usize - base);
+                }
+                let i = idx as usize - base;
+                let slot = &mut slots[i];
+                if slot.touched != self.stamp {
+                    *slot = LatentSlot { grad: 0.0, touched: self.stamp, ..*slot };
+                    touched.push(i);
+                }
+                slot.grad += g;
+            }
+        }
+        // Gathered into blocks so the arithmetic runs in SIMD lanes.
+        const BLOCK: usize = 64;
+        let (mut m, mut v, mut p, mut g) =
+            ([0f32; BLOCK], [0f32; BLOCK], [0f32; BLOCK], [0f32; BLOCK]);
+        for (b, block) in touched.chunks(BLOCK).enumerate() {
+            for &next in touched.iter().skip((b + 1) * BLOCK).take(BLOCK) {
+                prefetch(slots, next);
+                prefetch(latents, next);
+            }
+            let n = block.len();
+            for (k, &i) in block.iter().enumerate() {
+                let slot = &slots[i];
+                (m[k], v[k], p[k], g[k]) = (slot.m, slot.v, latents[i], slot.grad * self.inv);
+            }
+            adam_block(&mut m[..n], &mut v[..n], &mut p[..n], &g[..n], self.adam);
+            for (k, &i) in block.iter().enumerate() {
+                (slots[i].m, slots[i].v) = (m[k], v[k]);
+                latents[i] = p[k].clamp(0.0, 1.0);
+            }
+        }
+    }
 }
 
 /// A latent's share in one input feature of one sample of a chunk.
 #[derive(Clone, Copy)]
 struct Tap {
-    sample: u32,
+    sample: u16,
     feature: u16,
+    grid: u16,
+    /// Bilinear taps add `weight ×` the latent's value to their feature; `Nearest4` taps set it.
+    add: bool,
     latent: u32,
+    weight: f32,
     /// ∂feature/∂(unit latent).
     coeff: f32,
+    /// The uniform draw in [0, 1) that the noisy mode turns into ±½ quantization step.
+    noise: f32,
 }
 
 fn cosine(lr: f32, t: usize, total: usize) -> f32 {
@@ -430,82 +522,88 @@ impl<'a> Model<'a> {
         (rng.below(m.width), rng.below(m.height), mip)
     }
 
-    /// Input features of a texel; `taps` receives (feature, latent index, ∂feature/∂u).
-    fn features(
-        &self,
-        (x, y, mip): (u32, u32, u32),
-        mode: LatentMode,
-        rng: &mut Rng,
-        out: &mut Vec<f32>,
-        taps: &mut Vec<(u16, u32, f32)>,
-    ) {
-        out.clear();
-        taps.clear();
+    /// Appends the taps of sample `s` at texel `(x, y, mip)` in the order its features read
+    /// them, and asks for the latents they read (they are read a few samples later).
+    fn plan(&self, s: usize, (x, y, mip): (u32, u32, u32), taps: &mut Vec<Tap>) {
         let ms = &self.set.mips[mip as usize];
         let mip_size = (ms.width, ms.height);
         let level = &self.cfg.levels[usize::from(self.cfg.mip_to_level[mip as usize])];
-        let latents = &self.latents;
-        let value = |g: &GridState, idx: usize, rng: &mut Rng| {
-            let q = g.qmax();
-            let u = latents[idx];
-            let u = match mode {
-                LatentMode::Noisy => (u + (rng.unit() - 0.5) / q).clamp(0.0, 1.0),
-                LatentMode::Quantized => (u * q).round() / q,
-            };
-            g.low() + u * g.width_real()
-        };
+        let mut feature = 0;
         for term in level {
-            match term.mode {
-                TermMode::Nearest4 => {
-                    let g = &self.grids[term.grids[0]];
-                    let fp = footprint((g.width, g.height), x, y, mip_size, self.address);
-                    for (cx, cy) in [(fp.x0, fp.y0), (fp.x1, fp.y0), (fp.x0, fp.y1), (fp.x1, fp.y1)]
-                    {
-                        for c in 0..g.channels {
-                            let idx = g.index(cx, cy, c);
-                            taps.push((out.len() as u16, idx as u32, g.width_real()));
-                            out.push(value(g, idx, rng));
-                        }
+            let add = term.mode != TermMode::Nearest4;
+            let channels = self.grids[term.grids[0]].channels;
+            for &gi in &term.grids {
+                let g = &self.grids[gi];
+                let fp = footprint((g.width, g.height), x, y, mip_size, self.address);
+                let (fx, fy) = (fp.fx as f32, fp.fy as f32);
+                let corners = [
+                    (fp.x0, fp.y0, (256.0 - fx) * (256.0 - fy)),
+                    (fp.x1, fp.y0, fx * (256.0 - fy)),
+                    (fp.x0, fp.y1, (256.0 - fx) * fy),
+                    (fp.x1, fp.y1, fx * fy),
+                ];
+                for (k, (cx, cy, w)) in corners.into_iter().enumerate() {
+                    // Nearest4 reads every corner into its own features at full weight.
+                    let (w, first) =
+                        if add { (w / 65536.0, feature) } else { (1.0, feature + k * channels) };
+                    if add && w == 0.0 {
+                        continue;
                     }
-                }
-                _ => {
-                    let channels = self.grids[term.grids[0]].channels;
-                    let start = out.len();
-                    out.resize(start + channels, 0.0);
-                    for &gi in &term.grids {
-                        let g = &self.grids[gi];
-                        let fp = footprint((g.width, g.height), x, y, mip_size, self.address);
-                        let (fx, fy) = (fp.fx as f32, fp.fy as f32);
-                        let corners = [
-                            (fp.x0, fp.y0, (256.0 - fx) * (256.0 - fy)),
-                            (fp.x1, fp.y0, fx * (256.0 - fy)),
-                            (fp.x0, fp.y1, (256.0 - fx) * fy),
-                            (fp.x1, fp.y1, fx * fy),
-                        ];
-                        for (cx, cy, w) in corners {
-                            if w == 0.0 {
-                                continue;
-                            }
-                            let w = w / 65536.0;
-                            for c in 0..channels {
-                                let idx = g.index(cx, cy, c);
-                                taps.push(((start + c) as u16, idx as u32, w * g.width_real()));
-                                out[start + c] += w * value(g, idx, rng);
-                            }
-                        }
+                    prefetch(&self.latents, g.index(cx, cy, 0));
+                    prefetch(&self.latents, g.index(cx, cy, channels - 1));
+                    for c in 0..channels {
+                        taps.push(Tap {
+                            sample: s as u16,
+                            feature: (first + c) as u16,
+                            grid: gi as u16,
+                            add,
+                            latent: g.index(cx, cy, c) as u32,
+                            weight: w,
+                            coeff: w * g.width_real(),
+                            noise: 0.0,
+                        });
                     }
                 }
             }
+            feature += if add { channels } else { 4 * channels };
         }
+    }
+
+    /// Writes the latent features of `taps` (planned by [`Model::plan`]) into the rows of `x`.
+    fn evaluate(&self, taps: &[Tap], mode: LatentMode, x: &mut Matrix) {
+        for t in taps {
+            let g = &self.grids[usize::from(t.grid)];
+            let q = g.qmax();
+            let u = self.latents[t.latent as usize];
+            let u = match mode {
+                LatentMode::Noisy => (u + (t.noise - 0.5) / q).clamp(0.0, 1.0),
+                LatentMode::Quantized => (u * q).round() / q,
+            };
+            let v = g.low() + u * g.width_real();
+            let f = &mut x.row_mut(usize::from(t.sample))[usize::from(t.feature)];
+            if t.add {
+                *f += t.weight * v;
+            } else {
+                *f = v;
+            }
+        }
+    }
+
+    /// The features after the latents: positional encoding and the mip level.
+    fn position_features(&self, (x, y, mip): (u32, u32, u32), row: &mut [f32]) {
         let f = INPUT_FRAC_BITS;
         let one = (1u32 << f) as f32;
+        let mut at = self.cfg.input_width()
+            - 4 * usize::from(self.cfg.pe_frequencies)
+            - usize::from(self.cfg.lod_input);
         for k in 0..self.cfg.pe_frequencies {
             for (t, p) in [(x, 0), (x, 1), (y, 0), (y, 1)] {
-                out.push(f32::from(triangle_q(t, k, p, f)) / one);
+                row[at] = f32::from(triangle_q(t, k, p, f)) / one;
+                at += 1;
             }
         }
         if self.cfg.lod_input {
-            out.push(mip as f32 / 16.0);
+            row[at] = mip as f32 / 16.0;
         }
     }
 
@@ -514,33 +612,41 @@ impl<'a> Model<'a> {
         m.data[(y * m.width + x) as usize * self.set.channel_count() + c]
     }
 
-    /// Draws `samples` texels: their input features (one row each) and, if `taps`, every
-    /// latent's share in them.
+    /// Draws `samples` texels: their input features (one row each) and every latent's share in
+    /// them (`taps`, in the order the random draws are made: texel, then its noise). A sample's
+    /// latent features are computed `LAG` samples after its taps are planned, so the latents it
+    /// reads are on their way to the cache meanwhile.
     fn gather(
         &self,
         mode: LatentMode,
         rng: &mut Rng,
         samples: usize,
-        mut taps: Option<&mut Vec<Tap>>,
+        taps: &mut Vec<Tap>,
     ) -> (Vec<(u32, u32, u32)>, Matrix) {
+        const LAG: usize = 8;
+        assert!(samples <= CHUNK, "gather: {samples} samples do not fit a tap's sample index");
         let mut x = Matrix::zeros(samples, self.cfg.input_width());
         let mut draws = Vec::with_capacity(samples);
-        let mut feats = Vec::new();
-        let mut sample_taps = Vec::new();
+        let mut starts = Vec::with_capacity(samples + 1);
+        taps.clear();
+        let c_all = self.set.channel_count();
         for s in 0..samples {
             let d = self.draw(rng);
-            self.features(d, mode, rng, &mut feats, &mut sample_taps);
-            x.row_mut(s)[..feats.len()].copy_from_slice(&feats);
-            if let Some(taps) = taps.as_deref_mut() {
-                taps.extend(sample_taps.iter().map(|&(feature, latent, coeff)| Tap {
-                    sample: s as u32,
-                    feature,
-                    latent,
-                    coeff,
-                }));
+            starts.push(taps.len());
+            self.plan(s, d, taps);
+            if mode == LatentMode::Noisy {
+                taps[starts[s]..].iter_mut().for_each(|t| t.noise = rng.unit());
+            }
+            let m = &self.set.mips[d.2 as usize];
+            prefetch(&m.data, (d.1 * m.width + d.0) as usize * c_all);
+            self.position_features(d, x.row_mut(s));
+            if s >= LAG {
+                self.evaluate(&taps[starts[s - LAG]..starts[s - LAG + 1]], mode, &mut x);
             }
             draws.push(d);
         }
+        let from = starts.get(samples.saturating_sub(LAG)).copied().unwrap_or(0);
+        self.evaluate(&taps[from..], mode, &mut x);
         (draws, x)
     }
 
@@ -557,11 +663,7 @@ impl<'a> Model<'a> {
             let mut pre = Matrix::zeros(samples, l.outputs);
             kernel.matmul(&xs[k], l.inputs, &l.wt, Some(&l.b), &mut pre);
             if k + 1 < layers.len() {
-                let mut next = pre.clone();
-                if l.hidden {
-                    next.as_mut_slice().iter_mut().for_each(|v| *v = hard_gelu(*v));
-                }
-                xs.push(next);
+                xs.push(if l.hidden { pre.map(hard_gelu) } else { pre.clone() });
             }
             pres.push(pre);
         }
@@ -579,7 +681,7 @@ impl<'a> Model<'a> {
     ) -> f64 {
         let ChunkMode { kernel, latents: mode, train_latents } = how;
         let mut taps = Vec::new();
-        let (draws, x0) = self.gather(mode, rng, samples, train_latents.then_some(&mut taps));
+        let (draws, x0) = self.gather(mode, rng, samples, &mut taps);
         let (xs, pres) = Self::forward(layers, kernel, x0);
         let last = layers.len() - 1;
         let outputs = self.learned.len().max(1);
@@ -615,10 +717,11 @@ impl<'a> Model<'a> {
             g = gin;
         }
         if train_latents {
+            let per = latent_bucket_len(self.latents.len());
             for t in &taps {
-                let gv = g.row(t.sample as usize)[usize::from(t.feature)] * t.coeff;
+                let gv = g.row(usize::from(t.sample))[usize::from(t.feature)] * t.coeff;
                 if gv != 0.0 {
-                    gr.latents.push((t.latent, gv));
+                    gr.latents[t.latent as usize / per].push((t.latent, gv));
                 }
             }
         }
@@ -649,7 +752,7 @@ impl<'a> Model<'a> {
                     let mut g = Grads {
                         w: self.layers.iter().map(|l| Matrix::zeros(l.outputs, l.inputs)).collect(),
                         b: self.layers.iter().map(|l| vec![0.0; l.outputs]).collect(),
-                        latents: Vec::new(),
+                        latents: vec![Vec::new(); LATENT_BUCKETS],
                         loss: 0.0,
                     };
                     let how = ChunkMode { kernel, latents: mode, train_latents };
@@ -670,35 +773,25 @@ impl<'a> Model<'a> {
                     gw.as_mut_slice().iter_mut().zip(r.w[k].as_slice()).for_each(|(a, b)| *a += b);
                     gb.iter_mut().zip(&r.b[k]).for_each(|(a, b)| *a += b);
                 }
-                for (o, row) in layer.w.chunks_mut(layer.inputs).enumerate() {
-                    for (i, (p, g)) in row.iter_mut().zip(gw.row(o)).enumerate() {
-                        adam_w[k].update(o * layer.inputs + i, p, g * inv, adam_mlp);
-                    }
-                }
-                for (i, (p, g)) in layer.b.iter_mut().zip(&gb).enumerate() {
-                    adam_b[k].update(i, p, g * inv, adam_mlp);
-                }
+                let gw: Vec<f32> = (0..layer.outputs)
+                    .flat_map(|o| &gw.row(o)[..layer.inputs])
+                    .map(|g| g * inv)
+                    .collect();
+                let gb: Vec<f32> = gb.iter().map(|g| g * inv).collect();
+                adam_w[k].update(&mut layer.w, &gw, adam_mlp);
+                adam_b[k].update(&mut layer.b, &gb, adam_mlp);
             }
             if train_latents {
                 let adam_latents = AdamStep::new(cosine(opts.lr_latents, step, joint_end), t);
-                let mut touched = Vec::new();
-                let stamp = step as u32;
-                for r in &results {
-                    for &(idx, g) in &r.latents {
-                        let slot = &mut latent_slots[idx as usize];
-                        if slot.touched != stamp {
-                            *slot = LatentSlot { grad: 0.0, touched: stamp, ..*slot };
-                            touched.push(idx);
-                        }
-                        slot.grad += g;
-                    }
-                }
-                for i in touched {
-                    let slot = &mut latent_slots[i as usize];
-                    let p = &mut self.latents[i as usize];
-                    adam(&mut slot.m, &mut slot.v, p, slot.grad * inv, adam_latents);
-                    *p = p.clamp(0.0, 1.0);
-                }
+                let per = latent_bucket_len(self.latents.len());
+                latent_slots
+                    .par_chunks_mut(per)
+                    .zip(self.latents.par_chunks_mut(per))
+                    .enumerate()
+                    .for_each(|(bucket, (slots, latents))| {
+                        let update = LatentUpdate { stamp: step as u32, inv, adam: adam_latents };
+                        update.apply(&results, (bucket, bucket * per), slots, latents);
+                    });
             }
             for r in &results {
                 mse += r.loss / chunks as f64;
@@ -723,9 +816,10 @@ impl<'a> Model<'a> {
         let mut rng = Rng::new(seed, u64::MAX, 7);
         let mut max = vec![0f32; layers.len()];
         let mut done = 0;
+        let mut taps = Vec::new();
         while done < samples {
             let n = CHUNK.min(samples - done);
-            let (_, x0) = self.gather(LatentMode::Quantized, &mut rng, n, None);
+            let (_, x0) = self.gather(LatentMode::Quantized, &mut rng, n, &mut taps);
             let (_, pres) = Self::forward(&layers, kernel, x0);
             for (m, p) in max.iter_mut().zip(&pres) {
                 *m = p.as_slice().iter().fold(*m, |m, v| m.max(v.abs()));
