@@ -7,7 +7,7 @@
 use crate::Result;
 use crate::bench::median;
 use nmat_core::AddressMode;
-use nmat_encode::train::{Model, Phase, mlp_flops_per_sample};
+use nmat_encode::train::{Model, mlp_flops_per_sample};
 use nmat_encode::{Profile, TextureSet, TrainKernel, TrainOptions, configure, shape_of};
 use std::hint::black_box;
 use std::time::Instant;
@@ -46,12 +46,12 @@ fn fma_peak(kernel: TrainKernel, threads: usize) -> f64 {
 
 pub fn run(o: &Options) -> Result<()> {
     let cfg = configure(o.profile, &shape_of(&o.set));
-    let batch = TrainOptions::default().batch;
-    let flops: u64 = (0..o.steps)
-        .map(|s| mlp_flops_per_sample(&cfg, Phase::at(s, o.steps)) * batch as u64)
-        .sum();
+    let base = TrainOptions { steps: o.steps, ..TrainOptions::default() };
+    let batch = base.batch;
+    let flops: u64 =
+        (0..o.steps).map(|s| mlp_flops_per_sample(&cfg, base.phase(s)) * batch as u64).sum();
     println!(
-        "material: {} ({}×{}, {} channels), profile {}, network {} → {:?} → {}, batch {batch}, {} steps per run (80 % joint, 15 % frozen latents, 5 % quantization-aware), median of {}",
+        "material: {} ({}×{}, {} channels), profile {}, network {} → {:?} → {}, batch {batch}, {} steps per run ({} % joint, {} % quantization-aware), median of {}",
         o.label,
         o.set.width,
         o.set.height,
@@ -61,6 +61,8 @@ pub fn run(o: &Options) -> Result<()> {
         cfg.hidden,
         cfg.outputs,
         o.steps,
+        base.joint_percent,
+        base.qat_percent,
         o.runs
     );
     println!(
@@ -84,11 +86,10 @@ pub fn run(o: &Options) -> Result<()> {
     for &kernel in &o.kernels {
         for &(threads, peak) in &peaks {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
-            let opts =
-                TrainOptions { steps: o.steps, kernel: Some(kernel), ..TrainOptions::default() };
+            let opts = TrainOptions { kernel: Some(kernel), ..base.clone() };
             let times: Vec<f64> = (0..o.runs)
                 .map(|_| {
-                    let mut model = Model::new(&o.set, &cfg, AddressMode::Wrap, opts.seed);
+                    let mut model = Model::new(&o.set, &cfg, AddressMode::Wrap, &opts);
                     let start = Instant::now();
                     pool.install(|| model.train(&opts, &mut |_| {}));
                     black_box(&model.latents);

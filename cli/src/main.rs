@@ -11,8 +11,8 @@ use nmat_core::{AddressMode, Container, Material};
 use nmat_encode::metrics::{ChainQuality, chain_quality};
 use nmat_encode::texset::{self, LoadOptions, Role};
 use nmat_encode::{
-    EncodeError, EncodeOptions, Encoded, PROFILES, Profile, TextureSet, TrainKernel, TrainOptions,
-    encode,
+    Effort, EncodeError, EncodeOptions, Encoded, PROFILES, Profile, TextureSet, TrainKernel,
+    TrainOptions, encode,
 };
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -97,14 +97,34 @@ enum Command {
 struct TrainArgs {
     /// Optimizer steps (more: better quality, longer encode) [default: 10000 for encode, 3000
     /// for demo].
-    #[arg(long)]
+    #[arg(long, conflicts_with = "effort")]
     steps: Option<usize>,
+    /// Encode time for quality: fast = ¼ of the default steps, max = 4× (docs/ENCODING.md).
+    #[arg(long, value_enum, default_value_t = EffortArg::Default)]
+    effort: EffortArg,
     /// Seed of every random choice: same inputs, seed and steps give the same file.
     #[arg(long, default_value_t = TrainOptions::default().seed)]
     seed: u64,
     /// Worker threads (default: all cores). The file does not depend on it.
     #[arg(long)]
     threads: Option<usize>,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum EffortArg {
+    Fast,
+    Default,
+    Max,
+}
+
+impl From<EffortArg> for Effort {
+    fn from(e: EffortArg) -> Effort {
+        match e {
+            EffortArg::Fast => Effort::Fast,
+            EffortArg::Default => Effort::Default,
+            EffortArg::Max => Effort::Max,
+        }
+    }
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -210,15 +230,28 @@ fn run(cli: Cli) -> Result<()> {
     }
 }
 
+/// The most worker threads `--threads` accepts: 4 × this machine's cores (more only adds
+/// switching; a typo such as 10000 would otherwise start 10000 threads).
+fn max_threads() -> usize {
+    4 * std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// `n` if it is a sane thread count, else an error naming `--threads`.
+fn check_threads(n: usize) -> Result<usize> {
+    let max = max_threads();
+    if n == 0 || n > max {
+        return Err(format!(
+            "--threads {n}: must be between 1 and {max} (4 × the {} cores of this machine)",
+            max / 4
+        )
+        .into());
+    }
+    Ok(n)
+}
+
 fn threads(n: Option<usize>) -> Result<()> {
     if let Some(n) = n {
-        if n == 0 {
-            return Err(Box::new(EncodeError::BadOption {
-                option: "--threads",
-                value: "0".into(),
-                reason: "must be at least 1",
-            }));
-        }
+        let n = check_threads(n)?;
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
     }
     Ok(())
@@ -228,7 +261,7 @@ fn threads(n: Option<usize>) -> Result<()> {
 const DEMO_STEPS: usize = 3000;
 
 fn train_options(t: &TrainArgs, default_steps: usize) -> Result<TrainOptions> {
-    let steps = t.steps.unwrap_or(default_steps);
+    let steps = t.steps.unwrap_or_else(|| Effort::from(t.effort).steps(default_steps));
     if steps == 0 {
         return Err(Box::new(EncodeError::BadOption {
             option: "--steps",
@@ -274,6 +307,10 @@ fn cmd_encode(args: EncodeArgs) -> Result<()> {
         return Err("no input maps: pass a folder, files, or --map ROLE=PATH".into());
     }
     let roles = texset::assign_roles(&files, &explicit)?;
+    if !args.dry_run {
+        let inputs: Vec<PathBuf> = roles.iter().map(|(_, p)| p.clone()).collect();
+        output::check_output(&args.output, &inputs)?;
+    }
     let set = texset::load(&roles, &LoadOptions { resize: args.resize })?;
     let address_mode = match args.address {
         Address::Wrap => AddressMode::Wrap,
@@ -558,8 +595,11 @@ fn cmd_bench_train(
     kernel: &[String],
     runs: usize,
 ) -> Result<()> {
-    if steps == 0 || runs == 0 || threads.contains(&0) {
-        return Err("--steps, --runs and every --threads value must be at least 1".into());
+    if steps == 0 || runs == 0 {
+        return Err("--steps and --runs must be at least 1".into());
+    }
+    for &t in &threads {
+        check_threads(t)?;
     }
     let kernels = if kernel.iter().any(|k| k == "all") {
         TrainKernel::ALL.into_iter().filter(|k| k.is_available()).collect()

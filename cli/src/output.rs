@@ -10,21 +10,72 @@ use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 /// Writes `bytes` to `path` through a temporary file in the same folder and a rename, so a reader
-/// never sees a partial file and a failure leaves no output behind.
+/// never sees a partial file and a failure leaves no output behind. The temporary file has an
+/// unpredictable name and is created exclusively: a file or symlink planted under a name nmat
+/// might pick is never opened, so it cannot redirect the write.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
+    let context =
+        |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", path.display()));
+    let (tmp, mut f) = create_exclusive(dir, &name).map_err(context)?;
     let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
         f.write_all(bytes)?;
         f.sync_all()?;
+        drop(f);
         std::fs::rename(&tmp, path)
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
     }
-    result.map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", path.display())))
+    result.map_err(context)
+}
+
+/// Checks, before any long work, that [`write_atomic`] can write `path`: it is not a directory,
+/// it is none of `inputs` (a source is never replaced), and its folder exists and accepts a new
+/// file.
+pub fn check_output(path: &Path, inputs: &[PathBuf]) -> Result<(), String> {
+    let shown = path.display();
+    if path.is_dir() {
+        return Err(format!(
+            "-o {shown}: is a directory; give a file name such as {shown}/material.nmat"
+        ));
+    }
+    if let Ok(out) = path.canonicalize()
+        && inputs.iter().any(|i| i.canonicalize().is_ok_and(|i| i == out))
+    {
+        return Err(format!("-o {shown}: is one of the input maps; choose another output name"));
+    }
+    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    if !dir.is_dir() {
+        return Err(format!("-o {shown}: folder {} does not exist", dir.display()));
+    }
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let (tmp, f) = create_exclusive(dir, &name)
+        .map_err(|e| format!("-o {shown}: cannot create a file in {}: {e}", dir.display()))?;
+    drop(f);
+    let _ = std::fs::remove_file(tmp);
+    Ok(())
+}
+
+/// A new file `.NAME.tmp-RANDOM` in `dir`, created with `create_new` (fails on any existing
+/// entry, symlinks included); a few names are tried.
+fn create_exclusive(dir: &Path, name: &str) -> std::io::Result<(PathBuf, std::fs::File)> {
+    use std::hash::{BuildHasher, Hasher};
+    let mut last = None;
+    for attempt in 0u32..16 {
+        // RandomState is seeded from the OS's randomness once per process, then varied per call.
+        let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+        h.write_u32(attempt);
+        h.write_u32(std::process::id());
+        let tmp = dir.join(format!(".{name}.tmp-{:016x}", h.finish()));
+        match std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp) {
+            Ok(f) => return Ok((tmp, f)),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => last = Some(e),
+            Err(e) => return Err(e),
+        }
+    }
+    Err(last.unwrap_or_else(|| std::io::Error::other("no free temporary name")))
 }
 
 /// The SOURCE_MAPS section, if the file has a valid one.
@@ -375,4 +426,44 @@ pub fn quality_table(set: &TextureSet, q: &ChainQuality, profile: Option<&str>) 
         q.psnr, q.ssim, q.bppc
     );
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[cfg(unix)]
+    #[test]
+    fn a_planted_temporary_symlink_does_not_redirect_the_write() {
+        let dir = std::env::temp_dir().join(format!("nmat-atomic-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let victim = dir.join("victim.txt");
+        std::fs::write(&victim, b"keep me").unwrap();
+        // The names an earlier version used (`.NAME.tmp-PID`) and a spread of guesses.
+        for suffix in [std::process::id().to_string(), "0".into(), "1".into()] {
+            let link = dir.join(format!(".out.nmat.tmp-{suffix}"));
+            std::os::unix::fs::symlink(&victim, link).unwrap();
+        }
+        let out = dir.join("out.nmat");
+        write_atomic(&out, b"new bytes").unwrap();
+        assert_eq!(std::fs::read(&victim).unwrap(), b"keep me");
+        assert!(std::fs::symlink_metadata(&out).unwrap().file_type().is_file());
+        assert_eq!(std::fs::read(&out).unwrap(), b"new bytes");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_failed_write_leaves_no_temporary_file() {
+        let dir = std::env::temp_dir().join(format!("nmat-atomic-fail-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("out.nmat")).unwrap();
+        // Renaming a file over a non-empty directory fails.
+        std::fs::write(dir.join("out.nmat").join("x"), b"").unwrap();
+        let err = write_atomic(&dir.join("out.nmat"), b"bytes").unwrap_err();
+        assert!(err.to_string().contains("out.nmat"), "{err}");
+        let left: Vec<_> = std::fs::read_dir(&dir).unwrap().collect();
+        assert_eq!(left.len(), 1, "only the directory remains");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

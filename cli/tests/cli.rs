@@ -252,6 +252,33 @@ fn the_file_does_not_depend_on_the_thread_count() {
 }
 
 #[test]
+fn an_output_that_cannot_be_written_or_absurd_threads_are_refused_before_training() {
+    let dir = temp_dir("outcheck");
+    let maps = dir.join("maps");
+    std::fs::create_dir_all(&maps).unwrap();
+    write_maps(&maps, 16);
+    let albedo = maps.join("bricks_albedo.png");
+    let before = std::fs::read(&albedo).unwrap();
+    let m = maps.to_str().unwrap();
+    for (out, expect) in [
+        (albedo.to_str().unwrap().to_string(), "is one of the input maps"),
+        (dir.to_str().unwrap().to_string(), "is a directory"),
+        (dir.join("nope").join("x.nmat").to_str().unwrap().to_string(), "does not exist"),
+    ] {
+        let o = nmat(&["encode", m, "-o", &out, "--steps", "3"]);
+        assert!(!o.status.success(), "-o {out} succeeded");
+        let t = text(&o);
+        assert!(t.contains(expect) && !t.contains("overall: PSNR"), "-o {out}: {t}");
+    }
+    let out = dir.join("x.nmat");
+    let o = nmat(&["encode", m, "-o", out.to_str().unwrap(), "--threads", "100000"]);
+    assert!(text(&o).contains("--threads 100000: must be between 1 and"), "{}", text(&o));
+    assert!(std::fs::read(&albedo).unwrap() == before, "an input map was changed");
+    assert_eq!(files_in(&dir), ["maps"]);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn bad_input_fails_cleanly_and_writes_nothing() {
     let dir = temp_dir("bad");
     let out = dir.join("never.nmat");
@@ -362,6 +389,24 @@ fn demo_runs_end_to_end() {
 }
 
 #[test]
+fn effort_fast_is_a_quarter_of_the_default_steps_and_conflicts_with_steps() {
+    let dir = temp_dir("effort");
+    let (a, b) = (dir.join("a"), dir.join("b"));
+    // The demo's default is 3000 steps.
+    let o = nmat(&["demo", "-o", a.to_str().unwrap(), "--effort", "fast"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let o = nmat(&["demo", "-o", b.to_str().unwrap(), "--steps", "750"]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(
+        std::fs::read(a.join("demo.nmat")).unwrap() == std::fs::read(b.join("demo.nmat")).unwrap(),
+        "--effort fast and --steps 750 gave different files"
+    );
+    let o = nmat(&["demo", "-o", a.to_str().unwrap(), "--effort", "max", "--steps", "5"]);
+    assert!(!o.status.success() && text(&o).contains("cannot be used with"), "{}", text(&o));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn bench_train_reports_every_kernel_row_and_refuses_bad_options() {
     let dir = temp_dir("bench-train");
     write_maps(&dir, 32);
@@ -381,7 +426,8 @@ fn bench_train_reports_every_kernel_row_and_refuses_bad_options() {
     for (args, says) in [
         (vec!["--kernel", "sse9"], "--kernel sse9: unknown"),
         (vec!["--steps", "0"], "must be at least 1"),
-        (vec!["--threads", "1,0"], "must be at least 1"),
+        (vec!["--threads", "1,0"], "--threads 0: must be between 1 and"),
+        (vec!["--threads", "100000"], "--threads 100000: must be between 1 and"),
     ] {
         let mut all = vec!["bench-train", d];
         all.extend(args);

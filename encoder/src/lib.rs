@@ -27,7 +27,7 @@ pub use profile::{
     ByteBudget, DEFAULT_PROFILE, MaterialShape, ModelConfig, PROFILES, Profile, configure,
 };
 pub use texset::{Role, TextureSet};
-pub use train::{Phase, Progress, TrainOptions};
+pub use train::{Effort, Phase, Progress, TrainOptions};
 
 use nmat_core::{
     Activation, AddressMode, ChannelSpec, Container, GridSpec, LevelSpec, MaterialSpec, MlpSpec,
@@ -67,7 +67,7 @@ pub fn encode(
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Encoded, EncodeError> {
     let config = configure(options.profile, &shape_of(set));
-    let mut model = train::Model::new(set, &config, options.address_mode, options.train.seed);
+    let mut model = train::Model::new(set, &config, options.address_mode, &options.train);
     model.train(&options.train, progress);
     let spec = to_spec(set, &model, options)?;
     let bytes = spec.to_bytes()?;

@@ -31,13 +31,48 @@ const CHUNK: usize = 256;
 /// (docs/QUALITY.md).
 pub const DEFAULT_STEPS: usize = 10_000;
 
+/// Encode time traded for quality: a multiple of a command's default steps (`--effort`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Effort {
+    /// A quarter of the steps: for previews and iteration.
+    Fast,
+    /// The default steps.
+    #[default]
+    Default,
+    /// Four times the steps: for shipping builds.
+    Max,
+}
+
+impl Effort {
+    /// Steps at this effort when `default_steps` is the default.
+    pub fn steps(self, default_steps: usize) -> usize {
+        match self {
+            Effort::Fast => (default_steps / 4).max(1),
+            Effort::Default => default_steps,
+            Effort::Max => default_steps.saturating_mul(4),
+        }
+    }
+}
+
+/// How an encode trains. Beyond steps and seed these are tuning knobs (`nmat-sweep` measures
+/// them); the defaults are the tuned values.
 #[derive(Clone, Debug)]
 pub struct TrainOptions {
     pub steps: usize,
+    /// Texels per optimizer step.
     pub batch: usize,
     pub seed: u64,
+    /// Peak learning rates of the MLP and the latents (cosine schedule down to 1 %).
     pub lr_mlp: f32,
     pub lr_latents: f32,
+    /// Percent of the steps that train latents and MLP together; the last `qat_percent` train
+    /// the MLP with fake-quantized int8 weights; the steps between, the MLP on frozen latents.
+    pub joint_percent: u32,
+    pub qat_percent: u32,
+    /// Share of the samples drawn uniformly over the mips; the rest in proportion to their area.
+    pub mip_uniform_share: f32,
+    /// Latents start at the middle of their range ± half this (a unit range is 1).
+    pub latent_init_spread: f32,
     /// Matrix-product kernel; `None` picks [`TrainKernel::best`]. The file does not depend on it.
     pub kernel: Option<TrainKernel>,
 }
@@ -46,6 +81,23 @@ impl TrainOptions {
     /// The kernel that runs: the one asked for, else the fastest this CPU has.
     pub fn kernel(&self) -> TrainKernel {
         self.kernel.unwrap_or_else(TrainKernel::best)
+    }
+
+    /// The phase of step `step` (from 0).
+    pub fn phase(&self, step: usize) -> Phase {
+        let steps = self.steps.max(1);
+        if step < self.joint_end() {
+            Phase::Joint
+        } else if step < steps * 100usize.saturating_sub(self.qat_percent as usize) / 100 {
+            Phase::FrozenLatents
+        } else {
+            Phase::QuantizationAware
+        }
+    }
+
+    /// The first step after the joint phase.
+    fn joint_end(&self) -> usize {
+        self.steps.max(1) * (self.joint_percent as usize).min(100) / 100
     }
 }
 
@@ -57,6 +109,10 @@ impl Default for TrainOptions {
             seed: 1,
             lr_mlp: 1e-2,
             lr_latents: 2e-2,
+            joint_percent: 80,
+            qat_percent: 5,
+            mip_uniform_share: 0.3,
+            latent_init_spread: 0.2,
             kernel: None,
         }
     }
@@ -80,20 +136,6 @@ pub enum Phase {
     FrozenLatents,
     /// MLP with fake-quantized int8 weights.
     QuantizationAware,
-}
-
-impl Phase {
-    /// The phase of step `step` (from 0) of `steps`: 80 % joint, 15 % frozen latents, 5 %
-    /// quantization-aware.
-    pub fn at(step: usize, steps: usize) -> Phase {
-        if step < steps * 80 / 100 {
-            Phase::Joint
-        } else if step < steps * 95 / 100 {
-            Phase::FrozenLatents
-        } else {
-            Phase::QuantizationAware
-        }
-    }
 }
 
 /// Floating-point operations (2 per multiply-add) of the MLP's matrix products per training
@@ -448,9 +490,9 @@ impl<'a> Model<'a> {
         set: &'a TextureSet,
         cfg: &'a ModelConfig,
         address: AddressMode,
-        seed: u64,
+        opts: &TrainOptions,
     ) -> Model<'a> {
-        let mut rng = Rng::new(seed, 0xA11CE, 0);
+        let mut rng = Rng::new(opts.seed, 0xA11CE, 0);
         let mut grids = Vec::new();
         let mut base = 0;
         for g in &cfg.grids {
@@ -470,7 +512,8 @@ impl<'a> Model<'a> {
             base += (g.width * g.height) as usize * g.channels;
         }
         // Latents start near the middle of their range, with a little randomness to break symmetry.
-        let latents = (0..base).map(|_| 0.5 + 0.2 * (rng.unit() - 0.5)).collect();
+        let spread = opts.latent_init_spread.clamp(0.0, 1.0);
+        let latents = (0..base).map(|_| 0.5 + spread * (rng.unit() - 0.5)).collect();
         let mut widths = vec![cfg.input_width()];
         widths.extend(&cfg.hidden);
         widths.push(cfg.outputs.max(1));
@@ -501,6 +544,7 @@ impl<'a> Model<'a> {
             })
             .collect();
         // Mips drawn in proportion to their area plus a uniform share (NTC §6).
+        let uniform = opts.mip_uniform_share.clamp(0.0, 1.0);
         let areas: Vec<f32> = set.mips.iter().map(|m| (m.width * m.height) as f32).collect();
         let total: f32 = areas.iter().sum();
         let n = areas.len() as f32;
@@ -508,7 +552,7 @@ impl<'a> Model<'a> {
         let mip_cdf = areas
             .iter()
             .map(|a| {
-                acc += 0.7 * a / total + 0.3 / n;
+                acc += (1.0 - uniform) * a / total + uniform / n;
                 acc
             })
             .collect();
@@ -731,7 +775,7 @@ impl<'a> Model<'a> {
     /// Trains for `opts.steps` steps, reporting progress about 100 times.
     pub fn train(&mut self, opts: &TrainOptions, progress: &mut dyn FnMut(Progress)) {
         let steps = opts.steps.max(1);
-        let joint_end = steps * 80 / 100;
+        let joint_end = opts.joint_end();
         let mut adam_w: Vec<Adam> = self.layers.iter().map(|l| Adam::new(l.w.len())).collect();
         let mut adam_b: Vec<Adam> = self.layers.iter().map(|l| Adam::new(l.b.len())).collect();
         let mut latent_slots = vec![LatentSlot::default(); self.latents.len()];
@@ -739,7 +783,7 @@ impl<'a> Model<'a> {
         let chunks = opts.batch.div_ceil(CHUNK);
         let kernel = opts.kernel();
         for step in 0..steps {
-            let phase = Phase::at(step, steps);
+            let phase = opts.phase(step);
             let layers = eval_layers(&self.layers, phase == Phase::QuantizationAware);
             let mode =
                 if phase == Phase::Joint { LatentMode::Noisy } else { LatentMode::Quantized };
