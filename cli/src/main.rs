@@ -191,6 +191,10 @@ struct DecodeArgs {
     /// cargo build --release -p nmat --features gpu
     #[arg(long, conflicts_with = "float")]
     gpu: bool,
+    /// Replace files that already exist in the output folder (by default nmat refuses, so the
+    /// source maps are never overwritten with their decodes).
+    #[arg(long)]
+    force: bool,
 }
 
 fn main() -> ExitCode {
@@ -481,6 +485,23 @@ fn cmd_decode(args: DecodeArgs) -> Result<()> {
         vec![mip]
     };
     let mode = if args.float { Mode::Float } else { Mode::Int };
+    let names =
+        output::output_files(&m, &mips).map_err(|e| format!("{}: {e}", args.input.display()))?;
+    if !args.force {
+        let existing: Vec<&String> =
+            names.iter().filter(|n| args.output.join(n).symlink_metadata().is_ok()).collect();
+        if let Some(first) = existing.first() {
+            return Err(format!(
+                "-o {}: {} of the files to write already exist ({}{}); nothing was written. \
+                 Pass --force to replace them, or choose another folder",
+                args.output.display(),
+                existing.len(),
+                first,
+                if existing.len() > 1 { ", …" } else { "" }
+            )
+            .into());
+        }
+    }
     std::fs::create_dir_all(&args.output).map_err(|e| format!("{}: {e}", args.output.display()))?;
     let written = if args.gpu {
         decode_on_gpu(&m, &args.output, &mips)?

@@ -138,6 +138,27 @@ fn output_name(file_name: &str, mip: u32, single_mip0: bool) -> (String, image::
     (name, format)
 }
 
+/// The file names `write_maps` will write for `mips`, in order; an error if two maps would
+/// share a name (a hostile or careless SOURCE_MAPS section) — found before anything is written.
+pub fn output_files(m: &Material<'_>, mips: &[u32]) -> Result<Vec<String>, String> {
+    let maps = source_maps(m).unwrap_or_else(|| maps_from_names(m));
+    let single = mips == [0];
+    let mut names: Vec<String> = Vec::new();
+    for map in &maps {
+        for &mip in mips {
+            let (name, _) = output_name(&map.file_name, mip, single);
+            if names.contains(&name) {
+                return Err(format!(
+                    "the file's source maps name {name} twice ({}); nothing was written",
+                    map.file_name
+                ));
+            }
+            names.push(name);
+        }
+    }
+    Ok(names)
+}
+
 /// Decodes `mips` of every map and writes them into `dir` under their original names.
 /// 8-bit codes of every channel of a whole mip, row-major, decoded elsewhere (the GPU).
 pub type MipDecoder<'d> = dyn Fn(u32) -> Result<Vec<u8>, Box<dyn std::error::Error>> + 'd;

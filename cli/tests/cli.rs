@@ -136,6 +136,28 @@ fn encode_info_decode_eval_round_trip() {
         files_in(&out0),
         ["bricks_albedo.png", "bricks_height.png", "bricks_normal.png", "bricks_roughness.png"]
     );
+    // Decoding over existing files (here: over the source maps) is refused unless --force.
+    let source = std::fs::read(src.join("bricks_albedo.png")).unwrap();
+    let o = nmat(&["decode", file.to_str().unwrap(), "-o", src.to_str().unwrap()]);
+    assert!(!o.status.success(), "decode over the sources succeeded");
+    assert!(text(&o).contains("already exist") && text(&o).contains("--force"), "{}", text(&o));
+    assert!(std::fs::read(src.join("bricks_albedo.png")).unwrap() == source, "source replaced");
+    let o = nmat(&["decode", file.to_str().unwrap(), "-o", out0.to_str().unwrap(), "--force"]);
+    assert!(o.status.success(), "{}", text(&o));
+    // A file whose source maps name one file twice (checksum refreshed): refused, nothing written.
+    let mut dup = std::fs::read(&file).unwrap();
+    let (from, to) = (b"bricks_height.png", b"bricks_albedo.png");
+    let at = dup.windows(from.len()).position(|w| w == from).expect("map name in the file");
+    dup[at..at + to.len()].copy_from_slice(to);
+    let crc = nmat_core::checksum::file_checksum(&dup);
+    dup[20..24].copy_from_slice(&crc.to_le_bytes());
+    let dup_file = dir.join("dup.nmat");
+    std::fs::write(&dup_file, &dup).unwrap();
+    let dup_out = dir.join("dup");
+    let o = nmat(&["decode", dup_file.to_str().unwrap(), "-o", dup_out.to_str().unwrap()]);
+    assert!(!o.status.success(), "decode with duplicate names succeeded");
+    assert!(text(&o).contains("bricks_albedo.png twice"), "{}", text(&o));
+    assert!(!dup_out.exists(), "a folder was created for a refused decode");
 
     let o = nmat(&["eval", file.to_str().unwrap(), "--ref", src.to_str().unwrap()]);
     let report = text(&o);
