@@ -301,6 +301,42 @@ fn an_output_that_cannot_be_written_or_absurd_threads_are_refused_before_trainin
 }
 
 #[test]
+fn info_says_what_a_file_is_instead_of_reading_it_whole() {
+    let dir = temp_dir("notnmat");
+    write_maps(&dir, 16);
+    let file = dir.join("m.nmat");
+    let maps = dir.to_str().unwrap();
+    let o = nmat(&["encode", maps, "-o", file.to_str().unwrap(), "--steps", "2"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let mut trailing = std::fs::read(&file).unwrap();
+    trailing.extend_from_slice(b"junk");
+    std::fs::write(dir.join("trailing.nmat"), &trailing).unwrap();
+    std::fs::write(dir.join("empty.nmat"), b"").unwrap();
+    let mut cases = vec![
+        (dir.join("bricks_albedo.png"), "not a .nmat file (PNG signature)"),
+        (dir.join("empty.nmat"), "not a .nmat file (the file is empty)"),
+        (dir.clone(), "is a folder, not a .nmat file"),
+        (dir.join("trailing.nmat"), "4 trailing bytes after the"),
+        (dir.join("missing.nmat"), "missing.nmat"),
+    ];
+    if cfg!(unix) {
+        cases.push(("/dev/zero".into(), "not a regular file"));
+    }
+    for (path, says) in cases {
+        let o = nmat(&["info", path.to_str().unwrap()]);
+        assert!(!o.status.success(), "info {} succeeded", path.display());
+        assert!(text(&o).contains(says), "info {}: {}", path.display(), text(&o));
+    }
+    let o = nmat(&["eval", file.to_str().unwrap(), "--ref", dir.join("gone").to_str().unwrap()]);
+    assert!(text(&o).contains("gone: no such file or folder"), "{}", text(&o));
+    assert!(!text(&o).contains("--map"), "eval has no --map: {}", text(&o));
+    std::fs::copy(dir.join("bricks_albedo.png"), dir.join("other_albedo.png")).unwrap();
+    let o = nmat(&["encode", maps, "-o", dir.join("x.nmat").to_str().unwrap()]);
+    assert!(text(&o).contains("are both an albedo map"), "{}", text(&o));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn bad_input_fails_cleanly_and_writes_nothing() {
     let dir = temp_dir("bad");
     let out = dir.join("never.nmat");
@@ -323,7 +359,7 @@ fn bad_input_fails_cleanly_and_writes_nothing() {
                 "-o".into(),
                 out.to_str().unwrap().into(),
             ],
-            "nope",
+            "nope: no such file or folder",
         ),
         (
             vec![

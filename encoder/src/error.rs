@@ -43,12 +43,15 @@ impl fmt::Display for EncodeError {
                  brick_normal.png, brick_roughness.png … or pass --map role=PATH",
                 path.display()
             ),
-            EncodeError::DuplicateRole { role, first, second } => write!(
-                f,
-                "{} and {} are both a {role} map; keep one or assign roles with --map",
-                first.display(),
-                second.display()
-            ),
+            EncodeError::DuplicateRole { role, first, second } => {
+                let article = if role.starts_with(['a', 'e', 'i', 'o', 'u']) { "an" } else { "a" };
+                write!(
+                    f,
+                    "{} and {} are both {article} {role} map; keep one or assign roles with --map",
+                    first.display(),
+                    second.display()
+                )
+            }
             EncodeError::BadMapArgument { argument } => write!(
                 f,
                 "--map {argument}: expected ROLE=PATH with ROLE one of {}",

@@ -218,6 +218,11 @@ pub fn collect_inputs(paths: &[PathBuf]) -> Result<Vec<PathBuf>, EncodeError> {
             }
             found.sort();
             files.extend(found);
+        } else if p.symlink_metadata().is_err() {
+            return Err(EncodeError::Io {
+                path: p.clone(),
+                source: std::io::Error::new(std::io::ErrorKind::NotFound, "no such file or folder"),
+            });
         } else {
             files.push(p.clone());
         }
