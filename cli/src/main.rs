@@ -156,6 +156,10 @@ struct EncodeArgs {
     /// Resize maps of another size to the first map's size (Lanczos3) instead of failing.
     #[arg(long)]
     resize: bool,
+    /// Memory loading the maps may use, e.g. 8G or 512M (MiB without a unit); a map that would
+    /// need more is refused before it is decoded [default: 8G].
+    #[arg(long, value_parser = parse_memory)]
+    max_memory: Option<u64>,
     /// Texture addressing at the edges.
     #[arg(long, value_enum, default_value = "wrap")]
     address: Address,
@@ -232,6 +236,24 @@ fn run(cli: Cli) -> Result<()> {
             bench::run(&bench::Options { inputs, reference, region, runs })
         }
     }
+}
+
+/// `--max-memory`: a size with an optional binary unit (K, M, G; MiB without one), in bytes.
+fn parse_memory(text: &str) -> std::result::Result<u64, String> {
+    let t = text.trim();
+    let (digits, shift) = match t.char_indices().last() {
+        Some((i, 'K' | 'k')) => (&t[..i], 10),
+        Some((i, 'M' | 'm')) => (&t[..i], 20),
+        Some((i, 'G' | 'g')) => (&t[..i], 30),
+        _ => (t, 20),
+    };
+    let n: u64 = digits
+        .trim()
+        .parse()
+        .map_err(|_| format!("expected a size such as 8G or 512M, got {text:?}"))?;
+    n.checked_mul(1 << shift)
+        .filter(|&b| b > 0)
+        .ok_or_else(|| format!("{text:?}: must be above 0 and below 16 EiB"))
 }
 
 /// The most worker threads `--threads` accepts: 4 × this machine's cores (more only adds
@@ -315,7 +337,8 @@ fn cmd_encode(args: EncodeArgs) -> Result<()> {
         let inputs: Vec<PathBuf> = roles.iter().map(|(_, p)| p.clone()).collect();
         output::check_output(&args.output, &inputs)?;
     }
-    let set = texset::load(&roles, &LoadOptions { resize: args.resize })?;
+    let max_memory = args.max_memory.unwrap_or(texset::DEFAULT_MAX_MEMORY);
+    let set = texset::load(&roles, &LoadOptions { resize: args.resize, max_memory })?;
     let address_mode = match args.address {
         Address::Wrap => AddressMode::Wrap,
         Address::Clamp => AddressMode::Clamp,
@@ -700,7 +723,7 @@ fn cmd_bench_train(
         let files = texset::collect_inputs(&inputs)?;
         let roles = texset::assign_roles(&files, &[])?;
         let label = inputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" ");
-        (texset::load(&roles, &LoadOptions { resize: false })?, label)
+        (texset::load(&roles, &LoadOptions::default())?, label)
     };
     bench_train::run(&bench_train::Options {
         set,

@@ -301,6 +301,27 @@ fn an_output_that_cannot_be_written_or_absurd_threads_are_refused_before_trainin
 }
 
 #[test]
+fn a_map_over_the_memory_budget_is_refused_before_it_is_decoded() {
+    let dir = temp_dir("memory");
+    write_maps(&dir, 64);
+    let out = dir.join("m.nmat");
+    let (d, o) = (dir.to_str().unwrap(), out.to_str().unwrap());
+    // 64² texels at 48 bytes each: 192 KiB.
+    let r = nmat(&["encode", d, "-o", o, "--max-memory", "100K", "--steps", "2"]);
+    assert!(!r.status.success());
+    let t = text(&r);
+    assert!(t.contains("declares 64×64 texels") && t.contains("--max-memory"), "{t}");
+    for bad in ["0", "12Q", "3T"] {
+        let r = nmat(&["encode", d, "-o", o, "--max-memory", bad, "--steps", "2"]);
+        assert!(!r.status.success() && text(&r).contains("--max-memory"), "{bad}: {}", text(&r));
+    }
+    assert!(!out.exists());
+    let r = nmat(&["encode", d, "-o", o, "--max-memory", "1M", "--steps", "2"]);
+    assert!(r.status.success(), "{}", text(&r));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn info_says_what_a_file_is_instead_of_reading_it_whole() {
     let dir = temp_dir("notnmat");
     write_maps(&dir, 16);

@@ -22,6 +22,8 @@ pub enum EncodeError {
     SizeMismatch { path: PathBuf, size: (u32, u32), expected: (u32, u32), expected_from: PathBuf },
     /// A map is larger than the format allows.
     TooLarge { path: PathBuf, size: (u32, u32), limit: u32 },
+    /// Loading a map would need more memory than allowed (`--max-memory`).
+    OverMemory { path: PathBuf, size: (u32, u32), need: u64, max_memory: u64 },
     /// The maps add up to more channels than a material holds.
     TooManyChannels { channels: usize, limit: usize },
     /// An option value that cannot be used.
@@ -74,6 +76,16 @@ impl fmt::Display for EncodeError {
                 path.display(),
                 size.0,
                 size.1
+            ),
+            EncodeError::OverMemory { path, size, need, max_memory } => write!(
+                f,
+                "{} declares {}×{} texels: loading it needs about {} MiB, more than the {} MiB \
+                 allowed; raise the limit with --max-memory or use a smaller map",
+                path.display(),
+                size.0,
+                size.1,
+                need.div_ceil(1 << 20),
+                max_memory >> 20
             ),
             EncodeError::TooManyChannels { channels, limit } => write!(
                 f,

@@ -190,10 +190,28 @@ impl TextureSet {
 }
 
 /// Input to [`load`]: files with roles (detected or given).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct LoadOptions {
     /// Resize every map to the size of the first (in role order) with Lanczos3 instead of failing.
     pub resize: bool,
+    /// Memory, in bytes, that loading may use: a map whose declared size would need more (at
+    /// [`LOAD_BYTES_PER_TEXEL`]) is refused before its pixels are decoded, and the image decoder
+    /// allocates no more than this.
+    pub max_memory: u64,
+}
+
+/// Default [`LoadOptions::max_memory`]: 8 GiB, a 8192² material with room to spare on a typical
+/// 16 GiB machine.
+pub const DEFAULT_MAX_MEMORY: u64 = 8 << 30;
+
+/// Bytes per texel loading one map may hold at once: the decoded image (≤ 16, RGBA f32), its
+/// RGBA f32 copy (16) and the planes (≤ 16).
+pub const LOAD_BYTES_PER_TEXEL: u64 = 48;
+
+impl Default for LoadOptions {
+    fn default() -> Self {
+        LoadOptions { resize: false, max_memory: DEFAULT_MAX_MEMORY }
+    }
 }
 
 const IMAGE_EXTENSIONS: [&str; 8] = ["png", "tga", "jpg", "jpeg", "bmp", "tif", "tiff", "webp"];
@@ -275,7 +293,7 @@ pub fn assign_roles(
     Ok(out)
 }
 
-fn open_image(path: &Path) -> Result<DynamicImage, EncodeError> {
+fn open_image(path: &Path, max_memory: u64) -> Result<DynamicImage, EncodeError> {
     let image_err = |detail: String| EncodeError::Image { path: path.to_path_buf(), detail };
     let reader = image::ImageReader::open(path)
         .map_err(io(path))?
@@ -293,10 +311,22 @@ fn open_image(path: &Path) -> Result<DynamicImage, EncodeError> {
     if w == 0 || h == 0 {
         return Err(image_err("the image is empty".into()));
     }
-    let reader = image::ImageReader::open(path)
+    let need = u64::from(w) * u64::from(h) * LOAD_BYTES_PER_TEXEL;
+    if need > max_memory {
+        return Err(EncodeError::OverMemory {
+            path: path.to_path_buf(),
+            size: (w, h),
+            need,
+            max_memory,
+        });
+    }
+    let mut reader = image::ImageReader::open(path)
         .map_err(io(path))?
         .with_guessed_format()
         .map_err(io(path))?;
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(max_memory);
+    reader.limits(limits);
     reader.decode().map_err(|e| image_err(e.to_string()))
 }
 
@@ -364,7 +394,7 @@ pub fn load(maps: &[(Role, PathBuf)], options: &LoadOptions) -> Result<TextureSe
     let mut sources = Vec::new();
     let mut mip0_planes: Vec<Vec<f32>> = Vec::new();
     for (role, path) in maps {
-        let img = open_image(path)?;
+        let img = open_image(path, options.max_memory)?;
         let (w, h) = (img.width(), img.height());
         let (layout, sixteen_bit, mut planes) = planes(&img);
         let (expected, from) = size.get_or_insert(((w, h), path.clone())).clone();

@@ -158,7 +158,8 @@ fn bad_inputs_give_errors_that_name_the_file() {
         matches!(e, EncodeError::SizeMismatch { ref path, size: (16, 8), expected: (8, 8), .. } if path == &n),
         "{e}"
     );
-    let set = texset::load(&roles, &LoadOptions { resize: true }).unwrap();
+    let set =
+        texset::load(&roles, &LoadOptions { resize: true, ..LoadOptions::default() }).unwrap();
     assert_eq!((set.width, set.height, set.channel_count()), (8, 8, 6));
     // Not an image at all.
     let junk = dir.join("junk_albedo.png");
