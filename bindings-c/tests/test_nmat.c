@@ -5,6 +5,7 @@
 #include "nmat.h"
 
 #include <pthread.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -17,7 +18,27 @@ static int failures = 0;
             failures++;                                                          \
         }                                                                        \
     } while (0)
-#define CHECK_STATUS(call, expected) CHECK((call) == (expected))
+/* Before every call expected to fail, the last error is set to a known detail (a truncated open);
+ * after it, the detail must be non-empty and different: every failure describes itself, never
+ * an earlier call. (Expected truncations are the one status the known detail cannot tell apart.) */
+static char known_detail[256];
+static void set_known_detail(void) {
+    nmat_material *t = NULL;
+    nmat_material_open((const uint8_t *)"NMAT", 4, &t);
+    nmat_last_error((uint8_t *)known_detail, sizeof known_detail);
+}
+static int detail_is_fresh(void) {
+    char now[256];
+    nmat_last_error((uint8_t *)now, sizeof now);
+    return now[0] != 0 && strcmp(now, known_detail) != 0;
+}
+#define CHECK_STATUS(call, expected)                                             \
+    do {                                                                         \
+        int fails_ = (expected) != NMAT_OK;                                      \
+        if (fails_) set_known_detail();                                          \
+        CHECK((call) == (expected));                                             \
+        if (fails_ && (expected) != NMAT_TRUNCATED) CHECK(detail_is_fresh());    \
+    } while (0)
 
 static uint8_t *read_file(const char *path, size_t *len) {
     FILE *f = fopen(path, "rb");
@@ -96,6 +117,8 @@ static void test_bad_files(const uint8_t *good, size_t len) {
     CHECK_STATUS(nmat_material_open(NULL, 10, &m), NMAT_NULL_ARGUMENT);
     CHECK_STATUS(nmat_material_open(good, len, NULL), NMAT_NULL_ARGUMENT);
     CHECK_STATUS(nmat_material_open(good, 20, &m), NMAT_TRUNCATED);
+    CHECK_STATUS(nmat_material_open(good, SIZE_MAX, &m), NMAT_SIZE_OVERFLOW);
+    CHECK(m == NULL);
     CHECK(m == NULL);
     CHECK_STATUS(nmat_material_open((const uint8_t *)"JUNKJUNKJUNKJUNKJUNKJUNKJUNKJUNKJUNK", 36, &m), NMAT_MALFORMED);
     CHECK(m == NULL);
@@ -131,6 +154,7 @@ static void test_arguments(const nmat_material *m) {
     CHECK_STATUS(nmat_decode_texel_u8(m, 0, 0, 99, 1, codes, 16), NMAT_BAD_ARGUMENT);
     CHECK_STATUS(nmat_decode_texel(m, 0, 0, 0, 1, 7, values, 16), NMAT_BAD_ARGUMENT);
     CHECK_STATUS(nmat_decode_texel(m, 0, 0, 0, 0xFFFF, NMAT_MODE_FLOAT, values, 3), NMAT_BUFFER_TOO_SMALL);
+    CHECK_STATUS(nmat_decode_texel(m, 0, 0, 0, 0xFFFF, NMAT_MODE_INTEGER, values, 3), NMAT_BUFFER_TOO_SMALL);
     CHECK_STATUS(nmat_sample(m, 0.5f, 0.5f, 0.0f, 9, NMAT_MODE_FLOAT, rnd, 1, values, 16), NMAT_BAD_ARGUMENT);
     CHECK_STATUS(nmat_sample(m, 0.5f, 0.5f, 0.0f, NMAT_FILTER_STOCHASTIC, NMAT_MODE_FLOAT, NULL, 1, values, 16), NMAT_NULL_ARGUMENT);
     CHECK_STATUS(nmat_sample(m, 0.5f, 0.5f, 0.0f, NMAT_FILTER_BILINEAR, NMAT_MODE_FLOAT, NULL, 1, values, 16), NMAT_OK);

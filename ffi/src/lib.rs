@@ -12,7 +12,7 @@
 use nmat_core::{
     ChannelMask, Container, Decoder, Error, Filter, Material, Precision, SampleRequest,
 };
-use std::cell::RefCell;
+use std::cell::{Cell, RefCell};
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
 /// Version of this library: major.minor.patch.
@@ -53,6 +53,47 @@ pub enum nmat_status {
 }
 
 use nmat_status::*;
+
+impl nmat_status {
+    /// Every status, for turning a number back into one.
+    const ALL: [nmat_status; 12] = [
+        NMAT_OK,
+        NMAT_NULL_ARGUMENT,
+        NMAT_BAD_ARGUMENT,
+        NMAT_BUFFER_TOO_SMALL,
+        NMAT_SIZE_OVERFLOW,
+        NMAT_MALFORMED,
+        NMAT_TRUNCATED,
+        NMAT_UNSUPPORTED,
+        NMAT_LIMIT_EXCEEDED,
+        NMAT_CHECKSUM_MISMATCH,
+        NMAT_OUT_OF_MEMORY,
+        NMAT_INTERNAL_ERROR,
+    ];
+
+    fn from_i32(v: i32) -> Option<nmat_status> {
+        nmat_status::ALL.into_iter().find(|s| *s as i32 == v)
+    }
+
+    /// The one message table: `nmat_status_message`, and the detail of a failure that has no
+    /// more specific one.
+    fn message(self) -> &'static str {
+        match self {
+            NMAT_OK => "success",
+            NMAT_NULL_ARGUMENT => "a required pointer argument is NULL",
+            NMAT_BAD_ARGUMENT => "an argument is out of range",
+            NMAT_BUFFER_TOO_SMALL => "the output buffer is too small",
+            NMAT_SIZE_OVERFLOW => "a size computation overflows",
+            NMAT_MALFORMED => "the .nmat data is malformed",
+            NMAT_TRUNCATED => "the .nmat data is truncated",
+            NMAT_UNSUPPORTED => "the .nmat data uses an unsupported version or feature",
+            NMAT_LIMIT_EXCEEDED => "the .nmat data exceeds a limit of this library",
+            NMAT_CHECKSUM_MISMATCH => "the .nmat data is corrupted (checksum mismatch)",
+            NMAT_OUT_OF_MEMORY => "out of memory",
+            NMAT_INTERNAL_ERROR => "internal error in nmat",
+        }
+    }
+}
 
 /// Which decoder computes the values.
 #[repr(C)]
@@ -129,10 +170,13 @@ struct Handle {
 
 thread_local! {
     static LAST_ERROR: RefCell<String> = const { RefCell::new(String::new()) };
+    /// Whether the current call has set `LAST_ERROR` (reset by `guard`).
+    static SET_THIS_CALL: Cell<bool> = const { Cell::new(false) };
 }
 
 fn set_last_error(text: String) {
     LAST_ERROR.with(|e| *e.borrow_mut() = text);
+    SET_THIS_CALL.with(|s| s.set(true));
 }
 
 fn status_of(e: &Error) -> nmat_status {
@@ -153,10 +197,18 @@ fn fail(e: Error) -> nmat_status {
 }
 
 /// The one panic boundary: runs `f`, turns a panic into `NMAT_INTERNAL_ERROR`.
+/// A failure that set no detail of its own gets its status's message, so `nmat_last_error` never
+/// describes an earlier call.
 fn guard(f: impl FnOnce() -> Result<(), nmat_status>) -> nmat_status {
+    SET_THIS_CALL.with(|s| s.set(false));
     match catch_unwind(AssertUnwindSafe(f)) {
         Ok(Ok(())) => NMAT_OK,
-        Ok(Err(status)) => status,
+        Ok(Err(status)) => {
+            if !SET_THIS_CALL.with(Cell::get) {
+                set_last_error(status.message().into());
+            }
+            status
+        }
         Err(_) => {
             set_last_error("internal error: a panic was caught at the C boundary".into());
             NMAT_INTERNAL_ERROR
@@ -184,10 +236,20 @@ fn arg_mut<'a, T>(p: *mut T) -> Result<&'a mut T, nmat_status> {
 }
 
 /// The one (pointer, length) → slice conversion.
+/// A length no object can have (more than `isize::MAX` bytes): an error, not a slice.
+fn check_len<T>(len: usize) -> Result<(), nmat_status> {
+    if len.checked_mul(size_of::<T>()).is_none_or(|b| b > isize::MAX as usize) {
+        set_last_error(format!("a length of {len} elements is larger than any buffer can be"));
+        return Err(NMAT_SIZE_OVERFLOW);
+    }
+    Ok(())
+}
+
 fn slice<'a, T>(p: *const T, len: usize) -> Result<&'a [T], nmat_status> {
     if p.is_null() {
         return Err(arg(p).err().unwrap_or(NMAT_NULL_ARGUMENT));
     }
+    check_len::<T>(len)?;
     // SAFETY: the caller guarantees `len` readable elements at `p` (the documented contract).
     Ok(unsafe { std::slice::from_raw_parts(p, len) })
 }
@@ -196,6 +258,7 @@ fn slice_mut<'a, T>(p: *mut T, len: usize) -> Result<&'a mut [T], nmat_status> {
     if p.is_null() {
         return Err(arg_mut(p).err().unwrap_or(NMAT_NULL_ARGUMENT));
     }
+    check_len::<T>(len)?;
     // SAFETY: the caller guarantees `len` writable elements at `p`, not aliased during the call.
     Ok(unsafe { std::slice::from_raw_parts_mut(p, len) })
 }
@@ -647,21 +710,7 @@ pub extern "C" fn nmat_decode_region_f32(
 /// `len` 0 to ask for the length.
 #[unsafe(no_mangle)]
 pub extern "C" fn nmat_status_message(status: i32, buf: *mut u8, len: usize) -> usize {
-    let text = match status {
-        0 => "success",
-        1 => "a required pointer argument is NULL",
-        2 => "an argument is out of range",
-        3 => "the output buffer is too small",
-        4 => "a size computation overflows",
-        10 => "the .nmat data is malformed",
-        11 => "the .nmat data is truncated",
-        12 => "the .nmat data uses an unsupported version or feature",
-        13 => "the .nmat data exceeds a limit of this library",
-        14 => "the .nmat data is corrupted (checksum mismatch)",
-        20 => "out of memory",
-        99 => "internal error in nmat",
-        _ => "unknown nmat_status",
-    };
+    let text = nmat_status::from_i32(status).map_or("unknown nmat_status", nmat_status::message);
     copy_message(text, buf, len)
 }
 
