@@ -489,10 +489,10 @@ fn read_nmat(path: &Path) -> Result<Vec<u8>> {
         )
         .into());
     }
-    let file = std::fs::File::open(path).map_err(|e| format!("{shown}: {e}"))?;
+    let mut file = std::fs::File::open(path).map_err(|e| format!("{shown}: {e}"))?;
     // The header's first 16 bytes: magic, versions, flags, declared length (docs/FORMAT.md §2).
     let mut head = Vec::with_capacity(16);
-    file.take(16).read_to_end(&mut head).map_err(|e| format!("{shown}: {e}"))?;
+    file.by_ref().take(16).read_to_end(&mut head).map_err(|e| format!("{shown}: {e}"))?;
     if !head.starts_with(&nmat_core::container::MAGIC) {
         return Err(format!("{shown}: not a .nmat file ({})", signature(&head)).into());
     }
@@ -508,10 +508,10 @@ fn read_nmat(path: &Path) -> Result<Vec<u8>> {
         )
         .into());
     }
-    let mut bytes = Vec::new();
-    std::fs::File::open(path)
-        .and_then(|f| f.take(declared.min(len)).read_to_end(&mut bytes))
-        .map_err(|e| format!("{shown}: {e}"))?;
+    // The rest, from the same handle: never more than the header declares.
+    let mut bytes = head;
+    let rest = declared.min(len).saturating_sub(bytes.len() as u64);
+    file.take(rest).read_to_end(&mut bytes).map_err(|e| format!("{shown}: {e}"))?;
     Ok(bytes)
 }
 
