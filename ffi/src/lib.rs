@@ -158,15 +158,87 @@ pub struct nmat_channel_info {
     pub range_max: f32,
 }
 
-/// The handle behind `nmat_material*`. `material` borrows `owned` (or the caller's bytes);
-/// field order makes it drop first.
-struct Handle {
-    material: Material<'static>,
-    /// The material's MLP prepared for the fastest kernel of this CPU (every decode uses it).
-    decoder: Decoder,
-    /// The copy `material` points into (`nmat_material_open`); never read, only kept alive.
-    _bytes: Option<Box<[u8]>>,
+/// Maps an opaque C type to the one Rust type behind its pointers, which C receives as a
+/// `Box<RustType>` turned into a raw pointer (the pattern of rustls-ffi's `Castable`): every
+/// conversion between the two goes through [`to_boxed_ptr`], [`try_ref`] and [`free_box`].
+trait Castable {
+    type RustType;
 }
+
+impl Castable for nmat_material {
+    type RustType = Handle;
+}
+
+/// Gives `value` to C as a `*mut C`, to be freed once by [`free_box`].
+fn to_boxed_ptr<C: Castable>(value: C::RustType) -> *mut C {
+    Box::into_raw(Box::new(value)).cast::<C>()
+}
+
+/// The value behind a pointer from [`to_boxed_ptr`]; NULL is `NMAT_NULL_ARGUMENT`.
+fn try_ref<'a, C: Castable>(p: *const C) -> Result<&'a C::RustType, nmat_status> {
+    arg(p.cast::<C::RustType>())
+}
+
+/// Drops the value behind a pointer from [`to_boxed_ptr`]; NULL is ignored.
+fn free_box<C: Castable>(p: *mut C) {
+    if !p.is_null() {
+        // SAFETY: a non-NULL `p` came from `to_boxed_ptr::<C>` and is freed once (the caller's
+        // contract of every `*_free` function).
+        drop(unsafe { Box::from_raw(p.cast::<C::RustType>()) });
+    }
+}
+
+/// The bytes of an opened material: a copy the handle owns (`nmat_material_open`) or the
+/// caller's (`nmat_material_open_borrowed`).
+enum Bytes {
+    Copied(Box<[u8]>),
+    Borrowed { data: *const u8, len: usize },
+}
+
+impl Bytes {
+    fn as_slice(&self) -> &[u8] {
+        match self {
+            Bytes::Copied(b) => b,
+            // SAFETY: the contract of `nmat_material_open_borrowed`: the `len` bytes at `data`
+            // stay valid and unchanged until `nmat_material_free`, which drops this value.
+            Bytes::Borrowed { data, len } => unsafe { std::slice::from_raw_parts(*data, *len) },
+        }
+    }
+}
+
+// SAFETY: the bytes are only ever read, and the C contract lets a handle (and so its bytes) be
+// used from any thread, by any number of threads at once.
+unsafe impl Send for Bytes {}
+// SAFETY: as for `Send`: shared access is read-only.
+unsafe impl Sync for Bytes {}
+
+self_cell::self_cell!(
+    /// A parsed material together with the bytes it borrows.
+    struct Parsed {
+        owner: Bytes,
+        #[covariant]
+        dependent: Material,
+    }
+);
+
+/// The one owner behind `nmat_material*`: the bytes, the material parsed from them and the
+/// material's MLP prepared for the fastest kernel of this CPU (every decode uses it).
+struct Handle {
+    parsed: Parsed,
+    decoder: Decoder,
+}
+
+impl Handle {
+    fn material(&self) -> &Material<'_> {
+        self.parsed.borrow_dependent()
+    }
+}
+
+// A handle is shared between threads by C callers: keep that a compile-time fact.
+const _: fn() = || {
+    fn shareable<T: Send + Sync>() {}
+    shareable::<Handle>();
+};
 
 thread_local! {
     static LAST_ERROR: RefCell<String> = const { RefCell::new(String::new()) };
@@ -264,11 +336,11 @@ fn slice_mut<'a, T>(p: *mut T, len: usize) -> Result<&'a mut [T], nmat_status> {
 }
 
 fn handle<'a>(m: *const nmat_material) -> Result<&'a Handle, nmat_status> {
-    arg(m.cast::<Handle>())
+    try_ref(m)
 }
 
-fn material<'a>(m: *const nmat_material) -> Result<&'a Material<'static>, nmat_status> {
-    handle(m).map(|h| &h.material)
+fn material<'a>(m: *const nmat_material) -> Result<&'a Material<'a>, nmat_status> {
+    handle(m).map(Handle::material)
 }
 
 fn bad(what: &str) -> nmat_status {
@@ -288,23 +360,17 @@ fn open(data: *const u8, len: usize, out: *mut *mut nmat_material, copy: bool) -
         let out = arg_mut(out)?;
         *out = std::ptr::null_mut();
         let bytes = slice(data, len)?;
-        let owned: Option<Box<[u8]>> = if copy {
+        let bytes = if copy {
             let mut v = Vec::new();
             v.try_reserve_exact(len).map_err(|_| NMAT_OUT_OF_MEMORY)?;
             v.extend_from_slice(bytes);
-            Some(v.into_boxed_slice())
+            Bytes::Copied(v.into_boxed_slice())
         } else {
-            None
+            Bytes::Borrowed { data, len }
         };
-        let view: &[u8] = owned.as_deref().unwrap_or(bytes);
-        // SAFETY: `view` is either the heap block of `owned`, which the handle keeps, never
-        // mutates and frees only after `material` (field order), or the caller's bytes, which the
-        // borrowed variant's contract requires to outlive the handle.
-        let view: &'static [u8] = unsafe { std::slice::from_raw_parts(view.as_ptr(), view.len()) };
-        let material = Container::parse(view).map_err(fail)?;
-        let decoder = Decoder::new(&material);
-        let handle = Box::new(Handle { material, decoder, _bytes: owned });
-        *out = Box::into_raw(handle).cast::<nmat_material>();
+        let parsed = Parsed::try_new(bytes, |b| Container::parse(b.as_slice())).map_err(fail)?;
+        let decoder = Decoder::new(parsed.borrow_dependent());
+        *out = to_boxed_ptr(Handle { parsed, decoder });
         Ok(())
     })
 }
@@ -335,11 +401,7 @@ pub extern "C" fn nmat_material_open_borrowed(
 #[unsafe(no_mangle)]
 pub extern "C" fn nmat_material_free(m: *mut nmat_material) {
     let _ = guard(|| {
-        if !m.is_null() {
-            // SAFETY: a non-NULL `m` came from `Box::into_raw` in `open` and is freed once (the
-            // caller's contract).
-            drop(unsafe { Box::from_raw(m.cast::<Handle>()) });
-        }
+        free_box(m);
         Ok(())
     });
 }
@@ -428,7 +490,8 @@ pub extern "C" fn nmat_decode_texel(
     out_len: usize,
 ) -> nmat_status {
     guard(|| {
-        let Handle { material: m, decoder, .. } = handle(m)?;
+        let h = handle(m)?;
+        let (m, decoder) = (h.material(), &h.decoder);
         let out = slice_mut(out, out_len)?;
         let (mask, n) = mask(m, channel_mask)?;
         if mip >= m.mip_count() {
@@ -484,7 +547,8 @@ pub extern "C" fn nmat_decode_texel_u8(
     out_len: usize,
 ) -> nmat_status {
     guard(|| {
-        let Handle { material: m, decoder, .. } = handle(m)?;
+        let h = handle(m)?;
+        let (m, decoder) = (h.material(), &h.decoder);
         let out = slice_mut(out, out_len)?;
         let (mask, _) = mask(m, channel_mask)?;
         if mip >= m.mip_count() {
@@ -511,7 +575,8 @@ pub extern "C" fn nmat_sample(
     out_len: usize,
 ) -> nmat_status {
     guard(|| {
-        let Handle { material: m, decoder, .. } = handle(m)?;
+        let h = handle(m)?;
+        let (m, decoder) = (h.material(), &h.decoder);
         let out = slice_mut(out, out_len)?;
         let (channels, _) = mask(m, channel_mask)?;
         let filter = match filter {
@@ -637,7 +702,8 @@ pub extern "C" fn nmat_decode_region_u8(
     out_len: usize,
 ) -> nmat_status {
     guard(|| {
-        let Handle { material: m, decoder, .. } = handle(m)?;
+        let h = handle(m)?;
+        let (m, decoder) = (h.material(), &h.decoder);
         let out = slice_mut(out, out_len)?;
         let (mask, n, pitch) =
             region_checks(m, mip, (x0, y0, width, height), channel_mask, 1, row_pitch, out_len)?;
@@ -670,7 +736,8 @@ pub extern "C" fn nmat_decode_region_f32(
     out_len: usize,
 ) -> nmat_status {
     guard(|| {
-        let Handle { material: mm, decoder, .. } = handle(m)?;
+        let h = handle(m)?;
+        let (mm, decoder) = (h.material(), &h.decoder);
         if !row_pitch.is_multiple_of(4) {
             return Err(bad("row pitch of a float region must be a multiple of 4 bytes"));
         }
