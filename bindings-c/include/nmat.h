@@ -132,6 +132,15 @@ nmat_status nmat_material_channel(const nmat_material *m, uint32_t index, nmat_c
 // Width and height of `mip` (< mip_count).
 nmat_status nmat_mip_size(const nmat_material *m, uint32_t mip, uint32_t *width, uint32_t *height);
 
+// The work of decoding every texel of `mip` (< mip_count) once: `*texels` of the mip and
+// `*macs`, the network's multiply-adds over them (all channels). A small file may declare a
+// 16384² chain: check before decoding it whole. The time is `macs` over the rate `nmat bench`
+// measures on the target machine.
+nmat_status nmat_decode_cost(const nmat_material *m,
+                             uint32_t mip,
+                             uint64_t *texels,
+                             uint64_t *macs);
+
 // Decodes texel (x, y) of `mip` for the channels in `channel_mask` (bit c = channel c;
 // 0xFFFF = all) with decoder `mode` (an `nmat_mode`) into `out` (values in each channel's range, packed in channel order).
 // Coordinates outside the mip wrap or clamp by the material's address mode; a mip beyond the

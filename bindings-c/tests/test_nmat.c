@@ -141,11 +141,15 @@ static void test_arguments(const nmat_material *m) {
     nmat_info info;
     nmat_channel_info ch;
     uint32_t w, h;
+    uint64_t texels = 0, macs = 0;
     CHECK_STATUS(nmat_material_info(NULL, &info), NMAT_NULL_ARGUMENT);
     CHECK_STATUS(nmat_material_info(m, NULL), NMAT_NULL_ARGUMENT);
     CHECK_STATUS(nmat_material_channel(m, 16, &ch), NMAT_BAD_ARGUMENT);
     CHECK_STATUS(nmat_mip_size(m, 99, &w, &h), NMAT_BAD_ARGUMENT);
     CHECK_STATUS(nmat_mip_size(m, 0, NULL, &h), NMAT_NULL_ARGUMENT);
+    CHECK_STATUS(nmat_decode_cost(m, 99, &texels, &macs), NMAT_BAD_ARGUMENT);
+    CHECK_STATUS(nmat_decode_cost(m, 0, NULL, &macs), NMAT_NULL_ARGUMENT);
+    CHECK_STATUS(nmat_decode_cost(NULL, 0, &texels, &macs), NMAT_NULL_ARGUMENT);
     CHECK_STATUS(nmat_decode_texel_u8(NULL, 0, 0, 0, 1, codes, 16), NMAT_NULL_ARGUMENT);
     CHECK_STATUS(nmat_decode_texel_u8(m, 0, 0, 0, 1, NULL, 16), NMAT_NULL_ARGUMENT);
     CHECK_STATUS(nmat_decode_texel_u8(m, 0, 0, 0, 0, codes, 16), NMAT_BAD_ARGUMENT);
@@ -184,6 +188,19 @@ static void test_decoding(const nmat_material *m, const uint8_t *expected, size_
     CHECK_STATUS(nmat_material_channel(m, 0, &ch), NMAT_OK);
     CHECK(strcmp((const char *)ch.name, "albedo.r") == 0 && ch.semantic == 1 && ch.color_space == 1);
     CHECK(matches_expected(m, expected, expected_len));
+    {
+        /* The work of a whole mip: its texels, and the same multiply-adds per texel on every mip
+         * (at least one per output channel). */
+        uint64_t texels0 = 0, macs0 = 0, texels = 0, macs = 0;
+        uint32_t mip, w, h;
+        CHECK_STATUS(nmat_decode_cost(m, 0, &texels0, &macs0), NMAT_OK);
+        CHECK(texels0 == 32 * 32 && macs0 >= texels0 * 16 && macs0 % texels0 == 0);
+        for (mip = 1; mip < info.mip_count; mip++) {
+            CHECK_STATUS(nmat_decode_cost(m, mip, &texels, &macs), NMAT_OK);
+            CHECK_STATUS(nmat_mip_size(m, mip, &w, &h), NMAT_OK);
+            CHECK(texels == (uint64_t)w * h && macs == texels * (macs0 / texels0));
+        }
+    }
     /* A channel subset is the same bytes as the full decode. */
     CHECK_STATUS(nmat_decode_texel_u8(m, 5, 9, 1, 0xFFFF, codes, 16), NMAT_OK);
     CHECK_STATUS(nmat_decode_texel_u8(m, 5, 9, 1, 1u << 7, one, 1), NMAT_OK);

@@ -170,12 +170,6 @@ struct EncodeArgs {
     train: TrainArgs,
 }
 
-#[derive(Clone, Copy, ValueEnum, PartialEq)]
-enum Mode {
-    Int,
-    Float,
-}
-
 #[derive(Args)]
 struct DecodeArgs {
     input: PathBuf,
@@ -199,6 +193,14 @@ struct DecodeArgs {
     /// source maps are never overwritten with their decodes).
     #[arg(long)]
     force: bool,
+    /// Write every map as PNG, whatever its original format (e.g. a gray+alpha map that came from
+    /// a TIFF, which cannot hold one).
+    #[arg(long)]
+    png: bool,
+    /// Memory the decoded maps may use, e.g. 8G or 512M (MiB without a unit); a larger decode is
+    /// refused before it starts [default: 8G].
+    #[arg(long, value_parser = parse_memory)]
+    max_memory: Option<u64>,
 }
 
 fn main() -> ExitCode {
@@ -562,9 +564,9 @@ fn cmd_decode(args: DecodeArgs) -> Result<()> {
         }
         vec![mip]
     };
-    let mode = if args.float { Mode::Float } else { Mode::Int };
-    let names =
-        output::output_files(&m, &mips).map_err(|e| format!("{}: {e}", args.input.display()))?;
+    let plan = output::DecodePlan::new(&m, &mips, args.png)
+        .map_err(|e| format!("{}: {e}", args.input.display()))?;
+    let names = plan.file_names();
     if !args.force {
         let existing: Vec<&String> =
             names.iter().filter(|n| args.output.join(n).symlink_metadata().is_ok()).collect();
@@ -580,20 +582,66 @@ fn cmd_decode(args: DecodeArgs) -> Result<()> {
             .into());
         }
     }
-    std::fs::create_dir_all(&args.output).map_err(|e| format!("{}: {e}", args.output.display()))?;
-    let written = if args.gpu {
-        decode_on_gpu(&m, &args.output, &mips)?
-    } else {
-        output::write_maps(&m, &args.output, &mips, mode == Mode::Float, None)?
-    };
+    let (need, allowed) = (plan.memory(&m), args.max_memory.unwrap_or(texset::DEFAULT_MAX_MEMORY));
+    if need > allowed {
+        return Err(format!(
+            "{}: writing these maps needs about {:.1} MiB, more than the {:.1} MiB allowed; \
+             nothing was written. Raise the limit with --max-memory or decode one mip at a time \
+             (--mip)",
+            args.input.display(),
+            need as f64 / MIB,
+            allowed as f64 / MIB
+        )
+        .into());
+    }
+    let bar = decode_progress(plan.cost(&m));
+    let mut progress = |done: u64| bar.inc(done);
+    let float = args.float;
+    let written = output::write_all_or_nothing(&args.output, |dir| {
+        if args.gpu {
+            decode_on_gpu(&m, &plan, dir, &mut progress)
+        } else {
+            let with = output::DecodeWith { float, batch: None };
+            output::write_maps(&m, &plan, dir, with, &mut progress)
+        }
+    })?;
+    bar.finish_and_clear();
     for w in &written {
         println!("wrote {}", w.display());
     }
     Ok(())
 }
 
+/// A progress bar over the texels a decode evaluates, shown (with the cost printed first) when
+/// the decode is long: more than [`LONG_DECODE_TEXELS`].
+fn decode_progress(cost: nmat_core::DecodeCost) -> ProgressBar {
+    if cost.texels < LONG_DECODE_TEXELS {
+        return ProgressBar::hidden();
+    }
+    eprintln!(
+        "decoding {:.1} M texels ({:.1} G multiply-adds of the network)",
+        cost.texels as f64 / 1e6,
+        cost.macs as f64 / 1e9
+    );
+    let bar = ProgressBar::new(cost.texels);
+    if let Ok(style) = ProgressStyle::with_template("   decode [{bar:32}] {percent}%, ETA {eta}") {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar
+}
+
+const MIB: f64 = (1u64 << 20) as f64;
+
+/// Decodes of at least this many texels show a progress bar (one 2048² mip chain is 5.6 M).
+const LONG_DECODE_TEXELS: u64 = 4 << 20;
+
 #[cfg(feature = "gpu")]
-fn decode_on_gpu(m: &Material<'_>, dir: &Path, mips: &[u32]) -> Result<Vec<PathBuf>> {
+fn decode_on_gpu(
+    m: &Material<'_>,
+    plan: &output::DecodePlan,
+    dir: &Path,
+    progress: &mut dyn FnMut(u64),
+) -> Result<Vec<PathBuf>> {
     let (device, queue, info) = pollster::block_on(nmat_wgpu::default_device()).ok_or(
         "--gpu: no GPU adapter found (on Linux without a GPU: apt-get install mesa-vulkan-drivers)",
     )?;
@@ -603,11 +651,17 @@ fn decode_on_gpu(m: &Material<'_>, dir: &Path, mips: &[u32]) -> Result<Vec<PathB
     let decode = |mip: u32| -> Result<Vec<u8>> {
         Ok(ctx.decode_mip(&device, &queue, &gm, mip, nmat_core::ChannelMask::ALL)?)
     };
-    output::write_maps(m, dir, mips, false, Some(&decode))
+    let with = output::DecodeWith { float: false, batch: Some(&decode) };
+    output::write_maps(m, plan, dir, with, progress)
 }
 
 #[cfg(not(feature = "gpu"))]
-fn decode_on_gpu(_: &Material<'_>, _: &Path, _: &[u32]) -> Result<Vec<PathBuf>> {
+fn decode_on_gpu(
+    _: &Material<'_>,
+    _: &output::DecodePlan,
+    _: &Path,
+    _: &mut dyn FnMut(u64),
+) -> Result<Vec<PathBuf>> {
     Err("--gpu: this nmat was built without GPU support; build it with `--features gpu`".into())
 }
 
@@ -771,7 +825,8 @@ fn cmd_demo(out: &Path, train: &TrainArgs, profile: &str) -> Result<()> {
         encoded.bytes.len()
     );
     let m = parse(&encoded.bytes, &path)?;
-    let written = output::write_maps(&m, out, &[0], false, None)?;
+    let plan = output::DecodePlan::new(&m, &[0], false)?;
+    let written = output::write_maps(&m, &plan, out, output::DecodeWith::default(), &mut |_| {})?;
     println!("decoded {} maps into {}", written.len(), out.display());
     print!("{}", output::quality_table(&set, &encoded.quality, Some(profile.name())));
     Ok(())

@@ -1,6 +1,7 @@
 //! What the CLI prints and writes: descriptions, quality tables, decoded maps, atomic files.
 
-use nmat_core::{ChannelMask, Decoder, Material, SectionKind};
+use image::ImageFormat;
+use nmat_core::{ChannelMask, DecodeCost, Decoder, Material, SectionKind};
 use nmat_encode::metrics::{ChainQuality, unit_of};
 use nmat_encode::source_maps;
 use nmat_encode::texset::{FileLayout, Role, SourceMap};
@@ -61,6 +62,17 @@ pub fn check_output(path: &Path, inputs: &[PathBuf]) -> Result<(), String> {
 /// A new file `.NAME.tmp-RANDOM` in `dir`, created with `create_new` (fails on any existing
 /// entry, symlinks included); a few names are tried.
 fn create_exclusive(dir: &Path, name: &str) -> std::io::Result<(PathBuf, std::fs::File)> {
+    let open = |p: &Path| std::fs::OpenOptions::new().write(true).create_new(true).open(p);
+    new_entry(dir, &format!(".{name}.tmp"), open)
+}
+
+/// Creates a new entry `PREFIX-RANDOM` in `dir` with `create` (which must fail on an existing
+/// entry); a few random names are tried.
+fn new_entry<T>(
+    dir: &Path,
+    prefix: &str,
+    create: impl Fn(&Path) -> std::io::Result<T>,
+) -> std::io::Result<(PathBuf, T)> {
     use std::hash::{BuildHasher, Hasher};
     let mut last = None;
     for attempt in 0u32..16 {
@@ -68,14 +80,50 @@ fn create_exclusive(dir: &Path, name: &str) -> std::io::Result<(PathBuf, std::fs
         let mut h = std::collections::hash_map::RandomState::new().build_hasher();
         h.write_u32(attempt);
         h.write_u32(std::process::id());
-        let tmp = dir.join(format!(".{name}.tmp-{:016x}", h.finish()));
-        match std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp) {
-            Ok(f) => return Ok((tmp, f)),
+        let path = dir.join(format!("{prefix}-{:016x}", h.finish()));
+        match create(&path) {
+            Ok(t) => return Ok((path, t)),
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => last = Some(e),
             Err(e) => return Err(e),
         }
     }
     Err(last.unwrap_or_else(|| std::io::Error::other("no free temporary name")))
+}
+
+/// Runs `write` on a new hidden folder inside `dir` (which is created if missing), then moves the
+/// files it wrote into `dir`. A `write` that fails half-way leaves nothing behind: its files are
+/// removed, and so is `dir` if this call created it.
+pub fn write_all_or_nothing(
+    dir: &Path,
+    write: impl FnOnce(&Path) -> Result<Vec<PathBuf>, Box<dyn std::error::Error>>,
+) -> Result<Vec<PathBuf>, Box<dyn std::error::Error>> {
+    let shown = dir.display();
+    let existed = dir.exists();
+    std::fs::create_dir_all(dir).map_err(|e| format!("-o {shown}: {e}"))?;
+    let staged = new_entry(dir, ".nmat-decode", |p| std::fs::create_dir(p));
+    let staging = match staged {
+        Ok((path, ())) => path,
+        Err(e) => {
+            if !existed {
+                let _ = std::fs::remove_dir(dir);
+            }
+            return Err(format!("-o {shown}: cannot create a folder in it: {e}").into());
+        }
+    };
+    let moved = write(&staging).and_then(|files| {
+        let mut moved = Vec::with_capacity(files.len());
+        for file in files {
+            let to = dir.join(file.file_name().unwrap_or_default());
+            std::fs::rename(&file, &to).map_err(|e| format!("{}: {e}", to.display()))?;
+            moved.push(to);
+        }
+        Ok(moved)
+    });
+    let _ = std::fs::remove_dir_all(&staging);
+    if moved.is_err() && !existed {
+        let _ = std::fs::remove_dir(dir);
+    }
+    moved
 }
 
 /// The SOURCE_MAPS section, if the file has a valid one.
@@ -117,18 +165,20 @@ fn maps_from_names(m: &Material<'_>) -> Vec<SourceMap> {
     maps
 }
 
-fn output_name(file_name: &str, mip: u32, single_mip0: bool) -> (String, image::ImageFormat) {
+/// Output name and format of one map at one mip. Lossy formats are not re-encoded lossily (they
+/// come back as PNG); `png` writes every map as PNG.
+fn output_name(file_name: &str, mip: u32, single_mip0: bool, png: bool) -> (String, ImageFormat) {
     let path = Path::new(file_name);
     let stem =
         path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "map".into());
     let ext =
         path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
-    // Lossy formats are not re-encoded lossily: they come back as PNG.
     let (ext, format) = match ext.as_str() {
-        "tga" => ("tga", image::ImageFormat::Tga),
-        "bmp" => ("bmp", image::ImageFormat::Bmp),
-        "tif" | "tiff" => (if ext == "tif" { "tif" } else { "tiff" }, image::ImageFormat::Tiff),
-        _ => ("png", image::ImageFormat::Png),
+        _ if png => ("png", ImageFormat::Png),
+        "tga" => ("tga", ImageFormat::Tga),
+        "bmp" => ("bmp", ImageFormat::Bmp),
+        "tif" | "tiff" => (if ext == "tif" { "tif" } else { "tiff" }, ImageFormat::Tiff),
+        _ => ("png", ImageFormat::Png),
     };
     let name = if single_mip0 && mip == 0 {
         format!("{stem}.{ext}")
@@ -138,123 +188,227 @@ fn output_name(file_name: &str, mip: u32, single_mip0: bool) -> (String, image::
     (name, format)
 }
 
-/// The file names `write_maps` will write for `mips`, in order; an error if two maps would
-/// share a name (a hostile or careless SOURCE_MAPS section) — found before anything is written.
-pub fn output_files(m: &Material<'_>, mips: &[u32]) -> Result<Vec<String>, String> {
-    let maps = source_maps(m).unwrap_or_else(|| maps_from_names(m));
-    let single = mips == [0];
-    let mut names: Vec<String> = Vec::new();
-    for map in &maps {
-        for &mip in mips {
-            let (name, _) = output_name(&map.file_name, mip, single);
-            if names.contains(&name) {
-                return Err(format!(
-                    "the file's source maps name {name} twice ({}); nothing was written",
-                    map.file_name
-                ));
-            }
-            names.push(name);
-        }
-    }
-    Ok(names)
+/// Whether `format` can store a map of `layout` at the depth `write_maps` gives it (TGA and BMP
+/// have no 16-bit modes: those maps are written as 8-bit RGBA).
+fn format_holds(format: ImageFormat, layout: FileLayout) -> bool {
+    !(format == ImageFormat::Tiff && layout == FileLayout::GrayAlpha)
 }
 
-/// Decodes `mips` of every map and writes them into `dir` under their original names.
+/// What `nmat decode` writes — the maps, the mips, each file's name and format — checked before
+/// any texel is decoded, so a file that cannot be written back whole writes nothing.
+pub struct DecodePlan {
+    maps: Vec<SourceMap>,
+    mips: Vec<u32>,
+    /// Every map as PNG, whatever its original format.
+    png: bool,
+}
+
+impl DecodePlan {
+    /// The maps of the file's SOURCE_MAPS section (which must be readable, list at least one map,
+    /// fit the material's channels and name each output file once in a format that holds its
+    /// layout), or maps by channel-name stem for a file without one.
+    pub fn new(m: &Material<'_>, mips: &[u32], png: bool) -> Result<DecodePlan, String> {
+        let section = m.optional_section(SectionKind(source_maps::SECTION_KIND));
+        let maps = match section {
+            None => maps_from_names(m),
+            Some(bytes) => source_maps::decode(bytes).ok_or(
+                "the file's SOURCE_MAPS section cannot be read (an unknown version, a bad name \
+                 or a record past its end); nothing was written",
+            )?,
+        };
+        if maps.is_empty() {
+            return Err("the file's SOURCE_MAPS section lists no maps; nothing was written".into());
+        }
+        let plan = DecodePlan { maps, mips: mips.to_vec(), png };
+        let mut names: Vec<String> = Vec::new();
+        for map in &plan.maps {
+            let name = &map.file_name;
+            let end = map.first_channel + map.channel_count;
+            if map.channel_count == 0 || end > m.channel_count() {
+                return Err(format!(
+                    "source map {name}: channels {}..{end} are not within the material's {} \
+                     channels; nothing was written",
+                    map.first_channel,
+                    m.channel_count()
+                ));
+            }
+            for (file, format) in plan.files_of(map) {
+                if !format_holds(format, map.layout) {
+                    return Err(format!(
+                        "source map {name}: {format:?} cannot hold a {} map; nothing was \
+                         written. Pass --png to write every map as PNG",
+                        layout_words(map.layout)
+                    ));
+                }
+                if names.contains(&file) {
+                    return Err(format!(
+                        "the file's source maps name {file} twice ({name}); nothing was written"
+                    ));
+                }
+                names.push(file);
+            }
+        }
+        Ok(plan)
+    }
+
+    /// File name and format of `map` at each mip, in mip order.
+    fn files_of(&self, map: &SourceMap) -> Vec<(String, ImageFormat)> {
+        let single = self.mips == [0];
+        self.mips.iter().map(|&mip| output_name(&map.file_name, mip, single, self.png)).collect()
+    }
+
+    /// Every file the decode writes, map by map.
+    pub fn file_names(&self) -> Vec<String> {
+        self.maps.iter().flat_map(|map| self.files_of(map)).map(|(name, _)| name).collect()
+    }
+
+    /// Texels the decode evaluates (each once, for all channels) and the network's multiply-adds.
+    pub fn cost(&self, m: &Material<'_>) -> DecodeCost {
+        let costs = self.mips.iter().map(|&mip| m.decode_cost(mip));
+        costs.fold(DecodeCost { texels: 0, macs: 0 }, |a, c| DecodeCost {
+            texels: a.texels + c.texels,
+            macs: a.macs.saturating_add(c.macs),
+        })
+    }
+
+    /// Memory the decode needs at most: every map of the largest mip as 16-bit components, and
+    /// once more while one of them is converted and encoded.
+    pub fn memory(&self, m: &Material<'_>) -> u64 {
+        let components: u64 = self.maps.iter().map(|p| p.layout.components() as u64).sum();
+        let largest = self.mips.iter().map(|&mip| m.decode_cost(mip).texels).max().unwrap_or(0);
+        largest.saturating_mul(components + 4).saturating_mul(2)
+    }
+}
+
+fn layout_words(layout: FileLayout) -> &'static str {
+    match layout {
+        FileLayout::Gray => "gray",
+        FileLayout::GrayAlpha => "gray+alpha",
+        FileLayout::Rgb => "RGB",
+        FileLayout::Rgba => "RGBA",
+    }
+}
+
 /// 8-bit codes of every channel of a whole mip, row-major, decoded elsewhere (the GPU).
 pub type MipDecoder<'d> = dyn Fn(u32) -> Result<Vec<u8>, Box<dyn std::error::Error>> + 'd;
 
+/// How `write_maps` decodes.
+#[derive(Clone, Copy, Default)]
+pub struct DecodeWith<'d> {
+    /// The float reference decoder instead of the integer-exact one.
+    pub float: bool,
+    /// Whole mips decoded elsewhere (8-bit codes; 16-bit maps come back at 8 bits from it).
+    pub batch: Option<&'d MipDecoder<'d>>,
+}
+
+/// Decodes the plan's mips of every map and writes them into `dir` under their original names
+/// (mip by mip: each texel is decoded once for all channels). `progress` receives the texels
+/// done after each row. Returns the files written, in the plan's order.
 pub fn write_maps(
     m: &Material<'_>,
+    plan: &DecodePlan,
     dir: &Path,
-    mips: &[u32],
-    float: bool,
-    batch: Option<&MipDecoder<'_>>,
+    with: DecodeWith<'_>,
+    progress: &mut dyn FnMut(u64),
 ) -> Result<Vec<PathBuf>, Box<dyn std::error::Error>> {
-    let maps = source_maps(m).unwrap_or_else(|| maps_from_names(m));
     let channels = m.channel_count();
     let decoder = Decoder::new(m);
-    let mut batched: Vec<Option<Vec<u8>>> = vec![None; m.mip_count() as usize];
-    let mut written = Vec::new();
-    let single = mips == [0];
-    for map in &maps {
-        for &mip in mips {
-            let (w, h) = m.mip_size(mip);
-            let comps = map.layout.components();
-            // The batch decoder gives 8-bit codes: 16-bit maps come back at 8 bits from it.
-            let sixteen = map.sixteen_bit && !float && batch.is_none();
-            let all_codes: Option<&Vec<u8>> = match (batch, float) {
-                (Some(decode), false) => {
-                    let slot = &mut batched[mip as usize];
-                    if slot.is_none() {
-                        *slot = Some(decode(mip)?);
-                    }
-                    slot.as_ref()
+    let all = ChannelMask::ALL;
+    let sixteen_of = |map: &SourceMap| map.sixteen_bit && !with.float && with.batch.is_none();
+    let (need8, need16) =
+        (plan.maps.iter().any(|p| !sixteen_of(p)), plan.maps.iter().any(sixteen_of));
+    let mut written: Vec<Vec<PathBuf>> = vec![Vec::new(); plan.maps.len()];
+    for (i, &mip) in plan.mips.iter().enumerate() {
+        let (w, h) = m.mip_size(mip);
+        let (wu, hu) = (w as usize, h as usize);
+        let batched = match with.batch {
+            Some(decode) if !with.float => Some(decode(mip)?),
+            _ => None,
+        };
+        let mut pixels: Vec<Vec<u16>> =
+            plan.maps.iter().map(|p| Vec::with_capacity(wu * hu * p.layout.components())).collect();
+        // Unit values of every channel of one row: from 8-bit codes, 16-bit codes, or floats.
+        let mut unit8 = vec![0f32; wu * channels];
+        let mut unit16 = vec![0f32; wu * channels];
+        let mut codes8 = vec![0u8; wu * channels];
+        let mut codes16 = vec![0u16; wu * channels];
+        for y in 0..hu {
+            if let Some(all_codes) = &batched {
+                let row = all_codes.get(y * wu * channels..(y + 1) * wu * channels);
+                let row = row.ok_or("the GPU decoder returned fewer codes than the mip has")?;
+                unit8.iter_mut().zip(row).for_each(|(u, &c)| *u = f32::from(c) / 255.0);
+            } else if with.float {
+                for (x, u) in unit8.chunks_exact_mut(channels).enumerate() {
+                    m.decode_texel_unit(x as i64, y as i64, mip, all, u)?;
                 }
-                _ => None,
-            };
-            let mut pixels: Vec<u16> = Vec::with_capacity((w * h) as usize * comps);
-            let mask = ChannelMask((((1u32 << map.channel_count) - 1) << map.first_channel) as u16);
-            let mut unit = [0f32; 16];
-            let mut codes = [0u16; 16];
-            let full = if sixteen { 65535.0 } else { 255.0 };
-            for y in 0..h {
-                for x in 0..w {
-                    let (x, y) = (i64::from(x), i64::from(y));
-                    if let Some(all) = all_codes {
-                        let at =
-                            (y as usize * w as usize + x as usize) * channels + map.first_channel;
-                        for (k, u) in unit.iter_mut().enumerate().take(map.channel_count) {
-                            *u = f32::from(all.get(at + k).copied().unwrap_or(0)) / 255.0;
-                        }
-                    } else if float {
-                        m.decode_texel_unit(x, y, mip, mask, &mut unit)?;
-                    } else if sixteen {
-                        decoder.decode_texel_u16(m, x, y, mip, mask, &mut codes)?;
-                        unit.iter_mut().zip(codes).for_each(|(u, c)| *u = f32::from(c) / 65535.0);
-                    } else {
-                        let mut c8 = [0u8; 16];
-                        decoder.decode_texel_u8(m, x, y, mip, mask, &mut c8)?;
-                        unit.iter_mut().zip(c8).for_each(|(u, c)| *u = f32::from(c) / 255.0);
-                    }
-                    let value = |k: usize| {
-                        let u = unit_of(m, map.first_channel + k, unit[k]);
-                        (u * full).round().clamp(0.0, full) as u16
-                    };
-                    let color = if map.gray_rgb {
-                        vec![value(0); 3]
-                    } else {
-                        (0..map.channel_count.min(comps)).map(value).collect()
-                    };
-                    pixels.extend(color.iter().take(comps));
-                    if let Some(a) = map.alpha_value {
-                        pixels.push(if sixteen { u16::from(a) * 257 } else { u16::from(a) });
-                    } else if map.gray_rgb && comps == 4 {
-                        pixels.push(value(1));
-                    }
-                    while !pixels.len().is_multiple_of(comps) {
-                        pixels.push(full as u16);
-                    }
+            } else {
+                if need8 {
+                    decoder.decode_span_u8(m, 0, y as i64, mip, wu, all, &mut codes8)?;
+                    unit8.iter_mut().zip(&codes8).for_each(|(u, &c)| *u = f32::from(c) / 255.0);
+                }
+                if need16 {
+                    decoder.decode_span_u16(m, 0, y as i64, mip, wu, all, &mut codes16)?;
+                    let scale = |(u, &c): (&mut f32, &u16)| *u = f32::from(c) / 65535.0;
+                    unit16.iter_mut().zip(&codes16).for_each(scale);
                 }
             }
-            let (name, format) = output_name(&map.file_name, mip, single);
-            let image = to_image(w, h, map.layout, sixteen, pixels);
-            let mut buffer = std::io::Cursor::new(Vec::new());
-            // TGA and BMP have no 16-bit modes: those maps are written at 8 bits.
-            let image = if sixteen
-                && format != image::ImageFormat::Png
-                && format != image::ImageFormat::Tiff
-            {
-                image::DynamicImage::from(image.to_rgba8())
-            } else {
-                image
-            };
-            image.write_to(&mut buffer, format)?;
+            for (map, px) in plan.maps.iter().zip(&mut pixels) {
+                let sixteen = sixteen_of(map);
+                let unit = if sixteen { &unit16 } else { &unit8 };
+                for texel in unit.chunks_exact(channels) {
+                    push_texel(m, map, sixteen, texel, px);
+                }
+            }
+            progress(u64::from(w));
+        }
+        for ((map, px), files) in plan.maps.iter().zip(pixels).zip(&mut written) {
+            let (name, format) = plan.files_of(map).swap_remove(i);
+            let image = to_image(w, h, map.layout, sixteen_of(map), px);
+            let bytes = encode_image(image, format).map_err(|e| format!("{name}: {e}"))?;
             let path = dir.join(name);
-            write_atomic(&path, buffer.get_ref())?;
-            written.push(path);
+            write_atomic(&path, &bytes)?;
+            files.push(path);
         }
     }
-    Ok(written)
+    Ok(written.into_iter().flatten().collect())
+}
+
+/// Appends one texel of `map` to its pixels: `texel` holds the unit values of every channel.
+fn push_texel(m: &Material<'_>, map: &SourceMap, sixteen: bool, texel: &[f32], px: &mut Vec<u16>) {
+    let comps = map.layout.components();
+    let full = if sixteen { 65535.0 } else { 255.0 };
+    let value = |k: usize| {
+        let c = map.first_channel + k;
+        let Some(&decoded) = texel.get(c) else { return full as u16 };
+        (unit_of(m, c, decoded) * full).round().clamp(0.0, full) as u16
+    };
+    let start = px.len();
+    if map.gray_rgb {
+        px.extend([value(0); 3].iter().take(comps));
+    } else {
+        px.extend((0..map.channel_count.min(comps)).map(value));
+    }
+    if let Some(a) = map.alpha_value {
+        px.push(if sixteen { u16::from(a) * 257 } else { u16::from(a) });
+    } else if map.gray_rgb && comps == 4 {
+        px.push(value(1));
+    }
+    px.truncate(start + comps);
+    px.resize(start + comps, full as u16);
+}
+
+/// The bytes of `image` in `format`. TGA and BMP have no 16-bit modes: 16-bit maps are written to
+/// them as 8-bit RGBA.
+fn encode_image(image: image::DynamicImage, format: ImageFormat) -> image::ImageResult<Vec<u8>> {
+    let sixteen = image.color().bytes_per_pixel() > image.color().channel_count();
+    let image = if sixteen && format != ImageFormat::Png && format != ImageFormat::Tiff {
+        image::DynamicImage::from(image.to_rgba8())
+    } else {
+        image
+    };
+    let mut buffer = std::io::Cursor::new(Vec::new());
+    image.write_to(&mut buffer, format)?;
+    Ok(buffer.into_inner())
 }
 
 fn to_image(w: u32, h: u32, layout: FileLayout, sixteen: bool, p: Vec<u16>) -> image::DynamicImage {
@@ -472,6 +626,63 @@ mod tests {
         assert!(std::fs::symlink_metadata(&out).unwrap().file_type().is_file());
         assert_eq!(std::fs::read(&out).unwrap(), b"new bytes");
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn format_holds_agrees_with_the_image_encoders() {
+        use FileLayout::*;
+        for format in [ImageFormat::Png, ImageFormat::Tga, ImageFormat::Bmp, ImageFormat::Tiff] {
+            for layout in [Gray, GrayAlpha, Rgb, Rgba] {
+                for sixteen in [false, true] {
+                    let px = vec![1000u16; 4 * 3 * layout.components()];
+                    let written = encode_image(to_image(4, 3, layout, sixteen, px), format);
+                    assert_eq!(
+                        written.is_ok(),
+                        format_holds(format, layout),
+                        "{format:?} {layout:?} 16-bit {sixteen}: {written:?}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_write_that_fails_half_way_leaves_nothing_and_one_that_succeeds_moves_every_file() {
+        let base = std::env::temp_dir().join(format!("nmat-all-or-nothing-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&base);
+        let out = base.join("new");
+        let result = write_all_or_nothing(&out, |dir| {
+            std::fs::write(dir.join("a.png"), b"first")?;
+            Err("the second map failed".into())
+        });
+        assert!(result.is_err());
+        assert!(!out.exists(), "the output folder this call created was left behind");
+        std::fs::create_dir_all(&out).unwrap();
+        std::fs::write(out.join("keep.txt"), b"mine").unwrap();
+        let result = write_all_or_nothing(&out, |dir| {
+            std::fs::write(dir.join("a.png"), b"first")?;
+            Err("the second map failed".into())
+        });
+        assert!(result.is_err());
+        let names = |d: &Path| -> Vec<String> {
+            let mut v: Vec<String> = std::fs::read_dir(d)
+                .unwrap()
+                .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .collect();
+            v.sort();
+            v
+        };
+        assert_eq!(names(&out), ["keep.txt"], "a half-written decode was left");
+        let written = write_all_or_nothing(&out, |dir| {
+            std::fs::write(dir.join("a.png"), b"first")?;
+            std::fs::write(dir.join("b.png"), b"second")?;
+            Ok(vec![dir.join("a.png"), dir.join("b.png")])
+        })
+        .unwrap();
+        assert_eq!(written, [out.join("a.png"), out.join("b.png")]);
+        assert_eq!(names(&out), ["a.png", "b.png", "keep.txt"]);
+        assert_eq!(std::fs::read(out.join("b.png")).unwrap(), b"second");
+        std::fs::remove_dir_all(&base).unwrap();
     }
 
     #[test]

@@ -321,6 +321,83 @@ fn a_map_over_the_memory_budget_is_refused_before_it_is_decoded() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `bytes` with its SOURCE_MAPS section changed by `patch` and the checksum refreshed.
+fn with_source_maps(bytes: &[u8], patch: impl FnOnce(&mut [u8])) -> Vec<u8> {
+    let m = nmat_core::Container::parse(bytes).unwrap();
+    let kind = nmat_core::SectionKind(nmat_encode::source_maps::SECTION_KIND);
+    let section = m.optional_section(kind).expect("a SOURCE_MAPS section");
+    let at = section.as_ptr() as usize - bytes.as_ptr() as usize;
+    let mut out = bytes.to_vec();
+    patch(&mut out[at..at + section.len()]);
+    let crc = nmat_core::checksum::file_checksum(&out);
+    out[20..24].copy_from_slice(&crc.to_le_bytes());
+    out
+}
+
+#[test]
+fn hostile_source_maps_and_oversized_decodes_are_refused_before_anything_is_written() {
+    let dir = temp_dir("hostile-maps");
+    let src = dir.join("src");
+    std::fs::create_dir_all(&src).unwrap();
+    write_maps(&src, 32);
+    let file = dir.join("m.nmat");
+    let o = nmat(&["encode", src.to_str().unwrap(), "-o", file.to_str().unwrap(), "--steps", "2"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let bytes = std::fs::read(&file).unwrap();
+    // The record of bricks_albedo.png: 8 header bytes (semantic, layout, first channel, channel
+    // count, flags, alpha, 0, name length), then the name.
+    let record = |s: &[u8]| s.windows(17).position(|w| w == b"bricks_albedo.png").unwrap() - 8;
+    let cases: [(&str, Vec<u8>, &str); 3] = [
+        ("zero", with_source_maps(&bytes, |s| s[2..4].fill(0)), "lists no maps"),
+        (
+            "tiff",
+            with_source_maps(&bytes, |s| {
+                let r = record(s);
+                s[r + 1] = 2; // gray+alpha
+                s[r + 3] = 2;
+                s[r + 8 + 14..r + 8 + 17].copy_from_slice(b"tif");
+            }),
+            "bricks_albedo.tif: Tiff cannot hold a gray+alpha map",
+        ),
+        (
+            "beyond",
+            with_source_maps(&bytes, |s| s[record(s) + 2] = 200),
+            "channels 200..203 are not within the material's 8 channels",
+        ),
+    ];
+    for (name, patched, expected) in cases {
+        let path = dir.join(format!("{name}.nmat"));
+        std::fs::write(&path, patched).unwrap();
+        let out = dir.join(format!("{name}-out"));
+        let o = nmat(&["decode", path.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+        assert!(!o.status.success(), "{name}: decode succeeded");
+        assert!(text(&o).contains(expected), "{name}: {}", text(&o));
+        assert!(text(&o).contains("nothing was written"), "{name}: {}", text(&o));
+        assert!(!out.exists(), "{name}: a folder was created for a refused decode");
+    }
+    // The way out the TIFF error names: every map as PNG, the gray+alpha layout kept.
+    let out = dir.join("tiff-png");
+    let tiff = dir.join("tiff.nmat");
+    let o = nmat(&["decode", tiff.to_str().unwrap(), "-o", out.to_str().unwrap(), "--png"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let albedo = image::open(out.join("bricks_albedo.png")).unwrap();
+    assert_eq!(albedo.color(), image::ColorType::La8);
+
+    // 32² texels, 8 components in 4 maps: (8 + 4) × 2 bytes a texel = 24 KiB.
+    let out = dir.join("small-budget");
+    let (f, d) = (file.to_str().unwrap(), out.to_str().unwrap());
+    let o = nmat(&["decode", f, "-o", d, "--max-memory", "16K"]);
+    assert!(!o.status.success(), "decode over the memory budget succeeded");
+    assert!(text(&o).contains("--max-memory") && text(&o).contains("nothing"), "{}", text(&o));
+    assert!(!out.exists(), "a folder was created for a refused decode");
+    let o = nmat(&["decode", f, "-o", d, "--max-memory", "32K"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let expected =
+        ["bricks_albedo.png", "bricks_height.png", "bricks_normal.png", "bricks_roughness.png"];
+    assert_eq!(files_in(&out), expected);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn info_says_what_a_file_is_instead_of_reading_it_whole() {
     let dir = temp_dir("notnmat");

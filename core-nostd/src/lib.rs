@@ -58,7 +58,8 @@ pub use error::{Argument, Error, Field};
 pub use filter::{Filter, Precision, SampleRequest};
 pub use latents::LatentGrid;
 pub use material::{
-    AddressMode, Channel, ColorSpace, FeatureLevel, Material, Mlp, Semantic, Term, TermMode,
+    AddressMode, Channel, ColorSpace, DecodeCost, FeatureLevel, Material, Mlp, Semantic, Term,
+    TermMode,
 };
 pub use mlp::{Activation, Layer, Requant};
 #[cfg(feature = "alloc")]

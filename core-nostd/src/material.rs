@@ -119,6 +119,16 @@ impl<'a> Mlp<'a> {
     }
 }
 
+/// What [`Material::decode_cost`] reports.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DecodeCost {
+    /// Texels of the mip.
+    pub texels: u64,
+    /// Multiply-adds of the network over those texels (all outputs); divide by a kernel's
+    /// measured rate (`nmat bench`) for the time.
+    pub macs: u64,
+}
+
 /// A parsed `.nmat` material. Cheap to copy around by reference; immutable, so one instance can be
 /// decoded from many threads at once.
 #[derive(Clone, Debug)]
@@ -212,6 +222,14 @@ impl<'a> Material<'a> {
     /// Every optional section, in file order.
     pub fn optional_sections(&self) -> &[(crate::SectionKind, &'a [u8])] {
         &self.optional_sections
+    }
+
+    /// The work of decoding every texel of `mip` (clamped to the chain) once, all channels at
+    /// a time: know it before a large decode (a small file may declare a 16384² chain).
+    pub fn decode_cost(&self, mip: u32) -> DecodeCost {
+        let (w, h) = self.mip_size(mip);
+        let texels = u64::from(w) * u64::from(h);
+        DecodeCost { texels, macs: texels * self.mlp.macs_per_texel() as u64 }
     }
 
     /// Bits per pixel per channel: file bits / (width · height · channels) of mip 0.

@@ -468,6 +468,29 @@ pub extern "C" fn nmat_mip_size(
     })
 }
 
+/// The work of decoding every texel of `mip` (< mip_count) once: `*texels` of the mip and
+/// `*macs`, the network's multiply-adds over them (all channels). A small file may declare a
+/// 16384² chain: check before decoding it whole. The time is `macs` over the rate `nmat bench`
+/// measures on the target machine.
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_decode_cost(
+    m: *const nmat_material,
+    mip: u32,
+    texels: *mut u64,
+    macs: *mut u64,
+) -> nmat_status {
+    guard(|| {
+        let m = material(m)?;
+        let (texels, macs) = (arg_mut(texels)?, arg_mut(macs)?);
+        if mip >= m.mip_count() {
+            return Err(bad("mip beyond the chain"));
+        }
+        let cost = m.decode_cost(mip);
+        (*texels, *macs) = (cost.texels, cost.macs);
+        Ok(())
+    })
+}
+
 fn mask(m: &Material<'_>, channel_mask: u32) -> Result<(ChannelMask, usize), nmat_status> {
     let mask = u16::try_from(channel_mask).map_err(|_| bad("channel mask beyond 16 channels"))?;
     let n = m.required_len(ChannelMask(mask)).map_err(fail)?;

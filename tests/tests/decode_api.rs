@@ -184,3 +184,17 @@ fn a_material_is_shared_across_threads() {
         }
     });
 }
+
+#[test]
+fn decode_cost_counts_the_texels_and_the_networks_multiply_adds() {
+    // ntc_rgb_64: 64×64, 7 mips, MLP 49→64→64→3 (tests/fixtures/README.md).
+    let bytes = fixture(0);
+    let m = Container::parse(&bytes).unwrap();
+    let per_texel = 49 * 64 + 64 * 64 + 64 * 3;
+    let cost = m.decode_cost(0);
+    assert_eq!((cost.texels, cost.macs), (4096, 4096 * per_texel));
+    assert_eq!(m.decode_cost(3).texels, 64);
+    assert_eq!(m.decode_cost(3).macs, 64 * per_texel);
+    // A mip beyond the chain is clamped to the last one (1×1), like `mip_size`.
+    assert_eq!(m.decode_cost(99).texels, 1);
+}
