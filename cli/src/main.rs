@@ -3,10 +3,11 @@
 
 mod bench;
 mod bench_train;
-mod output;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
+use nmat_cli::input::read_nmat;
+use nmat_cli::output;
 use nmat_core::{AddressMode, Container, Material};
 use nmat_encode::metrics::{ChainQuality, chain_quality};
 use nmat_encode::texset::{self, LoadOptions, Role};
@@ -472,75 +473,6 @@ fn search_target(
     }
     eprintln!("no profile reached {target} dB; keeping the largest");
     last.ok_or_else(|| "no profile".into())
-}
-
-/// Reads a .nmat file without trusting it: only a regular file, whose first bytes carry the
-/// magic, read no further than the length its header declares (≤ 4 GiB by the format), so a
-/// huge or endless input is refused before it is read.
-fn read_nmat(path: &Path) -> Result<Vec<u8>> {
-    use std::io::Read as _;
-    let shown = path.display();
-    let meta = std::fs::metadata(path).map_err(|e| format!("{shown}: {e}"))?;
-    if meta.is_dir() {
-        return Err(format!("{shown}: is a folder, not a .nmat file").into());
-    }
-    if !meta.is_file() {
-        return Err(format!(
-            "{shown}: not a regular file (a device, pipe or socket); .nmat files are read from \
-             regular files only"
-        )
-        .into());
-    }
-    let mut file = std::fs::File::open(path).map_err(|e| format!("{shown}: {e}"))?;
-    // The header's first 16 bytes: magic, versions, flags, declared length (docs/FORMAT.md §2).
-    let mut head = Vec::with_capacity(16);
-    file.by_ref().take(16).read_to_end(&mut head).map_err(|e| format!("{shown}: {e}"))?;
-    if !head.starts_with(&nmat_core::container::MAGIC) {
-        return Err(format!("{shown}: not a .nmat file ({})", signature(&head)).into());
-    }
-    let len = meta.len();
-    let declared = head
-        .get(12..16)
-        .map_or(len, |d| u64::from(u32::from_le_bytes(d.try_into().unwrap_or_default())));
-    if len > declared {
-        return Err(format!(
-            "{shown}: {} trailing bytes after the {declared} bytes the header declares (something \
-             was appended to the file?)",
-            len - declared
-        )
-        .into());
-    }
-    // The rest, from the same handle: never more than the header declares.
-    let mut bytes = head;
-    let rest = declared.min(len).saturating_sub(bytes.len() as u64);
-    file.take(rest).read_to_end(&mut bytes).map_err(|e| format!("{shown}: {e}"))?;
-    Ok(bytes)
-}
-
-/// What a file that is not .nmat seems to be, from its first bytes.
-fn signature(head: &[u8]) -> String {
-    let known: [(&[u8], &str); 9] = [
-        (b"\x89PNG", "PNG"),
-        (b"\xFF\xD8\xFF", "JPEG"),
-        (b"GIF8", "GIF"),
-        (b"II*\0", "TIFF"),
-        (b"MM\0*", "TIFF"),
-        (b"\xABKTX", "KTX"),
-        (b"DDS ", "DDS"),
-        (b"BM", "BMP"),
-        (b"\0\0\0\x0cjXL", "JPEG XL"),
-    ];
-    if head.is_empty() {
-        return "the file is empty".into();
-    }
-    if head.starts_with(b"RIFF") && head.get(8..12) == Some(b"WEBP") {
-        return "WebP signature".into();
-    }
-    if let Some((_, name)) = known.iter().find(|(sig, _)| head.starts_with(sig)) {
-        return format!("{name} signature");
-    }
-    let hex: Vec<String> = head.iter().take(4).map(|b| format!("{b:02x}")).collect();
-    format!("it starts with {} instead of NMAT", hex.join(" "))
 }
 
 fn parse<'a>(bytes: &'a [u8], path: &Path) -> Result<Material<'a>> {

@@ -601,3 +601,17 @@ fn bench_train_reports_every_kernel_row_and_refuses_bad_options() {
     assert!(!o.status.success() && text(&o).contains("no image maps found"), "{}", text(&o));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn fuzz_regression_inputs_of_the_cli_target_never_panic() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/regressions/cli");
+    let mut count = 0;
+    for entry in std::fs::read_dir(&dir).expect("fuzz/regressions/cli exists") {
+        let path = entry.unwrap().path();
+        if path.extension().is_none_or(|e| e != "md") {
+            nmat_cli::exercise_untrusted(&std::fs::read(&path).unwrap());
+            count += 1;
+        }
+    }
+    assert!(count >= 3, "regression inputs missing in {}", dir.display());
+}

@@ -294,13 +294,34 @@ pub fn assign_roles(
 }
 
 fn open_image(path: &Path, max_memory: u64) -> Result<DynamicImage, EncodeError> {
+    let open = || std::fs::File::open(path).map(std::io::BufReader::new);
+    decode_image_with(open, path, max_memory)
+}
+
+/// Decodes an image file's bytes exactly as `load` decodes a map (`path` only names it in
+/// errors): the declared size checked against [`MAX_DIMENSION`] and `max_memory` before any pixel
+/// is decoded, and the decoder's allocations limited to `max_memory`.
+pub fn decode_image(
+    bytes: &[u8],
+    path: &Path,
+    max_memory: u64,
+) -> Result<DynamicImage, EncodeError> {
+    decode_image_with(|| Ok(std::io::Cursor::new(bytes)), path, max_memory)
+}
+
+/// The one image decoding: `open` gives the file's bytes from the start (it is called twice: once
+/// for the header, once for the pixels).
+fn decode_image_with<R: std::io::BufRead + std::io::Seek>(
+    open: impl Fn() -> std::io::Result<R>,
+    path: &Path,
+    max_memory: u64,
+) -> Result<DynamicImage, EncodeError> {
     let image_err = |detail: String| EncodeError::Image { path: path.to_path_buf(), detail };
-    let reader = image::ImageReader::open(path)
-        .map_err(io(path))?
-        .with_guessed_format()
-        .map_err(io(path))?;
+    let reader = || -> Result<image::ImageReader<R>, EncodeError> {
+        image::ImageReader::new(open().map_err(io(path))?).with_guessed_format().map_err(io(path))
+    };
     // The declared size is checked before any pixel is allocated.
-    let (w, h) = reader.into_dimensions().map_err(|e| image_err(e.to_string()))?;
+    let (w, h) = reader()?.into_dimensions().map_err(|e| image_err(e.to_string()))?;
     if w > MAX_DIMENSION || h > MAX_DIMENSION {
         return Err(EncodeError::TooLarge {
             path: path.to_path_buf(),
@@ -320,10 +341,7 @@ fn open_image(path: &Path, max_memory: u64) -> Result<DynamicImage, EncodeError>
             max_memory,
         });
     }
-    let mut reader = image::ImageReader::open(path)
-        .map_err(io(path))?
-        .with_guessed_format()
-        .map_err(io(path))?;
+    let mut reader = reader()?;
     let mut limits = image::Limits::default();
     limits.max_alloc = Some(max_memory);
     reader.limits(limits);

@@ -1,0 +1,79 @@
+//! Reading `.nmat` files without trusting them.
+
+use std::path::Path;
+
+/// Reads a .nmat file without trusting it: only a regular file, whose first bytes carry the
+/// magic, read no further than the length its header declares (≤ 4 GiB by the format), so a
+/// huge or endless input is refused before it is read.
+pub fn read_nmat(path: &Path) -> Result<Vec<u8>, String> {
+    use std::io::Read as _;
+    let shown = path.display();
+    let meta = std::fs::metadata(path).map_err(|e| format!("{shown}: {e}"))?;
+    if meta.is_dir() {
+        return Err(format!("{shown}: is a folder, not a .nmat file"));
+    }
+    if !meta.is_file() {
+        return Err(format!(
+            "{shown}: not a regular file (a device, pipe or socket); .nmat files are read from \
+             regular files only"
+        ));
+    }
+    let mut file = std::fs::File::open(path).map_err(|e| format!("{shown}: {e}"))?;
+    let mut head = Vec::with_capacity(HEAD);
+    file.by_ref().take(HEAD as u64).read_to_end(&mut head).map_err(|e| format!("{shown}: {e}"))?;
+    let declared = check_head(&head, meta.len()).map_err(|e| format!("{shown}: {e}"))?;
+    // The rest, from the same handle: never more than the header declares.
+    let mut bytes = head;
+    let rest = declared.saturating_sub(bytes.len() as u64);
+    file.take(rest).read_to_end(&mut bytes).map_err(|e| format!("{shown}: {e}"))?;
+    Ok(bytes)
+}
+
+/// Bytes of the header that say what the file is: magic, versions, flags, declared length
+/// (docs/FORMAT.md §2).
+pub const HEAD: usize = 16;
+
+/// Checks the first [`HEAD`] bytes of a file of `file_len` bytes; returns how many bytes to read
+/// (the declared length, or less if the file is shorter: the parser then names the truncation).
+pub fn check_head(head: &[u8], file_len: u64) -> Result<u64, String> {
+    if !head.starts_with(&nmat_core::container::MAGIC) {
+        return Err(format!("not a .nmat file ({})", signature(head)));
+    }
+    let declared = head
+        .get(12..16)
+        .map_or(file_len, |d| u64::from(u32::from_le_bytes(d.try_into().unwrap_or_default())));
+    if file_len > declared {
+        return Err(format!(
+            "{} trailing bytes after the {declared} bytes the header declares (something was \
+             appended to the file?)",
+            file_len - declared
+        ));
+    }
+    Ok(declared.min(file_len))
+}
+
+/// What a file that is not .nmat seems to be, from its first bytes.
+fn signature(head: &[u8]) -> String {
+    let known: [(&[u8], &str); 9] = [
+        (b"\x89PNG", "PNG"),
+        (b"\xFF\xD8\xFF", "JPEG"),
+        (b"GIF8", "GIF"),
+        (b"II*\0", "TIFF"),
+        (b"MM\0*", "TIFF"),
+        (b"\xABKTX", "KTX"),
+        (b"DDS ", "DDS"),
+        (b"BM", "BMP"),
+        (b"\0\0\0\x0cjXL", "JPEG XL"),
+    ];
+    if head.is_empty() {
+        return "the file is empty".into();
+    }
+    if head.starts_with(b"RIFF") && head.get(8..12) == Some(b"WEBP") {
+        return "WebP signature".into();
+    }
+    if let Some((_, name)) = known.iter().find(|(sig, _)| head.starts_with(sig)) {
+        return format!("{name} signature");
+    }
+    let hex: Vec<String> = head.iter().take(4).map(|b| format!("{b:02x}")).collect();
+    format!("it starts with {} instead of NMAT", hex.join(" "))
+}
