@@ -207,8 +207,9 @@ fn bench_one(input: &Path, opts: &Options) -> Result<()> {
                 let at = (y * src.width) as usize * c;
                 region.extend_from_slice(&src.data[at..at + side.0 as usize * c]);
             }
-            let chain = nmat_encode::metrics::chain_quality(&m, &set).psnr;
-            (Some(region), Some(chain), png_seconds(&m, dir, opts.runs)?)
+            let quality = nmat_encode::metrics::chain_quality(&m, &set);
+            crate::warn_if_decoded(&quality, dir);
+            (Some(region), Some(quality.psnr), png_seconds(&m, dir, opts.runs)?)
         }
         None => (None, None, None),
     };

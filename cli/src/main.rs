@@ -727,14 +727,30 @@ fn cmd_eval(input: &Path, reference: &Path) -> Result<()> {
     let m = parse(&bytes, input)?;
     let set = load_reference(&m, reference)?;
     let q: ChainQuality = chain_quality(&m, &set);
+    warn_if_decoded(&q, reference);
     print!("{}", output::quality_table(&set, &q, None));
     Ok(())
+}
+
+/// Warns when the reference maps equal the material's own decode at mip 0: `--ref` then points
+/// at decoded maps, not at the sources, and the PSNR says nothing about the codec.
+fn warn_if_decoded(q: &ChainQuality, reference: &Path) {
+    if q.mse.first().is_some_and(|mip0| mip0.iter().all(|&e| e == 0.0)) {
+        eprintln!(
+            "warning: the maps in {} are identical to this material's own decode at mip 0 — \
+             they look like decoded maps, not the source maps it was encoded from, so the \
+             numbers below do not measure the codec",
+            reference.display()
+        );
+    }
 }
 
 fn cmd_demo(out: &Path, train: &TrainArgs, profile: &str) -> Result<()> {
     threads(train.threads)?;
     let profile = profile_named(profile)?;
     let set = nmat_encode::demo::bricks(256);
+    let source = out.join("source");
+    output::write_source_maps(&set, &source)?;
     println!(
         "demo: a procedural 256×256 brick material (albedo RGB, normal XYZ, roughness, height; {} mips), profile {}",
         set.mips.len(),
@@ -758,8 +774,27 @@ fn cmd_demo(out: &Path, train: &TrainArgs, profile: &str) -> Result<()> {
     );
     let m = parse(&encoded.bytes, &path)?;
     let plan = output::DecodePlan::new(&m, &[0], false)?;
-    let written = output::write_maps(&m, &plan, out, output::DecodeWith::default(), &mut |_| {})?;
-    println!("decoded {} maps into {}", written.len(), out.display());
+    let decoded = out.join("decoded");
+    std::fs::create_dir_all(&decoded).map_err(|e| format!("{}: {e}", decoded.display()))?;
+    let with = output::DecodeWith::default();
+    let written = output::write_maps(&m, &plan, &decoded, with, &mut |_| {})?;
+    println!(
+        "source maps in {}, {} decoded maps in {}",
+        source.display(),
+        written.len(),
+        decoded.display()
+    );
     print!("{}", output::quality_table(&set, &encoded.quality, Some(profile.name())));
+    // This binary as the user can type it from here (`target/release/nmat` after `cargo run`).
+    let nmat = match (std::env::current_exe(), std::env::current_dir()) {
+        (Ok(exe), Ok(here)) => exe.strip_prefix(&here).unwrap_or(&exe).display().to_string(),
+        _ => "nmat".to_string(),
+    };
+    println!(
+        "\nnext: measure it against the source maps, and the decode speed and accuracy knobs:\n  \
+         {nmat} eval {p} --ref {s}\n  {nmat} bench {p} --ref {s}",
+        p = path.display(),
+        s = source.display()
+    );
     Ok(())
 }

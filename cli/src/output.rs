@@ -165,6 +165,37 @@ fn maps_from_names(m: &Material<'_>) -> Vec<SourceMap> {
     maps
 }
 
+/// Writes mip 0 of every map of `set` as an 8-bit PNG under its source name into `dir` (created if
+/// missing): the maps of a generated material (`nmat demo`) as files `encode`, `eval` and `bench`
+/// can read. Every component must be stored in the set (no constant alpha, no gray-as-RGB), as the
+/// demo's maps are.
+pub fn write_source_maps(
+    set: &TextureSet,
+    dir: &Path,
+) -> Result<Vec<PathBuf>, Box<dyn std::error::Error>> {
+    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let (mip, c) = (&set.mips[0], set.channel_count());
+    let mut written = Vec::new();
+    for map in &set.maps {
+        let comps = map.layout.components();
+        if map.channel_count != comps || map.alpha_value.is_some() || map.gray_rgb {
+            return Err(format!("{}: a map with components not stored", map.file_name).into());
+        }
+        let px: Vec<u16> = mip
+            .data
+            .chunks_exact(c)
+            .flat_map(|t| &t[map.first_channel..map.first_channel + comps])
+            .map(|&u| (u * 255.0).round().clamp(0.0, 255.0) as u16)
+            .collect();
+        let name = Path::new(&map.file_name).with_extension("png");
+        let image = to_image(mip.width, mip.height, map.layout, false, px);
+        let path = dir.join(name);
+        write_atomic(&path, &encode_image(image, ImageFormat::Png)?)?;
+        written.push(path);
+    }
+    Ok(written)
+}
+
 /// Output name and format of one map at one mip. Lossy formats are not re-encoded lossily (they
 /// come back as PNG); `png` writes every map as PNG.
 fn output_name(file_name: &str, mip: u32, single_mip0: bool, png: bool) -> (String, ImageFormat) {

@@ -537,10 +537,29 @@ fn bad_input_fails_cleanly_and_writes_nothing() {
 fn demo_runs_end_to_end() {
     let dir = temp_dir("demo");
     let o = nmat(&["demo", "-o", dir.to_str().unwrap(), "--steps", "30"]);
-    assert!(o.status.success(), "{}", text(&o));
-    assert!(text(&o).contains("overall: PSNR"), "{}", text(&o));
+    let report = text(&o);
+    assert!(o.status.success(), "{report}");
     assert!(dir.join("demo.nmat").is_file());
-    assert!(dir.join("bricks_albedo.png").is_file());
+    assert!(dir.join("source/bricks_albedo.png").is_file());
+    assert!(dir.join("decoded/bricks_albedo.png").is_file());
+    let overall = |t: &str| -> String {
+        let line = t.lines().find(|l| l.starts_with("overall: PSNR")).unwrap_or_default();
+        line.split(" dB").next().unwrap_or_default().to_string()
+    };
+    // The eval command the demo prints measures against the maps it encoded: the same PSNR as its
+    // own report, and no warning.
+    let eval = report.lines().find(|l| l.contains(" eval ")).expect("an eval command");
+    let args: Vec<&str> = eval.split_whitespace().skip(1).collect();
+    let o = nmat(&args);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(!text(&o).contains("warning"), "{}", text(&o));
+    assert_eq!(overall(&text(&o)), overall(&report), "{}\n{report}", text(&o));
+    assert!(report.lines().any(|l| l.contains(" bench ") && l.contains("--ref")), "{report}");
+    // Against its own decoded maps: a warning that says so.
+    let decoded = dir.join("decoded");
+    let o = nmat(&["eval", args[1], "--ref", decoded.to_str().unwrap()]);
+    assert!(text(&o).contains("warning: the maps in"), "{}", text(&o));
+    assert!(text(&o).contains("look like decoded maps"), "{}", text(&o));
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
