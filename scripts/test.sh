@@ -1,13 +1,23 @@
 #!/usr/bin/env bash
 # The test suite, as a newcomer and CI run it: installs what the tests need that cargo cannot
-# (the lavapipe software Vulkan driver for the GPU tests; idempotent), then runs every test.
+# (the lavapipe software Vulkan driver for the GPU tests; idempotent, skipped when present), then
+# runs every test.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if ! { dpkg -s mesa-vulkan-drivers && dpkg -s libvulkan1; } >/dev/null 2>&1; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    echo "installing mesa-vulkan-drivers and libvulkan1 (apt): the GPU tests run on lavapipe," \
+      "a Vulkan driver on the CPU, when the machine has no GPU" >&2
     apt-get update -qq && apt-get install -y -qq mesa-vulkan-drivers libvulkan1 >/dev/null
   else
     echo "the GPU tests need a Vulkan driver; without a GPU: sudo apt-get install mesa-vulkan-drivers libvulkan1" >&2
   fi
+fi
+# Mesa's drivers print "XDG_RUNTIME_DIR is invalid or not set" without one (e.g. as root in a
+# container); give them a private one so a passing run prints no error lines.
+if [ -z "${XDG_RUNTIME_DIR:-}" ] || [ ! -d "${XDG_RUNTIME_DIR}" ]; then
+  XDG_RUNTIME_DIR=$(mktemp -d)
+  export XDG_RUNTIME_DIR
+  trap 'rm -rf "$XDG_RUNTIME_DIR"' EXIT
 fi
 cargo test --workspace --locked "$@"
