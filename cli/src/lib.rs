@@ -4,6 +4,7 @@
 
 pub mod input;
 pub mod output;
+pub mod progress;
 
 use std::path::Path;
 

@@ -5,9 +5,9 @@ mod bench;
 mod bench_train;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use indicatif::{ProgressBar, ProgressStyle};
 use nmat_cli::input::read_nmat;
 use nmat_cli::output;
+use nmat_cli::progress::Progress;
 use nmat_core::{AddressMode, Container, Material};
 use nmat_encode::metrics::{ChainQuality, chain_quality};
 use nmat_encode::texset::{self, LoadOptions, Role};
@@ -310,17 +310,12 @@ fn profile_named(name: &str) -> Result<Profile> {
 
 /// Trains with a progress bar (ETA and live PSNR of the training loss).
 fn encode_with_progress(set: &TextureSet, options: &EncodeOptions) -> Result<Encoded> {
-    let bar = ProgressBar::new(options.train.steps as u64);
-    bar.set_style(
-        ProgressStyle::with_template("{prefix:>9} [{bar:32}] {pos}/{len} steps, ETA {eta} {msg}")?
-            .progress_chars("=> "),
-    );
-    bar.set_prefix(options.profile.name());
+    let steps = options.train.steps as u64;
+    let mut progress = Progress::new(options.profile.name(), steps, "steps");
     let encoded = encode(set, options, &mut |p| {
-        bar.set_position(p.step as u64);
-        bar.set_message(format!("train PSNR {:.2} dB ({:?})", p.psnr, p.phase));
+        progress.set(p.step as u64, &|| format!("train PSNR {:.2} dB ({:?})", p.psnr, p.phase));
     })?;
-    bar.finish_and_clear();
+    progress.finish();
     Ok(encoded)
 }
 
@@ -526,8 +521,13 @@ fn cmd_decode(args: DecodeArgs) -> Result<()> {
         )
         .into());
     }
-    let bar = decode_progress(plan.cost(&m));
-    let mut progress = |done: u64| bar.inc(done);
+    let start = Instant::now();
+    let mut bar = decode_progress(plan.cost(&m));
+    let mut progress = |done: u64| {
+        if let Some(bar) = &mut bar {
+            bar.inc(done);
+        }
+    };
     let float = args.float;
     let written = output::write_all_or_nothing(&args.output, |dir| {
         if args.gpu {
@@ -537,29 +537,28 @@ fn cmd_decode(args: DecodeArgs) -> Result<()> {
             output::write_maps(&m, &plan, dir, with, &mut progress)
         }
     })?;
-    bar.finish_and_clear();
+    if let Some(bar) = bar {
+        bar.finish();
+    }
     for w in &written {
         println!("wrote {}", w.display());
     }
+    println!("decoded {} files in {:.1} s", written.len(), start.elapsed().as_secs_f64());
     Ok(())
 }
 
-/// A progress bar over the texels a decode evaluates, shown (with the cost printed first) when
-/// the decode is long: more than [`LONG_DECODE_TEXELS`].
-fn decode_progress(cost: nmat_core::DecodeCost) -> ProgressBar {
+/// Progress over the texels a decode evaluates, shown (with the cost printed first) when the
+/// decode is long: more than [`LONG_DECODE_TEXELS`].
+fn decode_progress(cost: nmat_core::DecodeCost) -> Option<Progress> {
     if cost.texels < LONG_DECODE_TEXELS {
-        return ProgressBar::hidden();
+        return None;
     }
     eprintln!(
         "decoding {:.1} M texels ({:.1} G multiply-adds of the network)",
         cost.texels as f64 / 1e6,
         cost.macs as f64 / 1e9
     );
-    let bar = ProgressBar::new(cost.texels);
-    if let Ok(style) = ProgressStyle::with_template("   decode [{bar:32}] {percent}%, ETA {eta}") {
-        bar.set_style(style.progress_chars("=> "));
-    }
-    bar
+    Some(Progress::new("decode", cost.texels, "texels"))
 }
 
 const MIB: f64 = (1u64 << 20) as f64;
@@ -723,12 +722,14 @@ fn cmd_bench_train(
 }
 
 fn cmd_eval(input: &Path, reference: &Path) -> Result<()> {
+    let start = Instant::now();
     let bytes = read_nmat(input)?;
     let m = parse(&bytes, input)?;
     let set = load_reference(&m, reference)?;
     let q: ChainQuality = chain_quality(&m, &set);
     warn_if_decoded(&q, reference);
     print!("{}", output::quality_table(&set, &q, None));
+    println!("evaluated in {:.1} s", start.elapsed().as_secs_f64());
     Ok(())
 }
 

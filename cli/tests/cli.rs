@@ -211,6 +211,10 @@ fn gray_maps_of_any_role_are_one_channel_and_come_back_in_their_layout() {
     let file = dir.join("m.nmat");
     let o = nmat(&["encode", src.to_str().unwrap(), "-o", file.to_str().unwrap(), "--steps", "20"]);
     assert!(o.status.success(), "{}", text(&o));
+    // stderr is not a terminal here: progress comes as plain lines, the last at 100 %.
+    let progress = String::from_utf8_lossy(&o.stderr);
+    assert!(progress.contains(": 2/20 steps (10 %)"), "{progress}");
+    assert!(progress.contains(": 20/20 steps (100 %)"), "{progress}");
     let bytes = std::fs::read(&file).unwrap();
     let m = nmat_core::Container::parse(&bytes).unwrap();
     let names: Vec<&str> = m.channels().iter().map(|c| c.name).collect();
@@ -226,6 +230,7 @@ fn gray_maps_of_any_role_are_one_channel_and_come_back_in_their_layout() {
     let out = dir.join("out");
     let o = nmat(&["decode", file.to_str().unwrap(), "-o", out.to_str().unwrap()]);
     assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("decoded 5 files in "), "{}", text(&o));
     for (name, color) in [
         ("m_albedo.png", image::ColorType::Rgb8),
         ("m_normal.png", image::ColorType::Rgb8),
