@@ -317,8 +317,14 @@ fn decode_image_with<R: std::io::BufRead + std::io::Seek>(
     max_memory: u64,
 ) -> Result<DynamicImage, EncodeError> {
     let image_err = |detail: String| EncodeError::Image { path: path.to_path_buf(), detail };
+    // The format from the file's extension (TGA has no signature), overridden by the content's
+    // signature where it has one — as `ImageReader::open` does.
     let reader = || -> Result<image::ImageReader<R>, EncodeError> {
-        image::ImageReader::new(open().map_err(io(path))?).with_guessed_format().map_err(io(path))
+        let mut reader = image::ImageReader::new(open().map_err(io(path))?);
+        if let Ok(format) = image::ImageFormat::from_path(path) {
+            reader.set_format(format);
+        }
+        reader.with_guessed_format().map_err(io(path))
     };
     // The declared size is checked before any pixel is allocated.
     let (w, h) = reader()?.into_dimensions().map_err(|e| image_err(e.to_string()))?;

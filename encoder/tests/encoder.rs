@@ -200,6 +200,22 @@ fn bad_inputs_give_errors_that_name_the_file() {
 }
 
 #[test]
+fn maps_without_a_signature_are_read_by_their_extension() {
+    // TGA has no magic number: its extension names the format (as for any map `load` reads).
+    let dir = temp_dir("tga");
+    let png = dir.join("a_albedo.png");
+    let tga = dir.join("b_albedo.tga");
+    gradient_rgb(16, 8).save(&png).unwrap();
+    gradient_rgb(16, 8).save(&tga).unwrap();
+    let load = |p: &std::path::Path| {
+        texset::load(&[(Role::Albedo, p.to_path_buf())], &LoadOptions::default()).unwrap()
+    };
+    let (from_png, from_tga) = (load(&png), load(&tga));
+    assert_eq!(from_tga.mips[0].data, from_png.mips[0].data);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn pixel_formats_are_packed_as_documented() {
     let dir = temp_dir("formats");
     // 16-bit gray, gray stored as RGB, constant alpha, constant map (palette and CMYK: below).
