@@ -282,10 +282,14 @@ impl DecodePlan {
         Ok(plan)
     }
 
+    /// File name and format of `map` at `mip`.
+    fn file_of(&self, map: &SourceMap, mip: u32) -> (String, ImageFormat) {
+        output_name(&map.file_name, mip, self.mips == [0], self.png)
+    }
+
     /// File name and format of `map` at each mip, in mip order.
     fn files_of(&self, map: &SourceMap) -> Vec<(String, ImageFormat)> {
-        let single = self.mips == [0];
-        self.mips.iter().map(|&mip| output_name(&map.file_name, mip, single, self.png)).collect()
+        self.mips.iter().map(|&mip| self.file_of(map, mip)).collect()
     }
 
     /// Every file the decode writes, map by map.
@@ -349,7 +353,7 @@ pub fn write_maps(
     let (need8, need16) =
         (plan.maps.iter().any(|p| !sixteen_of(p)), plan.maps.iter().any(sixteen_of));
     let mut written: Vec<Vec<PathBuf>> = vec![Vec::new(); plan.maps.len()];
-    for (i, &mip) in plan.mips.iter().enumerate() {
+    for &mip in &plan.mips {
         let (w, h) = m.mip_size(mip);
         let (wu, hu) = (w as usize, h as usize);
         let batched = match with.batch {
@@ -393,7 +397,7 @@ pub fn write_maps(
             progress(u64::from(w));
         }
         for ((map, px), files) in plan.maps.iter().zip(pixels).zip(&mut written) {
-            let (name, format) = plan.files_of(map).swap_remove(i);
+            let (name, format) = plan.file_of(map, mip);
             let image = to_image(w, h, map.layout, sixteen_of(map), px);
             let bytes = encode_image(image, format).map_err(|e| format!("{name}: {e}"))?;
             let path = dir.join(name);

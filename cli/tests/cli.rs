@@ -21,32 +21,7 @@ fn temp_dir(name: &str) -> PathBuf {
 
 /// Writes the procedural brick material's mip 0 as PNG maps.
 fn write_maps(dir: &Path, size: u32) {
-    let set = nmat_encode::demo::bricks(size);
-    let mip = &set.mips[0];
-    let c = set.channel_count();
-    let plane = |k: usize| -> Vec<u8> {
-        (0..(size * size) as usize).map(|i| (mip.data[i * c + k] * 255.0).round() as u8).collect()
-    };
-    let rgb = |k: usize| -> Vec<u8> {
-        let (r, g, b) = (plane(k), plane(k + 1), plane(k + 2));
-        (0..r.len()).flat_map(|i| [r[i], g[i], b[i]]).collect()
-    };
-    image::RgbImage::from_raw(size, size, rgb(0))
-        .unwrap()
-        .save(dir.join("bricks_albedo.png"))
-        .unwrap();
-    image::RgbImage::from_raw(size, size, rgb(3))
-        .unwrap()
-        .save(dir.join("bricks_normal.png"))
-        .unwrap();
-    image::GrayImage::from_raw(size, size, plane(6))
-        .unwrap()
-        .save(dir.join("bricks_roughness.png"))
-        .unwrap();
-    image::GrayImage::from_raw(size, size, plane(7))
-        .unwrap()
-        .save(dir.join("bricks_height.png"))
-        .unwrap();
+    nmat_cli::output::write_source_maps(&nmat_encode::demo::bricks(size), dir).unwrap();
 }
 
 fn files_in(dir: &Path) -> Vec<String> {
