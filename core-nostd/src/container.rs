@@ -636,10 +636,10 @@ fn parse_layer(
     let scales = take(4 * outputs, 4 * outputs);
     let bias = take(4 * outputs, 4 * outputs);
     if let Some(i) = weights_i8.iter().position(|&w| w as i8 == i8::MIN) {
-        // −128 would break the symmetric range the accumulator bound assumes (NUMERICS.md).
+        // −128 would break the symmetric range the accumulator bound assumes (docs/FORMAT.md §5.3).
         return Err(malformed(Field::WeightInt8, l, i as i64));
     }
-    // |acc| ≤ inputs·127·32768 + |bias| must stay below 2^31 (NUMERICS.md, "the bias bound").
+    // |acc| ≤ inputs·127·32768 + |bias| must stay below 2^31 (docs/FORMAT.md §5.3, the bias bound).
     let bias_limit = i64::from(i32::MAX) - inputs as i64 * MAX_PRODUCT;
     for o in 0..outputs {
         let scale_bits = f32_at(scales, 4 * o).to_bits();

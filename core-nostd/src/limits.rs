@@ -24,7 +24,7 @@ pub const MAX_TERMS: usize = 4;
 pub const MAX_CHAIN: usize = MAX_LEVELS;
 /// MLP layers (NTC: 2 hidden + 1 output).
 pub const MAX_LAYERS: usize = 4;
-/// Fan-in and width of every layer. The accumulator bound of NUMERICS.md
+/// Fan-in and width of every layer. The accumulator bound of docs/FORMAT.md §5.3
 /// (|acc| ≤ 128·127·32768 + |bias| < 2^31) holds up to this fan-in; larger needs a new bound.
 pub const MAX_WIDTH: usize = 128;
 /// Triangle-wave frequencies of the positional encoding (periods 4 … 512 texels).

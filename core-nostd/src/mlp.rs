@@ -91,7 +91,7 @@ pub fn hard_gelu_q(z: i16, frac_bits: u8) -> i16 {
     } else if z <= -t {
         0
     } else {
-        // |z| < 1.5·2^14, so the product is below 2^31 (NUMERICS.md).
+        // |z| < 1.5·2^14, so the product is below 2^31 (docs/FORMAT.md §6.6).
         let num = z * (z + t) + t;
         num.div_euclid(3i32 << f) as i16
     }
@@ -155,7 +155,7 @@ impl<'a> Layer<'a> {
     }
 
     /// Integer accumulator of row `o`: bias + Σ w·x. Parse bounds |bias| so this cannot overflow
-    /// (NUMERICS.md); wrapping ops keep the function panic-free regardless.
+    /// (docs/FORMAT.md §5.3); wrapping ops keep the function panic-free regardless.
     pub fn accumulate(&self, o: usize, x: &[i16]) -> i32 {
         let n = self.inputs();
         let row = self.weights_i8.get(o * n..(o + 1) * n).unwrap_or(&[]);

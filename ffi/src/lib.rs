@@ -1,13 +1,32 @@
-//! The C API of nmat (`bindings-c/include/nmat.h` is generated from this file by cbindgen).
+//! The C API of nmat: `bindings-c/include/nmat.h` (generated from this file by cbindgen) and
+//! the library `libnmat.a` / `libnmat.so` built from this crate. The guide for C, C++, Android
+//! and iOS users (building, linking, pkg-config, the API in brief, the rules every function
+//! follows) is `docs/INTEGRATION.md` of the repository, embedded here as [`guide`].
 //!
-//! Boundary rules: every exported function runs inside one panic boundary ([`guard`]); pointers
-//! are checked through one helper ([`arg`], [`arg_mut`], [`slice_mut`]) that answers
+//! ```c
+//! #include "nmat.h"
+//! nmat_material *m = NULL;
+//! if (nmat_material_open(bytes, len, &m) != NMAT_OK) { /* nmat_last_error says why */ }
+//! size_t row, total;                      /* the fast path: whole regions, not texels */
+//! nmat_required_size(m, w, h, 0x7, 1, 0, &row, &total);
+//! nmat_decode_region_u8(m, mip, 0, 0, w, h, 0x7, buffer, row, total);
+//! nmat_material_free(m);
+//! ```
+//!
+//! Boundary rules: every exported function runs inside one panic boundary (`guard`); pointers
+//! are checked through one set of helpers (`arg`, `arg_mut`, `slice_mut`) that answer
 //! `NMAT_NULL_ARGUMENT`; nothing here unwraps or asserts on caller input. A material handle is
 //! immutable after `nmat_material_open*`, so one handle may be used from any number of threads at
 //! once.
 
 // The C names are the API.
 #![allow(non_camel_case_types)]
+
+/// Using nmat from C, C++, Android and iOS (`docs/INTEGRATION.md` of the repository).
+#[cfg(doc)]
+#[doc = include_str!("../../docs/INTEGRATION.md")]
+#[allow(rustdoc::broken_intra_doc_links)]
+pub mod guide {}
 
 use nmat_core::{
     ChannelMask, Container, Decoder, Error, Filter, Material, Precision, SampleRequest,

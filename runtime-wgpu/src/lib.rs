@@ -1,5 +1,6 @@
 //! `nmat-wgpu`: batch decoding of `.nmat` materials on any GPU wgpu reaches (Vulkan, Metal,
-//! D3D12, OpenGL ES, WebGPU), bit-exact with `nmat_core`'s integer decoder.
+//! D3D12, OpenGL ES, WebGPU), bit-exact with `nmat_core`'s integer decoder: the same 8-bit codes
+//! as every CPU kernel and the C API.
 //!
 //! The caller owns the device and queue (engines do); a [`Context`] caches the pipeline;
 //! [`Context::upload`] puts a material's packed latent words (as stored in the file), its int8
@@ -7,8 +8,36 @@
 //! [`Context::submit_requests`] / [`Context::submit_region`] record and submit the work and return
 //! a [`PendingDecode`] whose [`PendingDecode::wait`] maps the result; `decode_*` do both.
 //!
-//! Only downlevel limits are needed: the kernel uses 32-bit integers only (no `f16`, no
-//! subgroups, no 64-bit integers; the wide products are computed in pieces, docs/FORMAT.md §6).
+//! ```no_run
+//! # async fn demo(bytes: &[u8]) -> Result<(), Box<dyn std::error::Error>> {
+//! use nmat_core::{ChannelMask, Container};
+//! use nmat_wgpu::{Context, TexelRequest};
+//! let material = Container::parse(bytes)?;
+//! // An engine passes its own device; tools can ask for the first adapter wgpu finds.
+//! let (device, queue, _info) = nmat_wgpu::default_device().await.ok_or("no GPU adapter")?;
+//! let context = Context::new(&device); // once per device
+//! let gpu = context.upload(&device, &material)?; // once per material
+//! // A whole mip: one code per texel and channel, row by row.
+//! let mip0 = context.decode_mip(&device, &queue, &gpu, 0, ChannelMask::ALL)?;
+//! // Scattered texels (e.g. what a frame touches): many per call.
+//! let requests = [TexelRequest { x: 3, y: 5, mip: 0 }, TexelRequest { x: 9, y: 1, mip: 2 }];
+//! let codes = context.decode_requests(&device, &queue, &gpu, &requests, ChannelMask::ALL)?;
+//! # let _ = (mip0, codes); Ok(()) }
+//! ```
+//!
+//! For throughput keep several decodes in flight: submit regions with
+//! [`Context::submit_region`] and [`PendingDecode::wait`] on them later. Only downlevel limits
+//! are needed: the kernel uses 32-bit integers only (no `f16`, no subgroups, no 64-bit integers;
+//! the wide products are computed in pieces). The decode arithmetic is that of the format
+//! specification (`docs/FORMAT.md` of the repository, §6; embedded in `nmat_core::spec`); how the
+//! kernel maps it onto 32-bit integers and what it costs is in `docs/GPU.md`, embedded here as
+//! [`design`].
+
+/// The GPU runtime's design and measured speed (`docs/GPU.md` of the repository).
+#[cfg(doc)]
+#[doc = include_str!("../../docs/GPU.md")]
+#[allow(rustdoc::broken_intra_doc_links)]
+pub mod design {}
 
 use nmat_core::{ChannelMask, Material, TermMode};
 use std::sync::mpsc;

@@ -1,4 +1,11 @@
-//! The "extremes worth a test each" of NUMERICS.md, numbered as there.
+//! The numerical extremes of the integer decoder (docs/FORMAT.md §5–6), one test group each:
+//! 1. the accumulator bound (fan-in, weights and inputs at their limits, bias at and past the
+//!    limit); 2. requantization corners; 3. hardGELU over every i16; 4. latents at their extremes
+//!    and interpolation weights; 5. coordinates and LOD (0, 1 − ε, negative, huge, NaN); 6. sizes
+//!    (1×1 to 16384², mip sizes, the positional encoding's phase); 7. file values (NaN, infinite,
+//!    subnormal, negative and zero scales); 8. outputs far out of range clamp. Agreement of the
+//!    SIMD kernels with the definition is tested in `batch.rs`, of every decoder with golden
+//!    hashes in `golden.rs`, of the GPU in `runtime-wgpu`.
 
 use nmat_core::mlp::{Requant, hard_gelu_q};
 use nmat_core::posenc::triangle_q;
