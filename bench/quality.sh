@@ -46,3 +46,4 @@ for m in $materials; do
   target/release/nmat-anchors "$dev/$m" "${match[@]}" | tee -a "$csv"
 done
 python3 bench/summarize.py "$csv" | tee "$out/summary.md"
+echo "quality.sh: done in ${SECONDS} s" >&2

@@ -172,9 +172,11 @@ pub fn run(opts: &Options) -> Result<()> {
         "  roofline = MACs per texel ÷ the {} peak rate per thread; % roofline = roofline time ÷ measured time, each run against the peak measured just before it (median of the runs)\n",
         best.name()
     );
+    let start = Instant::now();
     for input in &opts.inputs {
         bench_one(input, opts)?;
     }
+    println!("benchmarked in {:.1} s", start.elapsed().as_secs_f64());
     Ok(())
 }
 
@@ -207,7 +209,7 @@ fn bench_one(input: &Path, opts: &Options) -> Result<()> {
                 let at = (y * src.width) as usize * c;
                 region.extend_from_slice(&src.data[at..at + side.0 as usize * c]);
             }
-            let quality = nmat_encode::metrics::chain_quality(&m, &set);
+            let quality = crate::chain_quality_shown(&m, &set);
             crate::warn_if_decoded(&quality, dir);
             (Some(region), Some(quality.psnr), png_seconds(&m, dir, opts.runs)?)
         }

@@ -45,6 +45,7 @@ fn fma_peak(kernel: TrainKernel, threads: usize) -> f64 {
 }
 
 pub fn run(o: &Options) -> Result<()> {
+    let start = Instant::now();
     let cfg = configure(o.profile, &shape_of(&o.set));
     let base = TrainOptions { steps: o.steps, ..TrainOptions::default() };
     let batch = base.batch;
@@ -108,5 +109,6 @@ pub fn run(o: &Options) -> Result<()> {
             );
         }
     }
+    println!("\nmeasured in {:.1} s", start.elapsed().as_secs_f64());
     Ok(())
 }

@@ -9,7 +9,7 @@ use nmat_cli::input::read_nmat;
 use nmat_cli::output;
 use nmat_cli::progress::Progress;
 use nmat_core::{AddressMode, Container, Material};
-use nmat_encode::metrics::{ChainQuality, chain_quality};
+use nmat_encode::metrics::ChainQuality;
 use nmat_encode::texset::{self, LoadOptions, Role};
 use nmat_encode::{
     Effort, EncodeError, EncodeOptions, Encoded, PROFILES, Profile, TextureSet, TrainKernel,
@@ -96,7 +96,7 @@ enum Command {
 
 #[derive(Args)]
 struct TrainArgs {
-    /// Optimizer steps (more: better quality, longer encode) [default: 10000 for encode, 3000
+    /// Optimizer steps (more: better quality, longer encode) [default: 30000 for encode, 3000
     /// for demo].
     #[arg(long, conflicts_with = "effort")]
     steps: Option<usize>,
@@ -522,7 +522,7 @@ fn cmd_decode(args: DecodeArgs) -> Result<()> {
         .into());
     }
     let start = Instant::now();
-    let mut bar = decode_progress(plan.cost(&m));
+    let mut bar = decode_progress("decode", plan.cost(&m));
     let mut progress = |done: u64| {
         if let Some(bar) = &mut bar {
             bar.inc(done);
@@ -549,7 +549,7 @@ fn cmd_decode(args: DecodeArgs) -> Result<()> {
 
 /// Progress over the texels a decode evaluates, shown (with the cost printed first) when the
 /// decode is long: more than [`LONG_DECODE_TEXELS`].
-fn decode_progress(cost: nmat_core::DecodeCost) -> Option<Progress> {
+fn decode_progress(label: &str, cost: nmat_core::DecodeCost) -> Option<Progress> {
     if cost.texels < LONG_DECODE_TEXELS {
         return None;
     }
@@ -558,7 +558,21 @@ fn decode_progress(cost: nmat_core::DecodeCost) -> Option<Progress> {
         cost.texels as f64 / 1e6,
         cost.macs as f64 / 1e9
     );
-    Some(Progress::new("decode", cost.texels, "texels"))
+    Some(Progress::new(label, cost.texels, "texels"))
+}
+
+/// Whole-chain quality of `m` against `set`, with progress when the decode is long.
+fn chain_quality_shown(m: &Material<'_>, set: &TextureSet) -> ChainQuality {
+    let mut bar = decode_progress("eval", output::cost_of_mips(m, 0..m.mip_count()));
+    let quality = nmat_encode::metrics::chain_quality_with(m, set, &mut |texels| {
+        if let Some(bar) = &mut bar {
+            bar.inc(texels);
+        }
+    });
+    if let Some(bar) = bar {
+        bar.finish();
+    }
+    quality
 }
 
 const MIB: f64 = (1u64 << 20) as f64;
@@ -726,7 +740,7 @@ fn cmd_eval(input: &Path, reference: &Path) -> Result<()> {
     let bytes = read_nmat(input)?;
     let m = parse(&bytes, input)?;
     let set = load_reference(&m, reference)?;
-    let q: ChainQuality = chain_quality(&m, &set);
+    let q = chain_quality_shown(&m, &set);
     warn_if_decoded(&q, reference);
     print!("{}", output::quality_table(&set, &q, None));
     println!("evaluated in {:.1} s", start.elapsed().as_secs_f64());

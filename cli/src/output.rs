@@ -299,11 +299,7 @@ impl DecodePlan {
 
     /// Texels the decode evaluates (each once, for all channels) and the network's multiply-adds.
     pub fn cost(&self, m: &Material<'_>) -> DecodeCost {
-        let costs = self.mips.iter().map(|&mip| m.decode_cost(mip));
-        costs.fold(DecodeCost { texels: 0, macs: 0 }, |a, c| DecodeCost {
-            texels: a.texels + c.texels,
-            macs: a.macs.saturating_add(c.macs),
-        })
+        cost_of_mips(m, self.mips.iter().copied())
     }
 
     /// Memory the decode needs at most: every map of the largest mip as 16-bit components, and
@@ -636,6 +632,14 @@ pub fn quality_table(set: &TextureSet, q: &ChainQuality, profile: Option<&str>) 
         q.psnr, q.ssim, q.bppc
     );
     s
+}
+
+/// What decoding `mips` of `m` costs, summed.
+pub fn cost_of_mips(m: &Material<'_>, mips: impl Iterator<Item = u32>) -> DecodeCost {
+    mips.map(|mip| m.decode_cost(mip)).fold(DecodeCost { texels: 0, macs: 0 }, |a, c| DecodeCost {
+        texels: a.texels + c.texels,
+        macs: a.macs.saturating_add(c.macs),
+    })
 }
 
 #[cfg(test)]

@@ -7,27 +7,40 @@ use rayon::prelude::*;
 
 /// Integer-decoded unit values of one mip, `w × h × channels`, channel fastest.
 pub fn decode_mip(m: &Material<'_>, mip: u32) -> Vec<f32> {
+    decode_mip_with(m, mip, &mut |_| {})
+}
+
+/// Rows decoded between two progress reports of [`decode_mip_with`].
+const PROGRESS_ROWS: usize = 32;
+
+/// [`decode_mip`], telling `progress` how many texels were decoded after every band of rows
+/// (on the calling thread; the rows of a band are decoded in parallel).
+pub fn decode_mip_with(m: &Material<'_>, mip: u32, progress: &mut dyn FnMut(u64)) -> Vec<f32> {
     let (w, h) = m.mip_size(mip);
-    let c = m.channel_count();
+    let row_len = w as usize * m.channel_count();
     let decoder = Decoder::new(m);
-    let rows: Vec<Vec<f32>> = (0..h)
-        .into_par_iter()
-        .map(|y| {
-            let mut codes = vec![0u8; w as usize * c];
+    let mut out = vec![0f32; row_len * h as usize];
+    for (band, rows) in out.chunks_mut(row_len * PROGRESS_ROWS).enumerate() {
+        rows.par_chunks_mut(row_len).enumerate().for_each(|(i, row)| {
+            let y = band * PROGRESS_ROWS + i;
+            let mut codes = vec![0u8; row_len];
             // A valid material, mask and buffer: this cannot fail.
             let _ = decoder.decode_span_u8(
                 m,
                 0,
-                i64::from(y),
+                y as i64,
                 mip,
                 w as usize,
                 ChannelMask::ALL,
                 &mut codes,
             );
-            codes.iter().map(|&v| f32::from(v) / 255.0).collect()
-        })
-        .collect();
-    rows.concat()
+            for (v, &code) in row.iter_mut().zip(&codes) {
+                *v = f32::from(code) / 255.0;
+            }
+        });
+        progress((rows.len() / row_len.max(1)) as u64 * u64::from(w));
+    }
+    out
 }
 
 /// The decoded value a channel stands for, in unit scale of its source map (constants included).
@@ -79,12 +92,22 @@ impl ChainQuality {
 
 /// Compares the integer decode of `m` with the source chain of `set`.
 pub fn chain_quality(m: &Material<'_>, set: &TextureSet) -> ChainQuality {
+    chain_quality_with(m, set, &mut |_| {})
+}
+
+/// [`chain_quality`], telling `progress` how many texels were decoded as the decode goes (all
+/// mips together are [`Material::decode_cost`]'s texels summed over the chain).
+pub fn chain_quality_with(
+    m: &Material<'_>,
+    set: &TextureSet,
+    progress: &mut dyn FnMut(u64),
+) -> ChainQuality {
     let c = set.channel_count();
     let (mut total, mut count) = (0.0f64, 0.0f64);
     let mut mse = Vec::new();
     let mut ssim = 0.0;
     for (mip, src) in set.mips.iter().enumerate() {
-        let decoded = decode_mip(m, mip as u32);
+        let decoded = decode_mip_with(m, mip as u32, progress);
         let mut per = vec![0.0f64; c];
         for (i, (&d, &s)) in decoded.iter().zip(&src.data).enumerate() {
             let ch = i % c;
