@@ -27,9 +27,9 @@ const SPAN: f64 = 1.5;
 /// Samples per parallel work item (fixed: it, not the thread count, shapes the arithmetic).
 const CHUNK: usize = 256;
 
-/// Default optimizer steps: a 1024² four-map material trains in about 3 minutes on 2 cores
-/// (docs/QUALITY.md).
-pub const DEFAULT_STEPS: usize = 10_000;
+/// Default optimizer steps: a 1024² four-map material trains in about 3½ minutes on 2 cores
+/// (docs/ENCODING.md, "Tuning").
+pub const DEFAULT_STEPS: usize = 30_000;
 
 /// Encode time traded for quality: a multiple of a command's default steps (`--effort`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -108,11 +108,11 @@ impl Default for TrainOptions {
             batch: 2048,
             seed: 1,
             lr_mlp: 1e-2,
-            lr_latents: 2e-2,
-            joint_percent: 80,
-            qat_percent: 5,
-            mip_uniform_share: 0.3,
-            latent_init_spread: 0.2,
+            lr_latents: 4e-2,
+            joint_percent: 90,
+            qat_percent: 3,
+            mip_uniform_share: 0.1,
+            latent_init_spread: 0.05,
             kernel: None,
         }
     }
