@@ -11,10 +11,7 @@ fn main() {
     }
     let major = std::env::var("CARGO_PKG_VERSION_MAJOR").expect("cargo sets the version");
     let minor = std::env::var("CARGO_PKG_VERSION_MINOR").expect("cargo sets the version");
-    let soname = if major == "0" {
-        format!("libnmat.so.0.{minor}")
-    } else {
-        format!("libnmat.so.{major}")
-    };
+    let soname =
+        if major == "0" { format!("libnmat.so.0.{minor}") } else { format!("libnmat.so.{major}") };
     println!("cargo:rustc-cdylib-link-arg=-Wl,-soname,{soname}");
 }
