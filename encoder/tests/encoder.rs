@@ -350,3 +350,27 @@ fn palette_and_cmyk_inputs_are_converted_or_refused_clearly() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn the_chain_decode_reports_every_texel_once_and_decodes_what_the_definition_does() {
+    // 70 rows: two full bands of 32 rows and a partial one at mip 0.
+    let set = demo::bricks(70);
+    let out = encode(&set, &options("ntc-0.5", 5, 1), &mut |_| {}).unwrap();
+    let m = Container::parse(&out.bytes).unwrap();
+    let mut reports = Vec::new();
+    let decoded = nmat_encode::metrics::decode_mip_with(&m, 0, &mut |t| reports.push(t));
+    assert_eq!(reports, [32 * 70, 32 * 70, 6 * 70]);
+    let c = m.channel_count();
+    let mut codes = vec![0u8; c];
+    for (x, y) in [(0, 0), (69, 31), (3, 32), (69, 69)] {
+        m.decode_texel_u8(x, y, 0, ChannelMask::ALL, &mut codes).unwrap();
+        let at = (y as usize * 70 + x as usize) * c;
+        let got: Vec<u8> = decoded[at..at + c].iter().map(|v| (v * 255.0).round() as u8).collect();
+        assert_eq!(got, codes, "texel ({x}, {y})");
+    }
+    let mut total = 0;
+    let q = nmat_encode::metrics::chain_quality_with(&m, &set, &mut |t| total += t);
+    let texels: u64 = (0..m.mip_count()).map(|mip| m.decode_cost(mip).texels).sum();
+    assert_eq!(total, texels);
+    assert_eq!(q.psnr, nmat_encode::metrics::chain_quality(&m, &set).psnr);
+}
