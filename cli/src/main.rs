@@ -522,24 +522,17 @@ fn cmd_decode(args: DecodeArgs) -> Result<()> {
         .into());
     }
     let start = Instant::now();
-    let mut bar = decode_progress("decode", plan.cost(&m));
-    let mut progress = |done: u64| {
-        if let Some(bar) = &mut bar {
-            bar.inc(done);
-        }
-    };
     let float = args.float;
-    let written = output::write_all_or_nothing(&args.output, |dir| {
-        if args.gpu {
-            decode_on_gpu(&m, &plan, dir, &mut progress)
-        } else {
-            let with = output::DecodeWith { float, batch: None };
-            output::write_maps(&m, &plan, dir, with, &mut progress)
-        }
+    let written = with_decode_progress("decode", plan.cost(&m), |progress| {
+        output::write_all_or_nothing(&args.output, |dir| {
+            if args.gpu {
+                decode_on_gpu(&m, &plan, dir, progress)
+            } else {
+                let with = output::DecodeWith { float, batch: None };
+                output::write_maps(&m, &plan, dir, with, progress)
+            }
+        })
     })?;
-    if let Some(bar) = bar {
-        bar.finish();
-    }
     for w in &written {
         println!("wrote {}", w.display());
     }
@@ -547,32 +540,33 @@ fn cmd_decode(args: DecodeArgs) -> Result<()> {
     Ok(())
 }
 
-/// Progress over the texels a decode evaluates, shown (with the cost printed first) when the
-/// decode is long: more than [`LONG_DECODE_TEXELS`].
-fn decode_progress(label: &str, cost: nmat_core::DecodeCost) -> Option<Progress> {
+/// Runs `work` with a progress callback over the texels a decode evaluates; progress is shown
+/// (with the cost printed first) when the decode is long: more than [`LONG_DECODE_TEXELS`].
+fn with_decode_progress<T>(
+    label: &str,
+    cost: nmat_core::DecodeCost,
+    work: impl FnOnce(&mut dyn FnMut(u64)) -> T,
+) -> T {
     if cost.texels < LONG_DECODE_TEXELS {
-        return None;
+        return work(&mut |_| {});
     }
     eprintln!(
         "decoding {:.1} M texels ({:.1} G multiply-adds of the network)",
         cost.texels as f64 / 1e6,
         cost.macs as f64 / 1e9
     );
-    Some(Progress::new(label, cost.texels, "texels"))
+    let mut bar = Progress::new(label, cost.texels, "texels");
+    let result = work(&mut |texels| bar.inc(texels));
+    bar.finish();
+    result
 }
 
 /// Whole-chain quality of `m` against `set`, with progress when the decode is long.
 fn chain_quality_shown(m: &Material<'_>, set: &TextureSet) -> ChainQuality {
-    let mut bar = decode_progress("eval", output::cost_of_mips(m, 0..m.mip_count()));
-    let quality = nmat_encode::metrics::chain_quality_with(m, set, &mut |texels| {
-        if let Some(bar) = &mut bar {
-            bar.inc(texels);
-        }
-    });
-    if let Some(bar) = bar {
-        bar.finish();
-    }
-    quality
+    let cost = output::cost_of_mips(m, 0..m.mip_count());
+    with_decode_progress("eval", cost, |progress| {
+        nmat_encode::metrics::chain_quality_with(m, set, progress)
+    })
 }
 
 const MIB: f64 = (1u64 << 20) as f64;
