@@ -14,8 +14,8 @@
 pub mod demo;
 pub mod error;
 mod gemm;
+mod memhint;
 pub mod metrics;
-mod prefetch;
 pub mod profile;
 pub mod source_maps;
 pub mod texset;

@@ -10,7 +10,7 @@
 //! result is the same for any number of threads and any kernel.
 
 use crate::gemm::{Matrix, TrainKernel};
-use crate::prefetch::prefetch;
+use crate::memhint::{huge_vec, prefetch};
 use crate::profile::ModelConfig;
 use crate::texset::TextureSet;
 use nmat_core::latents::footprint;
@@ -315,6 +315,14 @@ pub struct Model<'a> {
     set: &'a TextureSet,
     learned: Vec<usize>,
     mip_cdf: Vec<f32>,
+    /// The learned channels of every mip, texel after texel, mip after mip (`target_base`):
+    /// one place per sample's read, in huge pages.
+    targets: Vec<f32>,
+    target_base: Vec<usize>,
+    /// The most taps, and latents they read, of one sample (over the levels).
+    taps_per_sample: (usize, usize),
+    /// [`latent_bucket_edges`] of the grids.
+    bucket_edges: Vec<usize>,
 }
 
 /// Adam state for a flat parameter vector.
@@ -390,18 +398,55 @@ struct Grads {
     /// `[outputs][inputs]` per layer.
     w: Vec<Matrix>,
     b: Vec<Vec<f32>>,
-    /// (latent, gradient) in tap order, cut into [`LATENT_BUCKETS`] ranges of latents.
-    latents: Vec<Vec<(u32, f32)>>,
+    /// The latent cells the chunk read, in tap order, cut into [`LATENT_BUCKETS`] ranges of
+    /// latents; their gradients are in `latent_grads`.
+    latents: Vec<Vec<CellGrad>>,
+    latent_grads: Vec<f32>,
     loss: f64,
+}
+
+/// One tap's gradients: of latents `latent ..` (`channels` of them, one cell), at `at` in its
+/// chunk's `latent_grads`. A zero gradient leaves its latent untouched.
+#[derive(Clone, Copy)]
+struct CellGrad {
+    latent: u32,
+    at: u32,
+    channels: u32,
 }
 
 /// The latents are updated in this many ranges side by side (a fixed number: every latent's
 /// gradient is summed in chunk order, then tap order, whatever the thread count).
 const LATENT_BUCKETS: usize = 16;
 
-/// Latents per bucket.
-fn latent_bucket_len(latents: usize) -> usize {
-    latents.div_ceil(LATENT_BUCKETS).max(1)
+/// Where each bucket of latents starts (and, last, the end of the latents): near even shares,
+/// on cell boundaries, so a cell's latents share a bucket.
+fn latent_bucket_edges(grids: &[GridState]) -> Vec<usize> {
+    let total = grids.iter().map(|g| (g.width * g.height) as usize * g.channels).sum::<usize>();
+    let mut edges: Vec<usize> = (0..LATENT_BUCKETS)
+        .map(|k| {
+            let even = total * k / LATENT_BUCKETS;
+            let g = grids.iter().rev().find(|g| g.base <= even).expect("latent_bucket_edges: grid");
+            (g.base + (even - g.base).next_multiple_of(g.channels.max(1))).min(total)
+        })
+        .collect();
+    edges.push(total);
+    edges
+}
+
+/// `slice` cut at `edges` (ascending, from 0 to its length).
+fn split_at_edges<'s, T>(mut slice: &'s mut [T], edges: &[usize]) -> Vec<&'s mut [T]> {
+    let mut parts = Vec::with_capacity(edges.len());
+    for w in edges.windows(2) {
+        let (head, tail) = std::mem::take(&mut slice).split_at_mut(w[1] - w[0]);
+        parts.push(head);
+        slice = tail;
+    }
+    parts
+}
+
+/// The bucket of latent `latent` given [`latent_bucket_edges`].
+fn latent_bucket(edges: &[usize], latent: u32) -> usize {
+    edges.partition_point(|&e| e <= latent as usize) - 1
 }
 
 /// One step's sparse Adam update of the latents: only those a sample read move.
@@ -424,21 +469,27 @@ impl LatentUpdate {
     ) {
         // Slots are read in random order: ask for them far enough ahead to cover a miss to
         // memory (an entry costs a few cycles, an update a few tens).
-        const AHEAD: usize = 64;
+        const AHEAD: usize = 8;
         let mut touched = Vec::new();
         for r in results {
             let entries = &r.latents[bucket];
-            for (j, &(idx, g)) in entries.iter().enumerate() {
-                if let Some(&(next, _)) = entries.get(j + AHEAD) {
-                    prefetch(slots, next as usize - base);
+            for (j, e) in entries.iter().enumerate() {
+                if let Some(next) = entries.get(j + AHEAD) {
+                    prefetch(slots, next.latent as usize - base);
+                    prefetch(slots, next.latent as usize + next.channels as usize - 1 - base);
                 }
-                let i = idx as usize - base;
-                let slot = &mut slots[i];
-                if slot.touched != self.stamp {
-                    *slot = LatentSlot { grad: 0.0, touched: self.stamp, ..*slot };
-                    touched.push(i);
+                let (at, first) = (e.at as usize, e.latent as usize - base);
+                let grads = &r.latent_grads[at..at + e.channels as usize];
+                for ((i, slot), &g) in (first..).zip(&mut slots[first..]).zip(grads) {
+                    if g == 0.0 {
+                        continue;
+                    }
+                    if slot.touched != self.stamp {
+                        *slot = LatentSlot { grad: 0.0, touched: self.stamp, ..*slot };
+                        touched.push(i);
+                    }
+                    slot.grad += g;
                 }
-                slot.grad += g;
             }
         }
         // Gathered into blocks so the arithmetic runs in SIMD lanes.
@@ -464,7 +515,8 @@ impl LatentUpdate {
     }
 }
 
-/// A latent's share in one input feature of one sample of a chunk.
+/// One corner of a latent cell as one sample of a chunk reads it: the cell's `channels` latents
+/// (consecutive from `latent`) feed the sample's features `feature ..`, in that order.
 #[derive(Clone, Copy)]
 struct Tap {
     sample: u16,
@@ -476,8 +528,14 @@ struct Tap {
     weight: f32,
     /// ∂feature/∂(unit latent).
     coeff: f32,
-    /// The uniform draw in [0, 1) that the noisy mode turns into ±½ quantization step.
-    noise: f32,
+}
+
+/// A chunk's taps and, in the noisy mode, for every latent they read (tap after tap, channel
+/// after channel) the uniform draw in [0, 1) that becomes ±½ quantization step.
+#[derive(Default)]
+struct Taps {
+    list: Vec<Tap>,
+    noise: Vec<f32>,
 }
 
 fn cosine(lr: f32, t: usize, total: usize) -> f32 {
@@ -513,7 +571,8 @@ impl<'a> Model<'a> {
         }
         // Latents start near the middle of their range, with a little randomness to break symmetry.
         let spread = opts.latent_init_spread.clamp(0.0, 1.0);
-        let latents = (0..base).map(|_| 0.5 + spread * (rng.unit() - 0.5)).collect();
+        let mut latents = huge_vec(base, 0f32);
+        latents.iter_mut().for_each(|u| *u = 0.5 + spread * (rng.unit() - 0.5));
         let mut widths = vec![cfg.input_width()];
         widths.extend(&cfg.hidden);
         widths.push(cfg.outputs.max(1));
@@ -556,7 +615,44 @@ impl<'a> Model<'a> {
                 acc
             })
             .collect();
-        Model { cfg, grids, latents, layers, address, set, learned, mip_cdf }
+        let mut target_base = Vec::with_capacity(set.mips.len());
+        let mut texels = 0;
+        for m in &set.mips {
+            target_base.push(texels * learned.len());
+            texels += (m.width * m.height) as usize;
+        }
+        let mut targets = huge_vec(texels * learned.len(), 0f32);
+        let mut at = targets.iter_mut();
+        for m in &set.mips {
+            for texel in m.data.chunks_exact(c_all) {
+                learned.iter().zip(&mut at).for_each(|(&c, t)| *t = texel[c]);
+            }
+        }
+        let taps_per_sample = cfg
+            .levels
+            .iter()
+            .map(|level| {
+                level
+                    .iter()
+                    .flat_map(|t| &t.grids)
+                    .fold((0, 0), |(n, l), &g| (n + 4, l + 4 * cfg.grids[g].channels))
+            })
+            .fold((0, 0), |a, b| (a.0.max(b.0), a.1.max(b.1)));
+        let bucket_edges = latent_bucket_edges(&grids);
+        Model {
+            cfg,
+            grids,
+            latents,
+            layers,
+            address,
+            set,
+            learned,
+            mip_cdf,
+            targets,
+            target_base,
+            taps_per_sample,
+            bucket_edges,
+        }
     }
 
     fn draw(&self, rng: &mut Rng) -> (u32, u32, u32) {
@@ -595,40 +691,44 @@ impl<'a> Model<'a> {
                     }
                     prefetch(&self.latents, g.index(cx, cy, 0));
                     prefetch(&self.latents, g.index(cx, cy, channels - 1));
-                    for c in 0..channels {
-                        taps.push(Tap {
-                            sample: s as u16,
-                            feature: (first + c) as u16,
-                            grid: gi as u16,
-                            add,
-                            latent: g.index(cx, cy, c) as u32,
-                            weight: w,
-                            coeff: w * g.width_real(),
-                            noise: 0.0,
-                        });
-                    }
+                    taps.push(Tap {
+                        sample: s as u16,
+                        feature: first as u16,
+                        grid: gi as u16,
+                        add,
+                        latent: g.index(cx, cy, 0) as u32,
+                        weight: w,
+                        coeff: w * g.width_real(),
+                    });
                 }
             }
             feature += if add { channels } else { 4 * channels };
         }
     }
 
-    /// Writes the latent features of `taps` (planned by [`Model::plan`]) into the rows of `x`.
-    fn evaluate(&self, taps: &[Tap], mode: LatentMode, x: &mut Matrix) {
+    /// Writes the latent features of `taps` (planned by [`Model::plan`]) into the rows of `x`;
+    /// in the noisy mode `noise` starts with their draws.
+    fn evaluate(&self, taps: &[Tap], noise: &[f32], mode: LatentMode, x: &mut Matrix) {
+        let mut draws = noise.iter();
         for t in taps {
             let g = &self.grids[usize::from(t.grid)];
-            let q = g.qmax();
-            let u = self.latents[t.latent as usize];
-            let u = match mode {
-                LatentMode::Noisy => (u + (t.noise - 0.5) / q).clamp(0.0, 1.0),
-                LatentMode::Quantized => (u * q).round() / q,
-            };
-            let v = g.low() + u * g.width_real();
-            let f = &mut x.row_mut(usize::from(t.sample))[usize::from(t.feature)];
-            if t.add {
-                *f += t.weight * v;
-            } else {
-                *f = v;
+            let (q, low, width) = (g.qmax(), g.low(), g.width_real());
+            let latents = &self.latents[t.latent as usize..][..g.channels];
+            let features = &mut x.row_mut(usize::from(t.sample))[usize::from(t.feature)..];
+            for (f, &u) in features.iter_mut().zip(latents) {
+                let u = match mode {
+                    LatentMode::Noisy => {
+                        let n = draws.next().expect("evaluate: a noise draw per latent");
+                        (u + (n - 0.5) / q).clamp(0.0, 1.0)
+                    }
+                    LatentMode::Quantized => (u * q).round() / q,
+                };
+                let v = low + u * width;
+                if t.add {
+                    *f += t.weight * v;
+                } else {
+                    *f = v;
+                }
             }
         }
     }
@@ -651,9 +751,10 @@ impl<'a> Model<'a> {
         }
     }
 
-    fn target(&self, (x, y, mip): (u32, u32, u32), c: usize) -> f32 {
+    /// Where the learned channels of texel `(x, y, mip)` start in `targets`.
+    fn target_index(&self, (x, y, mip): (u32, u32, u32)) -> usize {
         let m = &self.set.mips[mip as usize];
-        m.data[(y * m.width + x) as usize * self.set.channel_count() + c]
+        self.target_base[mip as usize] + (y * m.width + x) as usize * self.learned.len()
     }
 
     /// Draws `samples` texels: their input features (one row each) and every latent's share in
@@ -665,32 +766,41 @@ impl<'a> Model<'a> {
         mode: LatentMode,
         rng: &mut Rng,
         samples: usize,
-        taps: &mut Vec<Tap>,
+        taps: &mut Taps,
     ) -> (Vec<(u32, u32, u32)>, Matrix) {
         const LAG: usize = 8;
         assert!(samples <= CHUNK, "gather: {samples} samples do not fit a tap's sample index");
         let mut x = Matrix::zeros(samples, self.cfg.input_width());
         let mut draws = Vec::with_capacity(samples);
+        // Where each sample's taps and noise draws start.
         let mut starts = Vec::with_capacity(samples + 1);
-        taps.clear();
-        let c_all = self.set.channel_count();
+        let (per_taps, per_latents) = self.taps_per_sample;
+        taps.list.clear();
+        taps.list.reserve(samples * per_taps);
+        taps.noise.clear();
+        if mode == LatentMode::Noisy {
+            taps.noise.reserve(samples * per_latents);
+        }
         for s in 0..samples {
             let d = self.draw(rng);
-            starts.push(taps.len());
-            self.plan(s, d, taps);
+            starts.push((taps.list.len(), taps.noise.len()));
+            self.plan(s, d, &mut taps.list);
             if mode == LatentMode::Noisy {
-                taps[starts[s]..].iter_mut().for_each(|t| t.noise = rng.unit());
+                for t in &taps.list[starts[s].0..] {
+                    let channels = self.grids[usize::from(t.grid)].channels;
+                    taps.noise.extend((0..channels).map(|_| rng.unit()));
+                }
             }
-            let m = &self.set.mips[d.2 as usize];
-            prefetch(&m.data, (d.1 * m.width + d.0) as usize * c_all);
+            prefetch(&self.targets, self.target_index(d));
             self.position_features(d, x.row_mut(s));
             if s >= LAG {
-                self.evaluate(&taps[starts[s - LAG]..starts[s - LAG + 1]], mode, &mut x);
+                let ((t0, n0), (t1, _)) = (starts[s - LAG], starts[s - LAG + 1]);
+                self.evaluate(&taps.list[t0..t1], &taps.noise[n0..], mode, &mut x);
             }
             draws.push(d);
         }
-        let from = starts.get(samples.saturating_sub(LAG)).copied().unwrap_or(0);
-        self.evaluate(&taps[from..], mode, &mut x);
+        let (t0, n0) = starts.get(samples.saturating_sub(LAG)).copied().unwrap_or((0, 0));
+        self.evaluate(&taps.list[t0..], &taps.noise[n0..], mode, &mut x);
         (draws, x)
     }
 
@@ -724,7 +834,7 @@ impl<'a> Model<'a> {
         gr: &mut Grads,
     ) -> f64 {
         let ChunkMode { kernel, latents: mode, train_latents } = how;
-        let mut taps = Vec::new();
+        let mut taps = Taps::default();
         let (draws, x0) = self.gather(mode, rng, samples, &mut taps);
         let (xs, pres) = Self::forward(layers, kernel, x0);
         let last = layers.len() - 1;
@@ -734,8 +844,9 @@ impl<'a> Model<'a> {
         for (s, &d) in draws.iter().enumerate() {
             let out = pres[last].row(s);
             let row = g.row_mut(s);
-            for (o, &c) in self.learned.iter().enumerate() {
-                let e = out[o] - self.target(d, c);
+            let target = &self.targets[self.target_index(d)..][..self.learned.len()];
+            for (o, &t) in target.iter().enumerate() {
+                let e = out[o] - t;
                 loss += f64::from(e * e);
                 row[o] = 2.0 * e / outputs as f32;
             }
@@ -761,11 +872,17 @@ impl<'a> Model<'a> {
             g = gin;
         }
         if train_latents {
-            let per = latent_bucket_len(self.latents.len());
-            for t in &taps {
-                let gv = g.row(usize::from(t.sample))[usize::from(t.feature)] * t.coeff;
-                if gv != 0.0 {
-                    gr.latents[t.latent as usize / per].push((t.latent, gv));
+            for t in &taps.list {
+                let channels = self.grids[usize::from(t.grid)].channels;
+                let grads = &g.row(usize::from(t.sample))[usize::from(t.feature)..][..channels];
+                let at = gr.latent_grads.len();
+                gr.latent_grads.extend(grads.iter().map(|&gf| gf * t.coeff));
+                if gr.latent_grads[at..].iter().any(|&gv| gv != 0.0) {
+                    let cell =
+                        CellGrad { latent: t.latent, at: at as u32, channels: channels as u32 };
+                    gr.latents[latent_bucket(&self.bucket_edges, t.latent)].push(cell);
+                } else {
+                    gr.latent_grads.truncate(at);
                 }
             }
         }
@@ -778,10 +895,12 @@ impl<'a> Model<'a> {
         let joint_end = opts.joint_end();
         let mut adam_w: Vec<Adam> = self.layers.iter().map(|l| Adam::new(l.w.len())).collect();
         let mut adam_b: Vec<Adam> = self.layers.iter().map(|l| Adam::new(l.b.len())).collect();
-        let mut latent_slots = vec![LatentSlot::default(); self.latents.len()];
+        let mut latent_slots = huge_vec(self.latents.len(), LatentSlot::default());
         let mut running = None::<f64>;
         let chunks = opts.batch.div_ceil(CHUNK);
         let kernel = opts.kernel();
+        let (tap_count, latent_reads) = self.taps_per_sample;
+        let edges = self.bucket_edges.clone();
         for step in 0..steps {
             let phase = opts.phase(step);
             let layers = eval_layers(&self.layers, phase == Phase::QuantizationAware);
@@ -796,7 +915,18 @@ impl<'a> Model<'a> {
                     let mut g = Grads {
                         w: self.layers.iter().map(|l| Matrix::zeros(l.outputs, l.inputs)).collect(),
                         b: self.layers.iter().map(|l| vec![0.0; l.outputs]).collect(),
-                        latents: vec![Vec::new(); LATENT_BUCKETS],
+                        // Room for twice an even share of the chunk's reads.
+                        latents: (0..LATENT_BUCKETS)
+                            .map(|_| {
+                                let taps = if train_latents { n * tap_count } else { 0 };
+                                Vec::with_capacity(2 * taps / LATENT_BUCKETS)
+                            })
+                            .collect(),
+                        latent_grads: Vec::with_capacity(if train_latents {
+                            n * latent_reads
+                        } else {
+                            0
+                        }),
                         loss: 0.0,
                     };
                     let how = ChunkMode { kernel, latents: mode, train_latents };
@@ -827,14 +957,13 @@ impl<'a> Model<'a> {
             }
             if train_latents {
                 let adam_latents = AdamStep::new(cosine(opts.lr_latents, step, joint_end), t);
-                let per = latent_bucket_len(self.latents.len());
-                latent_slots
-                    .par_chunks_mut(per)
-                    .zip(self.latents.par_chunks_mut(per))
+                let update = LatentUpdate { stamp: step as u32, inv, adam: adam_latents };
+                split_at_edges(&mut latent_slots, &edges)
+                    .into_par_iter()
+                    .zip(split_at_edges(&mut self.latents, &edges))
                     .enumerate()
                     .for_each(|(bucket, (slots, latents))| {
-                        let update = LatentUpdate { stamp: step as u32, inv, adam: adam_latents };
-                        update.apply(&results, (bucket, bucket * per), slots, latents);
+                        update.apply(&results, (bucket, edges[bucket]), slots, latents);
                     });
             }
             for r in &results {
@@ -860,7 +989,7 @@ impl<'a> Model<'a> {
         let mut rng = Rng::new(seed, u64::MAX, 7);
         let mut max = vec![0f32; layers.len()];
         let mut done = 0;
-        let mut taps = Vec::new();
+        let mut taps = Taps::default();
         while done < samples {
             let n = CHUNK.min(samples - done);
             let (_, x0) = self.gather(LatentMode::Quantized, &mut rng, n, &mut taps);
@@ -954,5 +1083,49 @@ mod tests {
                 assert!(f64::from(spec.bias[0]).abs() <= limit);
             }
         }
+    }
+    fn grid(width: u32, height: u32, channels: usize, base: usize) -> GridState {
+        GridState { width, height, channels, bits: 2, base, offset_q: 0, step_q: 1 }
+    }
+
+    #[test]
+    fn latent_buckets_hold_whole_cells_and_cover_every_latent() {
+        // Grids of 9, 5 and 9 channels, small enough to check every latent; the last pair has
+        // fewer latents than buckets.
+        for sizes in [vec![(17, 13, 9), (9, 7, 5), (1, 1, 9)], vec![(1, 1, 9), (1, 1, 5)]] {
+            let mut grids = Vec::new();
+            let mut base = 0;
+            for (w, h, c) in sizes {
+                grids.push(grid(w, h, c, base));
+                base += (w * h) as usize * c;
+            }
+            let edges = latent_bucket_edges(&grids);
+            assert_eq!(edges.len(), LATENT_BUCKETS + 1);
+            assert_eq!((edges[0], edges[LATENT_BUCKETS]), (0, base));
+            assert!(edges.windows(2).all(|w| w[0] <= w[1]), "{edges:?}");
+            for &e in &edges[..LATENT_BUCKETS] {
+                let g = grids.iter().rev().find(|g| g.base <= e).unwrap();
+                assert_eq!((e - g.base) % g.channels, 0, "edge {e} splits a cell: {edges:?}");
+            }
+            for latent in 0..base {
+                let k = latent_bucket(&edges, latent as u32);
+                assert!(edges[k] <= latent && latent < edges[k + 1], "{latent} in {k}: {edges:?}");
+            }
+            let mut values: Vec<usize> = (0..base).collect();
+            let parts = split_at_edges(&mut values, &edges);
+            for (k, part) in parts.iter().enumerate() {
+                assert_eq!(part.first().copied(), (edges[k] < edges[k + 1]).then_some(edges[k]));
+                assert_eq!(part.len(), edges[k + 1] - edges[k]);
+            }
+        }
+    }
+
+    #[test]
+    fn huge_vectors_hold_their_values() {
+        // Large enough to span several 2 MiB blocks, whatever the allocation's alignment.
+        let n = (5 << 20) + 3;
+        let v = huge_vec(n, 0.25f32);
+        assert_eq!(v.len(), n);
+        assert!(v.iter().all(|&x| x == 0.25));
     }
 }
