@@ -6,8 +6,9 @@
 #   DEV_DIR   materials from bench/dev-materials.sh (default ~/.cache/nmat-dev)
 #   OUT_DIR   default target/quality; results.csv is appended to, so runs can be resumed
 # Environment: MATERIALS (default: all in DEV_DIR), PROFILES (default: all 8), STEPS (default:
-# the encoder's), THREADS (default 2). Needs: apt-get install -y astcenc libjxl-tools
-# libavif-bin libnvtt-bin
+# the encoder's), THREADS (default 2), MATCH (the profiles whose rates AVIF and JPEG XL are
+# bisected to, default "ntc-0.2 ntc-1.0"), ANCHORS (default 1; 0 skips every reference codec).
+# Needs: apt-get install -y astcenc libjxl-tools libavif-bin libnvtt-bin
 set -euo pipefail
 cd "$(dirname "$0")/.."
 dev=${1:-$HOME/.cache/nmat-dev}
@@ -15,6 +16,7 @@ out=${2:-target/quality}
 profiles=${PROFILES:-"nbc-0.05 nbc-0.1 nbc-0.2 ntc-0.2 nbc-0.5 ntc-0.5 ntc-1.0 ntc-2.25"}
 materials=${MATERIALS:-$(ls "$dev")}
 threads=${THREADS:-2}
+match_profiles=${MATCH:-"ntc-0.2 ntc-1.0"}
 steps_arg=()
 [ -n "${STEPS:-}" ] && steps_arg=(--steps "$STEPS")
 
@@ -36,14 +38,22 @@ for m in $materials; do
     bppc=$(echo "$line" | sed -E 's/.*, ([0-9.]+) bits per pixel.*/\1/')
     echo "$m,nmat-$p,${STEPS:-default},$bppc,$psnr,$secs" | tee -a "$csv"
   done
-  done_row "$m" "bc1/bc4" && continue
-  # Anchors at the rates nmat reached on this material with ntc-0.2 and ntc-1.0.
+  [ "${ANCHORS:-1}" = 0 ] && continue
+  # Anchors: the fixed-rate codecs once, AVIF and JPEG XL bisected to the rate nmat reached on
+  # this material with each profile of MATCH that has a row (skipped where already measured).
+  fixed=()
+  done_row "$m" "bc1/bc4" || fixed=(yes)
   match=()
-  for p in ntc-0.2 ntc-1.0; do
+  for p in $match_profiles; do
+    done_row "$m" "avif@$p" && continue
     b=$(grep "^$m,nmat-$p," "$csv" | tail -1 | cut -d, -f4 || true)
     [ -n "$b" ] && match+=(--match "$p=$b")
   done
-  target/release/nmat-anchors "$dev/$m" "${match[@]}" | tee -a "$csv"
+  if [ ${#fixed[@]} -gt 0 ]; then
+    target/release/nmat-anchors "$dev/$m" "${match[@]}" | tee -a "$csv"
+  elif [ ${#match[@]} -gt 0 ]; then
+    target/release/nmat-anchors "$dev/$m" "${match[@]}" --matched-only | tee -a "$csv"
+  fi
 done
 python3 bench/summarize.py "$csv" | tee "$out/summary.md"
 echo "quality.sh: done in ${SECONDS} s" >&2

@@ -8,7 +8,8 @@
 //! their whole files. For JPEG XL and AVIF the quality is searched (one setting for the whole
 //! material) so the BPPC is the largest not above each `--match` target.
 //!
-//! Usage: nmat-anchors MATERIAL_DIR [--match LABEL=BPPC]... > rows.csv
+//! Usage: nmat-anchors MATERIAL_DIR [--match LABEL=BPPC]... [--matched-only] > rows.csv
+//! (`--matched-only` skips BC1/BC4 and ASTC, whose rates do not depend on nmat's.)
 //! Rows: material,codec,setting,bppc,psnr_db,seconds; matched rows are named `jpegxl@LABEL`. Needs nvcompress/nvdecompress (libnvtt-bin),
 //! astcenc, cjxl/djxl (libjxl-tools), avifenc/avifdec (libavif-bin) on PATH.
 
@@ -255,11 +256,16 @@ fn main() {
     let material =
         PathBuf::from(args.next().expect("usage: nmat-anchors MATERIAL_DIR [--match BPPC]..."));
     let mut targets = Vec::new();
+    let mut fixed_rate = true;
     while let Some(a) = args.next() {
-        if a == "--match" {
-            let v = args.next().expect("--match LABEL=BPPC");
-            let (label, bppc) = v.split_once('=').expect("--match LABEL=BPPC");
-            targets.push((label.to_string(), bppc.parse::<f64>().expect("--match LABEL=BPPC")));
+        match a.as_str() {
+            "--match" => {
+                let v = args.next().expect("--match LABEL=BPPC");
+                let (label, bppc) = v.split_once('=').expect("--match LABEL=BPPC");
+                targets.push((label.to_string(), bppc.parse::<f64>().expect("--match LABEL=BPPC")));
+            }
+            "--matched-only" => fixed_rate = false,
+            other => panic!("nmat-anchors: unknown argument {other:?}"),
         }
     }
     let files = texset::collect_inputs(std::slice::from_ref(&material)).expect("maps");
@@ -277,7 +283,9 @@ fn main() {
             codec.setting()
         );
     };
-    for codec in [Codec::Bc, Codec::Astc(12), Codec::Astc(8)] {
+    let fixed: &[Codec] =
+        if fixed_rate { &[Codec::Bc, Codec::Astc(12), Codec::Astc(8)] } else { &[] };
+    for &codec in fixed {
         let t = Instant::now();
         report(codec, "", t, measure(codec, &work, &set, &parts));
     }
