@@ -377,20 +377,52 @@ fn adam(m: &mut f32, v: &mut f32, p: &mut f32, g: f32, step: AdamStep) {
     *p -= step.lr * mh / (vh.sqrt() + 1e-8);
 }
 
-/// A latent's optimizer state, kept together so a sparse update touches one cache line: Adam's
-/// moments, this step's summed gradient, and the step that last touched it.
-#[derive(Clone, Copy)]
-struct LatentSlot {
-    m: f32,
-    v: f32,
-    grad: f32,
-    touched: u32,
+/// The latents' optimizer state: Adam's moments, this step's summed gradient, and per latent
+/// cell (at its first latent) the step that last touched it. A sample reads and moves whole
+/// cells, so a cell's state is a few consecutive values of each array.
+struct LatentState {
+    m: Vec<f32>,
+    v: Vec<f32>,
+    grad: Vec<f32>,
+    stamp: Vec<u32>,
 }
 
-impl Default for LatentSlot {
-    fn default() -> Self {
-        LatentSlot { m: 0.0, v: 0.0, grad: 0.0, touched: u32::MAX }
+impl LatentState {
+    fn new(n: usize) -> LatentState {
+        LatentState {
+            m: huge_vec(n, 0.0),
+            v: huge_vec(n, 0.0),
+            grad: huge_vec(n, 0.0),
+            stamp: huge_vec(n, u32::MAX),
+        }
     }
+
+    /// The state cut at `edges` (see [`split_at_edges`]), with `latents` cut the same way.
+    fn split<'s>(&'s mut self, latents: &'s mut [f32], edges: &[usize]) -> Vec<LatentRange<'s>> {
+        let mut m = split_at_edges(&mut self.m, edges).into_iter();
+        let mut v = split_at_edges(&mut self.v, edges).into_iter();
+        let mut grad = split_at_edges(&mut self.grad, edges).into_iter();
+        let mut stamp = split_at_edges(&mut self.stamp, edges).into_iter();
+        split_at_edges(latents, edges)
+            .into_iter()
+            .map(|latents| LatentRange {
+                m: m.next().unwrap_or_default(),
+                v: v.next().unwrap_or_default(),
+                grad: grad.next().unwrap_or_default(),
+                stamp: stamp.next().unwrap_or_default(),
+                latents,
+            })
+            .collect()
+    }
+}
+
+/// One bucket's latents and their state.
+struct LatentRange<'s> {
+    m: &'s mut [f32],
+    v: &'s mut [f32],
+    grad: &'s mut [f32],
+    stamp: &'s mut [u32],
+    latents: &'s mut [f32],
 }
 
 /// One chunk's gradients.
@@ -406,7 +438,7 @@ struct Grads {
 }
 
 /// One tap's gradients: of latents `latent ..` (`channels` of them, one cell), at `at` in its
-/// chunk's `latent_grads`. A zero gradient leaves its latent untouched.
+/// chunk's `latent_grads`. A cell whose gradients are all zero is not recorded (it stays untouched).
 #[derive(Clone, Copy)]
 struct CellGrad {
     latent: u32,
@@ -458,59 +490,49 @@ struct LatentUpdate {
 }
 
 impl LatentUpdate {
-    /// Sums the gradients of `bucket` over `results` (in chunk order) and updates the latents it
-    /// touched; `slots` and `latents` are that bucket's range, which starts at latent `base`.
-    fn apply(
-        &self,
-        results: &[Grads],
-        (bucket, base): (usize, usize),
-        slots: &mut [LatentSlot],
-        latents: &mut [f32],
-    ) {
-        // Slots are read in random order: ask for them far enough ahead to cover a miss to
+    /// Sums the gradients of `bucket` over `results` (in chunk order) and updates the latent
+    /// cells it touched; `range` is that bucket's, which starts at latent `base`.
+    fn apply(&self, results: &[Grads], (bucket, base): (usize, usize), range: LatentRange) {
+        // Cells are read in random order: ask for them far enough ahead to cover a miss to
         // memory (an entry costs a few cycles, an update a few tens).
         const AHEAD: usize = 8;
+        let LatentRange { m, v, grad, stamp, latents } = range;
+        // The touched cells: first latent (from `base`) and channels.
         let mut touched = Vec::new();
         for r in results {
             let entries = &r.latents[bucket];
             for (j, e) in entries.iter().enumerate() {
                 if let Some(next) = entries.get(j + AHEAD) {
-                    prefetch(slots, next.latent as usize - base);
-                    prefetch(slots, next.latent as usize + next.channels as usize - 1 - base);
+                    let first = next.latent as usize - base;
+                    prefetch(stamp, first);
+                    prefetch(grad, first);
+                    prefetch(grad, first + next.channels as usize - 1);
                 }
-                let (at, first) = (e.at as usize, e.latent as usize - base);
-                let grads = &r.latent_grads[at..at + e.channels as usize];
-                for ((i, slot), &g) in (first..).zip(&mut slots[first..]).zip(grads) {
-                    if g == 0.0 {
-                        continue;
-                    }
-                    if slot.touched != self.stamp {
-                        *slot = LatentSlot { grad: 0.0, touched: self.stamp, ..*slot };
-                        touched.push(i);
-                    }
-                    slot.grad += g;
+                let (first, channels) = (e.latent as usize - base, e.channels as usize);
+                let sum = &mut grad[first..first + channels];
+                let add = &r.latent_grads[e.at as usize..][..channels];
+                if stamp[first] != self.stamp {
+                    stamp[first] = self.stamp;
+                    sum.copy_from_slice(add);
+                    touched.push((first, channels));
+                } else {
+                    sum.iter_mut().zip(add).for_each(|(s, &g)| *s += g);
                 }
             }
         }
-        // Gathered into blocks so the arithmetic runs in SIMD lanes.
-        const BLOCK: usize = 64;
-        let (mut m, mut v, mut p, mut g) =
-            ([0f32; BLOCK], [0f32; BLOCK], [0f32; BLOCK], [0f32; BLOCK]);
-        for (b, block) in touched.chunks(BLOCK).enumerate() {
-            for &next in touched.iter().skip((b + 1) * BLOCK).take(BLOCK) {
-                prefetch(slots, next);
-                prefetch(latents, next);
+        for (k, &(first, channels)) in touched.iter().enumerate() {
+            if let Some(&(next, c)) = touched.get(k + AHEAD) {
+                for array in [&*m, &*v, &*latents] {
+                    prefetch(array, next);
+                    prefetch(array, next + c - 1);
+                }
             }
-            let n = block.len();
-            for (k, &i) in block.iter().enumerate() {
-                let slot = &slots[i];
-                (m[k], v[k], p[k], g[k]) = (slot.m, slot.v, latents[i], slot.grad * self.inv);
-            }
-            adam_block(&mut m[..n], &mut v[..n], &mut p[..n], &g[..n], self.adam);
-            for (k, &i) in block.iter().enumerate() {
-                (slots[i].m, slots[i].v) = (m[k], v[k]);
-                latents[i] = p[k].clamp(0.0, 1.0);
-            }
+            let cell = first..first + channels;
+            let g = &mut grad[cell.clone()];
+            g.iter_mut().for_each(|g| *g *= self.inv);
+            let p = &mut latents[cell.clone()];
+            adam_block(&mut m[cell.clone()], &mut v[cell], p, g, self.adam);
+            p.iter_mut().for_each(|p| *p = p.clamp(0.0, 1.0));
         }
     }
 }
@@ -895,7 +917,7 @@ impl<'a> Model<'a> {
         let joint_end = opts.joint_end();
         let mut adam_w: Vec<Adam> = self.layers.iter().map(|l| Adam::new(l.w.len())).collect();
         let mut adam_b: Vec<Adam> = self.layers.iter().map(|l| Adam::new(l.b.len())).collect();
-        let mut latent_slots = huge_vec(self.latents.len(), LatentSlot::default());
+        let mut latent_state = LatentState::new(self.latents.len());
         let mut running = None::<f64>;
         let chunks = opts.batch.div_ceil(CHUNK);
         let kernel = opts.kernel();
@@ -958,13 +980,11 @@ impl<'a> Model<'a> {
             if train_latents {
                 let adam_latents = AdamStep::new(cosine(opts.lr_latents, step, joint_end), t);
                 let update = LatentUpdate { stamp: step as u32, inv, adam: adam_latents };
-                split_at_edges(&mut latent_slots, &edges)
-                    .into_par_iter()
-                    .zip(split_at_edges(&mut self.latents, &edges))
-                    .enumerate()
-                    .for_each(|(bucket, (slots, latents))| {
-                        update.apply(&results, (bucket, edges[bucket]), slots, latents);
-                    });
+                latent_state.split(&mut self.latents, &edges).into_par_iter().enumerate().for_each(
+                    |(bucket, range)| {
+                        update.apply(&results, (bucket, edges[bucket]), range);
+                    },
+                );
             }
             for r in &results {
                 mse += r.loss / chunks as f64;
