@@ -321,8 +321,8 @@ pub struct Model<'a> {
     target_base: Vec<usize>,
     /// The most taps, and latents they read, of one sample (over the levels).
     taps_per_sample: (usize, usize),
-    /// [`latent_bucket_edges`] of the grids.
-    bucket_edges: Vec<usize>,
+    /// The latent buckets of the grids.
+    buckets: LatentBuckets,
 }
 
 /// Adam state for a flat parameter vector.
@@ -476,9 +476,34 @@ fn split_at_edges<'s, T>(mut slice: &'s mut [T], edges: &[usize]) -> Vec<&'s mut
     parts
 }
 
-/// The bucket of latent `latent` given [`latent_bucket_edges`].
-fn latent_bucket(edges: &[usize], latent: u32) -> usize {
-    edges.partition_point(|&e| e <= latent as usize) - 1
+/// Finds a latent's bucket without a search: the bucket of every block of
+/// 2^[`LatentBuckets::BLOCK_BITS`] latents' first latent, then the edges that fall inside it.
+struct LatentBuckets {
+    /// [`latent_bucket_edges`].
+    edges: Vec<usize>,
+    by_block: Vec<u8>,
+}
+
+impl LatentBuckets {
+    const BLOCK_BITS: u32 = 6;
+
+    fn new(edges: Vec<usize>) -> LatentBuckets {
+        const { assert!(LATENT_BUCKETS <= 256, "LatentBuckets: a bucket index is a u8") };
+        let total = edges.last().copied().unwrap_or(0);
+        let by_block = (0..total.div_ceil(1 << Self::BLOCK_BITS))
+            .map(|b| (edges.partition_point(|&e| e <= b << Self::BLOCK_BITS) - 1) as u8)
+            .collect();
+        LatentBuckets { edges, by_block }
+    }
+
+    /// The bucket of latent `latent`.
+    fn of(&self, latent: u32) -> usize {
+        let mut k = usize::from(self.by_block[(latent >> Self::BLOCK_BITS) as usize]);
+        while self.edges[k + 1] <= latent as usize {
+            k += 1;
+        }
+        k
+    }
 }
 
 /// One step's sparse Adam update of the latents: only those a sample read move.
@@ -660,7 +685,7 @@ impl<'a> Model<'a> {
                     .fold((0, 0), |(n, l), &g| (n + 4, l + 4 * cfg.grids[g].channels))
             })
             .fold((0, 0), |a, b| (a.0.max(b.0), a.1.max(b.1)));
-        let bucket_edges = latent_bucket_edges(&grids);
+        let buckets = LatentBuckets::new(latent_bucket_edges(&grids));
         Model {
             cfg,
             grids,
@@ -673,7 +698,7 @@ impl<'a> Model<'a> {
             targets,
             target_base,
             taps_per_sample,
-            bucket_edges,
+            buckets,
         }
     }
 
@@ -902,7 +927,7 @@ impl<'a> Model<'a> {
                 if gr.latent_grads[at..].iter().any(|&gv| gv != 0.0) {
                     let cell =
                         CellGrad { latent: t.latent, at: at as u32, channels: channels as u32 };
-                    gr.latents[latent_bucket(&self.bucket_edges, t.latent)].push(cell);
+                    gr.latents[self.buckets.of(t.latent)].push(cell);
                 } else {
                     gr.latent_grads.truncate(at);
                 }
@@ -922,7 +947,7 @@ impl<'a> Model<'a> {
         let chunks = opts.batch.div_ceil(CHUNK);
         let kernel = opts.kernel();
         let (tap_count, latent_reads) = self.taps_per_sample;
-        let edges = self.bucket_edges.clone();
+        let edges = self.buckets.edges.clone();
         for step in 0..steps {
             let phase = opts.phase(step);
             let layers = eval_layers(&self.layers, phase == Phase::QuantizationAware);
@@ -1119,7 +1144,8 @@ mod tests {
                 grids.push(grid(w, h, c, base));
                 base += (w * h) as usize * c;
             }
-            let edges = latent_bucket_edges(&grids);
+            let buckets = LatentBuckets::new(latent_bucket_edges(&grids));
+            let edges = &buckets.edges;
             assert_eq!(edges.len(), LATENT_BUCKETS + 1);
             assert_eq!((edges[0], edges[LATENT_BUCKETS]), (0, base));
             assert!(edges.windows(2).all(|w| w[0] <= w[1]), "{edges:?}");
@@ -1128,11 +1154,11 @@ mod tests {
                 assert_eq!((e - g.base) % g.channels, 0, "edge {e} splits a cell: {edges:?}");
             }
             for latent in 0..base {
-                let k = latent_bucket(&edges, latent as u32);
+                let k = buckets.of(latent as u32);
                 assert!(edges[k] <= latent && latent < edges[k + 1], "{latent} in {k}: {edges:?}");
             }
             let mut values: Vec<usize> = (0..base).collect();
-            let parts = split_at_edges(&mut values, &edges);
+            let parts = split_at_edges(&mut values, edges);
             for (k, part) in parts.iter().enumerate() {
                 assert_eq!(part.first().copied(), (edges[k] < edges[k + 1]).then_some(edges[k]));
                 assert_eq!(part.len(), edges[k + 1] - edges[k]);
