@@ -756,26 +756,33 @@ impl<'a> Model<'a> {
     /// Writes the latent features of `taps` (planned by [`Model::plan`]) into the rows of `x`;
     /// in the noisy mode `noise` starts with their draws.
     fn evaluate(&self, taps: &[Tap], noise: &[f32], mode: LatentMode, x: &mut Matrix) {
-        let mut draws = noise.iter();
+        let mut draws = noise;
+        let mut values = [0f32; nmat_core::limits::MAX_GRID_CHANNELS];
         for t in taps {
             let g = &self.grids[usize::from(t.grid)];
             let (q, low, width) = (g.qmax(), g.low(), g.width_real());
             let latents = &self.latents[t.latent as usize..][..g.channels];
-            let features = &mut x.row_mut(usize::from(t.sample))[usize::from(t.feature)..];
-            for (f, &u) in features.iter_mut().zip(latents) {
-                let u = match mode {
-                    LatentMode::Noisy => {
-                        let n = draws.next().expect("evaluate: a noise draw per latent");
-                        (u + (n - 0.5) / q).clamp(0.0, 1.0)
+            let values = &mut values[..g.channels];
+            // Each channel on its own, in slices the compiler can run in SIMD lanes.
+            match mode {
+                LatentMode::Noisy => {
+                    let (n, rest) = draws.split_at(g.channels);
+                    draws = rest;
+                    for ((v, &u), &n) in values.iter_mut().zip(latents).zip(n) {
+                        *v = low + (u + (n - 0.5) / q).clamp(0.0, 1.0) * width;
                     }
-                    LatentMode::Quantized => (u * q).round() / q,
-                };
-                let v = low + u * width;
-                if t.add {
-                    *f += t.weight * v;
-                } else {
-                    *f = v;
                 }
+                LatentMode::Quantized => {
+                    for (v, &u) in values.iter_mut().zip(latents) {
+                        *v = low + (u * q).round() / q * width;
+                    }
+                }
+            }
+            let features = &mut x.row_mut(usize::from(t.sample))[usize::from(t.feature)..];
+            if t.add {
+                features.iter_mut().zip(&*values).for_each(|(f, &v)| *f += t.weight * v);
+            } else {
+                features[..values.len()].copy_from_slice(values);
             }
         }
     }
