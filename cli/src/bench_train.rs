@@ -23,6 +23,9 @@ pub struct Options {
     pub kernels: Vec<TrainKernel>,
     /// Timed runs per row; the median is reported.
     pub runs: usize,
+    /// The phase mix ([`TrainOptions::joint_percent`], [`TrainOptions::qat_percent`]).
+    pub joint_percent: u32,
+    pub qat_percent: u32,
 }
 
 /// f32 FMA peak of `kernel` on `threads` threads running its probe at once, in FLOP/s (2 per
@@ -47,7 +50,12 @@ fn fma_peak(kernel: TrainKernel, threads: usize) -> f64 {
 pub fn run(o: &Options) -> Result<()> {
     let start = Instant::now();
     let cfg = configure(o.profile, &shape_of(&o.set));
-    let base = TrainOptions { steps: o.steps, ..TrainOptions::default() };
+    let base = TrainOptions {
+        steps: o.steps,
+        joint_percent: o.joint_percent,
+        qat_percent: o.qat_percent,
+        ..TrainOptions::default()
+    };
     let batch = base.batch;
     let flops: u64 =
         (0..o.steps).map(|s| mlp_flops_per_sample(&cfg, base.phase(s)) * batch as u64).sum();

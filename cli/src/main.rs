@@ -81,6 +81,10 @@ enum Command {
         /// Timed runs per row (the median is reported).
         #[arg(long, default_value_t = 3)]
         runs: usize,
+        /// Percent of the steps in the joint and the quantization-aware phase, as `JOINT,QAT`
+        /// (default: the encoder's; `80,5` is the phase mix of the trainer before the SIMD work).
+        #[arg(long, value_delimiter = ',', value_name = "JOINT,QAT")]
+        phases: Option<Vec<u32>>,
     },
     /// Encode, decode and evaluate a bundled procedural material, and print a report.
     Demo {
@@ -229,8 +233,8 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Eval { input, reference } => cmd_eval(&input, &reference),
         Command::Demo { out, train, profile } => cmd_demo(&out, &train, &profile),
-        Command::BenchTrain { inputs, profile, steps, threads, kernel, runs } => {
-            cmd_bench_train(inputs, &profile, steps, threads, &kernel, runs)
+        Command::BenchTrain { inputs, profile, steps, threads, kernel, runs, phases } => {
+            cmd_bench_train(inputs, &profile, steps, threads, &kernel, runs, phases)
         }
         Command::Bench { inputs, reference, region, runs } => {
             if region == 0 || runs == 0 {
@@ -686,10 +690,22 @@ fn cmd_bench_train(
     threads: Vec<usize>,
     kernel: &[String],
     runs: usize,
+    phases: Option<Vec<u32>>,
 ) -> Result<()> {
     if steps == 0 || runs == 0 {
         return Err("--steps and --runs must be at least 1".into());
     }
+    let defaults = TrainOptions::default();
+    let (joint_percent, qat_percent) = match phases.as_deref() {
+        None => (defaults.joint_percent, defaults.qat_percent),
+        Some(&[joint, qat]) if joint + qat <= 100 => (joint, qat),
+        Some(p) => {
+            return Err(format!(
+                "--phases {p:?}: give JOINT,QAT, two percents summing to at most 100"
+            )
+            .into());
+        }
+    };
     for &t in &threads {
         check_threads(t)?;
     }
@@ -726,6 +742,8 @@ fn cmd_bench_train(
         threads,
         kernels,
         runs,
+        joint_percent,
+        qat_percent,
     })
 }
 

@@ -577,8 +577,20 @@ fn bench_train_reports_every_kernel_row_and_refuses_bad_options() {
             assert!(out.contains(&row), "missing row {row}:\n{out}");
         }
     }
-    assert!(out.contains("f32 FMA peak"), "{out}");
+    assert!(
+        out.contains("f32 FMA peak") && out.contains("(90 % joint, 3 % quantization-aware)"),
+        "{out}"
+    );
+    let o = nmat(
+        &["bench-train", d, "--steps", "3", "--runs", "1", "--threads", "1"]
+            .into_iter()
+            .chain(["--phases", "80,5"])
+            .collect::<Vec<_>>(),
+    );
+    assert!(text(&o).contains("(80 % joint, 5 % quantization-aware)"), "{}", text(&o));
     for (args, says) in [
+        (vec!["--phases", "90"], "--phases [90]: give JOINT,QAT"),
+        (vec!["--phases", "90,20"], "--phases [90, 20]: give JOINT,QAT"),
         (vec!["--kernel", "sse9"], "--kernel sse9: unknown"),
         (vec!["--steps", "0"], "must be at least 1"),
         (vec!["--threads", "1,0"], "--threads 0: must be between 1 and"),
