@@ -438,7 +438,8 @@ struct Grads {
 }
 
 /// One tap's gradients: of latents `latent ..` (`channels` of them, one cell), at `at` in its
-/// chunk's `latent_grads`. A cell whose gradients are all zero is not recorded (it stays untouched).
+/// chunk's `latent_grads`. A cell whose gradients are all zero is not recorded (it stays
+/// untouched).
 #[derive(Clone, Copy)]
 struct CellGrad {
     latent: u32,
