@@ -104,7 +104,8 @@ struct TrainArgs {
     /// for demo].
     #[arg(long, conflicts_with = "effort")]
     steps: Option<usize>,
-    /// Encode time for quality: fast = ¼ of the default steps, max = 4× (docs/ENCODING.md).
+    /// Encode time for quality: fast = ¼ of the default steps, max = 4× the batch, about 4× the
+    /// time (docs/ENCODING.md).
     #[arg(long, value_enum, default_value_t = EffortArg::Default)]
     effort: EffortArg,
     /// Seed of every random choice: same inputs, seed and steps give the same file.
@@ -294,7 +295,11 @@ fn threads(n: Option<usize>) -> Result<()> {
 const DEMO_STEPS: usize = 3000;
 
 fn train_options(t: &TrainArgs, default_steps: usize) -> Result<TrainOptions> {
-    let steps = t.steps.unwrap_or_else(|| Effort::from(t.effort).steps(default_steps));
+    let defaults = TrainOptions::default();
+    let (steps, batch) = match t.steps {
+        Some(steps) => (steps, defaults.batch),
+        None => Effort::from(t.effort).schedule(default_steps, defaults.batch),
+    };
     if steps == 0 {
         return Err(Box::new(EncodeError::BadOption {
             option: "--steps",
@@ -302,7 +307,7 @@ fn train_options(t: &TrainArgs, default_steps: usize) -> Result<TrainOptions> {
             reason: "must be at least 1",
         }));
     }
-    Ok(TrainOptions { steps, seed: t.seed, ..TrainOptions::default() })
+    Ok(TrainOptions { steps, batch, seed: t.seed, ..defaults })
 }
 
 fn profile_named(name: &str) -> Result<Profile> {
