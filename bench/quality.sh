@@ -41,15 +41,13 @@ for m in $materials; do
   [ "${ANCHORS:-1}" = 0 ] && continue
   # Anchors: the fixed-rate codecs once, AVIF and JPEG XL bisected to the rate nmat reached on
   # this material with each profile of MATCH that has a row (skipped where already measured).
-  fixed=()
-  done_row "$m" "bc1/bc4" || fixed=(yes)
   match=()
   for p in $match_profiles; do
     done_row "$m" "avif@$p" && continue
     b=$(grep "^$m,nmat-$p," "$csv" | tail -1 | cut -d, -f4 || true)
     [ -n "$b" ] && match+=(--match "$p=$b")
   done
-  if [ ${#fixed[@]} -gt 0 ]; then
+  if ! done_row "$m" "bc1/bc4"; then
     target/release/nmat-anchors "$dev/$m" "${match[@]}" | tee -a "$csv"
   elif [ ${#match[@]} -gt 0 ]; then
     target/release/nmat-anchors "$dev/$m" "${match[@]}" --matched-only | tee -a "$csv"

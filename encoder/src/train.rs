@@ -402,19 +402,13 @@ impl LatentState {
 
     /// The state cut at `edges` (see [`split_at_edges`]), with `latents` cut the same way.
     fn split<'s>(&'s mut self, latents: &'s mut [f32], edges: &[usize]) -> Vec<LatentRange<'s>> {
-        let mut m = split_at_edges(&mut self.m, edges).into_iter();
-        let mut v = split_at_edges(&mut self.v, edges).into_iter();
-        let mut grad = split_at_edges(&mut self.grad, edges).into_iter();
-        let mut stamp = split_at_edges(&mut self.stamp, edges).into_iter();
         split_at_edges(latents, edges)
             .into_iter()
-            .map(|latents| LatentRange {
-                m: m.next().unwrap_or_default(),
-                v: v.next().unwrap_or_default(),
-                grad: grad.next().unwrap_or_default(),
-                stamp: stamp.next().unwrap_or_default(),
-                latents,
-            })
+            .zip(split_at_edges(&mut self.m, edges))
+            .zip(split_at_edges(&mut self.v, edges))
+            .zip(split_at_edges(&mut self.grad, edges))
+            .zip(split_at_edges(&mut self.stamp, edges))
+            .map(|((((latents, m), v), grad), stamp)| LatentRange { m, v, grad, stamp, latents })
             .collect()
     }
 }
@@ -958,7 +952,6 @@ impl<'a> Model<'a> {
         let chunks = opts.batch.div_ceil(CHUNK);
         let kernel = opts.kernel();
         let (tap_count, latent_reads) = self.taps_per_sample;
-        let edges = self.buckets.edges.clone();
         for step in 0..steps {
             let phase = opts.phase(step);
             let layers = eval_layers(&self.layers, phase == Phase::QuantizationAware);
@@ -1016,7 +1009,8 @@ impl<'a> Model<'a> {
             if train_latents {
                 let adam_latents = AdamStep::new(cosine(opts.lr_latents, step, joint_end), t);
                 let update = LatentUpdate { stamp: step as u32, inv, adam: adam_latents };
-                latent_state.split(&mut self.latents, &edges).into_par_iter().enumerate().for_each(
+                let edges = &self.buckets.edges;
+                latent_state.split(&mut self.latents, edges).into_par_iter().enumerate().for_each(
                     |(bucket, range)| {
                         update.apply(&results, (bucket, edges[bucket]), range);
                     },
