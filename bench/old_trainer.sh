@@ -7,7 +7,8 @@
 # phase mix: 80 % joint, 15 % frozen latents, 5 % quantization-aware).
 #
 # Usage: bench/old_trainer.sh MATERIAL_DIR [PROFILE] [STEPS] [THREADS…]
-# Environment: RUNS (default 3), OLD_TARGET_DIR (default target/old-trainer; kept between runs).
+# Environment: RUNS (default 3), OLD_TARGET_DIR (default target/old-trainer; kept between runs),
+# BUILD_ONLY=1 (build the timing example, print its path, time nothing: bench/trainer_speedup.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 dir=${1:?usage: bench/old_trainer.sh MATERIAL_DIR [PROFILE] [STEPS] [THREADS…]}
@@ -52,6 +53,10 @@ fn main() {
 }
 EOF
 (cd "$work/src" && CARGO_TARGET_DIR="$target" cargo build --release -q -p nmat-encode --example old_trainer)
+if [ -n "${BUILD_ONLY:-}" ]; then
+    echo "$target/release/examples/old_trainer"
+    exit 0
+fi
 echo "| trainer | threads | steps/s |"
 echo "|---|---:|---:|"
 for t in ${threads[*]}; do
