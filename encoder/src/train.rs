@@ -292,6 +292,16 @@ fn hard_gelu_grad(x: f32) -> f32 {
     }
 }
 
+/// Bilinear taps (`add` = their weight) add `weight ×` each value to its feature; `Nearest4` taps
+/// set it.
+#[inline(always)]
+fn store_features(features: &mut [f32], values: impl Iterator<Item = f32>, add: Option<f32>) {
+    match add {
+        Some(w) => features.iter_mut().zip(values).for_each(|(f, v)| *f += w * v),
+        None => features.iter_mut().zip(values).for_each(|(f, v)| *f = v),
+    }
+}
+
 /// How latents enter the forward pass.
 #[derive(Clone, Copy, PartialEq)]
 enum LatentMode {
@@ -518,7 +528,7 @@ impl LatentUpdate {
     fn apply(&self, results: &[Grads], (bucket, base): (usize, usize), range: LatentRange) {
         // Cells are read in random order: ask for them far enough ahead to cover a miss to
         // memory (an entry costs a few cycles, an update a few tens).
-        const AHEAD: usize = 8;
+        const AHEAD: usize = 16;
         let LatentRange { m, v, grad, stamp, latents } = range;
         // The touched cells: first latent (from `base`) and channels.
         let mut touched = Vec::new();
@@ -550,12 +560,15 @@ impl LatentUpdate {
                     prefetch(array, next + c - 1);
                 }
             }
+            // The mean gradient, Adam and the clamp to the unit range, one latent at a time in
+            // one loop the compiler runs in SIMD lanes.
             let cell = first..first + channels;
-            let g = &mut grad[cell.clone()];
-            g.iter_mut().for_each(|g| *g *= self.inv);
-            let p = &mut latents[cell.clone()];
-            adam_block(&mut m[cell.clone()], &mut v[cell], p, g, self.adam);
-            p.iter_mut().for_each(|p| *p = p.clamp(0.0, 1.0));
+            let state =
+                m[cell.clone()].iter_mut().zip(&mut v[cell.clone()]).zip(&grad[cell.clone()]);
+            for (p, ((m, v), &g)) in latents[cell].iter_mut().zip(state) {
+                adam(m, v, p, g * self.inv, self.adam);
+                *p = p.clamp(0.0, 1.0);
+            }
         }
     }
 }
@@ -755,32 +768,29 @@ impl<'a> Model<'a> {
     /// in the noisy mode `noise` starts with their draws.
     fn evaluate(&self, taps: &[Tap], noise: &[f32], mode: LatentMode, x: &mut Matrix) {
         let mut draws = noise;
-        let mut values = [0f32; nmat_core::limits::MAX_GRID_CHANNELS];
         for t in taps {
             let g = &self.grids[usize::from(t.grid)];
             let (q, low, width) = (g.qmax(), g.low(), g.width_real());
             let latents = &self.latents[t.latent as usize..][..g.channels];
-            let values = &mut values[..g.channels];
-            // Each channel on its own, in slices the compiler can run in SIMD lanes.
+            let features =
+                &mut x.row_mut(usize::from(t.sample))[usize::from(t.feature)..][..g.channels];
+            let add = t.add.then_some(t.weight);
+            // Each channel on its own, in slices the compiler can run in SIMD lanes, written
+            // straight into the features (a copy of a few floats would be a library call).
             match mode {
                 LatentMode::Noisy => {
                     let (n, rest) = draws.split_at(g.channels);
                     draws = rest;
-                    for ((v, &u), &n) in values.iter_mut().zip(latents).zip(n) {
-                        *v = low + (u + (n - 0.5) / q).clamp(0.0, 1.0) * width;
-                    }
+                    let values = latents
+                        .iter()
+                        .zip(n)
+                        .map(|(&u, &n)| low + (u + (n - 0.5) / q).clamp(0.0, 1.0) * width);
+                    store_features(features, values, add);
                 }
                 LatentMode::Quantized => {
-                    for (v, &u) in values.iter_mut().zip(latents) {
-                        *v = low + (u * q).round() / q * width;
-                    }
+                    let values = latents.iter().map(|&u| low + (u * q).round() / q * width);
+                    store_features(features, values, add);
                 }
-            }
-            let features = &mut x.row_mut(usize::from(t.sample))[usize::from(t.feature)..];
-            if t.add {
-                features.iter_mut().zip(&*values).for_each(|(f, &v)| *f += t.weight * v);
-            } else {
-                features[..values.len()].copy_from_slice(values);
             }
         }
     }
