@@ -391,13 +391,15 @@ fn adam(m: &mut f32, v: &mut f32, p: &mut f32, g: f32, step: AdamStep) {
 }
 
 /// The latents' optimizer state: Adam's moments, this step's summed gradient, and per latent
-/// cell (at its first latent) the step that last touched it. A sample reads and moves whole
-/// cells, so a cell's state is a few consecutive values of each array.
+/// cell (at its first latent) whether this step touched it yet — a byte, zero between steps, so
+/// the flags of a bucket stay in the cache while the sums and moments are read at random. A
+/// sample reads and moves whole cells, so a cell's state is a few consecutive values of each
+/// array.
 struct LatentState {
     m: Vec<f32>,
     v: Vec<f32>,
     grad: Vec<f32>,
-    stamp: Vec<u32>,
+    touched: Vec<bool>,
 }
 
 impl LatentState {
@@ -406,7 +408,7 @@ impl LatentState {
             m: huge_vec(n, 0.0),
             v: huge_vec(n, 0.0),
             grad: huge_vec(n, 0.0),
-            stamp: huge_vec(n, u32::MAX),
+            touched: vec![false; n],
         }
     }
 
@@ -417,8 +419,14 @@ impl LatentState {
             .zip(split_at_edges(&mut self.m, edges))
             .zip(split_at_edges(&mut self.v, edges))
             .zip(split_at_edges(&mut self.grad, edges))
-            .zip(split_at_edges(&mut self.stamp, edges))
-            .map(|((((latents, m), v), grad), stamp)| LatentRange { m, v, grad, stamp, latents })
+            .zip(split_at_edges(&mut self.touched, edges))
+            .map(|((((latents, m), v), grad), touched)| LatentRange {
+                m,
+                v,
+                grad,
+                touched,
+                latents,
+            })
             .collect()
     }
 }
@@ -428,7 +436,7 @@ struct LatentRange<'s> {
     m: &'s mut [f32],
     v: &'s mut [f32],
     grad: &'s mut [f32],
-    stamp: &'s mut [u32],
+    touched: &'s mut [bool],
     latents: &'s mut [f32],
 }
 
@@ -516,7 +524,6 @@ impl LatentBuckets {
 
 /// One step's sparse Adam update of the latents: only those a sample read move.
 struct LatentUpdate {
-    stamp: u32,
     /// 1 / batch.
     inv: f32,
     adam: AdamStep,
@@ -529,7 +536,7 @@ impl LatentUpdate {
         // Cells are read in random order: ask for them far enough ahead to cover a miss to
         // memory (an entry costs a few cycles, an update a few tens).
         const AHEAD: usize = 16;
-        let LatentRange { m, v, grad, stamp, latents } = range;
+        let LatentRange { m, v, grad, touched: flags, latents } = range;
         // The touched cells: first latent (from `base`) and channels.
         let mut touched = Vec::new();
         for r in results {
@@ -537,15 +544,15 @@ impl LatentUpdate {
             for (j, e) in entries.iter().enumerate() {
                 if let Some(next) = entries.get(j + AHEAD) {
                     let first = next.latent as usize - base;
-                    prefetch(stamp, first);
+                    prefetch(flags, first);
                     prefetch(grad, first);
                     prefetch(grad, first + next.channels as usize - 1);
                 }
                 let (first, channels) = (e.latent as usize - base, e.channels as usize);
                 let sum = &mut grad[first..first + channels];
                 let add = &r.latent_grads[e.at as usize..][..channels];
-                if stamp[first] != self.stamp {
-                    stamp[first] = self.stamp;
+                if !flags[first] {
+                    flags[first] = true;
                     sum.copy_from_slice(add);
                     touched.push((first, channels));
                 } else {
@@ -562,6 +569,7 @@ impl LatentUpdate {
             }
             // The mean gradient, Adam and the clamp to the unit range, one latent at a time in
             // one loop the compiler runs in SIMD lanes.
+            flags[first] = false;
             let cell = first..first + channels;
             let state =
                 m[cell.clone()].iter_mut().zip(&mut v[cell.clone()]).zip(&grad[cell.clone()]);
@@ -1018,7 +1026,7 @@ impl<'a> Model<'a> {
             }
             if train_latents {
                 let adam_latents = AdamStep::new(cosine(opts.lr_latents, step, joint_end), t);
-                let update = LatentUpdate { stamp: step as u32, inv, adam: adam_latents };
+                let update = LatentUpdate { inv, adam: adam_latents };
                 let edges = &self.buckets.edges;
                 latent_state.split(&mut self.latents, edges).into_par_iter().enumerate().for_each(
                     |(bucket, range)| {
