@@ -27,7 +27,7 @@ const SPAN: f64 = 1.5;
 /// Samples per parallel work item (fixed: it, not the thread count, shapes the arithmetic).
 const CHUNK: usize = 256;
 
-/// Default optimizer steps: a 1024² four-map material trains in about 3½ minutes on 2 cores
+/// Default optimizer steps: a 1024² four-map material trains in 1–3½ minutes on 2 cores
 /// (docs/ENCODING.md, "Tuning").
 pub const DEFAULT_STEPS: usize = 30_000;
 
