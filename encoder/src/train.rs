@@ -536,40 +536,40 @@ impl LatentUpdate {
         // Cells are read in random order: ask for them far enough ahead to cover a miss to
         // memory (an entry costs a few cycles, an update a few tens).
         const AHEAD: usize = 16;
-        let LatentRange { m, v, grad, touched: flags, latents } = range;
+        let LatentRange { m, v, grad, touched, latents } = range;
         // The touched cells: first latent (from `base`) and channels.
-        let mut touched = Vec::new();
+        let mut cells = Vec::new();
         for r in results {
             let entries = &r.latents[bucket];
             for (j, e) in entries.iter().enumerate() {
                 if let Some(next) = entries.get(j + AHEAD) {
                     let first = next.latent as usize - base;
-                    prefetch(flags, first);
+                    prefetch(touched, first);
                     prefetch(grad, first);
                     prefetch(grad, first + next.channels as usize - 1);
                 }
                 let (first, channels) = (e.latent as usize - base, e.channels as usize);
                 let sum = &mut grad[first..first + channels];
                 let add = &r.latent_grads[e.at as usize..][..channels];
-                if !flags[first] {
-                    flags[first] = true;
+                if !touched[first] {
+                    touched[first] = true;
                     sum.copy_from_slice(add);
-                    touched.push((first, channels));
+                    cells.push((first, channels));
                 } else {
                     sum.iter_mut().zip(add).for_each(|(s, &g)| *s += g);
                 }
             }
         }
-        for (k, &(first, channels)) in touched.iter().enumerate() {
-            if let Some(&(next, c)) = touched.get(k + AHEAD) {
+        for (k, &(first, channels)) in cells.iter().enumerate() {
+            if let Some(&(next, c)) = cells.get(k + AHEAD) {
                 for array in [&*m, &*v, &*latents] {
                     prefetch(array, next);
                     prefetch(array, next + c - 1);
                 }
             }
+            touched[first] = false;
             // The mean gradient, Adam and the clamp to the unit range, one latent at a time in
             // one loop the compiler runs in SIMD lanes.
-            flags[first] = false;
             let cell = first..first + channels;
             let state =
                 m[cell.clone()].iter_mut().zip(&mut v[cell.clone()]).zip(&grad[cell.clone()]);
