@@ -34,7 +34,8 @@ pub const DEFAULT_STEPS: usize = 30_000;
 /// Encode time traded for quality (`--effort`): a quarter of a command's default steps, or four
 /// times its batch. `Max` buys a larger batch, not more steps: on three development materials four
 /// times the steps did worse than the default on two, four times the batch better on two and by
-/// +0.26 dB on average (docs/ENCODING.md, "Speed").
+/// +0.26 dB on average at `ntc-0.2`; at `ntc-0.5` it was 1.2 dB worse than the default on two
+/// 1024² materials (docs/ENCODING.md, "Speed"), so it is not yet a safe choice.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Effort {
     /// A quarter of the steps: for previews and iteration.
@@ -42,7 +43,7 @@ pub enum Effort {
     /// The default steps and batch.
     #[default]
     Default,
-    /// Four times the batch (about four times the time): for shipping builds.
+    /// Four times the batch (about four times the time); see the type's note on its losses.
     Max,
 }
 
