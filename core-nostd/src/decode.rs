@@ -75,7 +75,7 @@ impl<'a> Material<'a> {
 
     /// Input features of texel (x, y) of `mip` (already addressed) in units of 2^-(16+f), passed
     /// to `sink` in input order. The definition; `Decoder` spans have a faster twin
-    /// (`batch/span.rs`).
+    /// (`decoder/span.rs`).
     pub(crate) fn gather<T: Feature>(&self, x: u32, y: u32, mip: u32, sink: &mut Inputs<'_, T>) {
         let mip_size = self.mip_size(mip);
         let mode = self.address_mode;

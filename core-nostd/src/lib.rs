@@ -66,7 +66,7 @@
 //! `no_std` and no allocation on any decode or parse path; `alloc` adds the writer and
 //! [`Decoder`], `std` (default) run-time CPU feature detection.
 #![no_std]
-// Unsafe code is denied everywhere but in the two SIMD modules (`batch/avx2.rs`, `batch/avx512.rs`).
+// Unsafe code is denied everywhere but in the decoder's kernels (`decoder/kernel/`).
 #![deny(unsafe_code)]
 #![cfg_attr(
     not(test),
@@ -80,12 +80,12 @@
     )
 )]
 
-#[cfg(feature = "alloc")]
-pub mod batch;
 mod bytes;
 pub mod checksum;
 pub mod container;
 pub mod decode;
+#[cfg(feature = "alloc")]
+pub mod decoder;
 pub mod error;
 pub mod filter;
 pub mod latents;
@@ -103,15 +103,15 @@ pub mod writer;
 #[allow(rustdoc::broken_intra_doc_links)] // the tables write arrays as u8[4]
 pub mod spec {}
 
-#[cfg(feature = "alloc")]
-#[doc(inline)]
-pub use batch::{Decoder, Kernel};
 #[doc(inline)]
 pub use container::{
     Container, Header, LEGACY_VERSION_MAJOR, ParseOptions, SectionKind, VERSION_MAJOR,
 };
 #[doc(inline)]
 pub use decode::ChannelMask;
+#[cfg(feature = "alloc")]
+#[doc(inline)]
+pub use decoder::{Decoder, Kernel};
 #[doc(inline)]
 pub use error::{Argument, Error, Field};
 #[doc(inline)]

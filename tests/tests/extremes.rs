@@ -4,8 +4,8 @@
 //!    and interpolation weights; 5. coordinates and LOD (0, 1 − ε, negative, huge, NaN); 6. sizes
 //!    (1×1 to 16384², mip sizes, the positional encoding's phase); 7. file values (NaN, infinite,
 //!    subnormal, negative and zero scales); 8. outputs far out of range clamp. Agreement of the
-//!    SIMD kernels with the definition is tested in `batch.rs`, of every decoder with golden
-//!    hashes in `golden.rs`, of the GPU in `runtime-wgpu`.
+//!    SIMD kernels with the definition is tested in `core-nostd/src/decoder/kernel/tests.rs`, of
+//!    every decoder with golden hashes in `golden.rs`, of the GPU in `runtime-wgpu`.
 
 use nmat_core::mlp::{Requant, hard_gelu_q};
 use nmat_core::posenc::triangle_q;

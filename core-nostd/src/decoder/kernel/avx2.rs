@@ -1,42 +1,143 @@
-//! The AVX2 integer layer (x86-64). The only `unsafe` code of the crate: `core::arch` loads and
-//! stores through pointers whose bounds follow from `PackedLayer`'s invariants, and calls into
-//! `#[target_feature]` functions after the CPU was checked.
-#![allow(unsafe_code)]
+//! The AVX2 integer layer (x86-64): `vpmaddwd` over 8 rows per vector, requantization mostly in
+//! 32-bit lanes (AVX2 has no 64-bit arithmetic shift), and its lane tables ([`Lanes`]).
 
+extern crate alloc;
+
+use alloc::vec::Vec;
 use core::arch::x86_64::*;
 
-use super::PackedLayer;
+use super::{GROUP, Job, Kernel, Layers, PackedLayer};
 use crate::limits::MAX_WIDTH;
 
-/// Runs `job` in code compiled for AVX2: what it inlines (the span gather, the output
-/// conversion) gets the wider instructions too.
-pub(super) fn with_avx2<J: super::Job>(job: J) -> J::Output {
-    debug_assert!(super::Kernel::Avx2.is_available());
-    // SAFETY: as in `forward`.
-    unsafe { run_avx2(job) }
-}
+/// The AVX2 kernel. A value exists only inside [`run`], whose caller checked the CPU.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Avx2(());
 
+/// Runs `job` with the AVX2 kernel, in code compiled for AVX2: what it inlines (the span
+/// gather, the output conversion) gets the wider instructions too.
+///
+/// # Safety
+/// The CPU must support AVX2.
 #[target_feature(enable = "avx2")]
-fn run_avx2<J: super::Job>(job: J) -> J::Output {
-    job.run()
+pub(super) unsafe fn run<J: Job>(job: J) -> J::Output {
+    job.run(Avx2(()))
 }
 
-/// One integer layer: `y[o]` for every 8-row block selected in `blocks`.
-pub(super) fn forward(
-    l: &PackedLayer,
-    x: &[i16; MAX_WIDTH],
-    y: &mut [i16; MAX_WIDTH],
-    blocks: u32,
-) {
-    debug_assert!(super::Kernel::Avx2.is_available());
-    // SAFETY: a Decoder uses this kernel only after `Kernel::is_available` said the CPU has AVX2
-    // (`Decoder::new` picks it through `Kernel::best`, `with_kernel` checks it).
-    unsafe { forward_avx2(l, x, y, blocks) }
+impl Layers for Avx2 {
+    const KERNEL: Kernel = Kernel::Avx2;
+
+    #[inline(always)]
+    fn forward(self, l: &PackedLayer, x: &[i16; MAX_WIDTH], y: &mut [i16; MAX_WIDTH], blocks: u32) {
+        // SAFETY: an `Avx2` exists only inside `run`, whose caller checked the CPU has AVX2.
+        unsafe { forward_avx2(l, x, y, blocks) }
+    }
+
+    #[inline(always)]
+    fn forward_group(
+        self,
+        l: &PackedLayer,
+        xs: &[[i16; MAX_WIDTH]; GROUP],
+        init: [&[i32]; GROUP],
+        pairs: usize,
+        ys: &mut [[i16; MAX_WIDTH]; GROUP],
+        blocks: u32,
+        _count: usize,
+    ) {
+        let bias = l.bias();
+        let init = init.map(|s| if s.len() >= l.out_pad() { s.as_ptr() } else { bias.as_ptr() });
+        // SAFETY: as in `forward`; every `init` row holds out_pad entries (checked above).
+        unsafe { forward_group_avx2(l, xs, init, pairs.min(l.in_pairs()), ys, blocks) }
+    }
+
+    fn probe(self, rounds: u64) -> i64 {
+        // SAFETY: as in `forward`.
+        unsafe { probe_avx2(rounds) }
+    }
+}
+
+/// The requantization constants of each row (multiplier m, shift s: `(acc·m + 2^(s−1)) >> s`,
+/// then saturated to i16) for [`requantize`], which per 8-row block works in 32-bit lanes where
+/// it can: the accumulator is first clamped to `[clamp_lo, clamp_hi]`, the widest range outside
+/// which the row saturates anyway, so the requantized value fits an i32 (see `clamp_range`) and
+/// the i16 saturation is a 32-bit one. The 64-bit product plus `round` = 2^(s−1) (lane order
+/// rows 0, 2, 4, 6, 1, 3, 5, 7, as the 64-bit multiply takes the even 32-bit lanes) is shifted
+/// left by `lift` = max(0, 32 − s) (exact: the value fits an i32, so the shifted one fits an
+/// i64), its high half taken, and that shifted right by `post_shift` = max(0, s − 32) (row order).
+#[derive(Clone, Debug)]
+pub(super) struct Lanes {
+    clamp_lo: Vec<i32>,
+    clamp_hi: Vec<i32>,
+    round: Vec<i64>,
+    lift: Vec<u64>,
+    /// Whether any `lift` is non-zero (else the left shift is skipped).
+    lifted: bool,
+    post_shift: Vec<u32>,
+}
+
+impl Lanes {
+    /// From per-row multipliers and shifts (equal lengths, a multiple of 8; multipliers in
+    /// [2^30, 2^31) or 0, shifts in 1..=62, as `PackedLayer` guarantees).
+    pub(super) fn new(multiplier: &[i32], shift: &[u32]) -> Lanes {
+        let rows = multiplier.len().min(shift.len());
+        let pick = |o: usize| {
+            (i64::from(multiplier.get(o).copied().unwrap_or(0)), shift.get(o).copied().unwrap_or(1))
+        };
+        // Lane i of a block of 8 rows holds row 2i (first half) or 2(i − 4) + 1.
+        let order = (0..rows).map(|i| {
+            let (block, lane) = (i / 8, i % 8);
+            8 * block + if lane < 4 { 2 * lane } else { 2 * (lane - 4) + 1 }
+        });
+        let narrow: Vec<u32> = order.map(|o| pick(o).1).collect();
+        let (clamp_lo, clamp_hi) = (0..rows).map(|o| clamp_range(pick(o).0, pick(o).1)).unzip();
+        let lift: Vec<u64> = narrow.iter().map(|&s| u64::from(32u32.saturating_sub(s))).collect();
+        Lanes {
+            clamp_lo,
+            clamp_hi,
+            round: narrow.iter().map(|&s| 1i64 << (s - 1)).collect(),
+            lifted: lift.iter().any(|&u| u != 0),
+            lift,
+            post_shift: (0..rows).map(|o| pick(o).1.saturating_sub(32)).collect(),
+        }
+    }
+}
+
+/// For a row with multiplier `m` (≥ 0) and shift `s`: the accumulators `[lo, hi]` such that
+/// clamping an accumulator to them leaves its saturated requantized value unchanged — `hi` is
+/// the least accumulator whose value saturates at the top (i32::MAX if none does), `lo` the
+/// greatest one saturating at the bottom. The value is non-decreasing in the accumulator and
+/// grows by at most ⌈m / 2^s⌉ ≤ 2^30 per step, so over `[lo, hi]` it stays within
+/// (−2^31, 2^31).
+fn clamp_range(m: i64, s: u32) -> (i32, i32) {
+    let value = |acc: i32| (i64::from(acc) * m + (1i64 << (s - 1))) >> s;
+    let top = i64::from(i16::MAX);
+    let bottom = i64::from(i16::MIN);
+    let hi = if value(i32::MAX) < top {
+        i32::MAX
+    } else {
+        // The least acc with value(acc) ≥ top, by bisection of the monotone value.
+        let (mut below, mut at) = (i64::from(i32::MIN) - 1, i64::from(i32::MAX));
+        while at - below > 1 {
+            let mid = below + (at - below) / 2;
+            if value(mid as i32) >= top { at = mid } else { below = mid }
+        }
+        at as i32
+    };
+    let lo = if value(i32::MIN) > bottom {
+        i32::MIN
+    } else {
+        let (mut at, mut above) = (i64::from(i32::MIN), i64::from(i32::MAX) + 1);
+        while above - at > 1 {
+            let mid = at + (above - at) / 2;
+            if value(mid as i32) <= bottom { at = mid } else { above = mid }
+        }
+        at as i32
+    };
+    (lo, hi)
 }
 
 #[target_feature(enable = "avx2")]
 fn forward_avx2(l: &PackedLayer, x: &[i16; MAX_WIDTH], y: &mut [i16; MAX_WIDTH], blocks: u32) {
-    let count = l.out_pad / 8;
+    let count = l.out_pad() / 8;
     let mut b = 0;
     while b < count {
         if b + 4 <= count && (blocks >> b) & 0xF == 0xF {
@@ -62,22 +163,24 @@ fn block<const B: usize, const S: usize>(
 ) {
     // Bounds: 8·(first + B) ≤ out_pad ≤ MAX_WIDTH (caller), 2·in_pairs ≤ MAX_WIDTH, and
     // weights has in_pairs · out_pad · 2 entries (PackedLayer invariants).
-    debug_assert!(8 * (first + B) <= l.out_pad && l.out_pad <= MAX_WIDTH);
-    debug_assert!(2 * l.in_pairs <= MAX_WIDTH && l.weights.len() == l.in_pairs * l.out_pad * 2);
+    debug_assert!(8 * (first + B) <= l.out_pad() && l.out_pad() <= MAX_WIDTH);
+    debug_assert!(
+        2 * l.in_pairs() <= MAX_WIDTH && l.weights().len() == l.in_pairs() * l.out_pad() * 2
+    );
     let mut acc = [[_mm256_setzero_si256(); S]; B];
     // SAFETY (all pointer accesses below): within the bounds stated above.
     unsafe {
-        let bias = l.bias.as_ptr().add(8 * first);
+        let bias = l.bias().as_ptr().add(8 * first);
         for (k, a) in acc.iter_mut().enumerate() {
             if let Some(a) = a.first_mut() {
                 *a = _mm256_loadu_si256(bias.add(8 * k).cast());
             }
         }
         let pairs = x.as_ptr().cast::<i32>();
-        let base = l.weights.as_ptr().add(16 * first);
-        let step = 2 * l.out_pad;
+        let base = l.weights().as_ptr().add(16 * first);
+        let step = 2 * l.out_pad();
         let mut p = 0;
-        while p + S <= l.in_pairs {
+        while p + S <= l.in_pairs() {
             for s in 0..S {
                 let both = _mm256_set1_epi32(pairs.add(p + s).read_unaligned());
                 let row = base.add((p + s) * step);
@@ -90,7 +193,7 @@ fn block<const B: usize, const S: usize>(
             }
             p += S;
         }
-        for (s, p) in (p..l.in_pairs).enumerate() {
+        for (s, p) in (p..l.in_pairs()).enumerate() {
             let both = _mm256_set1_epi32(pairs.add(p).read_unaligned());
             let row = base.add(p * step);
             for (k, a) in acc.iter_mut().enumerate() {
@@ -109,24 +212,7 @@ fn block<const B: usize, const S: usize>(
     }
 }
 
-/// [`forward`] for a group of `G` texels, with texel `t`'s accumulators starting at `init[t]`
-/// (per row; the bias for a plain layer) and only input pairs `0..pairs` summed: each weight
-/// vector is loaded once and used for every texel (`PackedLayer::forward_scalar_from` for a
-/// group). An `init` shorter than the layer's padded width counts as the bias.
-pub(super) fn forward_group_from<const G: usize>(
-    l: &PackedLayer,
-    x: &[[i16; MAX_WIDTH]; G],
-    init: [&[i32]; G],
-    pairs: usize,
-    y: &mut [[i16; MAX_WIDTH]; G],
-    blocks: u32,
-) {
-    debug_assert!(super::Kernel::Avx2.is_available());
-    let init = init.map(|s| if s.len() >= l.out_pad { s.as_ptr() } else { l.bias.as_ptr() });
-    // SAFETY: as in `forward`; every `init` row holds out_pad entries (checked above).
-    unsafe { forward_group_avx2(l, x, init, pairs.min(l.in_pairs), y, blocks) }
-}
-
+/// `Layers::forward_group` for `G` texels, `pairs` ≤ `in_pairs`, `init` rows of `out_pad`.
 #[target_feature(enable = "avx2")]
 fn forward_group_avx2<const G: usize>(
     l: &PackedLayer,
@@ -136,7 +222,7 @@ fn forward_group_avx2<const G: usize>(
     y: &mut [[i16; MAX_WIDTH]; G],
     blocks: u32,
 ) {
-    let count = l.out_pad / 8;
+    let count = l.out_pad() / 8;
     let mut b = 0;
     while b < count {
         // Two blocks per pass: G·2 accumulators, 2 weight vectors and a broadcast fit the 16
@@ -164,9 +250,11 @@ fn group_block<const G: usize, const B: usize>(
     first: usize,
 ) {
     // Bounds as in `block`; each `init` row holds out_pad entries and pairs ≤ in_pairs (callers).
-    debug_assert!(8 * (first + B) <= l.out_pad && l.out_pad <= MAX_WIDTH);
-    debug_assert!(2 * l.in_pairs <= MAX_WIDTH && l.weights.len() == l.in_pairs * l.out_pad * 2);
-    debug_assert!(pairs <= l.in_pairs);
+    debug_assert!(8 * (first + B) <= l.out_pad() && l.out_pad() <= MAX_WIDTH);
+    debug_assert!(
+        2 * l.in_pairs() <= MAX_WIDTH && l.weights().len() == l.in_pairs() * l.out_pad() * 2
+    );
+    debug_assert!(pairs <= l.in_pairs());
     let mut acc = [[_mm256_setzero_si256(); B]; G];
     // SAFETY (all pointer accesses below): within the bounds stated above.
     unsafe {
@@ -176,7 +264,7 @@ fn group_block<const G: usize, const B: usize>(
                 *a = _mm256_loadu_si256(start.add(8 * k).cast());
             }
         }
-        let mut row = l.weights.as_ptr().add(16 * first);
+        let mut row = l.weights().as_ptr().add(16 * first);
         for p in 0..pairs {
             let mut w = [_mm256_setzero_si256(); B];
             for (k, v) in w.iter_mut().enumerate() {
@@ -188,7 +276,7 @@ fn group_block<const G: usize, const B: usize>(
                     *a = _mm256_add_epi32(*a, _mm256_madd_epi16(w, both));
                 }
             }
-            row = row.add(2 * l.out_pad);
+            row = row.add(2 * l.out_pad());
         }
     }
     for (texel, out) in acc.into_iter().zip(y.iter_mut()) {
@@ -202,15 +290,15 @@ fn group_block<const G: usize, const B: usize>(
 
 /// Requantization, saturation and activation of the 8 accumulators of block `b`, exactly as
 /// `Requant::apply`, `saturate_i16` and `hard_gelu_q`, mostly in 32-bit lanes (the constants
-/// and why each step is exact: `Lanes`). AVX2 has no 64-bit arithmetic shift; here the only
+/// and why each step is exact: [`Lanes`]). AVX2 has no 64-bit arithmetic shift; here the only
 /// 64-bit steps are the multiply, the rounding add and the left shift, and the high halves hold
 /// the result.
 #[target_feature(enable = "avx2")]
 fn requantize(l: &PackedLayer, acc: __m256i, b: usize) -> __m128i {
-    let lanes = &l.lanes;
+    let lanes = &l.tables().avx2;
     debug_assert!(lanes.round.len() >= 8 * b + 8 && lanes.lift.len() >= 8 * b + 8);
     debug_assert!(lanes.clamp_lo.len() >= 8 * b + 8 && lanes.clamp_hi.len() >= 8 * b + 8);
-    debug_assert!(lanes.post_shift.len() >= 8 * b + 8 && l.multiplier.len() >= 8 * b + 8);
+    debug_assert!(lanes.post_shift.len() >= 8 * b + 8 && l.multiplier().len() >= 8 * b + 8);
     // SAFETY: every per-row vector holds out_pad ≥ 8·b + 8 entries.
     let row = |v: *const i32| unsafe { _mm256_loadu_si256(v.add(8 * b).cast()) };
     let wide = |v: *const i64| unsafe {
@@ -223,7 +311,7 @@ fn requantize(l: &PackedLayer, acc: __m256i, b: usize) -> __m128i {
     );
     let round = wide(lanes.round.as_ptr());
     // The multiply reads the even 32-bit lanes: rows 2i as they are, rows 2i + 1 shifted down.
-    let m = row(l.multiplier.as_ptr());
+    let m = row(l.multiplier().as_ptr());
     let mut even = _mm256_add_epi64(_mm256_mul_epi32(acc, m), round.0);
     let (odd_acc, odd_m) = (_mm256_srli_epi64::<32>(acc), _mm256_srli_epi64::<32>(m));
     let mut odd = _mm256_add_epi64(_mm256_mul_epi32(odd_acc, odd_m), round.1);
@@ -235,12 +323,12 @@ fn requantize(l: &PackedLayer, acc: __m256i, b: usize) -> __m128i {
     // The high halves: row 2i's from `even` moved down, row 2i + 1's in place.
     let high = _mm256_blend_epi32::<0b1010_1010>(_mm256_srli_epi64::<32>(even), odd);
     let v = _mm256_srav_epi32(high, row(lanes.post_shift.as_ptr().cast()));
-    let z = if l.activation == crate::mlp::Activation::HardGelu {
+    let z = if l.activation() == crate::mlp::Activation::HardGelu {
         let v = _mm256_min_epi32(
             _mm256_max_epi32(v, _mm256_set1_epi32(i32::from(i16::MIN))),
             _mm256_set1_epi32(i32::from(i16::MAX)),
         );
-        hard_gelu(v, u32::from(l.out_frac_bits.clamp(1, 14)))
+        hard_gelu(v, u32::from(l.out_frac_bits().clamp(1, 14)))
     } else {
         v
     };
@@ -274,11 +362,6 @@ fn hard_gelu(z: __m256i, f: u32) -> __m256i {
 /// The peak-rate probe of this instruction set: `rounds` × 8 independent `vpmaddwd` + `vpaddd`
 /// (128 multiply-adds per round) on registers only. Returns a value that depends on every
 /// product, so the work cannot be optimized away.
-pub(super) fn probe(rounds: u64) -> i64 {
-    // SAFETY: callers check `Kernel::Avx2.is_available()` first.
-    unsafe { probe_avx2(rounds) }
-}
-
 #[target_feature(enable = "avx2")]
 fn probe_avx2(rounds: u64) -> i64 {
     let a = [0x0003_0001, 0x0005_0002, 0x0007_0004, 0x0001_0009].map(|v| _mm256_set1_epi32(v));
@@ -307,7 +390,7 @@ mod tests {
     /// hardGELU on every i16 input at every Q-format, against `hard_gelu_q`.
     #[test]
     fn avx2_hard_gelu_is_exact_for_every_input() {
-        if !super::super::Kernel::Avx2.is_available() {
+        if !Kernel::Avx2.is_available() {
             return;
         }
         for f in 1..=14u32 {

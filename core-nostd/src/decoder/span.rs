@@ -16,7 +16,7 @@
 //!
 //! Everything past the latent features (the positional encoding and the LOD) repeats along the
 //! row with the period of the encoding of x; `periodic_tail` and `fixed_inputs` let the decoder
-//! fold that part into the first layer's sums once per span (`PeriodicSums` in `batch.rs`).
+//! fold that part into the first layer's sums once per span (`PeriodicSums` in `decoder/mod.rs`).
 //!
 //! [`Decoder`]: super::Decoder
 

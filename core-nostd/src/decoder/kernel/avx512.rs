@@ -1,43 +1,98 @@
 //! The AVX-512 VNNI integer layer (x86-64): 16 rows per vector, `vpdpwssd` fusing the pair
-//! multiply-add with the accumulation, and a native 64-bit arithmetic shift for requantization.
-//! Like `avx2.rs`, the only `unsafe` here is pointer access within `PackedLayer`'s invariants and
-//! calls into `#[target_feature]` code after the CPU was checked.
-#![allow(unsafe_code)]
+//! multiply-add with the accumulation, a native 64-bit arithmetic shift for requantization, and
+//! its lane tables ([`Lanes`]).
 
+extern crate alloc;
+
+use alloc::vec::Vec;
 use core::arch::x86_64::*;
 
-use super::PackedLayer;
+use super::{GROUP, Job, Kernel, Layers, PackedLayer};
 use crate::limits::MAX_WIDTH;
 
-/// Runs `job` in code compiled for AVX-512: what it inlines (the span gather, the output
-/// conversion) gets the wider instructions too.
-pub(super) fn with_avx512<J: super::Job>(job: J) -> J::Output {
-    debug_assert!(super::Kernel::Avx512Vnni.is_available());
-    // SAFETY: as in `forward`.
-    unsafe { run_avx512(job) }
-}
+/// The AVX-512 VNNI kernel. A value exists only inside [`run`], whose caller checked the CPU.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Avx512(());
 
+/// Runs `job` with the AVX-512 VNNI kernel, in code compiled for AVX-512: what it inlines (the
+/// span gather, the output conversion) gets the wider instructions too.
+///
+/// # Safety
+/// The CPU must support AVX-512 F, BW and VNNI.
 #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
-fn run_avx512<J: super::Job>(job: J) -> J::Output {
-    job.run()
+pub(super) unsafe fn run<J: Job>(job: J) -> J::Output {
+    job.run(Avx512(()))
 }
 
-/// One integer layer: `y[o]` for every 16-row block holding an 8-row block selected in `blocks`.
-pub(super) fn forward(
-    l: &PackedLayer,
-    x: &[i16; MAX_WIDTH],
-    y: &mut [i16; MAX_WIDTH],
-    blocks: u32,
-) {
-    debug_assert!(super::Kernel::Avx512Vnni.is_available());
-    // SAFETY: a Decoder uses this kernel only after `Kernel::is_available` said the CPU has
-    // AVX-512 F, BW and VNNI.
-    unsafe { forward_avx512(l, x, y, blocks) }
+impl Layers for Avx512 {
+    const KERNEL: Kernel = Kernel::Avx512Vnni;
+
+    #[inline(always)]
+    fn forward(self, l: &PackedLayer, x: &[i16; MAX_WIDTH], y: &mut [i16; MAX_WIDTH], blocks: u32) {
+        // SAFETY: an `Avx512` exists only inside `run`, whose caller checked the CPU has AVX-512
+        // F, BW and VNNI.
+        unsafe { forward_avx512(l, x, y, blocks) }
+    }
+
+    #[inline(always)]
+    fn forward_group(
+        self,
+        l: &PackedLayer,
+        xs: &[[i16; MAX_WIDTH]; GROUP],
+        init: [&[i32]; GROUP],
+        pairs: usize,
+        ys: &mut [[i16; MAX_WIDTH]; GROUP],
+        blocks: u32,
+        _count: usize,
+    ) {
+        let bias = l.bias();
+        let init = init.map(|s| if s.len() >= l.out_pad() { s.as_ptr() } else { bias.as_ptr() });
+        // SAFETY: as in `forward`; every `init` row holds out_pad entries (checked above).
+        unsafe { forward_group_avx512(l, xs, init, pairs.min(l.in_pairs()), ys, blocks) }
+    }
+
+    fn probe(self, rounds: u64) -> i64 {
+        // SAFETY: as in `forward`.
+        unsafe { probe_avx512(rounds) }
+    }
+}
+
+/// The requantization constants of each row for [`requantize`], per 16-row block in the lane
+/// order rows 0, 2, …, 14, 1, 3, …, 15 (the 64-bit multiply takes the even 32-bit lanes):
+/// `wide_multiplier` = m (as i64; the multiply reads its low half), `wide_round` = 2^(s−1),
+/// `wide_shift` = s.
+#[derive(Clone, Debug)]
+pub(super) struct Lanes {
+    wide_multiplier: Vec<i64>,
+    wide_round: Vec<i64>,
+    wide_shift: Vec<u64>,
+}
+
+impl Lanes {
+    /// From per-row multipliers and shifts (equal lengths, a multiple of 16; shifts in 1..=62).
+    pub(super) fn new(multiplier: &[i32], shift: &[u32]) -> Lanes {
+        let rows = multiplier.len().min(shift.len());
+        let pick = |o: usize| {
+            (i64::from(multiplier.get(o).copied().unwrap_or(0)), shift.get(o).copied().unwrap_or(1))
+        };
+        // Lane i of a block of 16 rows holds row 2i (first half) or 2(i − 8) + 1.
+        let wide: Vec<(i64, u32)> = (0..rows)
+            .map(|i| {
+                let (block, lane) = (i / 16, i % 16);
+                pick(16 * block + if lane < 8 { 2 * lane } else { 2 * (lane - 8) + 1 })
+            })
+            .collect();
+        Lanes {
+            wide_multiplier: wide.iter().map(|&(m, _)| m).collect(),
+            wide_round: wide.iter().map(|&(_, s)| 1i64 << (s - 1)).collect(),
+            wide_shift: wide.iter().map(|&(_, s)| u64::from(s)).collect(),
+        }
+    }
 }
 
 #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
 fn forward_avx512(l: &PackedLayer, x: &[i16; MAX_WIDTH], y: &mut [i16; MAX_WIDTH], blocks: u32) {
-    let count = l.out_pad / 16;
+    let count = l.out_pad() / 16;
     let selected = |b: usize| (blocks >> (2 * b)) & 3 != 0;
     let mut b = 0;
     while b < count {
@@ -65,22 +120,24 @@ fn block<const B: usize, const S: usize>(
 ) {
     // Bounds: 16·(first + B) ≤ out_pad ≤ MAX_WIDTH (caller), 2·in_pairs ≤ MAX_WIDTH, and
     // weights has in_pairs · out_pad · 2 entries (PackedLayer invariants).
-    debug_assert!(16 * (first + B) <= l.out_pad && l.out_pad <= MAX_WIDTH);
-    debug_assert!(2 * l.in_pairs <= MAX_WIDTH && l.weights.len() == l.in_pairs * l.out_pad * 2);
+    debug_assert!(16 * (first + B) <= l.out_pad() && l.out_pad() <= MAX_WIDTH);
+    debug_assert!(
+        2 * l.in_pairs() <= MAX_WIDTH && l.weights().len() == l.in_pairs() * l.out_pad() * 2
+    );
     let mut acc = [[_mm512_setzero_si512(); S]; B];
     // SAFETY (all pointer accesses below): within the bounds stated above.
     unsafe {
-        let bias = l.bias.as_ptr().add(16 * first);
+        let bias = l.bias().as_ptr().add(16 * first);
         for (k, a) in acc.iter_mut().enumerate() {
             if let Some(a) = a.first_mut() {
                 *a = _mm512_loadu_si512(bias.add(16 * k).cast());
             }
         }
         let pairs = x.as_ptr().cast::<i32>();
-        let base = l.weights.as_ptr().add(32 * first);
-        let step = 2 * l.out_pad;
+        let base = l.weights().as_ptr().add(32 * first);
+        let step = 2 * l.out_pad();
         let mut p = 0;
-        while p + S <= l.in_pairs {
+        while p + S <= l.in_pairs() {
             for s in 0..S {
                 let both = _mm512_set1_epi32(pairs.add(p + s).read_unaligned());
                 let row = base.add((p + s) * step);
@@ -93,7 +150,7 @@ fn block<const B: usize, const S: usize>(
             }
             p += S;
         }
-        for (s, p) in (p..l.in_pairs).enumerate() {
+        for (s, p) in (p..l.in_pairs()).enumerate() {
             let both = _mm512_set1_epi32(pairs.add(p).read_unaligned());
             let row = base.add(p * step);
             for (k, a) in acc.iter_mut().enumerate() {
@@ -112,24 +169,7 @@ fn block<const B: usize, const S: usize>(
     }
 }
 
-/// [`forward`] for a group of `G` texels, with texel `t`'s accumulators starting at `init[t]`
-/// (per row; the bias for a plain layer) and only input pairs `0..pairs` summed: each weight
-/// vector is loaded once and used for every texel (`PackedLayer::forward_scalar_from` for a
-/// group). An `init` shorter than the layer's padded width counts as the bias.
-pub(super) fn forward_group_from<const G: usize>(
-    l: &PackedLayer,
-    x: &[[i16; MAX_WIDTH]; G],
-    init: [&[i32]; G],
-    pairs: usize,
-    y: &mut [[i16; MAX_WIDTH]; G],
-    blocks: u32,
-) {
-    debug_assert!(super::Kernel::Avx512Vnni.is_available());
-    let init = init.map(|s| if s.len() >= l.out_pad { s.as_ptr() } else { l.bias.as_ptr() });
-    // SAFETY: as in `forward`; every `init` row holds out_pad entries (checked above).
-    unsafe { forward_group_avx512(l, x, init, pairs.min(l.in_pairs), y, blocks) }
-}
-
+/// `Layers::forward_group` for `G` texels, `pairs` ≤ `in_pairs`, `init` rows of `out_pad`.
 #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
 fn forward_group_avx512<const G: usize>(
     l: &PackedLayer,
@@ -139,7 +179,7 @@ fn forward_group_avx512<const G: usize>(
     y: &mut [[i16; MAX_WIDTH]; G],
     blocks: u32,
 ) {
-    let count = l.out_pad / 16;
+    let count = l.out_pad() / 16;
     let selected = |b: usize| (blocks >> (2 * b)) & 3 != 0;
     let mut b = 0;
     while b < count {
@@ -169,9 +209,11 @@ fn group_block<const G: usize, const B: usize>(
     first: usize,
 ) {
     // Bounds as in `block`; each `init` row holds out_pad entries and pairs ≤ in_pairs (callers).
-    debug_assert!(16 * (first + B) <= l.out_pad && l.out_pad <= MAX_WIDTH);
-    debug_assert!(2 * l.in_pairs <= MAX_WIDTH && l.weights.len() == l.in_pairs * l.out_pad * 2);
-    debug_assert!(pairs <= l.in_pairs);
+    debug_assert!(16 * (first + B) <= l.out_pad() && l.out_pad() <= MAX_WIDTH);
+    debug_assert!(
+        2 * l.in_pairs() <= MAX_WIDTH && l.weights().len() == l.in_pairs() * l.out_pad() * 2
+    );
+    debug_assert!(pairs <= l.in_pairs());
     let mut acc = [[_mm512_setzero_si512(); B]; G];
     // SAFETY (all pointer accesses below): within the bounds stated above.
     unsafe {
@@ -181,7 +223,7 @@ fn group_block<const G: usize, const B: usize>(
                 *a = _mm512_loadu_si512(start.add(16 * k).cast());
             }
         }
-        let mut row = l.weights.as_ptr().add(32 * first);
+        let mut row = l.weights().as_ptr().add(32 * first);
         for p in 0..pairs {
             let mut w = [_mm512_setzero_si512(); B];
             for (k, v) in w.iter_mut().enumerate() {
@@ -193,7 +235,7 @@ fn group_block<const G: usize, const B: usize>(
                     *a = _mm512_dpwssd_epi32(*a, w, both);
                 }
             }
-            row = row.add(2 * l.out_pad);
+            row = row.add(2 * l.out_pad());
         }
     }
     for (texel, out) in acc.into_iter().zip(y.iter_mut()) {
@@ -207,11 +249,11 @@ fn group_block<const G: usize, const B: usize>(
 
 /// Requantization, saturation and activation of the 16 accumulators of block `b`, exactly as
 /// `Requant::apply`, `saturate_i16` and `hard_gelu_q`. The 64-bit products of even and odd rows
-/// are rounded and shifted with per-lane constants (`Lanes`), saturated to i16 while narrowing
+/// are rounded and shifted with per-lane constants ([`Lanes`]), saturated to i16 while narrowing
 /// (`vpmovsqw`) and interleaved back into row order.
 #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
 fn requantize(l: &PackedLayer, acc: __m512i, b: usize) -> __m256i {
-    let lanes = &l.lanes;
+    let lanes = &l.tables().avx512;
     debug_assert!(lanes.wide_multiplier.len() >= 16 * b + 16);
     debug_assert!(lanes.wide_round.len() >= 16 * b + 16 && lanes.wide_shift.len() >= 16 * b + 16);
     // SAFETY: the lane vectors hold out_pad ≥ 16·b + 16 entries.
@@ -229,10 +271,10 @@ fn requantize(l: &PackedLayer, acc: __m512i, b: usize) -> __m256i {
     let odd = _mm512_srav_epi64(_mm512_add_epi64(odd, load(r, 1)), load(s, 1));
     let (even, odd) = (_mm512_cvtsepi64_epi16(even), _mm512_cvtsepi64_epi16(odd));
     let rows = _mm256_set_m128i(_mm_unpackhi_epi16(even, odd), _mm_unpacklo_epi16(even, odd));
-    if l.activation != crate::mlp::Activation::HardGelu {
+    if l.activation() != crate::mlp::Activation::HardGelu {
         return rows;
     }
-    let z = hard_gelu(_mm512_cvtepi16_epi32(rows), u32::from(l.out_frac_bits.clamp(1, 14)));
+    let z = hard_gelu(_mm512_cvtepi16_epi32(rows), u32::from(l.out_frac_bits().clamp(1, 14)));
     // Every value is in i16 range, so truncating to 16 bits is exact.
     _mm512_cvtepi32_epi16(z)
 }
@@ -258,12 +300,7 @@ fn hard_gelu(z: __m512i, f: u32) -> __m512i {
 }
 
 /// The peak-rate probe of this instruction set: `rounds` × 8 independent `vpdpwssd` (256
-/// multiply-adds per round) on registers only; see `avx2::probe`.
-pub(super) fn probe(rounds: u64) -> i64 {
-    // SAFETY: callers check `Kernel::Avx512Vnni.is_available()` first.
-    unsafe { probe_avx512(rounds) }
-}
-
+/// multiply-adds per round) on registers only; see `avx2::probe_avx2`.
 #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
 fn probe_avx512(rounds: u64) -> i64 {
     let a = [0x0003_0001, 0x0005_0002, 0x0007_0004, 0x0001_0009].map(|v| _mm512_set1_epi32(v));
@@ -292,7 +329,7 @@ mod tests {
     /// hardGELU on every i16 input at every Q-format, against `hard_gelu_q`.
     #[test]
     fn avx512_hard_gelu_is_exact_for_every_input() {
-        if !super::super::Kernel::Avx512Vnni.is_available() {
+        if !Kernel::Avx512Vnni.is_available() {
             return;
         }
         for f in 1..=14u32 {

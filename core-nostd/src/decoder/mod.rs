@@ -1,0 +1,506 @@
+//! A prepared decoder for throughput (docs/PERFORMANCE.md): the MLP's weights are re-laid once
+//! — int8 widened to i16 and interleaved by input pairs so one SIMD multiply-add serves several
+//! output rows, dequantized to f32 for the float path and transposed — and kept hot across
+//! texels; spans go through the network 4 texels at a time.
+//!
+//! Every result is bit-identical to the per-texel definition on [`Material`] (FORMAT.md §6): the
+//! integer sums are exact and the float sums keep the input order of `Layer::row_float`. The
+//! integer layers run on one of several [`Kernel`]s: [`Kernel::Scalar`], portable Rust over the
+//! prepared layout (the twin every SIMD kernel is tested against), [`Kernel::Avx2`] and
+//! [`Kernel::Avx512Vnni`] on x86-64, [`Kernel::Neon`] on AArch64 — chosen at run time with the
+//! `std` feature, at compile time without it.
+//!
+//! Which file holds what:
+//! - `mod.rs` (here): the [`Decoder`] API, the jobs it hands to a kernel (a span, a texel), the
+//!   network over a texel or a group of texels, the first layer's periodic sums;
+//! - `packed.rs`: one layer in the prepared layout (`PackedLayer`, private fields behind its
+//!   constructors) and the scalar twin of the integer layer;
+//! - `span.rs`: the inputs of consecutive texels of a row (the gather of a span);
+//! - `kernel/mod.rs`: [`Kernel`], the `Layers` trait every kernel implements, and `run`, the one
+//!   place a kernel is chosen; `kernel/{scalar,avx2,avx512,neon}.rs`: one instruction set each,
+//!   with the lane tables it uses.
+
+extern crate alloc;
+
+use alloc::vec::Vec;
+
+use crate::decode::{ChannelMask, code, unit, write_selected};
+use crate::error::{Argument, Error};
+use crate::filter::{Precision, SampleRequest};
+use crate::limits::MAX_WIDTH;
+use crate::material::Material;
+
+mod kernel;
+mod packed;
+mod span;
+
+pub use kernel::Kernel;
+use kernel::{Available, GROUP, Job, Layers};
+use packed::PackedLayer;
+use span::{MAX_X_PERIOD, Slots, SpanGather};
+
+/// The first layer's accumulators for the inputs of a span that repeat along x (the positional
+/// encoding, whose period is at most `MAX_X_PERIOD` texels, and the span-constant features of y
+/// and the LOD): bias plus their weighted sum, one row per texel of the period. Per texel only
+/// the first `pairs` input pairs (the latent features) are left to sum; integer sums do not
+/// depend on their order, so the result is the layer's to the bit.
+struct PeriodicSums<'t> {
+    pairs: usize,
+    /// The period minus one (a power of two).
+    mask: u32,
+    table: &'t [[i32; MAX_WIDTH]; MAX_X_PERIOD],
+}
+
+impl PeriodicSums<'_> {
+    /// The row of the texel at addressed x.
+    fn at(&self, x: u32) -> &[i32] {
+        self.table.get((x & self.mask) as usize).map_or(&[], |row| row.as_slice())
+    }
+}
+
+/// The arguments of [`Decoder::span_codes`].
+struct SpanJob<'j, 'a, T, N> {
+    decoder: &'j Decoder,
+    material: &'j Material<'a>,
+    at: (i64, i64, u32),
+    count: usize,
+    rows: (u16, usize),
+    out: &'j mut [T],
+    full_scale: i32,
+    narrow: N,
+}
+
+impl<T, N: Fn(i32) -> T> Job for SpanJob<'_, '_, T, N> {
+    type Output = ();
+    #[inline(always)]
+    fn run<K: Layers>(self, kernel: K) {
+        let SpanJob { decoder, material, at, count, rows, out, full_scale, narrow } = self;
+        decoder.span_codes_here(kernel, material, at, count, rows, out, full_scale, narrow);
+    }
+}
+
+/// The arguments of [`Decoder::texel_codes`].
+struct TexelJob<'j, 'a, T, N> {
+    decoder: &'j Decoder,
+    material: &'j Material<'a>,
+    at: (i64, i64, u32),
+    rows: u16,
+    out: &'j mut [T],
+    full_scale: i32,
+    narrow: N,
+}
+
+impl<T, N: Fn(i32) -> T> Job for TexelJob<'_, '_, T, N> {
+    type Output = usize;
+    #[inline(always)]
+    fn run<K: Layers>(self, kernel: K) -> usize {
+        let TexelJob { decoder, material, at, rows, out, full_scale, narrow } = self;
+        decoder.texel_codes_here(kernel, material, at, rows, out, full_scale, narrow)
+    }
+}
+
+/// The MLP of one material, prepared for fast decoding (see the module documentation). It owns
+/// its data and borrows nothing, so it can live next to the material in any handle; every call
+/// takes the [`Material`] it was made from and refuses another one.
+#[derive(Clone, Debug)]
+pub struct Decoder {
+    kernel: Available,
+    layers: Vec<PackedLayer>,
+    /// Address and length of the first layer's weights in the file: which material this is.
+    identity: (usize, usize),
+}
+
+fn identity(material: &Material<'_>) -> (usize, usize) {
+    material
+        .mlp
+        .layers
+        .first()
+        .map_or((0, 0), |l| (l.weights_i8.as_ptr() as usize, l.weights_i8.len()))
+}
+
+impl Decoder {
+    /// Prepares `material` for the fastest kernel of this CPU.
+    pub fn new(material: &Material<'_>) -> Decoder {
+        Decoder {
+            kernel: Available::best(),
+            layers: material.mlp.layers.iter().map(PackedLayer::new).collect(),
+            identity: identity(material),
+        }
+    }
+
+    /// Prepares `material` for a given kernel; `BadArgument(Kernel)` if this CPU lacks it.
+    pub fn with_kernel(material: &Material<'_>, kernel: Kernel) -> Result<Decoder, Error> {
+        let Some(kernel) = Available::new(kernel) else {
+            return Err(Error::BadArgument {
+                argument: Argument::Kernel,
+                value: kernel as u64,
+                limit: 0,
+            });
+        };
+        Ok(Decoder { kernel, ..Decoder::new(material) })
+    }
+
+    /// The kernel computing the integer layers.
+    pub fn kernel(&self) -> Kernel {
+        self.kernel.kernel()
+    }
+
+    fn check(&self, material: &Material<'_>) -> Result<(), Error> {
+        if identity(material) == self.identity {
+            Ok(())
+        } else {
+            Err(Error::BadArgument {
+                argument: Argument::Material,
+                value: identity(material).0 as u64,
+                limit: self.identity.0 as u64,
+            })
+        }
+    }
+
+    /// Runs the integer layers on `x` (inputs on entry, outputs on exit).
+    #[inline(always)]
+    fn forward_int<K: Layers>(&self, kernel: K, x: &mut [i16; MAX_WIDTH], rows: u16) {
+        let mut spare = [0i16; MAX_WIDTH];
+        let (mut from, mut to) = (&mut *x, &mut spare);
+        let count = self.layers.len();
+        for (li, layer) in self.layers.iter().enumerate() {
+            let blocks = layer.blocks(li + 1 == count, rows);
+            kernel.forward(layer, from, to, blocks);
+            // Rows past this layer's width may hold stale values: the next layer's padding
+            // column has weight 0, and the last layer's unselected rows are never read.
+            core::mem::swap(&mut from, &mut to);
+        }
+        if count % 2 == 1 {
+            x.copy_from_slice(&spare);
+        }
+    }
+
+    /// [`Decoder::forward_int`] for the first `count` texels of a group, batched (each weight
+    /// loaded once for the group) by the SIMD kernels. With `periodic`, the first layer starts
+    /// from the span's sums over the periodic inputs of each texel's addressed x; the SIMD
+    /// kernels then compute the whole group (texels from `count` on are ignored).
+    #[inline(always)]
+    fn forward_int_group<K: Layers>(
+        &self,
+        kernel: K,
+        xs: &mut [[i16; MAX_WIDTH]; GROUP],
+        count: usize,
+        rows: u16,
+        periodic: Option<(&PeriodicSums<'_>, &[u32; GROUP])>,
+    ) {
+        if count < GROUP && periodic.is_none() {
+            for x in xs.iter_mut().take(count) {
+                self.forward_int(kernel, x, rows);
+            }
+            return;
+        }
+        let mut spare = [[0i16; MAX_WIDTH]; GROUP];
+        let (mut from, mut to) = (&mut *xs, &mut spare);
+        let layers = self.layers.len();
+        for (li, layer) in self.layers.iter().enumerate() {
+            let blocks = layer.blocks(li + 1 == layers, rows);
+            let (init, pairs) = match periodic.filter(|_| li == 0) {
+                Some((sums, at)) => (at.map(|x| sums.at(x)), sums.pairs),
+                None => ([layer.bias(); GROUP], layer.in_pairs()),
+            };
+            kernel.forward_group(layer, from, init, pairs, to, blocks, count);
+            core::mem::swap(&mut from, &mut to);
+        }
+        if layers % 2 == 1 {
+            *xs = spare;
+        }
+    }
+
+    /// The first layer's sums over the inputs of `gather` that repeat along the row (positional
+    /// encoding, LOD), one row per texel of the period, kept in `room` — when the inputs have
+    /// such a tail and the span is long enough to repay the table.
+    fn periodic_sums<'t>(
+        &self,
+        gather: &SpanGather<'_, '_, i16>,
+        count: usize,
+        room: &'t mut Option<[[i32; MAX_WIDTH]; MAX_X_PERIOD]>,
+    ) -> Option<PeriodicSums<'t>> {
+        let (latents, period) = gather.periodic_tail()?;
+        let layer = self.layers.first()?;
+        // Per texel: the pairs holding a latent feature (one may hold x's first feature too).
+        let pairs = latents.div_ceil(2);
+        // Building the table costs `period` texels' worth of the pairs it saves.
+        if pairs >= layer.in_pairs() || count < 2 * period as usize {
+            return None;
+        }
+        let table = room.insert([[0; MAX_WIDTH]; MAX_X_PERIOD]);
+        let mut x = [0i16; MAX_WIDTH];
+        for (phase, sums) in (0..period).zip(table.iter_mut()) {
+            gather.fixed_inputs(phase, &mut x);
+            layer.partial_sums(&x, pairs, sums);
+        }
+        Some(PeriodicSums { pairs, mask: period - 1, table })
+    }
+
+    /// The integer codes of `count` texels of a span into `out` (`n` values each), all of it
+    /// compiled for the kernel's instruction set.
+    #[allow(clippy::too_many_arguments)]
+    fn span_codes<T>(
+        &self,
+        material: &Material<'_>,
+        at: (i64, i64, u32),
+        count: usize,
+        rows: (u16, usize),
+        out: &mut [T],
+        full_scale: i32,
+        narrow: impl Fn(i32) -> T,
+    ) {
+        let job = SpanJob { decoder: self, material, at, count, rows, out, full_scale, narrow };
+        kernel::run(self.kernel, job);
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn span_codes_here<T, K: Layers>(
+        &self,
+        kernel: K,
+        material: &Material<'_>,
+        (x0, y, mip): (i64, i64, u32),
+        count: usize,
+        (rows, n): (u16, usize),
+        out: &mut [T],
+        full_scale: i32,
+        narrow: impl Fn(i32) -> T,
+    ) {
+        let mut slots = Slots::new();
+        let mut gather = SpanGather::new(material, y, mip, &mut slots);
+        let f = material.last_frac_bits();
+        // Rows 0..n: the outputs are the first n values.
+        let first_rows = rows & rows.wrapping_add(1) == 0;
+        // Room for the table, filled (and zeroed first) only if the span uses it.
+        let mut table = None;
+        let periodic = self.periodic_sums(&gather, count, &mut table);
+        let mut xs = [[0i16; MAX_WIDTH]; GROUP];
+        let mut at = [0u32; GROUP];
+        for (g, texels) in out.chunks_mut(GROUP * n).take(count.div_ceil(GROUP)).enumerate() {
+            let k = (count - g * GROUP).min(GROUP);
+            for ((i, x), at) in xs.iter_mut().enumerate().zip(&mut at).take(k) {
+                *at = gather.inputs(x0.wrapping_add((g * GROUP + i) as i64), x);
+            }
+            self.forward_int_group(kernel, &mut xs, k, rows, periodic.as_ref().map(|p| (p, &at)));
+            for (x, texel) in xs.iter().zip(texels.chunks_exact_mut(n)) {
+                if first_rows {
+                    // All 16 lanes at once (fixed length: vector code), then the n wanted.
+                    let mut codes = [0i32; 16];
+                    for (c, &v) in codes.iter_mut().zip(x) {
+                        *c = code(v, f, full_scale);
+                    }
+                    for (out, &c) in texel.iter_mut().zip(&codes) {
+                        *out = narrow(c);
+                    }
+                } else {
+                    write_selected(rows, x, texel, |&v| narrow(code(v, f, full_scale)));
+                }
+            }
+        }
+    }
+
+    fn forward_float(&self, x: &mut [f32; MAX_WIDTH]) {
+        let mut y = [0f32; MAX_WIDTH];
+        for layer in &self.layers {
+            layer.forward_float(x, &mut y);
+            core::mem::swap(x, &mut y);
+        }
+    }
+
+    /// Integer decode to 8-bit codes, bit-identical to [`Material::decode_texel_u8`].
+    pub fn decode_texel_u8(
+        &self,
+        material: &Material<'_>,
+        x: i64,
+        y: i64,
+        mip: u32,
+        channels: ChannelMask,
+        out: &mut [u8],
+    ) -> Result<usize, Error> {
+        self.check(material)?;
+        let rows = material.check_out(channels, out.len())?;
+        Ok(self.texel_codes(material, (x, y, mip), rows, out, 255, |c| c as u8))
+    }
+
+    /// Integer decode to 16-bit codes, bit-identical to [`Material::decode_texel_u16`].
+    pub fn decode_texel_u16(
+        &self,
+        material: &Material<'_>,
+        x: i64,
+        y: i64,
+        mip: u32,
+        channels: ChannelMask,
+        out: &mut [u16],
+    ) -> Result<usize, Error> {
+        self.check(material)?;
+        let rows = material.check_out(channels, out.len())?;
+        Ok(self.texel_codes(material, (x, y, mip), rows, out, 65535, |c| c as u16))
+    }
+
+    /// Float decode (values in channel ranges) with f32 weights, bit-identical to
+    /// [`Material::decode_texel`] (which dequantizes each weight where it uses it).
+    pub fn decode_texel(
+        &self,
+        material: &Material<'_>,
+        x: i64,
+        y: i64,
+        mip: u32,
+        channels: ChannelMask,
+        out: &mut [f32],
+    ) -> Result<usize, Error> {
+        self.check(material)?;
+        let rows = material.check_out(channels, out.len())?;
+        Ok(self.texel_float(material, (x, y, mip), rows, out))
+    }
+
+    /// Filtered sample, equal to [`Material::sample`] but decoding its texels with this
+    /// decoder (a bilinear sample is 4 texel decodes, a trilinear one 8).
+    pub fn sample(
+        &self,
+        material: &Material<'_>,
+        req: &SampleRequest,
+        out: &mut [f32],
+    ) -> Result<usize, Error> {
+        self.check(material)?;
+        material.sample_with(req, out, &|x, y, mip, channels, precision, out| {
+            let rows = material.check_out(channels, out.len())?;
+            Ok(match precision {
+                Precision::Float => {
+                    let mut io = material.inputs(x, y, mip);
+                    self.forward_float(&mut io);
+                    write_selected(rows, &io, out, |v| unit(*v))
+                }
+                Precision::Integer => {
+                    self.texel_codes(material, (x, y, mip), rows, out, 255, |c| c as f32 / 255.0)
+                }
+            })
+        })
+    }
+
+    /// Integer decode of `count` consecutive texels of row `y` from column `x0` (addressed like
+    /// single texels), packed: `count · channels` codes. Returns how many values were written.
+    #[allow(clippy::too_many_arguments)] // a texel address, a span, a mask and the output
+    pub fn decode_span_u8(
+        &self,
+        material: &Material<'_>,
+        x0: i64,
+        y: i64,
+        mip: u32,
+        count: usize,
+        channels: ChannelMask,
+        out: &mut [u8],
+    ) -> Result<usize, Error> {
+        let (rows, n) = self.check_span(material, count, channels, out.len())?;
+        self.span_codes(material, (x0, y, mip), count, (rows, n), out, 255, |c| c as u8);
+        Ok(count * n)
+    }
+
+    /// Integer decode of a span to 16-bit codes, like [`Decoder::decode_span_u8`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn decode_span_u16(
+        &self,
+        material: &Material<'_>,
+        x0: i64,
+        y: i64,
+        mip: u32,
+        count: usize,
+        channels: ChannelMask,
+        out: &mut [u16],
+    ) -> Result<usize, Error> {
+        let (rows, n) = self.check_span(material, count, channels, out.len())?;
+        self.span_codes(material, (x0, y, mip), count, (rows, n), out, 65535, |c| c as u16);
+        Ok(count * n)
+    }
+
+    /// Float decode (values in channel ranges) of a span, like [`Decoder::decode_span_u8`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn decode_span_f32(
+        &self,
+        material: &Material<'_>,
+        x0: i64,
+        y: i64,
+        mip: u32,
+        count: usize,
+        channels: ChannelMask,
+        out: &mut [f32],
+    ) -> Result<usize, Error> {
+        let (rows, n) = self.check_span(material, count, channels, out.len())?;
+        let mut slots = Slots::new();
+        let mut gather = SpanGather::new(material, y, mip, &mut slots);
+        let mut io = [0f32; MAX_WIDTH];
+        for (i, texel) in out.chunks_exact_mut(n).take(count).enumerate() {
+            gather.inputs(x0.wrapping_add(i as i64), &mut io);
+            self.forward_float(&mut io);
+            material.write_ranged(rows, &io, texel);
+        }
+        Ok(count * n)
+    }
+
+    fn check_span(
+        &self,
+        material: &Material<'_>,
+        count: usize,
+        channels: ChannelMask,
+        out_len: usize,
+    ) -> Result<(u16, usize), Error> {
+        self.check(material)?;
+        let rows = material.resolve_channels(channels)?;
+        let n = rows.count_ones() as usize;
+        let needed = count.saturating_mul(n);
+        if out_len < needed {
+            return Err(Error::BadArgument {
+                argument: Argument::Output,
+                value: out_len as u64,
+                limit: needed as u64,
+            });
+        }
+        Ok((rows, n))
+    }
+
+    /// The integer codes of one texel into `out`, all of it (the gather too) compiled for the
+    /// kernel's instruction set. Returns how many values were written.
+    #[allow(clippy::too_many_arguments)]
+    fn texel_codes<T>(
+        &self,
+        material: &Material<'_>,
+        at: (i64, i64, u32),
+        rows: u16,
+        out: &mut [T],
+        full_scale: i32,
+        narrow: impl Fn(i32) -> T,
+    ) -> usize {
+        let job = TexelJob { decoder: self, material, at, rows, out, full_scale, narrow };
+        kernel::run(self.kernel, job)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn texel_codes_here<T, K: Layers>(
+        &self,
+        kernel: K,
+        material: &Material<'_>,
+        (x, y, mip): (i64, i64, u32),
+        rows: u16,
+        out: &mut [T],
+        full_scale: i32,
+        narrow: impl Fn(i32) -> T,
+    ) -> usize {
+        let mut io = material.inputs(x, y, mip);
+        self.forward_int(kernel, &mut io, rows);
+        let f = material.last_frac_bits();
+        write_selected(rows, &io, out, |&v| narrow(code(v, f, full_scale)))
+    }
+
+    fn texel_float(
+        &self,
+        material: &Material<'_>,
+        (x, y, mip): (i64, i64, u32),
+        rows: u16,
+        out: &mut [f32],
+    ) -> usize {
+        let mut io = material.inputs(x, y, mip);
+        self.forward_float(&mut io);
+        material.write_ranged(rows, &io, out)
+    }
+}
