@@ -104,9 +104,9 @@ struct TrainArgs {
     /// for demo].
     #[arg(long, conflicts_with = "effort")]
     steps: Option<usize>,
-    /// Encode time for quality: fast = ¼ of the default steps; max = 4× the batch, about 3–4× the
-    /// time, which gains 0.2–0.45 dB at ntc-0.2 but was measured 1.2 dB *worse* than the default
-    /// on 1024² materials at ntc-0.5 (docs/ENCODING.md).
+    /// Encode time for quality: fast = ¼ of the default steps (0.4–0.9 dB lower); max = twice
+    /// the steps, about twice the time (+0.16–0.43 dB at the default profile ntc-0.5 on the
+    /// materials measured; docs/ENCODING.md).
     #[arg(long, value_enum, default_value_t = EffortArg::Default)]
     effort: EffortArg,
     /// Seed of every random choice: same inputs, seed and steps give the same file.
