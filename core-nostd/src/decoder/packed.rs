@@ -195,6 +195,12 @@ impl PackedLayer {
 }
 
 impl PackedLayer {
+    /// The accumulators' start values for a layer pass: `init`, or the bias if `init` is shorter
+    /// than `out_pad` (the rule of `forward_scalar_from` and every kernel's group form).
+    pub(crate) fn start_row<'s>(&'s self, init: &'s [i32]) -> &'s [i32] {
+        if init.len() < self.out_pad { &self.bias } else { init }
+    }
+
     /// Which 8-row blocks to compute: all of them, or for the last layer only those holding a
     /// selected row.
     pub(super) fn blocks(&self, last: bool, rows: u16) -> u32 {
@@ -224,7 +230,7 @@ impl PackedLayer {
         y: &mut [i16; MAX_WIDTH],
         blocks: u32,
     ) {
-        let init = if init.len() < self.out_pad { self.bias.as_slice() } else { init };
+        let init = self.start_row(init);
         let row_len = 2 * self.out_pad;
         for (b, out) in y.chunks_exact_mut(8).take(self.out_pad / 8).enumerate() {
             if blocks & (1 << b) == 0 {

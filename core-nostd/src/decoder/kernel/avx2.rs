@@ -43,9 +43,8 @@ impl Layers for Avx2 {
         blocks: u32,
         _count: usize,
     ) {
-        let bias = l.bias();
-        let init = init.map(|s| if s.len() >= l.out_pad() { s.as_ptr() } else { bias.as_ptr() });
-        // SAFETY: as in `forward`; every `init` row holds out_pad entries (checked above).
+        let init = init.map(|s| l.start_row(s).as_ptr());
+        // SAFETY: as in `forward`; every start row holds out_pad entries (`start_row`).
         unsafe { forward_group_avx2(l, xs, init, pairs.min(l.in_pairs()), ys, blocks) }
     }
 
