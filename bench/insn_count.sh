@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Instructions the decoder executes per texel, per kernel, counted under QEMU's user-mode emulator
-# with a small instruction-counting plugin (bench/qemu-insn-count.c): the NEON kernel on
-# AArch64 (qemu-aarch64) against the x86-64 kernels QEMU emulates (qemu-x86_64 -cpu max: AVX2
+# with a small instruction-counting plugin (bench/qemu-insn-count.c): the NEON kernels on
+# AArch64 (qemu-aarch64, whose default CPU has the dot-product extension) against the x86-64 kernels QEMU emulates (qemu-x86_64 -cpu max: AVX2
 # and the scalar twin; QEMU 7.2 has no AVX-512). Emulation gives no timings; the count says how
 # much work a kernel asks of a CPU (docs/PERFORMANCE.md, "Phones"). Each count is the difference
 # between decoding N texels and decoding none, divided by N, so loading and preparing the file
@@ -47,10 +47,10 @@ per_texel() { # ISA KERNEL MODE N
 }
 
 echo "instructions per texel, $(basename "$file"), all channels, 8-bit codes (one thread)"
-printf '| %-8s | %-7s | %12s | %12s |\n' ISA kernel region texel
+printf '| %-8s | %-12s | %12s | %12s |\n' ISA kernel region texel
 printf '|---|---|---:|---:|\n'
-for row in "aarch64 neon" "aarch64 scalar" "x86_64 avx2" "x86_64 scalar"; do
+for row in "aarch64 neon-dotprod" "aarch64 neon" "aarch64 scalar" "x86_64 avx2" "x86_64 scalar"; do
   set -- $row
-  printf '| %-8s | %-7s | %12s | %12s |\n' "$1" "$2" \
+  printf '| %-8s | %-12s | %12s | %12s |\n' "$1" "$2" \
     "$(per_texel "$1" "$2" region "$n_region")" "$(per_texel "$1" "$2" texel "$n_texel")"
 done

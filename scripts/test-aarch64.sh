@@ -22,3 +22,8 @@ fi
 export CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_LINKER=aarch64-linux-gnu-gcc
 export CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_RUNNER="qemu-aarch64 -L /usr/aarch64-linux-gnu"
 cargo test -p nmat-core -p nmat-tests --target "$target" --locked "$@"
+# qemu emulates a CPU with every extension; the kernel tests again on one without the dot-product
+# extension (Cortex-A53, ARMv8.0), where the plain NEON kernel must be the one chosen.
+if [ $# = 0 ]; then
+  QEMU_CPU=cortex-a53 cargo test -p nmat-core --lib --target "$target" --locked -q decoder::kernel
+fi

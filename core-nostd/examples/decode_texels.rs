@@ -3,7 +3,7 @@
 //! texel under emulation (docs/PERFORMANCE.md, "Phones"). It times nothing.
 //!
 //! Usage: decode_texels FILE KERNEL MODE TEXELS
-//!   KERNEL  scalar | avx2 | avx512-vnni | neon (`Kernel::name`)
+//!   KERNEL  scalar | avx2 | avx512-vnni | neon | neon-dotprod (`Kernel::name`)
 //!   MODE    region (rows of mip 0 from the top left, `decode_span_u8`) or texel (single texels
 //!           on a scattered walk, `decode_texel_u8`); all channels, 8-bit codes.
 

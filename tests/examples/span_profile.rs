@@ -1,11 +1,11 @@
 //! Decodes mip 0 of a .nmat file through `Decoder` spans, repeatedly: a steady load to attach a
-//! profiler to (`perf record cargo run --release -p nmat-tests --example span_profile -- FILE`).
-//! An optional kernel name (`scalar`, `avx2`, `avx512-vnni`) picks the kernel, e.g. to count
-//! instructions under valgrind, which lacks AVX-512; `texel` after it decodes each row texel by
-//! texel in a scattered order instead (random access). Prints the mean time per texel of the
-//! passes, and the fastest and median time of one row (single rows are short enough that the
-//! fastest one is rarely disturbed by other work on a shared machine: the figure to compare two
-//! builds with).
+//! profiler to (`perf record cargo run --release -p nmat-tests --example span_profile -- FILE`). An
+//! optional kernel name (`Kernel::name`: `scalar`, `avx2`, `avx512-vnni`, `neon`, …) picks the
+//! kernel, e.g. to count instructions under valgrind, which lacks AVX-512; `texel` after it decodes
+//! each row texel by texel in a scattered order instead (random access). Prints the mean time per
+//! texel of the passes, and the fastest and median time of one row (single rows are short enough
+//! that the fastest one is rarely disturbed by other work on a shared machine: the figure to
+//! compare two builds with).
 
 use nmat_core::{ChannelMask, Container, Decoder, Kernel};
 use std::time::Instant;

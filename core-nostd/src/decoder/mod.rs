@@ -7,8 +7,8 @@
 //! integer sums are exact and the float sums keep the input order of `Layer::row_float`. The
 //! integer layers run on one of several [`Kernel`]s: [`Kernel::Scalar`], portable Rust over the
 //! prepared layout (the twin every SIMD kernel is tested against), [`Kernel::Avx2`] and
-//! [`Kernel::Avx512Vnni`] on x86-64, [`Kernel::Neon`] on AArch64 — chosen at run time with the
-//! `std` feature, at compile time without it.
+//! [`Kernel::Avx512Vnni`] on x86-64, [`Kernel::Neon`] and [`Kernel::NeonDot`] on AArch64 — chosen
+//! at run time with the `std` feature, at compile time without it.
 //!
 //! Which file holds what:
 //! - `mod.rs` (here): the [`Decoder`] API, the jobs it hands to a kernel (a span, a texel), the
@@ -17,8 +17,8 @@
 //!   constructors) and the scalar twin of the integer layer;
 //! - `span.rs`: the inputs of consecutive texels of a row (the gather of a span);
 //! - `kernel/mod.rs`: [`Kernel`], the `Layers` trait every kernel implements, and `run`, the one
-//!   place a kernel is chosen; `kernel/{scalar,avx2,avx512,neon}.rs`: one instruction set each,
-//!   with the lane tables it uses.
+//!   place a kernel is chosen; `kernel/{scalar,avx2,avx512,neon,neon_dot}.rs`: one instruction set
+//!   each, with the lane tables (and, for `neon_dot`, the weight layout) it uses.
 
 extern crate alloc;
 

@@ -136,12 +136,12 @@ impl PackedLayer {
         let multiplier: Vec<i32> = (0..out_pad).map(|o| requant(o).multiplier).collect();
         let shift: Vec<u32> = (0..out_pad).map(|o| requant(o).shift.clamp(1, 62)).collect();
         PackedLayer {
+            tables: Tables::new(&weights, in_pairs, &multiplier, &shift),
             in_pairs,
             outputs,
             out_pad,
             weights,
             bias,
-            tables: Tables::new(&multiplier, &shift),
             multiplier,
             shift,
             out_frac_bits: out_frac_bits.clamp(1, 14),

@@ -1,5 +1,6 @@
 //! The integer layer kernels of a [`Decoder`](super::Decoder), one file per instruction set
-//! (`scalar.rs`, `avx2.rs`, `avx512.rs`, `neon.rs`), and the one place that chooses among them.
+//! (`scalar.rs`, `avx2.rs`, `avx512.rs`, `neon.rs`, `neon_dot.rs`), and the one place that
+//! chooses among them.
 //!
 //! A kernel is a type implementing [`Layers`]: one integer layer of FORMAT.md §6.6 for one texel
 //! or for a group of [`GROUP`] texels, bit-identical to the scalar twin
@@ -25,6 +26,8 @@ mod avx2;
 mod avx512;
 #[cfg(target_arch = "aarch64")]
 mod neon;
+#[cfg(target_arch = "aarch64")]
+mod neon_dot;
 mod scalar;
 
 use super::packed::PackedLayer;
@@ -47,19 +50,24 @@ pub enum Kernel {
     /// multiply-accumulates over 4 rows per instruction, `srshl` rounding shifts and saturating
     /// narrows for requantization.
     Neon,
+    /// AArch64 NEON with the dot-product extension (`dotprod`, Cortex-A55/A75 and later): `sdot`
+    /// over the activations split into bytes, 8 products of a layer per instruction (twice
+    /// `smlal`'s); requantization as [`Kernel::Neon`].
+    NeonDot,
 }
 
 impl Kernel {
     /// The fastest kernel this CPU runs.
     pub fn best() -> Kernel {
-        [Kernel::Avx512Vnni, Kernel::Avx2, Kernel::Neon]
+        [Kernel::Avx512Vnni, Kernel::Avx2, Kernel::NeonDot, Kernel::Neon]
             .into_iter()
             .find(|k| k.is_available())
             .unwrap_or(Kernel::Scalar)
     }
 
     /// Every kernel this build knows, slowest first (those of other architectures included).
-    pub const ALL: [Kernel; 4] = [Kernel::Scalar, Kernel::Neon, Kernel::Avx2, Kernel::Avx512Vnni];
+    pub const ALL: [Kernel; 5] =
+        [Kernel::Scalar, Kernel::Neon, Kernel::NeonDot, Kernel::Avx2, Kernel::Avx512Vnni];
 
     /// Whether this CPU can run the kernel (with the `std` feature the CPU is asked; without it
     /// only what the build targets counts).
@@ -69,16 +77,20 @@ impl Kernel {
             Kernel::Avx2 => detect::avx2(),
             Kernel::Avx512Vnni => detect::avx512_vnni(),
             Kernel::Neon => detect::neon(),
+            Kernel::NeonDot => detect::neon_dotprod(),
         }
     }
 
-    /// Multiply-adds one round of [`Kernel::probe`] performs.
+    /// Multiply-adds one round of [`Kernel::probe`] performs, counted as products of a layer
+    /// (int8 weight × i16 activation): an `sdot` of [`Kernel::NeonDot`] makes 16 byte products,
+    /// 8 of a layer's.
     pub fn probe_macs_per_round(self) -> u64 {
         match self {
             Kernel::Scalar => 8,
             Kernel::Avx2 => 128,
             Kernel::Avx512Vnni => 256,
             Kernel::Neon => 64,
+            Kernel::NeonDot => 128,
         }
     }
 
@@ -97,6 +109,7 @@ impl Kernel {
             Kernel::Avx2 => "avx2",
             Kernel::Avx512Vnni => "avx512-vnni",
             Kernel::Neon => "neon",
+            Kernel::NeonDot => "neon-dotprod",
         }
     }
 }
@@ -145,6 +158,17 @@ mod detect {
     /// kernel is compiled in exactly when the target has it.
     pub(super) fn neon() -> bool {
         cfg!(all(target_arch = "aarch64", target_feature = "neon"))
+    }
+
+    #[cfg(all(target_arch = "aarch64", feature = "std"))]
+    pub(super) fn neon_dotprod() -> bool {
+        extern crate std;
+        neon() && std::arch::is_aarch64_feature_detected!("dotprod")
+    }
+
+    #[cfg(not(all(target_arch = "aarch64", feature = "std")))]
+    pub(super) fn neon_dotprod() -> bool {
+        cfg!(all(target_arch = "aarch64", target_feature = "neon", target_feature = "dotprod"))
     }
 }
 
@@ -214,13 +238,15 @@ pub(super) fn run<J: Job>(kernel: Available, job: J) -> J::Output {
     match kernel.0 {
         // SAFETY (each arm): an `Available` holds a kernel only after `Kernel::is_available`
         // said this CPU runs its instruction set (`Available::new`): AVX2; AVX-512 F, BW and
-        // VNNI; NEON.
+        // VNNI; NEON; NEON and the dot-product extension.
         #[cfg(target_arch = "x86_64")]
         Kernel::Avx2 => unsafe { avx2::run(job) },
         #[cfg(target_arch = "x86_64")]
         Kernel::Avx512Vnni => unsafe { avx512::run(job) },
         #[cfg(target_arch = "aarch64")]
         Kernel::Neon => unsafe { neon::run(job) },
+        #[cfg(target_arch = "aarch64")]
+        Kernel::NeonDot => unsafe { neon_dot::run(job) },
         _ => job.run(scalar::Scalar),
     }
 }
@@ -235,13 +261,21 @@ pub(super) struct Tables {
     avx512: avx512::Lanes,
     #[cfg(target_arch = "aarch64")]
     neon: neon::Lanes,
+    #[cfg(target_arch = "aarch64")]
+    neon_dot: neon_dot::Lanes,
 }
 
 impl Tables {
-    /// From per-row multipliers and shifts (equal lengths, a multiple of 16; multipliers in
-    /// [2^30, 2^31) or 0, shifts in 1..=62, as `Requant` guarantees).
-    #[cfg_attr(not(target_arch = "x86_64"), allow(unused_variables))]
-    pub(super) fn new(multiplier: &[i32], shift: &[u32]) -> Tables {
+    /// From the prepared `[pair][row][2]` weights of `in_pairs` pairs and per-row multipliers and
+    /// shifts (`out_pad` rows, a multiple of 16; multipliers in [2^30, 2^31) or 0, shifts in
+    /// 1..=62, as `Requant` guarantees).
+    #[allow(unused_variables, reason = "each target's kernels read only some of them")]
+    pub(super) fn new(
+        weights: &[i16],
+        in_pairs: usize,
+        multiplier: &[i32],
+        shift: &[u32],
+    ) -> Tables {
         Tables {
             #[cfg(target_arch = "x86_64")]
             avx2: avx2::Lanes::new(multiplier, shift),
@@ -249,6 +283,8 @@ impl Tables {
             avx512: avx512::Lanes::new(multiplier, shift),
             #[cfg(target_arch = "aarch64")]
             neon: neon::Lanes::new(shift),
+            #[cfg(target_arch = "aarch64")]
+            neon_dot: neon_dot::Lanes::new(weights, in_pairs, shift.len()),
         }
     }
 }

@@ -229,7 +229,7 @@ fn group_block<const G: usize>(
 /// `Requant::apply`, `saturate_i16` and `hard_gelu_q`.
 #[target_feature(enable = "neon")]
 #[inline]
-fn requantize(l: &PackedLayer, acc: [int32x4_t; 2], o: usize) -> int16x8_t {
+pub(super) fn requantize(l: &PackedLayer, acc: [int32x4_t; 2], o: usize) -> int16x8_t {
     debug_assert!(l.multiplier().len() >= o + 8 && l.tables().neon.neg_shift.len() >= o + 8);
     let (m, s) = (l.multiplier().as_ptr(), l.tables().neon.neg_shift.as_ptr());
     let narrow = |acc: int32x4_t, r: usize| {

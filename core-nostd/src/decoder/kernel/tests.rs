@@ -6,8 +6,22 @@ use super::*;
 use crate::decoder::packed::Parts;
 use crate::mlp::{Activation, Requant};
 
-/// The SIMD kernels this CPU runs. On AArch64 NEON must be among them: the tests below would
-/// otherwise compare nothing there.
+/// Whether this AArch64 CPU has the dot-product extension, asked the way the kernel choice does
+/// not (the auxiliary vector through std, or the build's target features without it).
+fn cpu_has_dotprod() -> bool {
+    #[cfg(all(target_arch = "aarch64", feature = "std"))]
+    {
+        extern crate std;
+        std::arch::is_aarch64_feature_detected!("dotprod")
+    }
+    #[cfg(not(all(target_arch = "aarch64", feature = "std")))]
+    {
+        cfg!(all(target_arch = "aarch64", target_feature = "dotprod"))
+    }
+}
+
+/// The SIMD kernels this CPU runs. On AArch64 NEON must be among them, and the dot-product kernel
+/// where the CPU has the extension: the tests below would otherwise compare nothing there.
 fn simd_kernels() -> Vec<Available> {
     let kernels: Vec<Available> = Kernel::ALL
         .into_iter()
@@ -16,6 +30,8 @@ fn simd_kernels() -> Vec<Available> {
         .collect();
     if cfg!(target_arch = "aarch64") {
         assert!(kernels.iter().any(|k| k.kernel() == Kernel::Neon), "NEON not available");
+        let dot = kernels.iter().any(|k| k.kernel() == Kernel::NeonDot);
+        assert_eq!(dot, cpu_has_dotprod(), "the dot-product kernel's availability");
     }
     kernels
 }
@@ -65,8 +81,9 @@ impl Job for Which {
     }
 }
 
-/// `run` runs the code of the kernel it is given — on AArch64 the NEON kernel's, which is also
-/// the best there: a build where the NEON path were silently not taken fails here.
+/// `run` runs the code of the kernel it is given — on AArch64 the NEON kernels', the best there
+/// (the dot-product one where the CPU has the extension): a build where a NEON path were silently
+/// not taken fails here.
 #[test]
 fn the_dispatch_runs_the_kernel_it_is_given() {
     for kernel in Kernel::ALL {
@@ -76,7 +93,8 @@ fn the_dispatch_runs_the_kernel_it_is_given() {
     }
     assert_eq!(run(Available::best(), Which), Kernel::best());
     if cfg!(target_arch = "aarch64") {
-        assert_eq!(Kernel::best(), Kernel::Neon);
+        let best = if cpu_has_dotprod() { Kernel::NeonDot } else { Kernel::Neon };
+        assert_eq!(Kernel::best(), best);
     }
     for kernel in Kernel::ALL.into_iter().filter(|k| k.is_available()) {
         assert!(kernel.probe(100).is_some(), "{kernel:?} probe");
