@@ -80,6 +80,7 @@
     )
 )]
 
+pub mod bc;
 mod bytes;
 pub mod checksum;
 pub mod container;

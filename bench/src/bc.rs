@@ -1,0 +1,186 @@
+//! The core's BC encoders against two reference encoders on the same pixels: `nvcompress`
+//! (NVIDIA Texture Tools 2.0, Debian's libnvtt-bin) and Intel's ISPC texture compressor
+//! (`intel_tex_2`). PSNR of each over the format's channels against the input image, and the
+//! encode times (one thread; the ISPC kernels are SIMD, nvcompress's includes its file I/O and is
+//! not reported).
+//!
+//! Usage: nmat-bc FORMAT IMAGE...   (FORMAT: bc1 = RGB, bc4 = the first channel, bc5 = the first
+//! two; images with sides a multiple of 4). Prints one row per image:
+//! image,format,nmat_psnr_db,nvcompress_psnr_db,intel_psnr_db,nmat_ms,intel_ms. All blocks are
+//! decoded with the core's decoders (which agree with `bcdec`), so the columns differ only by
+//! encoder.
+
+use nmat_core::bc;
+use std::path::Path;
+use std::process::Command;
+use std::time::Instant;
+
+#[derive(Clone, Copy, PartialEq)]
+enum Format {
+    Bc1,
+    Bc4,
+    Bc5,
+}
+
+impl Format {
+    fn channels(self) -> usize {
+        match self {
+            Format::Bc1 => 3,
+            Format::Bc4 => 1,
+            Format::Bc5 => 2,
+        }
+    }
+    fn block_bytes(self) -> usize {
+        if self == Format::Bc5 { 16 } else { 8 }
+    }
+}
+
+/// The 16 pixels (RGB) of block (bx, by), edge pixels repeated past the image, and its mask.
+fn block(img: &image::RgbImage, bx: u32, by: u32) -> ([[u8; 3]; 16], u16) {
+    let (w, h) = img.dimensions();
+    let px = std::array::from_fn(|i| {
+        let (x, y) = ((4 * bx + i as u32 % 4).min(w - 1), (4 * by + i as u32 / 4).min(h - 1));
+        img.get_pixel(x, y).0
+    });
+    (px, bc::valid_mask(bx, by, w, h))
+}
+
+fn encode(img: &image::RgbImage, f: Format) -> Vec<u8> {
+    let (w, h) = img.dimensions();
+    let mut out = Vec::new();
+    for by in 0..h.div_ceil(4) {
+        for bx in 0..w.div_ceil(4) {
+            let (px, valid) = block(img, bx, by);
+            let ch = |c: usize| -> [u8; 16] { std::array::from_fn(|i| px[i][c]) };
+            match f {
+                Format::Bc1 => out.extend(bc::encode_bc1(&px, valid)),
+                Format::Bc4 => out.extend(bc::encode_bc4(&ch(0), valid)),
+                Format::Bc5 => out.extend(bc::encode_bc5(&ch(0), &ch(1), valid)),
+            }
+        }
+    }
+    out
+}
+
+/// Squared error summed over the format's channels and the image's pixels, and the count.
+fn error(img: &image::RgbImage, f: Format, blocks: &[u8]) -> (f64, f64) {
+    let (w, h) = img.dimensions();
+    let (mut sse, mut n) = (0f64, 0f64);
+    for (k, b) in blocks.chunks_exact(f.block_bytes()).enumerate() {
+        let (bx, by) = (k as u32 % w.div_ceil(4), k as u32 / w.div_ceil(4));
+        let decoded: [[u8; 3]; 16] = match f {
+            Format::Bc1 => bc::decode_bc1(b.try_into().unwrap()).map(|p| [p[0], p[1], p[2]]),
+            Format::Bc4 => bc::decode_bc4(b.try_into().unwrap()).map(|v| [v, 0, 0]),
+            Format::Bc5 => {
+                let (r, g) = bc::decode_bc5(b.try_into().unwrap());
+                std::array::from_fn(|i| [r[i], g[i], 0])
+            }
+        };
+        for (i, d) in decoded.iter().enumerate() {
+            let (x, y) = (4 * bx + i as u32 % 4, 4 * by + i as u32 / 4);
+            if x < w && y < h {
+                let s = img.get_pixel(x, y).0;
+                for c in 0..f.channels() {
+                    let e = f64::from(s[c]) - f64::from(d[c]);
+                    sse += e * e;
+                    n += 1.0;
+                }
+            }
+        }
+    }
+    (sse, n)
+}
+
+fn psnr((sse, n): (f64, f64)) -> f64 {
+    10.0 * (255.0 * 255.0 / (sse / n).max(1e-12)).log10()
+}
+
+/// nvcompress's blocks for the same pixels (its BC4 reads the alpha channel: the value goes in
+/// all four).
+fn nvcompress(img: &image::RgbImage, f: Format, dir: &Path) -> Vec<u8> {
+    let (src, dds) = (dir.join("in.png"), dir.join("out.dds"));
+    let rgba = image::RgbaImage::from_fn(img.width(), img.height(), |x, y| {
+        let [r, g, b] = img.get_pixel(x, y).0;
+        image::Rgba(if f == Format::Bc4 { [r, r, r, r] } else { [r, g, b, 255] })
+    });
+    rgba.save(&src).expect("write png");
+    let flag = match f {
+        Format::Bc1 => "-bc1",
+        Format::Bc4 => "-bc4",
+        Format::Bc5 => "-bc5",
+    };
+    let out = Command::new("nvcompress")
+        .args(["-silent", "-nomips", flag])
+        .arg(&src)
+        .arg(&dds)
+        .output()
+        .expect("run nvcompress");
+    assert!(out.status.success(), "nvcompress: {}", String::from_utf8_lossy(&out.stderr));
+    let bytes = std::fs::read(&dds).expect("dds written");
+    let at = if bytes.get(84..88) == Some(b"DX10") { 148 } else { 128 };
+    bytes[at..].to_vec()
+}
+
+/// Intel's ISPC encoder on the same pixels (its default, and only, quality for these formats).
+fn intel(img: &image::RgbImage, f: Format) -> Vec<u8> {
+    let (w, h) = img.dimensions();
+    let rgb = img.as_raw();
+    let plane =
+        |n: usize| -> Vec<u8> { rgb.chunks_exact(3).flat_map(|p| p[..n].to_vec()).collect() };
+    match f {
+        Format::Bc1 => {
+            let rgba: Vec<u8> = rgb.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect();
+            let s = intel_tex_2::RgbaSurface { data: &rgba, width: w, height: h, stride: 4 * w };
+            intel_tex_2::bc1::compress_blocks(&s)
+        }
+        Format::Bc4 => {
+            let r = plane(1);
+            intel_tex_2::bc4::compress_blocks(&intel_tex_2::RSurface {
+                data: &r,
+                width: w,
+                height: h,
+                stride: w,
+            })
+        }
+        Format::Bc5 => {
+            let rg = plane(2);
+            let s = intel_tex_2::RgSurface { data: &rg, width: w, height: h, stride: 2 * w };
+            intel_tex_2::bc5::compress_blocks(&s)
+        }
+    }
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let Some((format, images)) = args.split_first() else {
+        eprintln!("usage: nmat-bc bc1|bc4|bc5 IMAGE...");
+        std::process::exit(2);
+    };
+    let f = match format.as_str() {
+        "bc1" => Format::Bc1,
+        "bc4" => Format::Bc4,
+        "bc5" => Format::Bc5,
+        other => panic!("FORMAT {other:?}: bc1, bc4 or bc5"),
+    };
+    let dir = std::env::temp_dir().join(format!("nmat-bc-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    println!("image,format,nmat_psnr_db,nvcompress_psnr_db,intel_psnr_db,nmat_ms,intel_ms");
+    for path in images {
+        let img = image::open(path).unwrap_or_else(|e| panic!("{path}: {e}")).to_rgb8();
+        let start = Instant::now();
+        let ours = encode(&img, f);
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        let start = Instant::now();
+        let isp = intel(&img, f);
+        let intel_ms = start.elapsed().as_secs_f64() * 1e3;
+        let nv = nvcompress(&img, f, &dir);
+        let blocks = ours.len();
+        println!(
+            "{path},{format},{:.3},{:.3},{:.3},{ms:.1},{intel_ms:.1}",
+            psnr(error(&img, f, &ours)),
+            psnr(error(&img, f, &nv[..blocks.min(nv.len())])),
+            psnr(error(&img, f, &isp)),
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -1,0 +1,56 @@
+//! GPU block compression: encoders and decoders for the BC formats engines sample with hardware
+//! filtering (BC1 for RGB, BC4 for one channel, BC5 for two), so a material decoded at load time
+//! can be handed to an unchanged shader as an ordinary block-compressed texture.
+//!
+//! Every function works on one 4×4 block: `no_std`, no allocation, and integer arithmetic only,
+//! so the bytes written are the same on every machine. Pixels are in row-major order
+//! (`4·y + x`); `valid` has bit `i` set for the pixels that exist — a block at the right or bottom
+//! edge of an image whose size is not a multiple of 4 has pixels past the edge, which GPUs never
+//! show, and the encoders ignore them (they get index 0).
+//!
+//! The decoders define each palette entry as the exactly rounded value of the ideal interpolation
+//! (e.g. BC4's (6·a0 + a1)/7 rounded to nearest, BC1's 5- and 6-bit endpoints expanded to
+//! round(v·255/31) and round(v·255/63)): the values Direct3D's block-compression rules describe
+//! and well-kept software decoders (`bcdec`) produce; GPUs may differ from them by a code on
+//! interpolated BC1 colours.
+//!
+//! Which file holds what: `bc1.rs` (BC1: principal-axis endpoints, least-squares refinement,
+//! exact single-colour matches), `bc4.rs` (BC4 and BC5: endpoint search in both palette modes).
+//!
+//! Quality and speed against reference encoders are measured by `nmat-bc` (the `bench` crate)
+//! and reported in docs/TRANSCODING.md.
+
+mod bc1;
+mod bc4;
+
+pub use bc1::{decode_bc1, encode_bc1};
+pub use bc4::{decode_bc4, decode_bc5, encode_bc4, encode_bc5};
+
+/// Pixels of a block.
+pub const BLOCK_PIXELS: usize = 16;
+
+/// Every pixel of a block exists.
+pub const ALL_VALID: u16 = u16::MAX;
+
+/// The pixels of a block at `(bx, by)` (in blocks) that lie inside an image of
+/// `width` × `height` pixels, as a `valid` mask.
+pub fn valid_mask(bx: u32, by: u32, width: u32, height: u32) -> u16 {
+    let cols = width.saturating_sub(4 * bx).min(4);
+    let rows = height.saturating_sub(4 * by).min(4);
+    let row = (1u16 << cols) - 1;
+    (0..rows).fold(0, |mask, y| mask | (row << (4 * y)))
+}
+
+/// `(a − b)²` of two codes.
+fn sq(a: u8, b: u8) -> u32 {
+    let d = u32::from(a.abs_diff(b));
+    d * d
+}
+
+/// Whether pixel `i` counts.
+fn counts(valid: u16, i: usize) -> bool {
+    (valid >> i) & 1 != 0
+}
+
+#[cfg(test)]
+mod tests;
