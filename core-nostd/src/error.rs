@@ -86,6 +86,12 @@ pub enum Argument {
     Material,
     /// A `Decoder` kernel this CPU cannot run.
     Kernel,
+    /// A mip level the material does not have.
+    Mip,
+    /// A region of blocks past the edge of its mip.
+    Region,
+    /// A row pitch shorter than a row of the output.
+    RowPitch,
 }
 
 /// Everything that can go wrong, split by cause.

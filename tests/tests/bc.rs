@@ -106,3 +106,163 @@ fn encoded_images_decode_like_bcdec() {
         }
     }
 }
+
+/// Every fixture (odd sizes, 1×1, strips, 16 channels): each texture of the default layout,
+/// transcoded mip by mip through `Decoder::transcode_blocks` with a padded row pitch, equals
+/// blocks built texel by texel from `Material::decode_texel_u8` and encoded one by one; and the
+/// same with every kernel the CPU has, and when the mip is split into regions.
+#[test]
+fn transcoded_mips_equal_blocks_of_decoded_texels() {
+    use nmat_core::bc::{BcFormat, default_layout};
+    use nmat_core::{BlockRegion, ChannelMask, Container, Decoder, Kernel};
+    let dir = nmat_tests::fixtures_dir();
+    let mut files: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "nmat"))
+        .collect();
+    files.sort();
+    assert!(files.len() >= 5, "fixtures in {}", dir.display());
+    for file in files {
+        let bytes = std::fs::read(&file).unwrap();
+        let m = Container::parse(&bytes).unwrap();
+        let layout = default_layout(&m);
+        // Every channel once, but a normal map's Z.
+        let normal_z = m
+            .channels()
+            .iter()
+            .filter(|c| c.semantic == nmat_core::Semantic::NORMAL && c.component == 2)
+            .count();
+        let covered = layout.iter().map(|t| t.channel_list().len()).sum::<usize>();
+        assert_eq!(covered + normal_z, m.channel_count(), "{}", file.display());
+        for texture in &layout {
+            for mip in 0..m.mip_count() {
+                let (w, h) = m.mip_size(mip);
+                let region = BlockRegion::mip(&m, mip);
+                let bb = texture.format.block_bytes();
+                // The reference: texel by texel, block by block.
+                let mut want = Vec::new();
+                for by in 0..region.height {
+                    for bx in 0..region.width {
+                        let valid = valid_mask(bx, by, w, h);
+                        let px: [[u8; 3]; 16] = std::array::from_fn(|i| {
+                            let (x, y) = (4 * bx + i as u32 % 4, 4 * by + i as u32 / 4);
+                            if x >= w || y >= h {
+                                return [0; 3];
+                            }
+                            let mut all = [0u8; 16];
+                            let n = m
+                                .decode_texel_u8(
+                                    x.into(),
+                                    y.into(),
+                                    mip,
+                                    ChannelMask::ALL,
+                                    &mut all,
+                                )
+                                .unwrap();
+                            assert_eq!(n, m.channel_count());
+                            let c = |k: usize| {
+                                texture.channel_list().get(k).map_or(0, |&c| all[usize::from(c)])
+                            };
+                            [c(0), c(1), c(2)]
+                        });
+                        let ch = |k: usize| -> [u8; 16] { std::array::from_fn(|i| px[i][k]) };
+                        match texture.format {
+                            BcFormat::Bc1 => want.extend(encode_bc1(&px, valid)),
+                            BcFormat::Bc4 => want.extend(encode_bc4(&ch(0), valid)),
+                            BcFormat::Bc5 => want.extend(encode_bc5(&ch(0), &ch(1), valid)),
+                            _ => unreachable!("a format the layout does not pick"),
+                        }
+                    }
+                }
+                let row = region.width as usize * bb;
+                let pitch = row + 5;
+                let at = format!("{} {texture:?} mip {mip}", file.display());
+                for kernel in Kernel::ALL.into_iter().filter(|k| k.is_available()) {
+                    let d = Decoder::with_kernel(&m, kernel).unwrap();
+                    let mut out = vec![0xA5u8; pitch * region.height as usize];
+                    d.transcode_blocks(&m, texture, mip, region, &mut out, pitch).unwrap();
+                    let got: Vec<u8> = out.chunks(pitch).flat_map(|r| r[..row].to_vec()).collect();
+                    assert_eq!(got, want, "{kernel:?} {at}");
+                    assert!(out.chunks(pitch).all(|r| r[row..].iter().all(|&b| b == 0xA5)));
+                }
+                // Split: the top block rows, then the rest in two column halves.
+                let d = Decoder::new(&m);
+                let mut split = vec![0u8; row * region.height as usize];
+                let top = region.height / 2;
+                let left = region.width / 2;
+                let parts = [
+                    BlockRegion { height: top, ..region },
+                    BlockRegion { y: top, height: region.height - top, width: left, ..region },
+                    BlockRegion {
+                        y: top,
+                        x: left,
+                        height: region.height - top,
+                        width: region.width - left,
+                    },
+                ];
+                for p in parts {
+                    let start = p.y as usize * row + p.x as usize * bb;
+                    let end = split.len();
+                    d.transcode_blocks(&m, texture, mip, p, &mut split[start..end], row).unwrap();
+                }
+                assert_eq!(split, want, "split {at}");
+            }
+        }
+    }
+}
+
+/// Bad arguments are typed errors naming the argument, and nothing is written.
+#[test]
+fn transcode_refuses_bad_arguments() {
+    use nmat_core::bc::{BcFormat, BcTexture};
+    use nmat_core::{Argument, BlockRegion, Container, Decoder, Error};
+    let bytes = std::fs::read(nmat_tests::fixtures_dir().join("ntc_rgb_64.nmat")).unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    let d = Decoder::new(&m);
+    let t = BcTexture { format: BcFormat::Bc1, channels: [0, 1, 2], srgb: true };
+    let all = BlockRegion::mip(&m, 0);
+    let row = all.width as usize * 8;
+    let mut out = vec![0u8; row * all.height as usize];
+    let argument = |e: Error| match e {
+        Error::BadArgument { argument, .. } => argument,
+        other => panic!("not a bad argument: {other:?}"),
+    };
+    let e = d.transcode_blocks(&m, &t, m.mip_count(), all, &mut out, row).unwrap_err();
+    assert_eq!(argument(e), Argument::Mip);
+    let wide = BlockRegion { width: all.width + 1, ..all };
+    assert_eq!(
+        argument(d.transcode_blocks(&m, &t, 0, wide, &mut out, row).unwrap_err()),
+        Argument::Region
+    );
+    let low = BlockRegion { y: 1, ..all };
+    assert_eq!(
+        argument(d.transcode_blocks(&m, &t, 0, low, &mut out, row).unwrap_err()),
+        Argument::Region
+    );
+    assert_eq!(
+        argument(d.transcode_blocks(&m, &t, 0, all, &mut out, row - 1).unwrap_err()),
+        Argument::RowPitch
+    );
+    let short = out.len() - 1;
+    assert_eq!(
+        argument(d.transcode_blocks(&m, &t, 0, all, &mut out[..short], row).unwrap_err()),
+        Argument::Output
+    );
+    let missing = BcTexture { channels: [0, 1, 3], ..t };
+    assert_eq!(
+        argument(d.transcode_blocks(&m, &missing, 0, all, &mut out, row).unwrap_err()),
+        Argument::Channels
+    );
+    let beyond = BcTexture { channels: [0, 1, 200], ..t };
+    assert_eq!(
+        argument(d.transcode_blocks(&m, &beyond, 0, all, &mut out, row).unwrap_err()),
+        Argument::Channels
+    );
+    assert!(out.iter().all(|&b| b == 0), "an error wrote output");
+    let tiny = std::fs::read(nmat_tests::fixtures_dir().join("tiny_1x1.nmat")).unwrap();
+    let other = Container::parse(&tiny).unwrap();
+    let e =
+        d.transcode_blocks(&other, &t, 0, BlockRegion::mip(&other, 0), &mut out, row).unwrap_err();
+    assert_eq!(argument(e), Argument::Material);
+}

@@ -15,16 +15,20 @@
 //! interpolated BC1 colours.
 //!
 //! Which file holds what: `bc1.rs` (BC1: principal-axis endpoints, least-squares refinement,
-//! exact single-colour matches), `bc4.rs` (BC4 and BC5: endpoint search in both palette modes).
+//! exact single-colour matches), `bc4.rs` (BC4 and BC5: endpoint search in both palette modes),
+//! `layout.rs` (which material channels go into which BC texture). Whole regions of a material
+//! are transcoded by `Decoder::transcode_blocks` (feature `alloc`).
 //!
 //! Quality and speed against reference encoders are measured by `nmat-bc` (the `bench` crate)
 //! and reported in docs/TRANSCODING.md.
 
 mod bc1;
 mod bc4;
+mod layout;
 
 pub use bc1::{decode_bc1, encode_bc1};
 pub use bc4::{decode_bc4, decode_bc5, encode_bc4, encode_bc5};
+pub use layout::{BcFormat, BcTexture, default_layout};
 
 /// Pixels of a block.
 pub const BLOCK_PIXELS: usize = 16;

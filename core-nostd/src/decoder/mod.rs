@@ -16,6 +16,7 @@
 //! - `packed.rs`: one layer in the prepared layout (`PackedLayer`, private fields behind its
 //!   constructors) and the scalar twin of the integer layer;
 //! - `span.rs`: the inputs of consecutive texels of a row (the gather of a span);
+//! - `transcode.rs`: regions decoded straight into BC blocks (`Decoder::transcode_blocks`);
 //! - `kernel/mod.rs`: [`Kernel`], the `Layers` trait every kernel implements, and `run`, the one
 //!   place a kernel is chosen; `kernel/{scalar,avx2,avx512,neon,neon_dot}.rs`: one instruction set
 //!   each, with the lane tables (and, for `neon_dot`, the weight layout) it uses.
@@ -33,11 +34,13 @@ use crate::material::Material;
 mod kernel;
 mod packed;
 mod span;
+mod transcode;
 
 pub use kernel::Kernel;
 use kernel::{Available, GROUP, Job, Layers};
 use packed::PackedLayer;
 use span::{MAX_X_PERIOD, Slots, SpanGather};
+pub use transcode::BlockRegion;
 
 /// The first layer's accumulators for the inputs of a span that repeat along x (the positional
 /// encoding, whose period is at most `MAX_X_PERIOD` texels, and the span-constant features of y
