@@ -10,30 +10,10 @@
 //! decoded with the core's decoders (which agree with `bcdec`), so the columns differ only by
 //! encoder.
 
-use nmat_core::bc;
+use nmat_core::bc::{self, BcFormat as Format};
 use std::path::Path;
 use std::process::Command;
 use std::time::Instant;
-
-#[derive(Clone, Copy, PartialEq)]
-enum Format {
-    Bc1,
-    Bc4,
-    Bc5,
-}
-
-impl Format {
-    fn channels(self) -> usize {
-        match self {
-            Format::Bc1 => 3,
-            Format::Bc4 => 1,
-            Format::Bc5 => 2,
-        }
-    }
-    fn block_bytes(self) -> usize {
-        if self == Format::Bc5 { 16 } else { 8 }
-    }
-}
 
 /// The 16 pixels (RGB) of block (bx, by), edge pixels repeated past the image, and its mask.
 fn block(img: &image::RgbImage, bx: u32, by: u32) -> ([[u8; 3]; 16], u16) {
@@ -51,12 +31,9 @@ fn encode(img: &image::RgbImage, f: Format) -> Vec<u8> {
     for by in 0..h.div_ceil(4) {
         for bx in 0..w.div_ceil(4) {
             let (px, valid) = block(img, bx, by);
-            let ch = |c: usize| -> [u8; 16] { std::array::from_fn(|i| px[i][c]) };
-            match f {
-                Format::Bc1 => out.extend(bc::encode_bc1(&px, valid)),
-                Format::Bc4 => out.extend(bc::encode_bc4(&ch(0), valid)),
-                Format::Bc5 => out.extend(bc::encode_bc5(&ch(0), &ch(1), valid)),
-            }
+            let mut b = [0u8; 16];
+            bc::encode_block(f, &px, valid, &mut b);
+            out.extend(&b[..f.block_bytes()]);
         }
     }
     out
@@ -68,19 +45,12 @@ fn error(img: &image::RgbImage, f: Format, blocks: &[u8]) -> (f64, f64) {
     let (mut sse, mut n) = (0f64, 0f64);
     for (k, b) in blocks.chunks_exact(f.block_bytes()).enumerate() {
         let (bx, by) = (k as u32 % w.div_ceil(4), k as u32 / w.div_ceil(4));
-        let decoded: [[u8; 3]; 16] = match f {
-            Format::Bc1 => bc::decode_bc1(b.try_into().unwrap()).map(|p| [p[0], p[1], p[2]]),
-            Format::Bc4 => bc::decode_bc4(b.try_into().unwrap()).map(|v| [v, 0, 0]),
-            Format::Bc5 => {
-                let (r, g) = bc::decode_bc5(b.try_into().unwrap());
-                std::array::from_fn(|i| [r[i], g[i], 0])
-            }
-        };
+        let decoded = bc::decode_block(f, b);
         for (i, d) in decoded.iter().enumerate() {
             let (x, y) = (4 * bx + i as u32 % 4, 4 * by + i as u32 / 4);
             if x < w && y < h {
                 let s = img.get_pixel(x, y).0;
-                for c in 0..f.channels() {
+                for c in 0..f.components() {
                     let e = f64::from(s[c]) - f64::from(d[c]);
                     sse += e * e;
                     n += 1.0;
@@ -104,13 +74,9 @@ fn nvcompress(img: &image::RgbImage, f: Format, dir: &Path) -> Vec<u8> {
         image::Rgba(if f == Format::Bc4 { [r, r, r, r] } else { [r, g, b, 255] })
     });
     rgba.save(&src).expect("write png");
-    let flag = match f {
-        Format::Bc1 => "-bc1",
-        Format::Bc4 => "-bc4",
-        Format::Bc5 => "-bc5",
-    };
+    let flag = format!("-{}", f.name());
     let out = Command::new("nvcompress")
-        .args(["-silent", "-nomips", flag])
+        .args(["-silent", "-nomips", &flag])
         .arg(&src)
         .arg(&dds)
         .output()
@@ -142,7 +108,8 @@ fn intel(img: &image::RgbImage, f: Format) -> Vec<u8> {
                 stride: w,
             })
         }
-        Format::Bc5 => {
+        _ => {
+            // BC5 (the only other format `main` accepts)
             let rg = plane(2);
             let s = intel_tex_2::RgSurface { data: &rg, width: w, height: h, stride: 2 * w };
             intel_tex_2::bc5::compress_blocks(&s)

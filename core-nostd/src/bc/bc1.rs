@@ -256,22 +256,18 @@ fn axis_ends(pixels: &[[u8; 3]; BLOCK_PIXELS], valid: u16) -> Option<([u8; 3], [
     }
     // Start from the covariance row of the widest channel; iterate v ← cov·v, kept below 2^16.
     let widest = (0..3).max_by_key(|&c| cov.get(c).and_then(|r| r.get(c)).copied().unwrap_or(0))?;
+    // v scaled down (arithmetic shift) to below 2^16, or `None` if it is zero.
+    let small = |v: [i64; 3]| -> Option<[i64; 3]> {
+        let scale = v.iter().map(|c| c.unsigned_abs()).max().filter(|&s| s != 0)?;
+        let shift = (64 - scale.leading_zeros()).saturating_sub(16);
+        Some(v.map(|c| c >> shift))
+    };
     let mut v = cov.get(widest).copied().unwrap_or([0; 3]);
     for _ in 0..8 {
-        let scale = v.iter().map(|c| c.unsigned_abs()).max().unwrap_or(0);
-        if scale == 0 {
-            return None;
-        }
-        let shift = (64 - scale.leading_zeros()).saturating_sub(16);
-        let s: [i64; 3] = v.map(|c| c >> shift);
+        let s = small(v)?;
         v = cov.map(|row| row.iter().zip(&s).map(|(a, b)| a * b).sum());
     }
-    let scale = v.iter().map(|c| c.unsigned_abs()).max().unwrap_or(0);
-    if scale == 0 {
-        return None;
-    }
-    let shift = (64 - scale.leading_zeros()).saturating_sub(16);
-    let v: [i64; 3] = v.map(|c| c >> shift);
+    let v = small(v)?;
     let project = |p: &[u8; 3]| -> i64 { dev(p).iter().zip(&v).map(|(a, b)| a * b).sum() };
     let lo = used().min_by_key(|p| project(p))?;
     let hi = used().max_by_key(|p| project(p))?;

@@ -29,10 +29,10 @@ const ASCENDING_EIGHT: [u8; 8] = [1, 7, 6, 5, 4, 3, 2, 0];
 const ASCENDING_SIX: [u8; 8] = [6, 0, 2, 3, 4, 5, 1, 7];
 
 /// The indices of the nearest palette entries of endpoints `a0`, `a1` (the smaller value on a
-/// tie) and their squared error over the valid pixels. The entries are sorted, so a pixel's
-/// entry is the number of midpoints between neighbours below it: seven comparisons per pixel,
-/// which the compiler runs on all 16 pixels at once.
-fn fit(values: &[u8; BLOCK_PIXELS], valid: u16, a0: u8, a1: u8) -> (u32, u64) {
+/// tie; index 0 for pixels that do not count). The entries are sorted, so a pixel's entry is the
+/// number of midpoints between neighbours below it: seven comparisons per pixel, which the
+/// compiler runs on all 16 pixels at once.
+fn indices(values: &[u8; BLOCK_PIXELS], valid: u16, a0: u8, a1: u8) -> u64 {
     let p = palette(a0, a1);
     let order = if a0 > a1 { ASCENDING_EIGHT } else { ASCENDING_SIX };
     let sorted = order.map(|k| u16::from(p.get(usize::from(k)).copied().unwrap_or(0)));
@@ -44,29 +44,15 @@ fn fit(values: &[u8; BLOCK_PIXELS], valid: u16, a0: u8, a1: u8) -> (u32, u64) {
             *at += u8::from(2 * u16::from(v) > mid);
         }
     }
-    let mut error = 0;
     let mut indices = 0u64;
-    for (i, (&v, &at)) in values.iter().zip(&position).enumerate() {
-        if counts(valid, i) {
-            let q = sorted.get(usize::from(at)).copied().unwrap_or(0);
-            let d = u32::from(u16::from(v).abs_diff(q));
-            error += d * d;
-            indices |= u64::from(order.get(usize::from(at)).copied().unwrap_or(0)) << (3 * i);
-        }
+    for (i, &at) in position.iter().enumerate().filter(|&(i, _)| counts(valid, i)) {
+        indices |= u64::from(order.get(usize::from(at)).copied().unwrap_or(0)) << (3 * i);
     }
-    (error, indices)
-}
-
-/// A block's squared error, endpoints and indices.
-type Candidate = (u32, u8, u8, u64);
-
-fn fit_candidate(values: &[u8; BLOCK_PIXELS], valid: u16, a0: u8, a1: u8) -> Candidate {
-    let (error, indices) = fit(values, valid, a0, a1);
-    (error, a0, a1, indices)
+    indices
 }
 
 /// The squared error of endpoints `a0`, `a1` over the pixels of `mask` (1 valid, 0 not), each
-/// pixel at its nearest palette entry: [`fit`]'s error, computed on all 16 pixels at once in
+/// pixel at its nearest palette entry (as [`indices`] picks it), computed on all 16 pixels at once in
 /// 16-bit lanes (a squared difference of bytes fits 16 bits).
 fn error(values: &[u16; BLOCK_PIXELS], mask: &[u16; BLOCK_PIXELS], a0: u8, a1: u8) -> u32 {
     let p = palette(a0, a1);
@@ -134,7 +120,7 @@ pub fn encode_bc4(values: &[u8; BLOCK_PIXELS], valid: u16) -> [u8; 8] {
             *best = Some((e, a0, a1));
         }
     };
-    // One value: both endpoints equal to it, every index 0.
+    // The extremes themselves (for a block of one value: both endpoints equal to it).
     consider(&mut best, hi, lo);
     if lo != hi {
         // Eight values (a0 > a1): ramps on which the extremes fall on entries i < j of the 8
@@ -163,11 +149,11 @@ pub fn encode_bc4(values: &[u8; BLOCK_PIXELS], valid: u16) -> [u8; 8] {
             consider(&mut best, 0, 0);
         }
     }
-    // Least-squares endpoints for the best indices so far, and their neighbours, twice.
+    // Least-squares endpoints for the best indices so far, and their neighbours, three times.
     for _ in 0..3 {
         let Some((_, a0, a1)) = best else { break };
-        let (_, _, _, indices) = fit_candidate(values, valid, a0, a1);
-        let Some((e0, e1)) = refine(values, valid, a0 > a1, indices) else { break };
+        let fitted = indices(values, valid, a0, a1);
+        let Some((e0, e1)) = refine(values, valid, a0 > a1, fitted) else { break };
         for a0 in e0.saturating_sub(1)..=e0.saturating_add(1) {
             for a1 in e1.saturating_sub(1)..=e1.saturating_add(1) {
                 if (a0 > a1) == (e0 > e1) {
@@ -177,8 +163,7 @@ pub fn encode_bc4(values: &[u8; BLOCK_PIXELS], valid: u16) -> [u8; 8] {
         }
     }
     let (_, a0, a1) = best.unwrap_or((0, lo, lo));
-    let (_, _, _, indices) = fit_candidate(values, valid, a0, a1);
-    let bits = u64::from(a0) | (u64::from(a1) << 8) | (indices << 16);
+    let bits = u64::from(a0) | (u64::from(a1) << 8) | (indices(values, valid, a0, a1) << 16);
     bits.to_le_bytes()
 }
 

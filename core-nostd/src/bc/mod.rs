@@ -45,6 +45,44 @@ pub fn valid_mask(bx: u32, by: u32, width: u32, height: u32) -> u16 {
     (0..rows).fold(0, |mask, y| mask | (row << (4 * y)))
 }
 
+/// Encodes one block of `format` from RGB pixels (BC4 reads R; BC5 R and G) into the first
+/// `format.block_bytes()` bytes of `out` (nothing if `out` is shorter).
+pub fn encode_block(
+    format: BcFormat,
+    pixels: &[[u8; 3]; BLOCK_PIXELS],
+    valid: u16,
+    out: &mut [u8],
+) {
+    let channel = |c: usize| -> [u8; BLOCK_PIXELS] {
+        core::array::from_fn(|i| pixels.get(i).and_then(|p| p.get(c)).copied().unwrap_or(0))
+    };
+    let Some(dst) = out.get_mut(..format.block_bytes()) else { return };
+    match format {
+        BcFormat::Bc1 => dst.copy_from_slice(&encode_bc1(pixels, valid)),
+        BcFormat::Bc4 => dst.copy_from_slice(&encode_bc4(&channel(0), valid)),
+        BcFormat::Bc5 => dst.copy_from_slice(&encode_bc5(&channel(0), &channel(1), valid)),
+    }
+}
+
+/// Decodes one block of `format` (its first `format.block_bytes()` bytes; missing bytes read as
+/// 0) into RGB pixels: BC1's colours (transparent black as 0), BC4 in R, BC5 in R and G; the
+/// other channels 0.
+pub fn decode_block(format: BcFormat, block: &[u8]) -> [[u8; 3]; BLOCK_PIXELS] {
+    let bytes = |from: usize| -> [u8; 8] {
+        core::array::from_fn(|k| block.get(from + k).copied().unwrap_or(0))
+    };
+    match format {
+        BcFormat::Bc1 => decode_bc1(&bytes(0)).map(|[r, g, b, _]| [r, g, b]),
+        BcFormat::Bc4 => decode_bc4(&bytes(0)).map(|v| [v, 0, 0]),
+        BcFormat::Bc5 => {
+            let (r, g) = (decode_bc4(&bytes(0)), decode_bc4(&bytes(8)));
+            core::array::from_fn(|i| {
+                [r.get(i).copied().unwrap_or(0), g.get(i).copied().unwrap_or(0), 0]
+            })
+        }
+    }
+}
+
 /// `(a − b)²` of two codes.
 fn sq(a: u8, b: u8) -> u32 {
     let d = u32::from(a.abs_diff(b));

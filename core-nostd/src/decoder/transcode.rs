@@ -3,7 +3,7 @@
 //! with [`crate::bc`], so nothing the size of a mip is ever materialized.
 
 use super::Decoder;
-use crate::bc::{self, BLOCK_PIXELS, BcFormat, BcTexture};
+use crate::bc::{self, BLOCK_PIXELS, BcTexture};
 use crate::decode::ChannelMask;
 use crate::error::{Argument, Error};
 use crate::material::Material;
@@ -81,11 +81,8 @@ impl Decoder {
             0 => 0,
             n => (n as usize - 1).saturating_mul(row_pitch).saturating_add(row_bytes),
         };
-        if out.len() < needed || region.width == 0 {
-            if out.len() < needed {
-                return Err(bad(Argument::Output, out.len(), needed));
-            }
-            return Ok(());
+        if out.len() < needed {
+            return Err(bad(Argument::Output, out.len(), needed));
         }
         let n = rows.count_ones() as usize;
         // Where each component of the texture sits among the decoded channels (ascending order).
@@ -103,9 +100,10 @@ impl Decoder {
                 for y in 0..4u32 {
                     let row = band.get_mut(y as usize * 4 * CHUNK * n..).unwrap_or(&mut []);
                     if 4 * by + y < h {
-                        let (x0, yy) = (i64::from(4 * bx), i64::from(4 * by + y));
-                        let channels = ChannelMask(rows);
-                        self.decode_span_u8(material, x0, yy, mip, texels, channels, row)?;
+                        // Checked above: the material, the channels, and a band row holds
+                        // 4·CHUNK texels of n channels.
+                        let at = (i64::from(4 * bx), i64::from(4 * by + y), mip);
+                        self.span_codes(material, at, texels, (rows, n), row, 255, |c| c as u8);
                     }
                 }
                 for k in 0..blocks {
@@ -116,24 +114,11 @@ impl Decoder {
                         let pick = picks.get(comp).copied().unwrap_or(0);
                         band.get((y * 4 * CHUNK + x) * n + pick).copied().unwrap_or(0)
                     };
+                    let px: [[u8; 3]; BLOCK_PIXELS] =
+                        core::array::from_fn(|i| [at(i, 0), at(i, 1), at(i, 2)]);
                     let start = (cx - region.x) as usize * block_bytes;
-                    let Some(dst) = row_out.get_mut(start..start + block_bytes) else { continue };
-                    match texture.format {
-                        BcFormat::Bc1 => {
-                            let px: [[u8; 3]; BLOCK_PIXELS] =
-                                core::array::from_fn(|i| [at(i, 0), at(i, 1), at(i, 2)]);
-                            dst.copy_from_slice(&bc::encode_bc1(&px, valid));
-                        }
-                        BcFormat::Bc4 => {
-                            let v: [u8; BLOCK_PIXELS] = core::array::from_fn(|i| at(i, 0));
-                            dst.copy_from_slice(&bc::encode_bc4(&v, valid));
-                        }
-                        BcFormat::Bc5 => {
-                            let r: [u8; BLOCK_PIXELS] = core::array::from_fn(|i| at(i, 0));
-                            let g: [u8; BLOCK_PIXELS] = core::array::from_fn(|i| at(i, 1));
-                            dst.copy_from_slice(&bc::encode_bc5(&r, &g, valid));
-                        }
-                    }
+                    let dst = row_out.get_mut(start..).unwrap_or(&mut []);
+                    bc::encode_block(texture.format, &px, valid, dst);
                 }
                 bx += blocks as u32;
             }
