@@ -5,7 +5,8 @@
 //! not reported).
 //!
 //! Usage: nmat-bc FORMAT IMAGE...   (FORMAT: bc1 = RGB, bc4 = the first channel, bc5 = the first
-//! two; images with sides a multiple of 4). Prints one row per image:
+//! two, bc7 = RGB). For BC7 the reference is ISPC's `basic` profile (its second best of five;
+//! NVTT 2.0 has no BC7, so that column is empty). Prints one row per image:
 //! image,format,nmat_psnr_db,nvcompress_psnr_db,intel_psnr_db,nmat_ms,intel_ms. All blocks are
 //! decoded with the core's decoders (which agree with `bcdec`), so the columns differ only by
 //! encoder.
@@ -15,12 +16,14 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Instant;
 
-/// The 16 pixels (RGB) of block (bx, by), edge pixels repeated past the image, and its mask.
-fn block(img: &image::RgbImage, bx: u32, by: u32) -> ([[u8; 3]; 16], u16) {
+/// The 16 pixels (RGBA, alpha 255) of block (bx, by), edge pixels repeated past the image, and
+/// its mask.
+fn block(img: &image::RgbImage, bx: u32, by: u32) -> ([[u8; 4]; 16], u16) {
     let (w, h) = img.dimensions();
     let px = std::array::from_fn(|i| {
         let (x, y) = ((4 * bx + i as u32 % 4).min(w - 1), (4 * by + i as u32 / 4).min(h - 1));
-        img.get_pixel(x, y).0
+        let [r, g, b] = img.get_pixel(x, y).0;
+        [r, g, b, 255]
     });
     (px, bc::valid_mask(bx, by, w, h))
 }
@@ -67,7 +70,10 @@ fn psnr((sse, n): (f64, f64)) -> f64 {
 
 /// nvcompress's blocks for the same pixels (its BC4 reads the alpha channel: the value goes in
 /// all four).
-fn nvcompress(img: &image::RgbImage, f: Format, dir: &Path) -> Vec<u8> {
+fn nvcompress(img: &image::RgbImage, f: Format, dir: &Path) -> Option<Vec<u8>> {
+    if f == Format::Bc7Rgb {
+        return None;
+    }
     let (src, dds) = (dir.join("in.png"), dir.join("out.dds"));
     let rgba = image::RgbaImage::from_fn(img.width(), img.height(), |x, y| {
         let [r, g, b] = img.get_pixel(x, y).0;
@@ -84,7 +90,7 @@ fn nvcompress(img: &image::RgbImage, f: Format, dir: &Path) -> Vec<u8> {
     assert!(out.status.success(), "nvcompress: {}", String::from_utf8_lossy(&out.stderr));
     let bytes = std::fs::read(&dds).expect("dds written");
     let at = if bytes.get(84..88) == Some(b"DX10") { 148 } else { 128 };
-    bytes[at..].to_vec()
+    Some(bytes[at..].to_vec())
 }
 
 /// Intel's ISPC encoder on the same pixels (its default, and only, quality for these formats).
@@ -93,11 +99,12 @@ fn intel(img: &image::RgbImage, f: Format) -> Vec<u8> {
     let rgb = img.as_raw();
     let plane =
         |n: usize| -> Vec<u8> { rgb.chunks_exact(3).flat_map(|p| p[..n].to_vec()).collect() };
+    let rgba: Vec<u8> = rgb.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect();
+    let surface = intel_tex_2::RgbaSurface { data: &rgba, width: w, height: h, stride: 4 * w };
     match f {
-        Format::Bc1 => {
-            let rgba: Vec<u8> = rgb.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect();
-            let s = intel_tex_2::RgbaSurface { data: &rgba, width: w, height: h, stride: 4 * w };
-            intel_tex_2::bc1::compress_blocks(&s)
+        Format::Bc1 => intel_tex_2::bc1::compress_blocks(&surface),
+        Format::Bc7Rgb => {
+            intel_tex_2::bc7::compress_blocks(&intel_tex_2::bc7::opaque_basic_settings(), &surface)
         }
         Format::Bc4 => {
             let r = plane(1);
@@ -120,14 +127,15 @@ fn intel(img: &image::RgbImage, f: Format) -> Vec<u8> {
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let Some((format, images)) = args.split_first() else {
-        eprintln!("usage: nmat-bc bc1|bc4|bc5 IMAGE...");
+        eprintln!("usage: nmat-bc bc1|bc4|bc5|bc7 IMAGE...");
         std::process::exit(2);
     };
     let f = match format.as_str() {
         "bc1" => Format::Bc1,
         "bc4" => Format::Bc4,
         "bc5" => Format::Bc5,
-        other => panic!("FORMAT {other:?}: bc1, bc4 or bc5"),
+        "bc7" => Format::Bc7Rgb,
+        other => panic!("FORMAT {other:?}: bc1, bc4, bc5 or bc7"),
     };
     let dir = std::env::temp_dir().join(format!("nmat-bc-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");
@@ -143,9 +151,12 @@ fn main() {
         let nv = nvcompress(&img, f, &dir);
         let blocks = ours.len();
         println!(
-            "{path},{format},{:.3},{:.3},{:.3},{ms:.1},{intel_ms:.1}",
+            "{path},{format},{:.3},{},{:.3},{ms:.1},{intel_ms:.1}",
             psnr(error(&img, f, &ours)),
-            psnr(error(&img, f, &nv[..blocks.min(nv.len())])),
+            nv.map_or(String::new(), |nv| format!(
+                "{:.3}",
+                psnr(error(&img, f, &nv[..blocks.min(nv.len())]))
+            )),
             psnr(error(&img, f, &isp)),
         );
     }

@@ -59,6 +59,30 @@ pub struct Channel<'a> {
     pub range_max: f32,
 }
 
+impl Channel<'_> {
+    /// The usual range of this channel's values in image files: [−1, 1] for the X, Y and Z of a
+    /// normal map (stored as `(n + 1)/2`), [0, 1] for everything else.
+    pub fn nominal_range(&self) -> (f32, f32) {
+        if self.semantic == Semantic::NORMAL && self.component < 3 {
+            (-1.0, 1.0)
+        } else {
+            (0.0, 1.0)
+        }
+    }
+
+    /// For a constant channel (`range_min == range_max`, nothing decoded), the 8-bit code of its
+    /// value in [`Channel::nominal_range`] (clamped), as an image or a transcoded texture holds it;
+    /// `None` for a decoded channel, whose 8-bit codes are its units.
+    pub fn constant_code(&self) -> Option<u8> {
+        if self.range_min != self.range_max {
+            return None;
+        }
+        let (lo, hi) = self.nominal_range();
+        let unit = ((self.range_min - lo) / (hi - lo)).clamp(0.0, 1.0);
+        Some(libm::roundf(unit * 255.0) as u8)
+    }
+}
+
 /// How a term of a feature level reads its grids (FORMAT.md §6.3).
 #[non_exhaustive]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -48,9 +48,7 @@ pub fn unit_of(m: &Material<'_>, channel: usize, decoded_unit: f32) -> f32 {
     let ch = &m.channels()[channel];
     if ch.range_min == ch.range_max {
         // A constant channel: its value is the range; back to the map's unit scale.
-        let role =
-            crate::texset::Role::from_semantic(ch.semantic).unwrap_or(crate::texset::Role::Albedo);
-        let (lo, hi) = role.nominal_range(ch.component);
+        let (lo, hi) = ch.nominal_range();
         (ch.range_min - lo) / (hi - lo)
     } else {
         decoded_unit

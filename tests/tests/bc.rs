@@ -3,7 +3,8 @@
 //! decodes to the same values with both.
 
 use nmat_core::bc::{
-    ALL_VALID, decode_bc1, decode_bc4, decode_bc5, encode_bc1, encode_bc4, encode_bc5, valid_mask,
+    ALL_VALID, decode_bc1, decode_bc4, decode_bc5, decode_bc7, encode_bc1, encode_bc4, encode_bc5,
+    encode_bc7, valid_mask,
 };
 
 struct Rng(u64);
@@ -34,6 +35,12 @@ fn peer_bc5(block: &[u8; 16]) -> ([u8; 16], [u8; 16]) {
     (std::array::from_fn(|i| rg[2 * i]), std::array::from_fn(|i| rg[2 * i + 1]))
 }
 
+fn peer_bc7(block: &[u8; 16]) -> [[u8; 4]; 16] {
+    let mut rgba = [0u8; 64];
+    bcdec_rs::bc7(block, &mut rgba, 16);
+    std::array::from_fn(|i| [rgba[4 * i], rgba[4 * i + 1], rgba[4 * i + 2], rgba[4 * i + 3]])
+}
+
 /// Random bytes as blocks, and every endpoint pair of BC4 (both palette modes): the same values.
 #[test]
 fn any_block_decodes_like_bcdec() {
@@ -47,6 +54,11 @@ fn any_block_decodes_like_bcdec() {
         ab[..8].copy_from_slice(&a);
         ab[8..].copy_from_slice(&b);
         assert_eq!(decode_bc5(&ab), peer_bc5(&ab), "BC5 {ab:02x?}");
+        // Every BC7 mode equally often (the first byte's lowest set bit), and the reserved one.
+        let mut bc7 = ab;
+        let mode = rng.next() % 9;
+        bc7[0] = if mode == 8 { 0 } else { (bc7[0] | 1) << mode };
+        assert_eq!(decode_bc7(&bc7), peer_bc7(&bc7), "BC7 {bc7:02x?}");
     }
     for a0 in 0..=255u8 {
         for a1 in 0..=255u8 {
@@ -63,6 +75,7 @@ fn any_block_decodes_like_bcdec() {
 fn encoded_images_decode_like_bcdec() {
     let (w, h) = (37u32, 29u32);
     let mut rng = Rng(17);
+    let mut modes = [0usize; 8];
     let pixel = |x: u32, y: u32, rng: &mut Rng| -> [u8; 3] {
         let n = (rng.next() % 19) as i32 - 9;
         let edge = if (x + 2 * y) % 23 < 11 { 90 } else { 0 };
@@ -94,6 +107,18 @@ fn encoded_images_decode_like_bcdec() {
             assert_eq!(decode_bc4(&b4), peer_bc4(&b4));
             let b5 = encode_bc5(&r, &g, valid);
             assert_eq!(decode_bc5(&b5), peer_bc5(&b5));
+            // BC7: RGB, and RGBA with an alpha from the red and blue channels.
+            let rgba: [[u8; 4]; 16] = std::array::from_fn(|i| {
+                let [r, g, b] = rgb[i];
+                [r, g, b, if (bx + by) % 3 == 0 { 255 } else { r / 2 + b / 3 }]
+            });
+            let b7 = encode_bc7(&rgba, valid, false);
+            assert_eq!(decode_bc7(&b7), peer_bc7(&b7));
+            assert!(decode_bc7(&b7).iter().all(|p| p[3] == 255), "an RGB block is opaque");
+            let b7a = encode_bc7(&rgba, valid, true);
+            assert_eq!(decode_bc7(&b7a), peer_bc7(&b7a));
+            modes[usize::from(b7[0].trailing_zeros() as u8)] += 1;
+            modes[usize::from(b7a[0].trailing_zeros() as u8)] += 1;
             if valid != ALL_VALID {
                 let other: [[u8; 3]; 16] =
                     std::array::from_fn(
@@ -102,9 +127,14 @@ fn encoded_images_decode_like_bcdec() {
                         },
                     );
                 assert_eq!(encode_bc1(&other, valid), b1, "block ({bx}, {by})");
+                let other4: [[u8; 4]; 16] =
+                    std::array::from_fn(|i| if (valid >> i) & 1 != 0 { rgba[i] } else { [9; 4] });
+                assert_eq!(encode_bc7(&other4, valid, true), b7a, "block ({bx}, {by})");
             }
         }
     }
+    // The image exercises the BC7 encoder's modes: 1, 2, 3 and 6 opaque, 5 or 6 with alpha.
+    assert!(modes[6] > 0 && modes[1] + modes[2] + modes[3] > 0, "modes {modes:?}");
 }
 
 /// Every fixture (odd sizes, 1×1, strips, 16 channels): each texture of the default layout,
@@ -113,7 +143,7 @@ fn encoded_images_decode_like_bcdec() {
 /// same with every kernel the CPU has, and when the mip is split into regions.
 #[test]
 fn transcoded_mips_equal_blocks_of_decoded_texels() {
-    use nmat_core::bc::{BcFormat, default_layout};
+    use nmat_core::bc::{BcFormat, default_layout, encode_block, layout_with};
     use nmat_core::{BlockRegion, ChannelMask, Container, Decoder, Kernel};
     let dir = nmat_tests::fixtures_dir();
     let mut files: Vec<_> = std::fs::read_dir(&dir)
@@ -135,7 +165,9 @@ fn transcoded_mips_equal_blocks_of_decoded_texels() {
             .count();
         let covered = layout.iter().map(|t| t.channel_list().len()).sum::<usize>();
         assert_eq!(covered + normal_z, m.channel_count(), "{}", file.display());
-        for texture in &layout {
+        // And every map in BC7 (RGB, or RGBA for maps of four channels).
+        let bc7 = layout_with(&m, |_| Some(BcFormat::Bc7Rgb));
+        for texture in layout.iter().chain(&bc7) {
             for mip in 0..m.mip_count() {
                 let (w, h) = m.mip_size(mip);
                 let region = BlockRegion::mip(&m, mip);
@@ -145,10 +177,10 @@ fn transcoded_mips_equal_blocks_of_decoded_texels() {
                 for by in 0..region.height {
                     for bx in 0..region.width {
                         let valid = valid_mask(bx, by, w, h);
-                        let px: [[u8; 3]; 16] = std::array::from_fn(|i| {
+                        let px: [[u8; 4]; 16] = std::array::from_fn(|i| {
                             let (x, y) = (4 * bx + i as u32 % 4, 4 * by + i as u32 / 4);
                             if x >= w || y >= h {
-                                return [0; 3];
+                                return [0; 4];
                             }
                             let mut all = [0u8; 16];
                             let n = m
@@ -164,15 +196,11 @@ fn transcoded_mips_equal_blocks_of_decoded_texels() {
                             let c = |k: usize| {
                                 texture.channel_list().get(k).map_or(0, |&c| all[usize::from(c)])
                             };
-                            [c(0), c(1), c(2)]
+                            [c(0), c(1), c(2), c(3)]
                         });
-                        let ch = |k: usize| -> [u8; 16] { std::array::from_fn(|i| px[i][k]) };
-                        match texture.format {
-                            BcFormat::Bc1 => want.extend(encode_bc1(&px, valid)),
-                            BcFormat::Bc4 => want.extend(encode_bc4(&ch(0), valid)),
-                            BcFormat::Bc5 => want.extend(encode_bc5(&ch(0), &ch(1), valid)),
-                            _ => unreachable!("a format the layout does not pick"),
-                        }
+                        let mut block = [0u8; 16];
+                        encode_block(texture.format, &px, valid, &mut block);
+                        want.extend(&block[..bb]);
                     }
                 }
                 let row = region.width as usize * bb;
@@ -220,7 +248,7 @@ fn transcode_refuses_bad_arguments() {
     let bytes = std::fs::read(nmat_tests::fixtures_dir().join("ntc_rgb_64.nmat")).unwrap();
     let m = Container::parse(&bytes).unwrap();
     let d = Decoder::new(&m);
-    let t = BcTexture { format: BcFormat::Bc1, channels: [0, 1, 2], srgb: true };
+    let t = BcTexture { format: BcFormat::Bc1, channels: [0, 1, 2, 2], srgb: true };
     let all = BlockRegion::mip(&m, 0);
     let row = all.width as usize * 8;
     let mut out = vec![0u8; row * all.height as usize];
@@ -249,12 +277,12 @@ fn transcode_refuses_bad_arguments() {
         argument(d.transcode_blocks(&m, &t, 0, all, &mut out[..short], row).unwrap_err()),
         Argument::Output
     );
-    let missing = BcTexture { channels: [0, 1, 3], ..t };
+    let missing = BcTexture { channels: [0, 1, 3, 3], ..t };
     assert_eq!(
         argument(d.transcode_blocks(&m, &missing, 0, all, &mut out, row).unwrap_err()),
         Argument::Channels
     );
-    let beyond = BcTexture { channels: [0, 1, 200], ..t };
+    let beyond = BcTexture { channels: [0, 1, 200, 0], ..t };
     assert_eq!(
         argument(d.transcode_blocks(&m, &beyond, 0, all, &mut out, row).unwrap_err()),
         Argument::Channels
@@ -265,4 +293,37 @@ fn transcode_refuses_bad_arguments() {
     let e =
         d.transcode_blocks(&other, &t, 0, BlockRegion::mip(&other, 0), &mut out, row).unwrap_err();
     assert_eq!(argument(e), Argument::Material);
+}
+
+/// A constant channel (range_min = range_max: nothing decoded) transcodes to its value's code in
+/// the usual range of image files: 0.75 of an AO map is 191, a normal X of 0 (stored as
+/// (n + 1)/2) is 128 — whatever the network outputs for it.
+#[test]
+fn constant_channels_transcode_to_their_value() {
+    use nmat_core::bc::{BcFormat, BcTexture, decode_block};
+    use nmat_core::{BlockRegion, Container, Decoder};
+    use nmat_tests::generate::{FixtureConfig, generate};
+    let mut spec = generate(&FixtureConfig::ntc("constants", 9, 20, 12, 10));
+    let (normal_x, ao) = (3, 8);
+    assert_eq!(spec.channels[normal_x].semantic, nmat_core::Semantic::NORMAL);
+    assert_eq!(spec.channels[ao].semantic, nmat_core::Semantic::AMBIENT_OCCLUSION);
+    for (c, v) in [(normal_x, 0.0), (ao, 0.75)] {
+        spec.channels[c].range_min = v;
+        spec.channels[c].range_max = v;
+    }
+    let bytes = spec.to_bytes().unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    let texture = BcTexture {
+        format: BcFormat::Bc5,
+        channels: [normal_x as u8, ao as u8, 0, 0],
+        srgb: false,
+    };
+    let d = Decoder::new(&m);
+    let region = BlockRegion::mip(&m, 0);
+    let row = region.width as usize * 16;
+    let mut out = vec![0u8; row * region.height as usize];
+    d.transcode_blocks(&m, &texture, 0, region, &mut out, row).unwrap();
+    for block in out.chunks(16) {
+        assert!(decode_block(BcFormat::Bc5, block).iter().all(|p| p[0] == 128 && p[1] == 191));
+    }
 }

@@ -1,5 +1,6 @@
 //! GPU block compression: encoders and decoders for the BC formats engines sample with hardware
-//! filtering (BC1 for RGB, BC4 for one channel, BC5 for two), so a material decoded at load time
+//! filtering (BC1 for RGB, BC4 for one channel, BC5 for two, BC7 for RGB or RGBA at higher
+//! quality), so a material decoded at load time
 //! can be handed to an unchanged shader as an ordinary block-compressed texture.
 //!
 //! Every function works on one 4×4 block: `no_std`, no allocation, and integer arithmetic only,
@@ -16,6 +17,7 @@
 //!
 //! Which file holds what: `bc1.rs` (BC1: principal-axis endpoints, least-squares refinement,
 //! exact single-colour matches), `bc4.rs` (BC4 and BC5: endpoint search in both palette modes),
+//! `bc7.rs` (BC7: the decoder for every mode, the encoder in modes 1, 2, 3, 5 and 6),
 //! `layout.rs` (which material channels go into which BC texture). Whole regions of a material
 //! are transcoded by `Decoder::transcode_blocks` (feature `alloc`).
 //!
@@ -24,11 +26,15 @@
 
 mod bc1;
 mod bc4;
+mod bc7;
 mod layout;
 
 pub use bc1::{decode_bc1, encode_bc1};
 pub use bc4::{decode_bc4, decode_bc5, encode_bc4, encode_bc5};
-pub use layout::{BcFormat, BcTexture, default_layout};
+pub use bc7::{decode_bc7, encode_bc7};
+pub use layout::{
+    BcFormat, BcTexture, MapChannels, auto_textures, default_layout, layout_with, maps, textures_in,
+};
 
 /// Pixels of a block.
 pub const BLOCK_PIXELS: usize = 16;
@@ -45,11 +51,11 @@ pub fn valid_mask(bx: u32, by: u32, width: u32, height: u32) -> u16 {
     (0..rows).fold(0, |mask, y| mask | (row << (4 * y)))
 }
 
-/// Encodes one block of `format` from RGB pixels (BC4 reads R; BC5 R and G) into the first
-/// `format.block_bytes()` bytes of `out` (nothing if `out` is shorter).
+/// Encodes one block of `format` from RGBA pixels (BC1 and BC7 RGB read R, G, B; BC4 R; BC5 R
+/// and G) into the first `format.block_bytes()` bytes of `out` (nothing if `out` is shorter).
 pub fn encode_block(
     format: BcFormat,
-    pixels: &[[u8; 3]; BLOCK_PIXELS],
+    pixels: &[[u8; 4]; BLOCK_PIXELS],
     valid: u16,
     out: &mut [u8],
 ) {
@@ -58,27 +64,34 @@ pub fn encode_block(
     };
     let Some(dst) = out.get_mut(..format.block_bytes()) else { return };
     match format {
-        BcFormat::Bc1 => dst.copy_from_slice(&encode_bc1(pixels, valid)),
+        BcFormat::Bc1 => {
+            dst.copy_from_slice(&encode_bc1(&pixels.map(|[r, g, b, _]| [r, g, b]), valid))
+        }
         BcFormat::Bc4 => dst.copy_from_slice(&encode_bc4(&channel(0), valid)),
         BcFormat::Bc5 => dst.copy_from_slice(&encode_bc5(&channel(0), &channel(1), valid)),
+        BcFormat::Bc7Rgb => dst.copy_from_slice(&encode_bc7(pixels, valid, false)),
+        BcFormat::Bc7Rgba => dst.copy_from_slice(&encode_bc7(pixels, valid, true)),
     }
 }
 
 /// Decodes one block of `format` (its first `format.block_bytes()` bytes; missing bytes read as
-/// 0) into RGB pixels: BC1's colours (transparent black as 0), BC4 in R, BC5 in R and G; the
-/// other channels 0.
-pub fn decode_block(format: BcFormat, block: &[u8]) -> [[u8; 3]; BLOCK_PIXELS] {
+/// 0) into RGBA pixels: BC1's and BC7's colours and alpha, BC4 in R, BC5 in R and G (the other
+/// components 0, alpha 255).
+pub fn decode_block(format: BcFormat, block: &[u8]) -> [[u8; 4]; BLOCK_PIXELS] {
     let bytes = |from: usize| -> [u8; 8] {
         core::array::from_fn(|k| block.get(from + k).copied().unwrap_or(0))
     };
     match format {
-        BcFormat::Bc1 => decode_bc1(&bytes(0)).map(|[r, g, b, _]| [r, g, b]),
-        BcFormat::Bc4 => decode_bc4(&bytes(0)).map(|v| [v, 0, 0]),
+        BcFormat::Bc1 => decode_bc1(&bytes(0)),
+        BcFormat::Bc4 => decode_bc4(&bytes(0)).map(|v| [v, 0, 0, 255]),
         BcFormat::Bc5 => {
             let (r, g) = (decode_bc4(&bytes(0)), decode_bc4(&bytes(8)));
             core::array::from_fn(|i| {
-                [r.get(i).copied().unwrap_or(0), g.get(i).copied().unwrap_or(0), 0]
+                [r.get(i).copied().unwrap_or(0), g.get(i).copied().unwrap_or(0), 0, 255]
             })
+        }
+        BcFormat::Bc7Rgb | BcFormat::Bc7Rgba => {
+            decode_bc7(&core::array::from_fn(|k| block.get(k).copied().unwrap_or(0)))
         }
     }
 }

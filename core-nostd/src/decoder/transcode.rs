@@ -87,9 +87,14 @@ impl Decoder {
         let n = rows.count_ones() as usize;
         // Where each component of the texture sits among the decoded channels (ascending order).
         let slot = |c: u8| (rows & ((1u16 << c) - 1)).count_ones() as usize;
-        let picks: [usize; 3] =
+        let picks: [usize; 4] =
             core::array::from_fn(|k| texture.channel_list().get(k).map_or(0, |&c| slot(c)));
-        let mut band = [0u8; 4 * 4 * CHUNK * 3];
+        // A constant channel is not decoded: its code comes from its value.
+        let constants: [Option<u8>; 4] = core::array::from_fn(|k| {
+            let c = texture.channel_list().get(k)?;
+            material.channels().get(usize::from(*c))?.constant_code()
+        });
+        let mut band = [0u8; 4 * 4 * CHUNK * 4];
         for (r, by) in (region.y..y_end as u32).enumerate() {
             let row_out = out.get_mut(r * row_pitch..).unwrap_or(&mut []);
             let mut bx = region.x;
@@ -110,12 +115,15 @@ impl Decoder {
                     let (cx, cy) = (bx + k as u32, by);
                     let valid = bc::valid_mask(cx, cy, w, h);
                     let at = |i: usize, comp: usize| -> u8 {
+                        if let Some(&Some(code)) = constants.get(comp) {
+                            return code;
+                        }
                         let (x, y) = (4 * k + i % 4, i / 4);
                         let pick = picks.get(comp).copied().unwrap_or(0);
                         band.get((y * 4 * CHUNK + x) * n + pick).copied().unwrap_or(0)
                     };
-                    let px: [[u8; 3]; BLOCK_PIXELS] =
-                        core::array::from_fn(|i| [at(i, 0), at(i, 1), at(i, 2)]);
+                    let px: [[u8; 4]; BLOCK_PIXELS] =
+                        core::array::from_fn(|i| [at(i, 0), at(i, 1), at(i, 2), at(i, 3)]);
                     let start = (cx - region.x) as usize * block_bytes;
                     let dst = row_out.get_mut(start..).unwrap_or(&mut []);
                     bc::encode_block(texture.format, &px, valid, dst);
