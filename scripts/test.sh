@@ -1,16 +1,18 @@
 #!/usr/bin/env bash
 # The test suite, as a newcomer and CI run it: installs what the tests need that cargo cannot
-# (the lavapipe software Vulkan driver for the GPU tests; idempotent, skipped when present), then
-# runs every test.
+# (the lavapipe software Vulkan driver for the GPU tests, NVIDIA Texture Tools' nvdecompress as an
+# independent reader of the DDS files `nmat transcode` writes; idempotent, skipped when present),
+# then runs every test.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-if ! { dpkg -s mesa-vulkan-drivers && dpkg -s libvulkan1; } >/dev/null 2>&1; then
+packages=(mesa-vulkan-drivers libvulkan1 libnvtt-bin)
+if ! dpkg -s "${packages[@]}" >/dev/null 2>&1; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
-    echo "installing mesa-vulkan-drivers and libvulkan1 (apt): the GPU tests run on lavapipe," \
-      "a Vulkan driver on the CPU, when the machine has no GPU" >&2
-    apt-get update -qq && apt-get install -y -qq mesa-vulkan-drivers libvulkan1 >/dev/null
+    echo "installing ${packages[*]} (apt): the GPU tests run on lavapipe, a Vulkan driver on" \
+      "the CPU, when the machine has no GPU; nvdecompress reads the DDS files of the transcode test" >&2
+    apt-get update -qq && apt-get install -y -qq "${packages[@]}" >/dev/null
   else
-    echo "the GPU tests need a Vulkan driver; without a GPU: sudo apt-get install mesa-vulkan-drivers libvulkan1" >&2
+    echo "some tests need: sudo apt-get install ${packages[*]}" >&2
   fi
 fi
 # Mesa's drivers print "XDG_RUNTIME_DIR is invalid or not set" without one (e.g. as root in a

@@ -2,16 +2,19 @@
 //! so the fuzz target `cli` can drive them without a process per input. Not a stable API: use
 //! `nmat-core` (Rust) or the C API to read .nmat files from an application.
 
+pub mod gpu_files;
 pub mod input;
 pub mod output;
 pub mod progress;
+pub mod transcode;
 
 use std::path::Path;
 
 /// The command's input paths that need no training, on any bytes (the body of the fuzz target
 /// `cli`, and of the test that replays `fuzz/regressions/cli/`): the header checks of `nmat
 /// info/decode/eval/bench`, the SOURCE_MAPS section, `nmat info`'s description and `nmat
-/// decode`'s plan (and, for a small material, its maps written to a temporary folder), and a map
+/// decode`'s plan (and, for a small material, its maps written to a temporary folder), `nmat
+/// transcode`'s textures and file names (and, for a small material, their KTX2 and DDS bytes), and a map
 /// image decoded as `nmat encode` loads it, with a 64 MiB budget. Each ends in a result or an
 /// error; a panic is a bug.
 #[doc(hidden)]
@@ -24,6 +27,9 @@ pub fn exercise_untrusted(data: &[u8]) {
         let all: Vec<u32> = (0..m.mip_count()).collect();
         for (mips, png) in [(&[0][..], false), (&all[..], true)] {
             let Ok(plan) = output::DecodePlan::new(&m, mips, png) else { continue };
+            if png {
+                exercise_transcode(&m, plan.cost(&m).texels <= 1024);
+            }
             let _ = (plan.file_names(), plan.memory(&m));
             if plan.cost(&m).texels <= 1024 {
                 let name = format!("nmat-untrusted-{}", std::process::id());
@@ -37,4 +43,22 @@ pub fn exercise_untrusted(data: &[u8]) {
         }
     }
     let _ = nmat_encode::texset::decode_image(data, Path::new("map"), 64 << 20);
+}
+
+/// `nmat transcode` on an untrusted material: the plan and file names always, the files' bytes
+/// when `small`.
+fn exercise_transcode(m: &nmat_core::Material<'_>, small: bool) {
+    use transcode::{Choice, Container};
+    let choice = Choice { all: Some(nmat_core::bc::BcFormat::Bc7Rgb), by_semantic: Vec::new() };
+    for choice in [Choice::default(), choice] {
+        let plan = transcode::plan(m, &choice);
+        let decoder = nmat_core::Decoder::new(m);
+        for named in &plan {
+            let _ = transcode::file_name(named, Container::Ktx2);
+            let transcoded = || transcode::transcode(m, &decoder, &named.texture, &mut |_| {});
+            if small && let Ok(image) = transcoded() {
+                let _ = (Container::Ktx2.bytes(&image), Container::Dds.bytes(&image));
+            }
+        }
+    }
 }

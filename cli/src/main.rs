@@ -36,6 +36,9 @@ enum Command {
     Encode(EncodeArgs),
     /// Write the maps of a .nmat file back as images.
     Decode(DecodeArgs),
+    /// Transcode a .nmat file to GPU block-compressed textures (BC1/BC4/BC5/BC7, whole mip
+    /// chain) in KTX2 or DDS files, for engines that sample BC textures with unchanged shaders.
+    Transcode(TranscodeArgs),
     /// Print what a .nmat file holds.
     Info { input: PathBuf },
     /// Compare a .nmat file with the source maps: PSNR per map and mip, SSIM, BPPC.
@@ -210,6 +213,60 @@ struct DecodeArgs {
     max_memory: Option<u64>,
 }
 
+#[derive(Args)]
+struct TranscodeArgs {
+    input: PathBuf,
+    /// Output folder (created if missing).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// `auto`: from each map's meaning (albedo → BC1 sRGB, normal → BC5 of X/Y, one channel →
+    /// BC4, two → BC5, alpha → its own BC4); or one format for every map (bc7: RGB or RGBA,
+    /// higher quality at twice BC1's size).
+    #[arg(long, value_enum, default_value_t = FormatArg::Auto)]
+    format: FormatArg,
+    /// The format of the maps of one role, over --format: ROLE=FORMAT, e.g. albedo=bc7 (roles as
+    /// in `nmat encode --map`). Repeatable.
+    #[arg(long = "as", value_name = "ROLE=FORMAT")]
+    as_role: Vec<String>,
+    /// File container.
+    #[arg(long, value_enum, default_value_t = ContainerArg::Ktx2)]
+    container: ContainerArg,
+    /// Worker threads (default: all cores). The files do not depend on it.
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Replace files that already exist in the output folder.
+    #[arg(long)]
+    force: bool,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum FormatArg {
+    Auto,
+    Bc1,
+    Bc4,
+    Bc5,
+    Bc7,
+}
+
+impl FormatArg {
+    fn format(self) -> Option<nmat_core::bc::BcFormat> {
+        use nmat_core::bc::BcFormat;
+        match self {
+            FormatArg::Auto => None,
+            FormatArg::Bc1 => Some(BcFormat::Bc1),
+            FormatArg::Bc4 => Some(BcFormat::Bc4),
+            FormatArg::Bc5 => Some(BcFormat::Bc5),
+            FormatArg::Bc7 => Some(BcFormat::Bc7Rgb),
+        }
+    }
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum ContainerArg {
+    Ktx2,
+    Dds,
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match run(cli) {
@@ -227,6 +284,7 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Encode(args) => cmd_encode(args),
         Command::Decode(args) => cmd_decode(args),
+        Command::Transcode(args) => cmd_transcode(args),
         Command::Info { input } => {
             let bytes = read_nmat(&input)?;
             let m = parse(&bytes, &input)?;
@@ -547,6 +605,92 @@ fn cmd_decode(args: DecodeArgs) -> Result<()> {
         println!("wrote {}", w.display());
     }
     println!("decoded {} files in {:.1} s", written.len(), start.elapsed().as_secs_f64());
+    Ok(())
+}
+
+fn cmd_transcode(args: TranscodeArgs) -> Result<()> {
+    use nmat_cli::transcode::{self, Choice, Container};
+    threads(args.threads)?;
+    let mut choice = Choice { all: args.format.format(), by_semantic: Vec::new() };
+    for text in &args.as_role {
+        let (role, format) = text
+            .split_once('=')
+            .ok_or_else(|| format!("--as {text}: expected ROLE=FORMAT, e.g. albedo=bc7"))?;
+        let role = Role::parse(role.trim()).ok_or_else(|| {
+            let roles: Vec<&str> = Role::ALL.iter().map(|r| r.name()).collect();
+            format!("--as {text}: unknown role {role:?}; choose one of {}", roles.join(", "))
+        })?;
+        let format = FormatArg::from_str(format.trim(), true)
+            .ok()
+            .and_then(FormatArg::format)
+            .ok_or_else(|| format!("--as {text}: the format must be bc1, bc4, bc5 or bc7"))?;
+        choice.by_semantic.push((role.semantic(), format));
+    }
+    let container = match args.container {
+        ContainerArg::Ktx2 => Container::Ktx2,
+        ContainerArg::Dds => Container::Dds,
+    };
+    let bytes = read_nmat(&args.input)?;
+    let m = parse(&bytes, &args.input)?;
+    let plan = transcode::plan(&m, &choice);
+    let names: Vec<String> = plan.iter().map(|n| transcode::file_name(n, container)).collect();
+    if !args.force {
+        let existing: Vec<&String> =
+            names.iter().filter(|n| args.output.join(n).symlink_metadata().is_ok()).collect();
+        if let Some(first) = existing.first() {
+            return Err(format!(
+                "-o {}: {} of the files to write already exist ({first}{}); nothing was \
+                 written. Pass --force to replace them, or choose another folder",
+                args.output.display(),
+                existing.len(),
+                if existing.len() > 1 { ", …" } else { "" }
+            )
+            .into());
+        }
+    }
+    let start = Instant::now();
+    let decoder = nmat_core::Decoder::new(&m);
+    let per_texture = output::cost_of_mips(&m, 0..m.mip_count());
+    let cost = nmat_core::DecodeCost {
+        texels: per_texture.texels * plan.len() as u64,
+        macs: per_texture.macs * plan.len() as u64,
+    };
+    let written = with_decode_progress("transcode", cost, |progress| {
+        output::write_all_or_nothing(&args.output, |dir| {
+            let mut files = Vec::new();
+            for (named, name) in plan.iter().zip(&names) {
+                let image = transcode::transcode(&m, &decoder, &named.texture, progress)
+                    .map_err(|e| format!("{}: {e}", args.input.display()))?;
+                let path = dir.join(name);
+                output::write_atomic(&path, &container.bytes(&image))?;
+                files.push(path);
+            }
+            Ok(files)
+        })
+    })?;
+    for ((named, path), name) in plan.iter().zip(&written).zip(&names) {
+        let t = &named.texture;
+        let channels: Vec<&str> = t
+            .channel_list()
+            .iter()
+            .map(|&c| m.channels().get(usize::from(c)).map_or("?", |ch| ch.name))
+            .collect();
+        let size = std::fs::metadata(path).map_or(0, |md| md.len());
+        println!(
+            "wrote {name}  {}{}  {}  {size} bytes",
+            t.format.name(),
+            if t.srgb { " sRGB" } else { "" },
+            channels.join(" ")
+        );
+    }
+    println!(
+        "transcoded {}×{} ({} mips) to {} textures in {:.2} s",
+        m.width(),
+        m.height(),
+        m.mip_count(),
+        written.len(),
+        start.elapsed().as_secs_f64()
+    );
     Ok(())
 }
 

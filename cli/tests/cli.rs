@@ -626,3 +626,223 @@ fn fuzz_regression_inputs_of_the_cli_target_never_panic() {
     }
     assert!(count >= 3, "regression inputs missing in {}", dir.display());
 }
+
+/// The pixels of the uncompressed 24- or 32-bit TGA `nvdecompress` writes (BGR(A); the 15 alpha
+/// bits its header declares make the `image` crate refuse it), as a lookup of RGB by (x, y).
+fn read_nvtt_tga(bytes: &[u8]) -> impl Fn(u32, u32) -> [u8; 3] + '_ {
+    assert!(bytes[2] == 2 && (bytes[16] == 24 || bytes[16] == 32), "an uncompressed TGA");
+    let step = usize::from(bytes[16] / 8);
+    let (w, h) =
+        (u16::from_le_bytes([bytes[12], bytes[13]]), u16::from_le_bytes([bytes[14], bytes[15]]));
+    let top_down = bytes[17] & 0x20 != 0;
+    let data = &bytes[18 + usize::from(bytes[0])..];
+    move |x, y| {
+        let row = if top_down { y } else { u32::from(h) - 1 - y };
+        let at = step * (row as usize * usize::from(w) + x as usize);
+        [data[at + 2], data[at + 1], data[at]]
+    }
+}
+
+/// The blocks of every mip of `texture`, from the core's API: what a transcoded file must hold.
+fn blocks_of(m: &nmat_core::Material<'_>, texture: &nmat_core::bc::BcTexture) -> Vec<Vec<u8>> {
+    let d = nmat_core::Decoder::new(m);
+    (0..m.mip_count())
+        .map(|mip| {
+            let region = nmat_core::BlockRegion::mip(m, mip);
+            let row = region.width as usize * texture.format.block_bytes();
+            let mut out = vec![0u8; row * region.height as usize];
+            d.transcode_blocks(m, texture, mip, region, &mut out, row).unwrap();
+            out
+        })
+        .collect()
+}
+
+/// `nmat transcode` writes one file per texture of the layout, and independent readers accept
+/// them: the `ktx2` crate (header, every level's bytes, and the data format descriptor equal to
+/// the one it generates itself for the format), `ddsfile` (DXGI format, size, mip count, data),
+/// and NVIDIA's `nvdecompress` on the DDS files, whose pixels for BC1/BC4/BC5 are within one
+/// code of the core's decoder (NVTT rounds interpolated values down, the core to nearest).
+#[test]
+fn transcode_writes_ktx2_and_dds_that_independent_readers_accept() {
+    use nmat_cli::transcode::{Choice, file_name, plan};
+    use nmat_core::bc::BcFormat;
+    let fixture =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/ntc_pbr10_96x80_clamp.nmat");
+    let bytes = std::fs::read(&fixture).unwrap();
+    let m = nmat_core::Container::parse(&bytes).unwrap();
+    let dir = temp_dir("transcode");
+    let ktx_dir = dir.join("ktx2");
+    let o = nmat(&["transcode", fixture.to_str().unwrap(), "-o", ktx_dir.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    let auto = plan(&m, &Choice::default());
+    let names: Vec<String> =
+        auto.iter().map(|n| file_name(n, nmat_cli::transcode::Container::Ktx2)).collect();
+    assert_eq!(
+        names,
+        [
+            "albedo.bc1.ktx2",
+            "normal.bc5.ktx2",
+            "roughness.bc4.ktx2",
+            "height.bc4.ktx2",
+            "ao.bc4.ktx2",
+            "metallic.bc4.ktx2",
+        ]
+    );
+    assert_eq!(files_in(&ktx_dir), {
+        let mut sorted = names.clone();
+        sorted.sort();
+        sorted
+    });
+    for (named, name) in auto.iter().zip(&names) {
+        let file = std::fs::read(ktx_dir.join(name)).unwrap();
+        let r = ktx2::Reader::new(&file[..]).unwrap_or_else(|e| panic!("{name}: {e:?}"));
+        let h = r.header();
+        let format = match (named.texture.format, named.texture.srgb) {
+            (BcFormat::Bc1, true) => ktx2::Format::BC1_RGB_SRGB_BLOCK,
+            (BcFormat::Bc1, false) => ktx2::Format::BC1_RGB_UNORM_BLOCK,
+            (BcFormat::Bc4, _) => ktx2::Format::BC4_UNORM_BLOCK,
+            (BcFormat::Bc5, _) => ktx2::Format::BC5_UNORM_BLOCK,
+            other => panic!("{other:?} not in the auto layout"),
+        };
+        assert_eq!(h.format, Some(format), "{name}");
+        assert_eq!((h.pixel_width, h.pixel_height, h.type_size), (96, 80, 1), "{name}");
+        assert_eq!(h.level_count, m.mip_count(), "{name}");
+        assert_eq!(h.supercompression_scheme, None);
+        let levels: Vec<Vec<u8>> = r.levels().map(|l| l.data.to_vec()).collect();
+        assert_eq!(levels, blocks_of(&m, &named.texture), "{name}");
+        let (want, _) = ktx2::dfd::Basic::from_format(format).unwrap();
+        assert_eq!(r.basic_dfd(), Some(&want), "{name}: data format descriptor");
+        assert_eq!(r.writer().map(|w| w.starts_with("nmat ")), Some(true));
+    }
+
+    // DDS, with the albedo in BC7 and everything else in BC1 (gray maps as gray BC1): DX10 for
+    // the sRGB ones, the legacy FourCC DXT1 for the others; and the auto layout (ATI1, ATI2).
+    let dds_dir = dir.join("dds");
+    let o = nmat(&[
+        "transcode",
+        fixture.to_str().unwrap(),
+        "-o",
+        dds_dir.to_str().unwrap(),
+        "--container",
+        "dds",
+        "--format",
+        "bc1",
+        "--as",
+        "albedo=bc7",
+        "--threads",
+        "1",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let auto_dir = dir.join("dds-auto");
+    let o = nmat(&[
+        "transcode",
+        fixture.to_str().unwrap(),
+        "-o",
+        auto_dir.to_str().unwrap(),
+        "--container",
+        "dds",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let choice = Choice {
+        all: Some(BcFormat::Bc1),
+        by_semantic: vec![(nmat_core::Semantic::ALBEDO, BcFormat::Bc7Rgb)],
+    };
+    let textures = plan(&m, &choice);
+    assert_eq!(textures.len(), 6);
+    assert_eq!(textures[0].texture.format, BcFormat::Bc7Rgb);
+    assert!(textures[1..].iter().all(|t| t.texture.format == BcFormat::Bc1));
+    let nvdecompress = Command::new("nvdecompress").output().is_ok();
+    if !nvdecompress {
+        eprintln!(
+            "nvdecompress not found (apt-get install libnvtt-bin): DDS files not decoded by it"
+        );
+    }
+    let all = textures.iter().map(|t| (t, &dds_dir)).chain(auto.iter().map(|t| (t, &auto_dir)));
+    for (named, dir) in all {
+        let name = file_name(named, nmat_cli::transcode::Container::Dds);
+        let path = dir.join(&name);
+        let dds = ddsfile::Dds::read(&mut &std::fs::read(&path).unwrap()[..]).unwrap();
+        let t = named.texture;
+        let dxgi = match (t.format, t.srgb) {
+            (BcFormat::Bc7Rgb, true) => Some(ddsfile::DxgiFormat::BC7_UNorm_sRGB),
+            (BcFormat::Bc1, true) => Some(ddsfile::DxgiFormat::BC1_UNorm_sRGB),
+            _ => None,
+        };
+        assert_eq!(dds.header10.as_ref().map(|h| h.dxgi_format), dxgi, "{name}");
+        let fourcc = |code: &[u8; 4]| Some(ddsfile::FourCC(u32::from_le_bytes(*code)));
+        let want_fourcc = match (t.format, t.srgb) {
+            (BcFormat::Bc1, false) => fourcc(b"DXT1"),
+            (BcFormat::Bc4, _) => fourcc(b"ATI1"),
+            (BcFormat::Bc5, _) => fourcc(b"ATI2"),
+            _ => fourcc(b"DX10"),
+        };
+        assert_eq!(dds.header.spf.fourcc, want_fourcc, "{name}");
+        assert_eq!((dds.get_width(), dds.get_height()), (96, 80));
+        assert_eq!(dds.get_num_mipmap_levels(), m.mip_count());
+        let blocks = blocks_of(&m, &t);
+        // (`Dds::get_data` estimates the chain's length as a quarter per level, short of the
+        // real length for sizes that are not powers of two: the whole data is compared.)
+        assert!(dds.data == blocks.concat(), "{name}: the data differ");
+        // NVTT 2 misreads DX10 files: the legacy ones only.
+        if nvdecompress && dxgi.is_none() {
+            let o = Command::new("nvdecompress").arg(&path).output().unwrap();
+            assert!(o.status.success(), "nvdecompress {name}: {}", text(&o));
+            let tga = path.with_extension("tga");
+            let tga_bytes = std::fs::read(&tga).unwrap();
+            let img = read_nvtt_tga(&tga_bytes);
+            std::fs::remove_file(&tga).unwrap();
+            let mut worst = 0;
+            let bb = t.format.block_bytes();
+            for (k, block) in blocks[0].chunks(bb).enumerate() {
+                let (bx, by) = (k as u32 % 24, k as u32 / 24);
+                for (i, px) in nmat_core::bc::decode_block(t.format, block).iter().enumerate() {
+                    let theirs = img(4 * bx + i as u32 % 4, 4 * by + i as u32 / 4);
+                    for c in 0..t.format.components() {
+                        worst = worst.max(px[c].abs_diff(theirs[c]));
+                    }
+                }
+            }
+            assert!(worst <= 1, "{name}: nvdecompress differs by {worst} codes");
+        }
+    }
+}
+
+/// Bad `nmat transcode` arguments name the argument and write nothing; existing files are kept
+/// unless --force.
+#[test]
+fn transcode_refuses_bad_arguments_and_keeps_existing_files() {
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/ntc_rgb_64.nmat");
+    let f = fixture.to_str().unwrap();
+    let dir = temp_dir("transcode-bad");
+    let out = dir.join("out");
+    let o_dir = out.to_str().unwrap();
+    for (args, needle) in [
+        (vec!["--as", "albedo"], "--as albedo: expected ROLE=FORMAT"),
+        (vec!["--as", "skin=bc1"], "unknown role \"skin\""),
+        (vec!["--as", "albedo=bc3"], "the format must be bc1, bc4, bc5 or bc7"),
+        (vec!["--as", "albedo=auto"], "the format must be bc1, bc4, bc5 or bc7"),
+        (vec!["--format", "bc6"], "bc6"),
+        (vec!["--threads", "0"], "--threads 0"),
+    ] {
+        let mut all = vec!["transcode", f, "-o", o_dir];
+        all.extend(args);
+        let o = nmat(&all);
+        assert!(!o.status.success(), "{all:?}");
+        assert!(text(&o).contains(needle), "{all:?}: {}", text(&o));
+        assert!(!out.exists(), "{all:?} wrote {}", out.display());
+    }
+    let not_nmat = dir.join("x.png");
+    std::fs::write(&not_nmat, b"\x89PNG\r\n\x1a\n").unwrap();
+    let o = nmat(&["transcode", not_nmat.to_str().unwrap(), "-o", o_dir]);
+    assert!(text(&o).contains("not a .nmat file (PNG signature)"), "{}", text(&o));
+    // An existing file of the same name: refused, kept; replaced with --force.
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("albedo.bc1.ktx2"), b"mine").unwrap();
+    let o = nmat(&["transcode", f, "-o", o_dir]);
+    assert!(!o.status.success() && text(&o).contains("already exist"), "{}", text(&o));
+    assert_eq!(std::fs::read(out.join("albedo.bc1.ktx2")).unwrap(), b"mine");
+    assert_eq!(files_in(&out), ["albedo.bc1.ktx2"]);
+    let o = nmat(&["transcode", f, "-o", o_dir, "--force"]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(std::fs::read(out.join("albedo.bc1.ktx2")).unwrap().starts_with(b"\xABKTX 20"));
+}
