@@ -68,6 +68,20 @@ typedef enum {
   NMAT_FILTER_STOCHASTIC = 3,
 } nmat_filter;
 
+// A BC (GPU block-compressed) format of `nmat_bc_texture`; the numbers are stable.
+typedef enum {
+  // RGB, 8 bytes per 4×4 block (`DXGI_FORMAT_BC1_UNORM[_SRGB]`); never transparent.
+  NMAT_BC1 = 1,
+  // One channel, 8 bytes per block (`BC4_UNORM`).
+  NMAT_BC4 = 4,
+  // Two channels, 16 bytes per block (`BC5_UNORM`).
+  NMAT_BC5 = 5,
+  // RGB in BC7, alpha 255, 16 bytes per block (`BC7_UNORM[_SRGB]`).
+  NMAT_BC7_RGB = 7,
+  // RGBA in BC7, 16 bytes per block.
+  NMAT_BC7_RGBA = 8,
+} nmat_bc_format;
+
 // An opened material. Opaque; create with `nmat_material_open*`, destroy with
 // `nmat_material_free`. (Not `repr(C)`: C sees only an incomplete type.)
 typedef struct nmat_material nmat_material;
@@ -103,6 +117,15 @@ typedef struct {
   float range_min;
   float range_max;
 } nmat_channel_info;
+
+// One BC texture made from a material: its format (an `nmat_bc_format`), the material channels
+// of its R, G, B, A components (the first 1, 2, 3 or 4 are used, by format; repeats allowed),
+// and whether to sample it as sRGB (1; BC1 and BC7 only).
+typedef struct {
+  uint32_t format;
+  uint8_t channels[4];
+  uint32_t srgb;
+} nmat_bc_texture;
 
 #ifdef __cplusplus
 extern "C" {
@@ -215,6 +238,38 @@ nmat_status nmat_decode_region_f32(const nmat_material *m,
                                    float *out,
                                    size_t row_pitch,
                                    size_t out_len);
+
+// Bytes per 4×4 block of `format` (an `nmat_bc_format`): 8 or 16; 0 for an unknown format.
+size_t nmat_bc_block_bytes(uint32_t format);
+
+// The BC textures for the material's maps: with `format` 0, chosen from each map's meaning
+// (albedo → BC1 sRGB, normal → BC5 of X and Y, one channel → BC4, two → BC5, a fourth component
+// → its own BC4); with an `nmat_bc_format`, every map in that format (BC7: RGBA for maps of four
+// channels). Sets `*count` (at most 16) and writes that many textures to `out`; with `out` NULL
+// and `capacity` 0 it only sets the count. `NMAT_BUFFER_TOO_SMALL` (with `*count` set, nothing
+// written) when `capacity` is below the count.
+nmat_status nmat_bc_layout(const nmat_material *m,
+                           uint32_t format,
+                           nmat_bc_texture *out,
+                           size_t capacity,
+                           size_t *count);
+
+// Decodes the blocks (block_x, block_y, blocks_wide, blocks_high) of `mip` — in 4×4 blocks; a
+// mip of w × h texels has ⌈w/4⌉ × ⌈h/4⌉ — with the integer decoder and encodes them as BC
+// blocks of `texture` into `out`: block row r at `out + r · row_pitch` (0 = packed), `out_len`
+// bytes in all. Pixels past the mip's edge do not influence the blocks. The bytes depend only on
+// the material and the arguments (not on the CPU, the kernel or how a mip is split into
+// regions, e.g. across threads). Nothing is written on error.
+nmat_status nmat_transcode_region(const nmat_material *m,
+                                  const nmat_bc_texture *texture,
+                                  uint32_t mip,
+                                  uint32_t block_x,
+                                  uint32_t block_y,
+                                  uint32_t blocks_wide,
+                                  uint32_t blocks_high,
+                                  uint8_t *out,
+                                  size_t row_pitch,
+                                  size_t out_len);
 
 // Writes a readable description of `status` (an `nmat_status` value) into `buf` (NUL-terminated, truncated to `len`)
 // and returns the length the full message needs including the NUL. `buf` may be NULL with
