@@ -563,19 +563,7 @@ fn cmd_decode(args: DecodeArgs) -> Result<()> {
         .map_err(|e| format!("{}: {e}", args.input.display()))?;
     let names = plan.file_names();
     if !args.force {
-        let existing: Vec<&String> =
-            names.iter().filter(|n| args.output.join(n).symlink_metadata().is_ok()).collect();
-        if let Some(first) = existing.first() {
-            return Err(format!(
-                "-o {}: {} of the files to write already exist ({}{}); nothing was written. \
-                 Pass --force to replace them, or choose another folder",
-                args.output.display(),
-                existing.len(),
-                first,
-                if existing.len() > 1 { ", …" } else { "" }
-            )
-            .into());
-        }
+        refuse_existing(&args.output, &names)?;
     }
     let (need, allowed) = (plan.memory(&m), args.max_memory.unwrap_or(texset::DEFAULT_MAX_MEMORY));
     if need > allowed {
@@ -608,6 +596,25 @@ fn cmd_decode(args: DecodeArgs) -> Result<()> {
     Ok(())
 }
 
+/// An error naming the files of `names` that already exist in `dir` (without `--force`, nothing
+/// is replaced: the source maps may be there).
+fn refuse_existing(dir: &Path, names: &[String]) -> Result<()> {
+    let existing: Vec<&String> =
+        names.iter().filter(|n| dir.join(n).symlink_metadata().is_ok()).collect();
+    if let Some(first) = existing.first() {
+        return Err(format!(
+            "-o {}: {} of the files to write already exist ({}{}); nothing was written. \
+             Pass --force to replace them, or choose another folder",
+            dir.display(),
+            existing.len(),
+            first,
+            if existing.len() > 1 { ", …" } else { "" }
+        )
+        .into());
+    }
+    Ok(())
+}
+
 fn cmd_transcode(args: TranscodeArgs) -> Result<()> {
     use nmat_cli::transcode::{self, Choice, Container};
     threads(args.threads)?;
@@ -635,18 +642,7 @@ fn cmd_transcode(args: TranscodeArgs) -> Result<()> {
     let plan = transcode::plan(&m, &choice);
     let names: Vec<String> = plan.iter().map(|n| transcode::file_name(n, container)).collect();
     if !args.force {
-        let existing: Vec<&String> =
-            names.iter().filter(|n| args.output.join(n).symlink_metadata().is_ok()).collect();
-        if let Some(first) = existing.first() {
-            return Err(format!(
-                "-o {}: {} of the files to write already exist ({first}{}); nothing was \
-                 written. Pass --force to replace them, or choose another folder",
-                args.output.display(),
-                existing.len(),
-                if existing.len() > 1 { ", …" } else { "" }
-            )
-            .into());
-        }
+        refuse_existing(&args.output, &names)?;
     }
     let start = Instant::now();
     let decoder = nmat_core::Decoder::new(&m);

@@ -10,7 +10,7 @@
 //! palette); the one with the least squared RGB error wins. A block of one colour uses the
 //! endpoint pair whose 1/3 interpolation comes closest to it, per channel (`SINGLE5`, `SINGLE6`).
 
-use super::{BLOCK_PIXELS, counts, sq};
+use super::{BLOCK_PIXELS, counts, principal_ends, sq};
 
 /// Expands a 5-bit channel to 8 bits, round(v·255/31).
 const fn expand5(v: u32) -> u32 {
@@ -231,47 +231,19 @@ fn refine(pixels: &[[u8; 3]; BLOCK_PIXELS], valid: u16, indices: u32) -> Option<
 /// The two pixels at the ends of the block's principal axis, or `None` if all valid pixels
 /// are the same colour.
 fn axis_ends(pixels: &[[u8; 3]; BLOCK_PIXELS], valid: u16) -> Option<([u8; 3], [u8; 3])> {
-    let used = || pixels.iter().enumerate().filter(|&(i, _)| counts(valid, i)).map(|(_, p)| p);
-    let n = used().count() as i64;
-    let mut sum = [0i64; 3];
-    for p in used() {
-        for (s, &v) in sum.iter_mut().zip(p) {
-            *s += i64::from(v);
+    let mut used = [[0u8; 3]; BLOCK_PIXELS];
+    let mut points = [[0i64; 4]; BLOCK_PIXELS];
+    let mut n = 0;
+    for (_, p) in pixels.iter().enumerate().filter(|&(i, _)| counts(valid, i)) {
+        if let (Some(u), Some(q)) = (used.get_mut(n), points.get_mut(n)) {
+            *u = *p;
+            *q = [p[0], p[1], p[2], 0].map(i64::from);
+            n += 1;
         }
     }
-    // Deviations scaled by n (integers): d = n·p − Σp.
-    let dev = |p: &[u8; 3]| -> [i64; 3] {
-        core::array::from_fn(|c| {
-            n * i64::from(p.get(c).copied().unwrap_or(0)) - sum.get(c).copied().unwrap_or(0)
-        })
-    };
-    let mut cov = [[0i64; 3]; 3];
-    for p in used() {
-        let d = dev(p);
-        for (row, &dr) in cov.iter_mut().zip(&d) {
-            for (cell, &dc) in row.iter_mut().zip(&d) {
-                *cell += dr * dc;
-            }
-        }
-    }
-    // Start from the covariance row of the widest channel; iterate v ← cov·v, kept below 2^16.
-    let widest = (0..3).max_by_key(|&c| cov.get(c).and_then(|r| r.get(c)).copied().unwrap_or(0))?;
-    // v scaled down (arithmetic shift) to below 2^16, or `None` if it is zero.
-    let small = |v: [i64; 3]| -> Option<[i64; 3]> {
-        let scale = v.iter().map(|c| c.unsigned_abs()).max().filter(|&s| s != 0)?;
-        let shift = (64 - scale.leading_zeros()).saturating_sub(16);
-        Some(v.map(|c| c >> shift))
-    };
-    let mut v = cov.get(widest).copied().unwrap_or([0; 3]);
-    for _ in 0..8 {
-        let s = small(v)?;
-        v = cov.map(|row| row.iter().zip(&s).map(|(a, b)| a * b).sum());
-    }
-    let v = small(v)?;
-    let project = |p: &[u8; 3]| -> i64 { dev(p).iter().zip(&v).map(|(a, b)| a * b).sum() };
-    let lo = used().min_by_key(|p| project(p))?;
-    let hi = used().max_by_key(|p| project(p))?;
-    (lo != hi).then_some((*hi, *lo))
+    let (lo, hi) = principal_ends(points.get(..n)?, 3)?;
+    let (lo, hi) = (*used.get(lo)?, *used.get(hi)?);
+    (lo != hi).then_some((hi, lo))
 }
 
 /// Encodes one block of RGB pixels (see the module documentation of [`crate::bc`] for `valid`).

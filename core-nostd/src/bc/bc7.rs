@@ -14,7 +14,7 @@
 //! the chosen indices (twice). The candidate with the least squared error over the texture's
 //! channels wins. Integer arithmetic only.
 
-use super::{BLOCK_PIXELS, counts};
+use super::{BLOCK_PIXELS, counts, principal_ends};
 
 /// The fields of a mode (Table.M of the format's definition).
 #[derive(Clone, Copy, Default)]
@@ -251,13 +251,14 @@ pub fn decode_bc7(block: &[u8; 16]) -> [[u8; 4]; BLOCK_PIXELS] {
 }
 
 /// How one fit stores its endpoints: the bits of each component without the p-bit, and the
-/// p-bit choices to try (`[p0, p1]`; none when the mode has no p-bits).
+/// p-bit choices to try (`[p0, p1]`), or `None` when the mode has no p-bits.
 #[derive(Clone, Copy)]
 struct Precision {
     bits: [u32; 4],
-    pbits: &'static [[u32; 2]],
+    pbits: Option<&'static [[u32; 2]]>,
 }
 
+/// The one "choice" of a fit without p-bits.
 static NO_PBITS: [[u32; 2]; 1] = [[0, 0]];
 static ENDPOINT_PBITS: [[u32; 2]; 4] = [[0, 0], [0, 1], [1, 0], [1, 1]];
 static SHARED_PBITS: [[u32; 2]; 2] = [[0, 0], [1, 1]];
@@ -266,7 +267,7 @@ static OPAQUE_PBITS: [[u32; 2]; 1] = [[1, 1]];
 
 impl Precision {
     fn has_pbit(&self) -> bool {
-        !core::ptr::eq(self.pbits, NO_PBITS.as_slice())
+        self.pbits.is_some()
     }
 
     /// The stored value of `bits` bits (and p-bit `p`) whose expansion is nearest `target`.
@@ -321,52 +322,21 @@ impl Subset<'_> {
         i64::from(at(px, at(self.comps, k)))
     }
 
-    /// The pixels at both ends of the principal axis of the fitted components (power iteration
-    /// on the integer covariance), as 8-bit targets; the same pixel twice when all are equal.
+    /// The pixels at both ends of the principal axis of the fitted components, as 8-bit targets;
+    /// the first pixel twice when they do not spread.
     fn axis_ends(&self) -> [[i32; 4]; 2] {
-        let n = self.members().count() as i64;
         let dims = self.comps.len();
-        let mut sum = [0i64; 4];
+        let mut points = [[0i64; 4]; BLOCK_PIXELS];
+        let mut n = 0;
         for (_, p) in self.members() {
-            for (k, s) in sum.iter_mut().enumerate().take(dims) {
-                *s += self.component(p, k);
+            if let Some(q) = points.get_mut(n) {
+                *q = core::array::from_fn(|k| if k < dims { self.component(p, k) } else { 0 });
+                n += 1;
             }
         }
-        let dev =
-            |p: &[u8; 4]| -> [i64; 4] {
-                core::array::from_fn(|k| {
-                    if k < dims { n * self.component(p, k) - at(&sum, k) } else { 0 }
-                })
-            };
-        let mut cov = [[0i64; 4]; 4];
-        for (_, p) in self.members() {
-            let d = dev(p);
-            for (row, &dr) in cov.iter_mut().zip(&d) {
-                for (cell, &dc) in row.iter_mut().zip(&d) {
-                    *cell += dr * dc;
-                }
-            }
-        }
-        let target = |p: &[u8; 4]| -> [i32; 4] {
-            core::array::from_fn(|k| if k < dims { self.component(p, k) as i32 } else { 0 })
-        };
-        let widest = (0..dims).max_by_key(|&c| at(&at(&cov, c), c)).unwrap_or(0);
-        let small = |v: [i64; 4]| -> Option<[i64; 4]> {
-            let scale = v.iter().map(|c| c.unsigned_abs()).max().filter(|&s| s != 0)?;
-            let shift = (64 - scale.leading_zeros()).saturating_sub(16);
-            Some(v.map(|c| c >> shift))
-        };
-        let mut v = at(&cov, widest);
-        let first = self.members().next().map_or([0; 4], |(_, p)| target(p));
-        for _ in 0..8 {
-            let Some(s) = small(v) else { return [first, first] };
-            v = cov.map(|row| row.iter().zip(&s).map(|(a, b)| a * b).sum());
-        }
-        let Some(v) = small(v) else { return [first, first] };
-        let project = |p: &[u8; 4]| -> i64 { dev(p).iter().zip(&v).map(|(a, b)| a * b).sum() };
-        let lo = self.members().min_by_key(|(_, p)| project(p)).map_or(first, |(_, p)| target(p));
-        let hi = self.members().max_by_key(|(_, p)| project(p)).map_or(first, |(_, p)| target(p));
-        [lo, hi]
+        let target = |k: usize| -> [i32; 4] { at(&points, k).map(|v| v as i32) };
+        let (lo, hi) = principal_ends(points.get(..n).unwrap_or(&[]), dims).unwrap_or((0, 0));
+        [target(lo), target(hi)]
     }
 
     /// The nearest palette entry of every member (the lowest index on a tie) and the squared
@@ -464,7 +434,7 @@ impl Subset<'_> {
         let mut targets = self.axis_ends();
         let mut best: Option<Fit> = None;
         for round in 0..3 {
-            for &pbits in q.pbits {
+            for &pbits in q.pbits.unwrap_or(&NO_PBITS) {
                 let ends: [[u32; 4]; 2] = core::array::from_fn(|k| {
                     core::array::from_fn(|c| {
                         if c < self.comps.len() {
@@ -636,12 +606,12 @@ fn encode_subsets(
     best: &mut Option<Candidate>,
 ) {
     let m = at(&MODES, mode);
-    let pbits: &'static [[u32; 2]] = if m.endpoint_pbits {
-        &ENDPOINT_PBITS
+    let pbits: Option<&'static [[u32; 2]]> = if m.endpoint_pbits {
+        Some(&ENDPOINT_PBITS)
     } else if m.shared_pbits {
-        &SHARED_PBITS
+        Some(&SHARED_PBITS)
     } else {
-        &NO_PBITS
+        None
     };
     let q = Precision { bits: [m.color_bits; 4], pbits };
     for &partition in partitions {
@@ -685,7 +655,7 @@ fn encode_subsets(
 fn encode_mode6(pixels: &[[u8; 4]; BLOCK_PIXELS], valid: u16, alpha: bool) -> Candidate {
     let (comps, pbits): (&[usize], &'static [[u32; 2]]) =
         if alpha { (&RGBA, &ENDPOINT_PBITS) } else { (&RGB, &OPAQUE_PBITS) };
-    let q = Precision { bits: [7; 4], pbits };
+    let q = Precision { bits: [7; 4], pbits: Some(pbits) };
     let fit = Subset { pixels, mask: valid, comps }.fit(&q, 4);
     let mut ends = fit.ends;
     if !alpha {
@@ -705,9 +675,9 @@ fn encode_mode6(pixels: &[[u8; 4]; BLOCK_PIXELS], valid: u16, alpha: bool) -> Ca
 /// Mode 5: one subset, 7-bit colour and 8-bit alpha endpoints, each with its own 2-bit indices.
 fn encode_mode5(pixels: &[[u8; 4]; BLOCK_PIXELS], valid: u16) -> Candidate {
     let colour = Subset { pixels, mask: valid, comps: &RGB }
-        .fit(&Precision { bits: [7; 4], pbits: &NO_PBITS }, 2);
+        .fit(&Precision { bits: [7; 4], pbits: None }, 2);
     let alpha = Subset { pixels, mask: valid, comps: &ALPHA }
-        .fit(&Precision { bits: [8; 4], pbits: &NO_PBITS }, 2);
+        .fit(&Precision { bits: [8; 4], pbits: None }, 2);
     let mut ends = colour.ends;
     for (e, a) in ends.iter_mut().zip(&alpha.ends) {
         e[3] = a[0];

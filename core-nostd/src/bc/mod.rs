@@ -96,6 +96,57 @@ pub fn decode_block(format: BcFormat, block: &[u8]) -> [[u8; 4]; BLOCK_PIXELS] {
     }
 }
 
+/// The indices (into `points`) of the points at the low and the high end of their principal axis
+/// (power iteration on the integer covariance of the first `dims` coordinates, from the
+/// covariance row of the widest coordinate), or `None` when the points do not spread (all equal,
+/// or none). The first point wins a tie at the low end, the last at the high end.
+fn principal_ends(points: &[[i64; 4]], dims: usize) -> Option<(usize, usize)> {
+    let n = points.len() as i64;
+    let mut sum = [0i64; 4];
+    for p in points {
+        for (s, &v) in sum.iter_mut().zip(p).take(dims) {
+            *s += v;
+        }
+    }
+    // Deviations scaled by n (integers): d = n·p − Σp.
+    let dev = |p: &[i64; 4]| -> [i64; 4] {
+        core::array::from_fn(|c| {
+            if c < dims {
+                n * p.get(c).copied().unwrap_or(0) - sum.get(c).copied().unwrap_or(0)
+            } else {
+                0
+            }
+        })
+    };
+    let mut cov = [[0i64; 4]; 4];
+    for p in points {
+        let d = dev(p);
+        for (row, &dr) in cov.iter_mut().zip(&d) {
+            for (cell, &dc) in row.iter_mut().zip(&d) {
+                *cell += dr * dc;
+            }
+        }
+    }
+    let widest =
+        (0..dims).max_by_key(|&c| cov.get(c).and_then(|r| r.get(c)).copied().unwrap_or(0))?;
+    // v scaled down (arithmetic shift) to below 2^16, or `None` if it is zero.
+    let small = |v: [i64; 4]| -> Option<[i64; 4]> {
+        let scale = v.iter().map(|c| c.unsigned_abs()).max().filter(|&s| s != 0)?;
+        let shift = (64 - scale.leading_zeros()).saturating_sub(16);
+        Some(v.map(|c| c >> shift))
+    };
+    let mut v = cov.get(widest).copied().unwrap_or([0; 4]);
+    for _ in 0..8 {
+        let s = small(v)?;
+        v = cov.map(|row| row.iter().zip(&s).map(|(a, b)| a * b).sum());
+    }
+    let v = small(v)?;
+    let project = |p: &[i64; 4]| -> i64 { dev(p).iter().zip(&v).map(|(a, b)| a * b).sum() };
+    let lo = points.iter().enumerate().min_by_key(|(_, p)| project(p))?.0;
+    let hi = points.iter().enumerate().max_by_key(|(_, p)| project(p))?.0;
+    Some((lo, hi))
+}
+
 /// `(a − b)²` of two codes.
 fn sq(a: u8, b: u8) -> u32 {
     let d = u32::from(a.abs_diff(b));
