@@ -24,6 +24,17 @@ struct Params {
     width: u32,
     channel_mask: u32,
     out_channels: u32,
+    // BC transcoding (bc.wgsl): 1 (BC1), 4 (BC4) or 5 (BC5); the material channel of each
+    // component (byte k = component k); the code of each constant component (byte k) and which
+    // are constant (bit k); the output row pitch and offset in words.
+    format: u32,
+    components: u32,
+    constants: u32,
+    constant_mask: u32,
+    row_words: u32,
+    out_offset: u32,
+    pad0: u32,
+    pad1: u32,
 }
 
 // Four storage buffers: the most downlevel limits allow per stage. The int8 weights (widened to
@@ -202,8 +213,10 @@ fn hard_gelu(z: i32, f: u32) -> i32 {
 
 var<private> act_a: array<i32, 128>;
 var<private> act_b: array<i32, 128>;
+// The codes `decode` wrote, by channel (channels outside params.channel_mask are not written).
+var<private> codes: array<u32, 16>;
 
-fn decode(xi: i32, yi: i32, mip_in: u32, out_base: u32) {
+fn decode(xi: i32, yi: i32, mip_in: u32) {
     let mip = min(mip_in, desc[2] - 1u);
     let mw = max(desc[0] >> mip, 1u);
     let mh = max(desc[1] >> mip, 1u);
@@ -288,12 +301,9 @@ fn decode(xi: i32, yi: i32, mip_in: u32, out_base: u32) {
             act_a[o] = act_b[o];
         }
     }
-    var slot = 0u;
     for (var c = 0u; c < desc[3]; c++) {
         if ((params.channel_mask & (1u << c)) != 0u) {
-            let code = clamp((act_a[c] * 255 + (1 << (out_frac - 1u))) >> out_frac, 0, 255);
-            out_codes[out_base + slot] = u32(code);
-            slot++;
+            codes[c] = u32(clamp((act_a[c] * 255 + (1 << (out_frac - 1u))) >> out_frac, 0, 255));
         }
     }
 }
@@ -304,12 +314,18 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     if (index >= params.count) {
         return;
     }
-    let out_base = index * params.out_channels;
     if (params.mode == 0u) {
-        decode(requests[3u * index], requests[3u * index + 1u], bitcast<u32>(requests[3u * index + 2u]), out_base);
+        decode(requests[3u * index], requests[3u * index + 1u], bitcast<u32>(requests[3u * index + 2u]));
     } else {
         let x = params.x0 + index % params.width;
         let y = params.y0 + index / params.width;
-        decode(i32(x), i32(y), params.mip, out_base);
+        decode(i32(x), i32(y), params.mip);
+    }
+    var slot = index * params.out_channels;
+    for (var c = 0u; c < desc[3]; c++) {
+        if ((params.channel_mask & (1u << c)) != 0u) {
+            out_codes[slot] = codes[c];
+            slot++;
+        }
     }
 }

@@ -33,13 +33,18 @@
 //! kernel maps it onto 32-bit integers and what it costs is in `docs/GPU.md`, embedded here as
 //! [`design`].
 
+mod transcode;
+
+pub use transcode::{PendingBlocks, aligned_row_pitch, texture_format};
+
 /// The GPU runtime's design and measured speed (`docs/GPU.md` of the repository).
 #[cfg(doc)]
 #[doc = include_str!("../../docs/GPU.md")]
 #[allow(rustdoc::broken_intra_doc_links)]
 pub mod design {}
 
-use nmat_core::{ChannelMask, Material, TermMode};
+use nmat_core::bc::BcFormat;
+use nmat_core::{BlockRegion, ChannelMask, Material, TermMode};
 use std::sync::mpsc;
 use wgpu::util::DeviceExt;
 
@@ -59,6 +64,16 @@ pub enum GpuError {
     GridTooLarge { grid: usize },
     /// Mapping the result buffer failed (device lost, …).
     Map(String),
+    /// A BC format the GPU does not encode (BC7 is encoded on the CPU only).
+    Format { format: BcFormat },
+    /// A region of blocks outside the mip's blocks, or a mip beyond the chain.
+    Blocks { mip: u32, region: BlockRegion },
+    /// A row pitch shorter than a row of blocks, or not a multiple of 4 bytes.
+    RowPitch { row_pitch: u64, min: u64 },
+    /// The output buffer lacks `STORAGE` usage, or the offset is not a multiple of 4 bytes.
+    OutputBuffer { reason: &'static str },
+    /// The output buffer (from the offset) is too small for the blocks.
+    Output { needed: u64, size: u64 },
 }
 
 impl std::fmt::Display for GpuError {
@@ -80,6 +95,21 @@ impl std::fmt::Display for GpuError {
                 write!(f, "grid {grid} has 2^32 or more latent bits")
             }
             GpuError::Map(e) => write!(f, "reading the result back failed: {e}"),
+            GpuError::Format { format } => {
+                write!(f, "{} is not encoded on the GPU (BC1, BC4 and BC5 are)", format.name())
+            }
+            GpuError::Blocks { mip, region } => write!(
+                f,
+                "blocks {}×{} at ({}, {}) of mip {mip} are outside the mip's blocks",
+                region.width, region.height, region.x, region.y
+            ),
+            GpuError::RowPitch { row_pitch, min } => {
+                write!(f, "row pitch {row_pitch} bytes: needs at least {min} and a multiple of 4")
+            }
+            GpuError::OutputBuffer { reason } => write!(f, "output buffer: {reason}"),
+            GpuError::Output { needed, size } => {
+                write!(f, "output buffer of {size} bytes; the blocks need {needed}")
+            }
         }
     }
 }
@@ -96,10 +126,14 @@ pub struct TexelRequest {
     pub mip: u32,
 }
 
-/// The cached pipeline. Create one per device.
+/// The cached pipelines (decode, BC transcode, BC encode of given pixels). Create one per device.
 pub struct Context {
     pipeline: wgpu::ComputePipeline,
+    transcode: wgpu::ComputePipeline,
+    encode: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
+    /// Bound where a dispatch has no material or no requests.
+    empty: wgpu::Buffer,
 }
 
 /// A material's buffers on the GPU.
@@ -108,6 +142,9 @@ pub struct GpuMaterial {
     latents: wgpu::Buffer,
     channel_count: usize,
     mip_sizes: Vec<(u32, u32)>,
+    /// Per channel: the code of a constant channel (`Channel::constant_code`), which BC
+    /// transcoding uses instead of the decoded one, as the CPU does.
+    constant_codes: Vec<Option<u8>>,
 }
 
 impl GpuMaterial {
@@ -132,8 +169,8 @@ const WORKGROUP: u32 = 64;
 /// Workgroups per dispatch dimension guaranteed by downlevel limits.
 const MAX_GROUPS: u32 = 65535;
 
-#[repr(C)]
-#[derive(Clone, Copy)]
+/// The uniform block of every entry point (`Params` in decode.wgsl).
+#[derive(Clone, Copy, Default)]
 struct Params {
     mode: u32,
     count: u32,
@@ -143,17 +180,66 @@ struct Params {
     width: u32,
     channel_mask: u32,
     out_channels: u32,
+    // BC transcoding (bc.wgsl).
+    format: u32,
+    components: u32,
+    constants: u32,
+    constant_mask: u32,
+    row_words: u32,
+    out_offset: u32,
+}
+
+impl Params {
+    fn bytes(&self) -> Vec<u8> {
+        let words = [
+            self.mode,
+            self.count,
+            self.mip,
+            self.x0,
+            self.y0,
+            self.width,
+            self.channel_mask,
+            self.out_channels,
+            self.format,
+            self.components,
+            self.constants,
+            self.constant_mask,
+            self.row_words,
+            self.out_offset,
+            0,
+            0,
+        ];
+        words_to_bytes(&words)
+    }
 }
 
 fn words_to_bytes(words: &[u32]) -> Vec<u8> {
     words.iter().flat_map(|w| w.to_le_bytes()).collect()
 }
 
+/// The shader: BC1's single-colour table from the core, the decoder, the BC encoders.
+fn shader_source() -> String {
+    let table: Vec<String> = (0..=255u8)
+        .map(|v| {
+            let [[a5, b5], [a6, b6]] = nmat_core::bc::bc1_single_colour_endpoints(v);
+            let word = u32::from_le_bytes([a5, b5, a6, b6]);
+            format!("{word}u")
+        })
+        .collect();
+    format!(
+        "// BC1 single-colour endpoints per 8-bit value: 5-bit pair in bytes 0-1, 6-bit in 2-3.\n\
+         const BC1_SINGLE = array<u32, 256>({});\n{}\n{}",
+        table.join(", "),
+        include_str!("decode.wgsl"),
+        include_str!("bc.wgsl")
+    )
+}
+
 impl Context {
     pub fn new(device: &wgpu::Device) -> Context {
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("nmat decode"),
-            source: wgpu::ShaderSource::Wgsl(include_str!("decode.wgsl").into()),
+            source: wgpu::ShaderSource::Wgsl(shader_source().into()),
         });
         let storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
             binding,
@@ -189,15 +275,61 @@ impl Context {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("nmat decode"),
-            layout: Some(&pipeline_layout),
-            module: &module,
-            entry_point: Some("main"),
-            compilation_options: Default::default(),
-            cache: None,
+        let pipeline = |entry: &str| {
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: Some(&pipeline_layout),
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        };
+        let empty = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("nmat empty"),
+            size: 16,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
         });
-        Context { pipeline, layout }
+        Context {
+            pipeline: pipeline("main"),
+            transcode: pipeline("transcode"),
+            encode: pipeline("encode_pixels"),
+            layout,
+            empty,
+        }
+    }
+
+    /// A bind group of the five bindings every entry point declares.
+    fn bind(
+        &self,
+        device: &wgpu::Device,
+        material: Option<&GpuMaterial>,
+        requests: Option<&wgpu::Buffer>,
+        out: &wgpu::Buffer,
+        params: &Params,
+    ) -> wgpu::BindGroup {
+        let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("nmat params"),
+            contents: &params.bytes(),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let (desc, latents) =
+            material.map_or((&self.empty, &self.empty), |m| (&m.desc, &m.latents));
+        let buffers = [desc, latents, requests.unwrap_or(&self.empty), out, &uniform];
+        let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
+            .iter()
+            .enumerate()
+            .map(|(binding, b)| wgpu::BindGroupEntry {
+                binding: binding as u32,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("nmat"),
+            layout: &self.layout,
+            entries: &entries,
+        })
     }
 
     /// Uploads a parsed material once: the latent words as stored, the int8 weights widened to
@@ -316,6 +448,7 @@ impl Context {
             latents: init("nmat latents", words_to_bytes(&latents)),
             channel_count: m.channel_count(),
             mip_sizes: (0..m.mip_count()).map(|mip| m.mip_size(mip)).collect(),
+            constant_codes: m.channels().iter().map(|c| c.constant_code()).collect(),
         })
     }
 
@@ -359,53 +492,17 @@ impl Context {
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let request_bytes = if requests.is_empty() { vec![0u8; 12] } else { requests.to_vec() };
-        let requests = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("nmat requests"),
-            contents: &request_bytes,
-            usage: wgpu::BufferUsages::STORAGE,
+        let requests = (!requests.is_empty()).then(|| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("nmat requests"),
+                contents: requests,
+                usage: wgpu::BufferUsages::STORAGE,
+            })
         });
-        let p = [
-            params.mode,
-            params.count,
-            params.mip,
-            params.x0,
-            params.y0,
-            params.width,
-            params.channel_mask,
-            params.out_channels,
-        ];
-        let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("nmat params"),
-            contents: &words_to_bytes(&p),
-            usage: wgpu::BufferUsages::UNIFORM,
-        });
-        let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("nmat decode"),
-            layout: &self.layout,
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: gm.desc.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: gm.latents.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: requests.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 3, resource: out.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 4, resource: uniform.as_entire_binding() },
-            ],
-        });
+        let bind = self.bind(device, Some(gm), requests.as_ref(), &out, &params);
         let mut encoder = device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nmat decode") });
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("nmat decode"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(&self.pipeline);
-            pass.set_bind_group(0, &bind, &[]);
-            let gx = groups.min(u64::from(MAX_GROUPS)) as u32;
-            let gy = groups.div_ceil(u64::from(MAX_GROUPS)) as u32;
-            if count > 0 {
-                pass.dispatch_workgroups(gx.max(1), gy.max(1), 1);
-            }
-        }
+        dispatch(&mut encoder, &self.pipeline, &bind, groups);
         encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, out_size);
         queue.submit([encoder.finish()]);
         Ok(PendingDecode {
@@ -437,12 +534,10 @@ impl Context {
         let params = Params {
             mode: 0,
             count,
-            mip: 0,
-            x0: 0,
-            y0: 0,
             width: 1,
             channel_mask: mask,
             out_channels: n,
+            ..Params::default()
         };
         self.submit(device, queue, gm, params, &bytes)
     }
@@ -484,6 +579,7 @@ impl Context {
             width: width.max(1),
             channel_mask: mask,
             out_channels: n,
+            ..Params::default()
         };
         self.submit(device, queue, gm, params, &[])
     }
@@ -559,21 +655,45 @@ impl PendingDecode {
 
     /// Maps the result (blocking on the device) and returns the codes.
     pub fn wait(self, device: &wgpu::Device) -> Result<Vec<u8>, GpuError> {
-        let (tx, rx) = mpsc::channel();
-        self.readback.map_async(wgpu::MapMode::Read, .., move |r| {
-            let _ = tx.send(r);
-        });
-        device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Map(e.to_string()))?;
-        rx.recv()
-            .map_err(|e| GpuError::Map(e.to_string()))?
-            .map_err(|e| GpuError::Map(e.to_string()))?;
-        let view = self.readback.get_mapped_range(..).map_err(|e| GpuError::Map(e.to_string()))?;
-        let codes = view.chunks_exact(4).take(self.len).map(|w| w[0]).collect();
-        drop(view);
-        self.readback.unmap();
-        Ok(codes)
+        let words = read_back(device, &self.readback)?;
+        Ok(words.chunks_exact(4).take(self.len).map(|w| w[0]).collect())
+    }
+}
+
+/// Maps `buffer` (blocking on the device) and returns its bytes.
+fn read_back(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Result<Vec<u8>, GpuError> {
+    let (tx, rx) = mpsc::channel();
+    buffer.map_async(wgpu::MapMode::Read, .., move |r| {
+        let _ = tx.send(r);
+    });
+    device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Map(e.to_string()))?;
+    rx.recv()
+        .map_err(|e| GpuError::Map(e.to_string()))?
+        .map_err(|e| GpuError::Map(e.to_string()))?;
+    let view = buffer.get_mapped_range(..).map_err(|e| GpuError::Map(e.to_string()))?;
+    let bytes = view.to_vec();
+    drop(view);
+    buffer.unmap();
+    Ok(bytes)
+}
+
+/// Records one dispatch of `groups` workgroups (spread over x and y past the per-dimension limit).
+fn dispatch(
+    encoder: &mut wgpu::CommandEncoder,
+    pipeline: &wgpu::ComputePipeline,
+    bind: &wgpu::BindGroup,
+    groups: u64,
+) {
+    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+        label: Some("nmat"),
+        timestamp_writes: None,
+    });
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, bind, &[]);
+    let gx = groups.min(u64::from(MAX_GROUPS)) as u32;
+    let gy = groups.div_ceil(u64::from(MAX_GROUPS)) as u32;
+    if groups > 0 {
+        pass.dispatch_workgroups(gx.max(1), gy.max(1), 1);
     }
 }
 
@@ -593,7 +713,8 @@ pub async fn default_device() -> Option<(wgpu::Device, wgpu::Queue, wgpu::Adapte
     let (device, queue) = adapter
         .request_device(&wgpu::DeviceDescriptor {
             label: Some("nmat"),
-            required_features: wgpu::Features::empty(),
+            // BC textures where the adapter has them (for transcoded blocks), nothing else.
+            required_features: adapter.features() & wgpu::Features::TEXTURE_COMPRESSION_BC,
             required_limits: wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits()),
             experimental_features: wgpu::ExperimentalFeatures::disabled(),
             memory_hints: wgpu::MemoryHints::MemoryUsage,

@@ -169,12 +169,25 @@ static SINGLE5: [[u8; 2]; 256] = single::<5>();
 /// Single-colour endpoint pairs for the 6-bit channel (green).
 static SINGLE6: [[u8; 2]; 256] = single::<6>();
 
+/// The endpoints BC1 gives a block whose every pixel has 8-bit value `value` in a channel, as
+/// `[five, six]`: the pair `[a, b]` for a 5-bit channel (red, blue) and for the 6-bit one (green)
+/// (`a` = `b` where an endpoint expands to the value exactly; else the pair whose 1/3 point
+/// comes closest).
+/// For ports of this encoder that must write the same bytes (`nmat-wgpu` embeds the table in
+/// its shader).
+pub fn bc1_single_colour_endpoints(value: u8) -> [[u8; 2]; 2] {
+    let pick = |table: &[[u8; 2]; 256]| table.get(usize::from(value)).copied().unwrap_or([0, 0]);
+    [pick(&SINGLE5), pick(&SINGLE6)]
+}
+
 /// The block of one colour: per channel the pair from `SINGLE5`/`SINGLE6`, index 2 (the 1/3
 /// point) for every pixel, or the endpoint itself where the pair is equal.
 fn single_colour(c: [u8; 3], valid: u16) -> (u32, u16, u16, u32) {
-    let pick = |table: &[[u8; 2]; 256], v: u8| table.get(usize::from(v)).copied().unwrap_or([0, 0]);
-    let ([r0, r1], [g0, g1], [b0, b1]) =
-        (pick(&SINGLE5, c[0]), pick(&SINGLE6, c[1]), pick(&SINGLE5, c[2]));
+    let ([[r0, r1], _], [_, [g0, g1]], [[b0, b1], _]) = (
+        bc1_single_colour_endpoints(c[0]),
+        bc1_single_colour_endpoints(c[1]),
+        bc1_single_colour_endpoints(c[2]),
+    );
     let a = Rgb565 { r: r0.into(), g: g0.into(), b: b0.into() }.bits();
     let b = Rgb565 { r: r1.into(), g: g1.into(), b: b1.into() }.bits();
     let pixels = [c; BLOCK_PIXELS];

@@ -29,7 +29,7 @@ mod bc4;
 mod bc7;
 mod layout;
 
-pub use bc1::{decode_bc1, encode_bc1};
+pub use bc1::{bc1_single_colour_endpoints, decode_bc1, encode_bc1};
 pub use bc4::{decode_bc4, decode_bc5, encode_bc4, encode_bc5};
 pub use bc7::{decode_bc7, encode_bc7};
 pub use layout::{

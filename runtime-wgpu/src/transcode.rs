@@ -1,0 +1,297 @@
+//! Decoding straight into BC blocks on the GPU: one dispatch decodes each 4×4 block's texels
+//! (16 invocations, one texel each, into workgroup memory) and encodes the block, writing BC1,
+//! BC4 or BC5 blocks byte-identical with the CPU's `Decoder::transcode_blocks` into a buffer that
+//! can be copied into a BC texture. The encoders are `bc.wgsl`, ports of `nmat_core::bc`.
+
+use crate::{Context, GpuError, GpuMaterial, MAX_GROUPS, Params, dispatch, read_back};
+use nmat_core::BlockRegion;
+use nmat_core::bc::{BLOCK_PIXELS, BcFormat, BcTexture};
+use wgpu::util::DeviceExt;
+
+/// Blocks per workgroup of `transcode` (64 invocations, 16 per block).
+const BLOCKS_PER_GROUP: u64 = 4;
+/// Blocks per workgroup of `encode_pixels` (one invocation each).
+const PIXEL_BLOCKS_PER_GROUP: u64 = 64;
+
+/// BC blocks submitted to the queue; [`PendingBlocks::wait`] maps them.
+pub struct PendingBlocks {
+    blocks: wgpu::Buffer,
+    readback: wgpu::Buffer,
+    len: usize,
+}
+
+impl PendingBlocks {
+    /// The GPU-side blocks (rows of blocks without padding), usable as the source of a
+    /// `copy_buffer_to_texture` when the row is a multiple of 256 bytes, or by the caller's passes.
+    pub fn gpu_buffer(&self) -> &wgpu::Buffer {
+        &self.blocks
+    }
+
+    /// Maps the blocks (blocking on the device) and returns their bytes.
+    pub fn wait(self, device: &wgpu::Device) -> Result<Vec<u8>, GpuError> {
+        let mut bytes = read_back(device, &self.readback)?;
+        bytes.truncate(self.len);
+        Ok(bytes)
+    }
+}
+
+/// The wgpu texture format that samples a [`BcTexture`]'s blocks (BC1 as `Bc1RgbaUnorm`, whose
+/// blocks from nmat are opaque; sRGB where the texture asks for it), or `None` for a format wgpu
+/// lacks.
+pub fn texture_format(texture: &BcTexture) -> Option<wgpu::TextureFormat> {
+    use wgpu::TextureFormat as F;
+    Some(match (texture.format, texture.srgb) {
+        (BcFormat::Bc1, false) => F::Bc1RgbaUnorm,
+        (BcFormat::Bc1, true) => F::Bc1RgbaUnormSrgb,
+        (BcFormat::Bc4, _) => F::Bc4RUnorm,
+        (BcFormat::Bc5, _) => F::Bc5RgUnorm,
+        (BcFormat::Bc7Rgb | BcFormat::Bc7Rgba, false) => F::Bc7RgbaUnorm,
+        (BcFormat::Bc7Rgb | BcFormat::Bc7Rgba, true) => F::Bc7RgbaUnormSrgb,
+        _ => return None,
+    })
+}
+
+/// The smallest row pitch ≥ `blocks_wide` blocks of `format` that `copy_buffer_to_texture`
+/// accepts (a multiple of 256 bytes).
+pub fn aligned_row_pitch(format: BcFormat, blocks_wide: u32) -> u64 {
+    let row = u64::from(blocks_wide) * format.block_bytes() as u64;
+    row.div_ceil(u64::from(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT))
+        * u64::from(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)
+}
+
+/// `format`'s code in the shader (`params.format`), or the error for a format it lacks.
+fn shader_format(format: BcFormat) -> Result<u32, GpuError> {
+    match format {
+        BcFormat::Bc1 => Ok(1),
+        BcFormat::Bc4 => Ok(4),
+        BcFormat::Bc5 => Ok(5),
+        _ => Err(GpuError::Format { format }),
+    }
+}
+
+impl GpuMaterial {
+    /// Every block of `mip` (a mip of w × h texels has ⌈w/4⌉ × ⌈h/4⌉ blocks), or `None` for a mip
+    /// beyond the chain.
+    pub fn blocks(&self, mip: u32) -> Option<BlockRegion> {
+        let &(w, h) = self.mip_sizes.get(mip as usize)?;
+        Some(BlockRegion { x: 0, y: 0, width: w.div_ceil(4), height: h.div_ceil(4) })
+    }
+}
+
+impl Context {
+    /// Records, into the caller's `encoder` (nothing is submitted), the decode of `region` of
+    /// `mip` and its encoding as blocks of `texture` (BC1, BC4 or BC5): block row `r` of the
+    /// region starts at byte `offset + r · row_pitch` of `out`, its blocks left to right. The
+    /// bytes equal the CPU's `Decoder::transcode_blocks` with the same arguments. `out` needs
+    /// `STORAGE` usage (and `COPY_SRC` to be copied into a texture: then `row_pitch` must be a
+    /// multiple of 256, see [`aligned_row_pitch`]); `offset` and `row_pitch` are multiples of 4.
+    /// Everything is checked before anything is recorded.
+    #[allow(clippy::too_many_arguments)] // a material, what, where, and the output with its layout
+    pub fn record_transcode(
+        &self,
+        device: &wgpu::Device,
+        encoder: &mut wgpu::CommandEncoder,
+        gm: &GpuMaterial,
+        texture: &BcTexture,
+        mip: u32,
+        region: BlockRegion,
+        (out, offset, row_pitch): (&wgpu::Buffer, u64, u64),
+    ) -> Result<(), GpuError> {
+        let format = shader_format(texture.format)?;
+        let mut params = Params { format, mip, ..Params::default() };
+        for (k, &c) in texture.channel_list().iter().enumerate() {
+            let constant = gm
+                .constant_codes
+                .get(usize::from(c))
+                .ok_or(GpuError::Channels { mask: 1u16.checked_shl(u32::from(c)).unwrap_or(0) })?;
+            match constant {
+                Some(code) => {
+                    params.constants |= u32::from(*code) << (8 * k);
+                    params.constant_mask |= 1 << k;
+                }
+                None => {
+                    params.components |= u32::from(c) << (8 * k);
+                    params.channel_mask |= 1 << c;
+                }
+            }
+        }
+        // Components the format does not read: constant 0.
+        params.constant_mask |= 0b1111 & !((1 << texture.format.components()) - 1);
+        let all = gm.blocks(mip).ok_or(GpuError::Blocks { mip, region })?;
+        if u64::from(region.x) + u64::from(region.width) > u64::from(all.width)
+            || u64::from(region.y) + u64::from(region.height) > u64::from(all.height)
+        {
+            return Err(GpuError::Blocks { mip, region });
+        }
+        let block_bytes = texture.format.block_bytes() as u64;
+        let row_bytes = u64::from(region.width) * block_bytes;
+        if row_pitch < row_bytes || row_pitch % 4 != 0 {
+            return Err(GpuError::RowPitch { row_pitch, min: row_bytes.next_multiple_of(4) });
+        }
+        if !out.usage().contains(wgpu::BufferUsages::STORAGE) {
+            return Err(GpuError::OutputBuffer { reason: "it needs STORAGE usage" });
+        }
+        if offset % 4 != 0 {
+            return Err(GpuError::OutputBuffer { reason: "the offset is not a multiple of 4" });
+        }
+        let needed = match region.height {
+            0 => offset,
+            h => offset + u64::from(h - 1) * row_pitch + row_bytes,
+        };
+        if needed > out.size() {
+            return Err(GpuError::Output { needed, size: out.size() });
+        }
+        let max_binding = device.limits().max_storage_buffer_binding_size;
+        let count = u64::from(region.width) * u64::from(region.height);
+        let groups = count.div_ceil(BLOCKS_PER_GROUP);
+        if out.size() > max_binding || groups > u64::from(MAX_GROUPS) * u64::from(MAX_GROUPS) {
+            return Err(GpuError::TooLarge {
+                texels: count * 16,
+                limit: u64::from(MAX_GROUPS).pow(2) * BLOCKS_PER_GROUP * 16,
+            });
+        }
+        let fit = |n: u64| {
+            u32::try_from(n)
+                .map_err(|_| GpuError::TooLarge { texels: count * 16, limit: u64::from(u32::MAX) })
+        };
+        params.count = fit(count)?;
+        params.x0 = region.x;
+        params.y0 = region.y;
+        params.width = region.width.max(1);
+        params.row_words = fit(row_pitch / 4)?;
+        params.out_offset = fit(offset / 4)?;
+        let bind = self.bind(device, Some(gm), None, out, &params);
+        dispatch(encoder, &self.transcode, &bind, groups);
+        Ok(())
+    }
+
+    /// Decodes `region` of `mip` into BC blocks of `texture` on the GPU and submits the work:
+    /// the blocks come back row by row without padding (`region.width` blocks per row) from
+    /// [`PendingBlocks::wait`].
+    #[allow(clippy::too_many_arguments)] // one dispatch's worth of state
+    pub fn submit_transcode(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        gm: &GpuMaterial,
+        texture: &BcTexture,
+        mip: u32,
+        region: BlockRegion,
+    ) -> Result<PendingBlocks, GpuError> {
+        let row_bytes = u64::from(region.width) * texture.format.block_bytes() as u64;
+        let len = row_bytes * u64::from(region.height);
+        let (blocks, readback) = output_buffers(device, len)?;
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("nmat transcode"),
+        });
+        self.record_transcode(
+            device,
+            &mut encoder,
+            gm,
+            texture,
+            mip,
+            region,
+            (&blocks, 0, row_bytes),
+        )?;
+        encoder.copy_buffer_to_buffer(&blocks, 0, &readback, 0, readback.size());
+        queue.submit([encoder.finish()]);
+        Ok(PendingBlocks { blocks, readback, len: len as usize })
+    }
+
+    /// Blocking convenience: every block of `mip` as `texture`, row by row without padding —
+    /// the same bytes as the CPU's `Decoder::transcode_blocks` over `BlockRegion::mip`.
+    pub fn transcode_mip(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        gm: &GpuMaterial,
+        texture: &BcTexture,
+        mip: u32,
+    ) -> Result<Vec<u8>, GpuError> {
+        let region = gm.blocks(mip).ok_or(GpuError::Blocks {
+            mip,
+            region: BlockRegion { x: 0, y: 0, width: 0, height: 0 },
+        })?;
+        self.submit_transcode(device, queue, gm, texture, mip, region)?.wait(device)
+    }
+
+    /// Encodes blocks of RGBA pixels given by the caller (each with its `valid` mask, as
+    /// `nmat_core::bc::encode_block` takes them) as `format` on the GPU: the same bytes as that
+    /// function, block after block. For textures that are not materials, and for testing the
+    /// GPU encoders on any pixels.
+    pub fn encode_blocks(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        format: BcFormat,
+        blocks: &[([[u8; 4]; BLOCK_PIXELS], u16)],
+    ) -> Result<Vec<u8>, GpuError> {
+        let params_format = shader_format(format)?;
+        let count = blocks.len() as u64;
+        let too_large = GpuError::TooLarge {
+            texels: count * 16,
+            limit: u64::from(MAX_GROUPS).pow(2) * PIXEL_BLOCKS_PER_GROUP * 16,
+        };
+        let groups = count.div_ceil(PIXEL_BLOCKS_PER_GROUP);
+        let input_bytes = count * 17 * 4;
+        let max_binding = device.limits().max_storage_buffer_binding_size;
+        if groups > u64::from(MAX_GROUPS).pow(2) || input_bytes > max_binding {
+            return Err(too_large);
+        }
+        if blocks.is_empty() {
+            return Ok(Vec::new());
+        }
+        let words: Vec<u8> = blocks
+            .iter()
+            .flat_map(|(pixels, valid)| {
+                let pixel_words = pixels.iter().map(|p| u32::from_le_bytes(*p));
+                pixel_words.chain([u32::from(*valid)]).flat_map(u32::to_le_bytes)
+            })
+            .collect();
+        let input = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("nmat pixels"),
+            contents: &words,
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let block_bytes = format.block_bytes() as u64;
+        let (out, readback) = output_buffers(device, count * block_bytes)?;
+        let params = Params {
+            count: u32::try_from(count).map_err(|_| too_large)?,
+            width: 1,
+            format: params_format,
+            row_words: (block_bytes / 4) as u32,
+            ..Params::default()
+        };
+        let bind = self.bind(device, None, Some(&input), &out, &params);
+        let mut encoder = device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nmat encode") });
+        dispatch(&mut encoder, &self.encode, &bind, groups);
+        encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, readback.size());
+        queue.submit([encoder.finish()]);
+        PendingBlocks { blocks: out, readback, len: (count * block_bytes) as usize }.wait(device)
+    }
+}
+
+/// A storage buffer for `len` bytes of blocks and its readback twin (at least 4 bytes each).
+fn output_buffers(
+    device: &wgpu::Device,
+    len: u64,
+) -> Result<(wgpu::Buffer, wgpu::Buffer), GpuError> {
+    let max_binding = device.limits().max_storage_buffer_binding_size;
+    if len > max_binding {
+        return Err(GpuError::TooLarge { texels: len / 8 * 16, limit: max_binding / 8 * 16 });
+    }
+    let size = len.next_multiple_of(4).max(4);
+    let buffer = |label, usage| {
+        device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size,
+            usage,
+            mapped_at_creation: false,
+        })
+    };
+    Ok((
+        buffer("nmat blocks", wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC),
+        buffer("nmat blocks readback", wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST),
+    ))
+}

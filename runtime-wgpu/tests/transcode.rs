@@ -1,0 +1,327 @@
+//! BC transcoding on the GPU against the CPU, byte for byte: the GPU's BC1/BC4/BC5 encoders on
+//! random and hard blocks against `nmat_core::bc::encode_block`, and decode + encode of every mip
+//! of the golden fixtures, a trained material and a material with constant channels against
+//! `Decoder::transcode_blocks`. Runs on whatever adapter wgpu finds (lavapipe in CI); no adapter
+//! is a failure.
+
+use nmat_core::bc::{self, BcFormat, BcTexture, layout_with};
+use nmat_core::{BlockRegion, Container, Decoder, Material};
+use nmat_tests::fixtures_dir;
+use nmat_tests::generate::{FixtureConfig, generate, golden_configs};
+use nmat_wgpu::{Context, GpuError, GpuMaterial};
+
+const GPU_FORMATS: [BcFormat; 3] = [BcFormat::Bc1, BcFormat::Bc4, BcFormat::Bc5];
+
+fn device() -> (wgpu::Device, wgpu::Queue) {
+    let (device, queue, info) = pollster::block_on(nmat_wgpu::default_device()).expect(
+        "no GPU adapter found: install a Vulkan driver (CI: apt-get install mesa-vulkan-drivers libvulkan1)",
+    );
+    eprintln!("adapter: {} ({:?}, {:?})", info.name, info.backend, info.device_type);
+    (device, queue)
+}
+
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+    fn byte(&mut self) -> u8 {
+        (self.next() >> 56) as u8
+    }
+}
+
+type Block = ([[u8; 4]; 16], u16);
+
+/// Blocks of every kind an encoder branches on: noise, two-colour and gradient blocks with
+/// a little noise, single colours (every value in some channel), the extremes 0 and 255, near-flat
+/// blocks, ties on the principal axis, and random masks of valid pixels (none, one, edge shapes,
+/// any).
+fn hard_blocks(n: usize) -> Vec<Block> {
+    let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
+    let mut blocks = Vec::new();
+    for k in 0..n {
+        let a: [u8; 4] = std::array::from_fn(|_| rng.byte());
+        let b: [u8; 4] = std::array::from_fn(|_| rng.byte());
+        let noise = [0u8, 1, 3, 12][k % 4];
+        let mut jitter = |v: u8| {
+            let d = (rng.next() % (2 * u64::from(noise) + 1)) as i32 - i32::from(noise);
+            (i32::from(v) + d).clamp(0, 255) as u8
+        };
+        let pixels: [[u8; 4]; 16] = match k % 8 {
+            0 => std::array::from_fn(|_| std::array::from_fn(|_| rng.byte())),
+            1 => std::array::from_fn(|i| if (i * 7 + k) % 3 == 0 { a } else { b }),
+            2 => std::array::from_fn(|i| {
+                let t = i as i32;
+                std::array::from_fn(|c| {
+                    jitter((i32::from(a[c]) + (i32::from(b[c]) - i32::from(a[c])) * t / 15) as u8)
+                })
+            }),
+            3 => [[(k / 8 % 256) as u8, (k * 3 % 256) as u8, a[2], a[3]]; 16],
+            4 => std::array::from_fn(|i| [[0; 4], [255; 4], a][(i + k) % 3]),
+            5 => std::array::from_fn(|_| a.map(&mut jitter)),
+            // The corners of a square, as many pixels each: ties on the principal axis.
+            6 => std::array::from_fn(|i| {
+                let (x, y) = ((i + k) % 2, (i / 2 + k / 8) % 2);
+                [x as u8 * a[0], y as u8 * a[0], a[2], a[3]]
+            }),
+            _ => {
+                std::array::from_fn(
+                    |i| if i % 5 == 0 { [0, 255, 0, 255] } else { a.map(&mut jitter) },
+                )
+            }
+        };
+        let valid = match k % 11 {
+            0 => 0,
+            1 => 1 << (k % 16),
+            2 => bc::valid_mask(0, 0, 1 + (k % 4) as u32, 1 + (k / 4 % 4) as u32),
+            3 => rng.next() as u16,
+            _ => bc::ALL_VALID,
+        };
+        blocks.push((pixels, valid));
+    }
+    blocks
+}
+
+#[test]
+fn gpu_encoders_write_the_cores_bytes_for_any_block() {
+    let (device, queue) = device();
+    let ctx = Context::new(&device);
+    let blocks = hard_blocks(8 * 11 * 40);
+    for format in GPU_FORMATS {
+        let gpu = ctx.encode_blocks(&device, &queue, format, &blocks).unwrap();
+        let size = format.block_bytes();
+        assert_eq!(gpu.len(), blocks.len() * size);
+        for (k, ((pixels, valid), got)) in blocks.iter().zip(gpu.chunks(size)).enumerate() {
+            let mut want = [0u8; 16];
+            bc::encode_block(format, pixels, *valid, &mut want);
+            assert_eq!(got, &want[..size], "{format:?} block {k} (valid {valid:#06x}): {pixels:?}");
+        }
+    }
+    let refused = ctx.encode_blocks(&device, &queue, BcFormat::Bc7Rgb, &blocks[..1]);
+    assert!(matches!(refused, Err(GpuError::Format { format: BcFormat::Bc7Rgb })));
+    assert!(ctx.encode_blocks(&device, &queue, BcFormat::Bc1, &[]).unwrap().is_empty());
+}
+
+/// Every texture of `m` in BC1, BC4 and BC5 (each map in each format, and the default layout's
+/// textures the GPU encodes), every mip: the GPU's blocks equal the CPU's.
+fn check_material(
+    ctx: &Context,
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    m: &Material<'_>,
+    name: &str,
+) {
+    let gm = ctx.upload(device, m).unwrap();
+    let cpu = Decoder::new(m);
+    let mut textures: Vec<BcTexture> = Vec::new();
+    for format in GPU_FORMATS {
+        textures.extend(layout_with(m, |_| Some(format)));
+    }
+    textures
+        .extend(layout_with(m, |_| None).into_iter().filter(|t| GPU_FORMATS.contains(&t.format)));
+    for texture in &textures {
+        for mip in 0..m.mip_count() {
+            let gpu = ctx.transcode_mip(device, queue, &gm, texture, mip).unwrap();
+            let region = BlockRegion::mip(m, mip);
+            let row = region.width as usize * texture.format.block_bytes();
+            let mut want = vec![0u8; row * region.height as usize];
+            cpu.transcode_blocks(m, texture, mip, region, &mut want, row).unwrap();
+            let first = gpu.iter().zip(&want).position(|(a, b)| a != b);
+            assert!(
+                gpu.len() == want.len() && first.is_none(),
+                "{name} {texture:?} mip {mip}: first difference at byte {first:?}"
+            );
+        }
+    }
+}
+
+#[test]
+fn golden_fixtures_transcode_identically_on_the_gpu() {
+    let (device, queue) = device();
+    let ctx = Context::new(&device);
+    for cfg in golden_configs() {
+        let bytes = std::fs::read(fixtures_dir().join(format!("{}.nmat", cfg.name))).unwrap();
+        let m = Container::parse(&bytes).unwrap();
+        check_material(&ctx, &device, &queue, &m, cfg.name);
+    }
+}
+
+#[test]
+fn trained_and_constant_channel_materials_transcode_identically_on_the_gpu() {
+    let (device, queue) = device();
+    let ctx = Context::new(&device);
+    let set = nmat_encode::demo::bricks(64);
+    let options = nmat_encode::EncodeOptions {
+        train: nmat_encode::TrainOptions { steps: 150, ..Default::default() },
+        ..Default::default()
+    };
+    let out = nmat_encode::encode(&set, &options, &mut |_| {}).unwrap();
+    check_material(&ctx, &device, &queue, &Container::parse(&out.bytes).unwrap(), "bricks");
+    // Constant channels (range_min = range_max) take their value's code, not a decoded one.
+    let mut spec = generate(&FixtureConfig::ntc("constants", 9, 21, 13, 10));
+    for (c, v) in [(3, 0.0), (8, 0.75)] {
+        spec.channels[c].range_min = v;
+        spec.channels[c].range_max = v;
+    }
+    let bytes = spec.to_bytes().unwrap();
+    check_material(&ctx, &device, &queue, &Container::parse(&bytes).unwrap(), "constants");
+}
+
+/// A region recorded into the caller's encoder and buffer, at an offset with a padded row pitch,
+/// holds the same blocks as the whole mip; bad arguments are refused before anything is recorded.
+#[test]
+fn recorded_regions_land_where_asked_and_bad_arguments_are_refused() {
+    let (device, queue) = device();
+    let ctx = Context::new(&device);
+    let cfg = golden_configs().into_iter().find(|c| c.name == "ntc_pbr10_96x80_clamp").unwrap();
+    let bytes = generate(&cfg).to_bytes().unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    let gm: GpuMaterial = ctx.upload(&device, &m).unwrap();
+    let texture = BcTexture { format: BcFormat::Bc5, channels: [3, 4, 0, 0], srgb: false };
+    let whole = ctx.transcode_mip(&device, &queue, &gm, &texture, 0).unwrap();
+    let all = gm.blocks(0).unwrap();
+    let region = BlockRegion { x: 3, y: 2, width: 9, height: 5 };
+    let (offset, pitch) = (64u64, 9 * 16 + 52);
+    let size = offset + 5 * pitch;
+    let out = device.create_buffer(&wgpu::BufferDescriptor {
+        label: None,
+        size,
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        mapped_at_creation: false,
+    });
+    let readback = device.create_buffer(&wgpu::BufferDescriptor {
+        label: None,
+        size,
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut encoder = device.create_command_encoder(&Default::default());
+    ctx.record_transcode(&device, &mut encoder, &gm, &texture, 0, region, (&out, offset, pitch))
+        .unwrap();
+    encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, size);
+    queue.submit([encoder.finish()]);
+    readback.map_async(wgpu::MapMode::Read, .., |r| r.unwrap());
+    device.poll(wgpu::PollType::wait_indefinitely()).unwrap();
+    let got = readback.get_mapped_range(..).unwrap().to_vec();
+    let whole_row = all.width as usize * 16;
+    for r in 0..5usize {
+        let at = offset as usize + r * pitch as usize;
+        let from = (region.y as usize + r) * whole_row + region.x as usize * 16;
+        assert_eq!(&got[at..at + 9 * 16], &whole[from..from + 9 * 16], "row {r}");
+        assert!(
+            got[at + 9 * 16..at + pitch as usize].iter().all(|&b| b == 0),
+            "padding of row {r}"
+        );
+    }
+    assert!(got[..offset as usize].iter().all(|&b| b == 0), "bytes before the offset");
+
+    let mut encoder = device.create_command_encoder(&Default::default());
+    let mut record = |texture: &BcTexture, mip, region, target| {
+        ctx.record_transcode(&device, &mut encoder, &gm, texture, mip, region, target)
+    };
+    let fits = (&out, 0, 9 * 16);
+    let bc7 = BcTexture { format: BcFormat::Bc7Rgb, channels: [0, 1, 2, 0], srgb: false };
+    assert!(matches!(record(&bc7, 0, region, fits), Err(GpuError::Format { .. })));
+    let missing = BcTexture { channels: [3, 10, 0, 0], ..texture };
+    assert!(matches!(record(&missing, 0, region, fits), Err(GpuError::Channels { .. })));
+    let past = BlockRegion { x: all.width - 8, ..region };
+    assert!(matches!(record(&texture, 0, past, fits), Err(GpuError::Blocks { .. })));
+    assert!(matches!(record(&texture, 99, region, fits), Err(GpuError::Blocks { .. })));
+    assert!(matches!(
+        record(&texture, 0, region, (&out, 0, 9 * 16 - 4)),
+        Err(GpuError::RowPitch { .. })
+    ));
+    assert!(matches!(
+        record(&texture, 0, region, (&out, 0, 9 * 16 + 2)),
+        Err(GpuError::RowPitch { .. })
+    ));
+    assert!(matches!(
+        record(&texture, 0, region, (&out, 2, 9 * 16)),
+        Err(GpuError::OutputBuffer { .. })
+    ));
+    assert!(matches!(
+        record(&texture, 0, region, (&readback, 0, 9 * 16)),
+        Err(GpuError::OutputBuffer { .. })
+    ));
+    assert!(matches!(
+        record(&texture, 0, region, (&out, size - 64, 9 * 16)),
+        Err(GpuError::Output { .. })
+    ));
+}
+
+/// Where the adapter samples BC textures, the blocks copy into a BC texture of the format
+/// `texture_format` names and read back unchanged.
+#[test]
+fn blocks_copy_into_a_bc_texture() {
+    let (device, queue) = device();
+    if !device.features().contains(wgpu::Features::TEXTURE_COMPRESSION_BC) {
+        eprintln!("the adapter has no BC textures: nothing to copy into");
+        return;
+    }
+    let ctx = Context::new(&device);
+    let cfg = golden_configs().into_iter().find(|c| c.name == "ntc_pbr10_96x80_clamp").unwrap();
+    let bytes = generate(&cfg).to_bytes().unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    let gm = ctx.upload(&device, &m).unwrap();
+    let texture = BcTexture { format: BcFormat::Bc1, channels: [0, 1, 2, 0], srgb: true };
+    let blocks = gm.blocks(0).unwrap();
+    let pitch = nmat_wgpu::aligned_row_pitch(texture.format, blocks.width);
+    let size = pitch * u64::from(blocks.height);
+    let buffer = |usage| {
+        device.create_buffer(&wgpu::BufferDescriptor {
+            label: None,
+            size,
+            usage,
+            mapped_at_creation: false,
+        })
+    };
+    let staging = buffer(wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC);
+    let back = buffer(wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST);
+    let extent = wgpu::Extent3d {
+        width: 4 * blocks.width,
+        height: 4 * blocks.height,
+        depth_or_array_layers: 1,
+    };
+    let gpu_texture = device.create_texture(&wgpu::TextureDescriptor {
+        label: None,
+        size: extent,
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: nmat_wgpu::texture_format(&texture).unwrap(),
+        usage: wgpu::TextureUsages::COPY_DST
+            | wgpu::TextureUsages::COPY_SRC
+            | wgpu::TextureUsages::TEXTURE_BINDING,
+        view_formats: &[],
+    });
+    let layout = wgpu::TexelCopyBufferLayout {
+        offset: 0,
+        bytes_per_row: Some(pitch as u32),
+        rows_per_image: Some(blocks.height),
+    };
+    let mut encoder = device.create_command_encoder(&Default::default());
+    ctx.record_transcode(&device, &mut encoder, &gm, &texture, 0, blocks, (&staging, 0, pitch))
+        .unwrap();
+    encoder.copy_buffer_to_texture(
+        wgpu::TexelCopyBufferInfo { buffer: &staging, layout },
+        gpu_texture.as_image_copy(),
+        extent,
+    );
+    encoder.copy_texture_to_buffer(
+        gpu_texture.as_image_copy(),
+        wgpu::TexelCopyBufferInfo { buffer: &back, layout },
+        extent,
+    );
+    queue.submit([encoder.finish()]);
+    back.map_async(wgpu::MapMode::Read, .., |r| r.unwrap());
+    device.poll(wgpu::PollType::wait_indefinitely()).unwrap();
+    let got = back.get_mapped_range(..).unwrap().to_vec();
+    let want = ctx.transcode_mip(&device, &queue, &gm, &texture, 0).unwrap();
+    let row = blocks.width as usize * 8;
+    for (r, want_row) in want.chunks(row).enumerate() {
+        assert_eq!(&got[r * pitch as usize..][..row], want_row, "block row {r}");
+    }
+}
