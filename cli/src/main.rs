@@ -234,6 +234,11 @@ struct TranscodeArgs {
     /// Worker threads (default: all cores). The files do not depend on it.
     #[arg(long)]
     threads: Option<usize>,
+    /// Decode and encode BC1, BC4 and BC5 textures on the GPU (wgpu; the same bytes as the CPU;
+    /// BC7 textures stay on the CPU). Needs the `gpu` feature:
+    /// cargo build --release -p nmat --features gpu
+    #[arg(long)]
+    gpu: bool,
     /// Replace files that already exist in the output folder.
     #[arg(long)]
     force: bool,
@@ -646,6 +651,7 @@ fn cmd_transcode(args: TranscodeArgs) -> Result<()> {
     }
     let start = Instant::now();
     let decoder = nmat_core::Decoder::new(&m);
+    let gpu = if args.gpu { Some(gpu_transcoder(&m)?) } else { None };
     let per_texture = output::cost_of_mips(&m, 0..m.mip_count());
     let cost = nmat_core::DecodeCost {
         texels: per_texture.texels * plan.len() as u64,
@@ -655,8 +661,15 @@ fn cmd_transcode(args: TranscodeArgs) -> Result<()> {
         output::write_all_or_nothing(&args.output, |dir| {
             let mut files = Vec::new();
             for (named, name) in plan.iter().zip(&names) {
-                let image = transcode::transcode(&m, &decoder, &named.texture, progress)
-                    .map_err(|e| format!("{}: {e}", args.input.display()))?;
+                let on_gpu = match &gpu {
+                    Some(levels_of) => levels_of(&named.texture, &mut *progress)?,
+                    None => None,
+                };
+                let image = match on_gpu {
+                    Some(levels) => transcode::image(&m, &named.texture, levels),
+                    None => transcode::transcode(&m, &decoder, &named.texture, progress)
+                        .map_err(|e| format!("{}: {e}", args.input.display()))?,
+                };
                 let path = dir.join(name);
                 output::write_atomic(&path, &container.bytes(&image))?;
                 files.push(path);
@@ -751,6 +764,38 @@ fn decode_on_gpu(
     _: &Path,
     _: &mut dyn FnMut(u64),
 ) -> Result<Vec<PathBuf>> {
+    Err("--gpu: this nmat was built without GPU support; build it with `--features gpu`".into())
+}
+
+/// Every mip of a texture transcoded on the GPU (`None` for a format the GPU does not encode),
+/// reporting texels done.
+type GpuLevels =
+    Box<dyn Fn(&nmat_core::bc::BcTexture, &mut dyn FnMut(u64)) -> Result<Option<Vec<Vec<u8>>>>>;
+
+#[cfg(feature = "gpu")]
+fn gpu_transcoder(m: &Material<'_>) -> Result<GpuLevels> {
+    let (device, queue, info) = pollster::block_on(nmat_wgpu::default_device()).ok_or(
+        "--gpu: no GPU adapter found (on Linux without a GPU: apt-get install mesa-vulkan-drivers)",
+    )?;
+    eprintln!("transcoding on {} ({:?}, {:?})", info.name, info.backend, info.device_type);
+    let ctx = nmat_wgpu::Context::new(&device);
+    let gm = ctx.upload(&device, m)?;
+    Ok(Box::new(move |texture, progress| {
+        use nmat_core::bc::BcFormat;
+        if !matches!(texture.format, BcFormat::Bc1 | BcFormat::Bc4 | BcFormat::Bc5) {
+            return Ok(None);
+        }
+        let mut levels = Vec::new();
+        for (mip, &(w, h)) in gm.mip_sizes().iter().enumerate() {
+            levels.push(ctx.transcode_mip(&device, &queue, &gm, texture, mip as u32)?);
+            progress(u64::from(w) * u64::from(h));
+        }
+        Ok(Some(levels))
+    }))
+}
+
+#[cfg(not(feature = "gpu"))]
+fn gpu_transcoder(_: &Material<'_>) -> Result<GpuLevels> {
     Err("--gpu: this nmat was built without GPU support; build it with `--features gpu`".into())
 }
 

@@ -102,13 +102,18 @@ pub fn transcode(
         }
         levels.push(level);
     }
-    Ok(BcImage {
+    Ok(image(m, texture, levels))
+}
+
+/// The image of `texture` from its mips' blocks (e.g. transcoded on the GPU).
+pub fn image(m: &Material<'_>, texture: &BcTexture, levels: Vec<Vec<u8>>) -> BcImage {
+    BcImage {
         format: texture.format,
         srgb: texture.srgb,
         width: m.width(),
         height: m.height(),
         levels,
-    })
+    }
 }
 
 /// The container a texture is written in.
