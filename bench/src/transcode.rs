@@ -2,8 +2,9 @@
 //! docs/QUALITY.md). Usage: nmat-transcode-bench MATERIAL.nmat SOURCE_DIR [RUNS]
 //!
 //! Speed (median of RUNS, default 5): milliseconds from the .nmat file in memory to the BC blocks
-//! of every texture of the default layout and every mip (`Decoder::transcode_blocks`, block rows
-//! in parallel) with 1 and 2 threads; and the usual path from the same maps stored as PNG: PNG
+//! of every texture of the default layout and every mip (as `nmat transcode` runs it:
+//! `Decoder::transcode_textures`, all textures in one network pass, block rows in parallel) with 1
+//! and 2 threads; and the usual path from the same maps stored as PNG: PNG
 //! decode, a 2×2 box-filtered mip chain, and Intel's ISPC BC encoder (fast, SIMD) on every mip,
 //! with 1 and 2 threads (maps in parallel).
 //!
@@ -13,7 +14,7 @@
 //! (the .nmat file for all textures; BC of the whole chain per texture).
 
 use nmat_core::bc::{self, BcFormat, BcTexture};
-use nmat_core::{BlockRegion, Container, Decoder, Material, SectionKind};
+use nmat_core::{Container, Decoder, Material, SectionKind};
 use nmat_encode::texset::{self, LoadOptions, Role, TextureSet};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -93,25 +94,11 @@ fn add(a: (f64, f64), b: (f64, f64)) -> (f64, f64) {
     (a.0 + b.0, a.1 + b.1)
 }
 
-/// Every texture, every mip, transcoded (block rows in parallel).
+/// Every texture, every mip, transcoded as `nmat transcode` does it (all textures in one network
+/// pass per block row, block rows in parallel).
 fn transcode_all(m: &Material<'_>, d: &Decoder, layout: &[BcTexture]) -> Vec<Vec<Vec<u8>>> {
-    layout
-        .iter()
-        .map(|t| {
-            (0..m.mip_count())
-                .map(|mip| {
-                    let all = BlockRegion::mip(m, mip);
-                    let row = all.width as usize * t.format.block_bytes();
-                    let mut out = vec![0u8; row * all.height as usize];
-                    out.par_chunks_mut(row).enumerate().for_each(|(y, o)| {
-                        let region = BlockRegion { y: y as u32, height: 1, ..all };
-                        d.transcode_blocks(m, t, mip, region, o, row).expect("transcode");
-                    });
-                    out
-                })
-                .collect()
-        })
-        .collect()
+    let images = nmat_cli::transcode::transcode(m, d, layout, &mut |_| {}).expect("transcode");
+    images.into_iter().map(|image| image.levels).collect()
 }
 
 /// The usual path for one map stored as PNG: decode it, box-filter its mips, ISPC-encode each.

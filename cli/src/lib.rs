@@ -55,9 +55,11 @@ fn exercise_transcode(m: &nmat_core::Material<'_>, small: bool) {
         let decoder = nmat_core::Decoder::new(m);
         for named in &plan {
             let _ = transcode::file_name(named, Container::Ktx2);
-            let transcoded = || transcode::transcode(m, &decoder, &named.texture, &mut |_| {});
-            if small && let Ok(image) = transcoded() {
-                let _ = (Container::Ktx2.bytes(&image), Container::Dds.bytes(&image));
+        }
+        let textures: Vec<_> = plan.iter().map(|n| n.texture).collect();
+        if small && let Ok(images) = transcode::transcode(m, &decoder, &textures, &mut |_| {}) {
+            for image in &images {
+                let _ = (Container::Ktx2.bytes(image), Container::Dds.bytes(image));
             }
         }
     }

@@ -652,24 +652,35 @@ fn cmd_transcode(args: TranscodeArgs) -> Result<()> {
     let start = Instant::now();
     let decoder = nmat_core::Decoder::new(&m);
     let gpu = if args.gpu { Some(gpu_transcoder(&m)?) } else { None };
-    let per_texture = output::cost_of_mips(&m, 0..m.mip_count());
-    let cost = nmat_core::DecodeCost {
-        texels: per_texture.texels * plan.len() as u64,
-        macs: per_texture.macs * plan.len() as u64,
-    };
+    // One decode of the chain per texture on the GPU, one for all the others on the CPU.
+    let chain = output::cost_of_mips(&m, 0..m.mip_count());
+    let on_gpu = plan.iter().filter(|n| gpu.is_some() && gpu_encodes(n.texture.format)).count();
+    let passes = (on_gpu + usize::from(on_gpu < plan.len())) as u64;
+    let cost = nmat_core::DecodeCost { texels: chain.texels * passes, macs: chain.macs * passes };
     let written = with_decode_progress("transcode", cost, |progress| {
         output::write_all_or_nothing(&args.output, |dir| {
-            let mut files = Vec::new();
-            for (named, name) in plan.iter().zip(&names) {
-                let on_gpu = match &gpu {
-                    Some(levels_of) => levels_of(&named.texture, &mut *progress)?,
+            // The GPU's textures first (with --gpu), then all the others in one CPU pass.
+            let mut images = Vec::new();
+            for named in &plan {
+                images.push(match &gpu {
+                    Some(levels_of) => levels_of(&named.texture, &mut *progress)?
+                        .map(|levels| transcode::image(&m, &named.texture, levels)),
                     None => None,
-                };
-                let image = match on_gpu {
-                    Some(levels) => transcode::image(&m, &named.texture, levels),
-                    None => transcode::transcode(&m, &decoder, &named.texture, progress)
-                        .map_err(|e| format!("{}: {e}", args.input.display()))?,
-                };
+                });
+            }
+            let on_cpu: Vec<_> = plan
+                .iter()
+                .zip(&images)
+                .filter(|(_, i)| i.is_none())
+                .map(|(n, _)| n.texture)
+                .collect();
+            let mut cpu_images = transcode::transcode(&m, &decoder, &on_cpu, progress)
+                .map_err(|e| format!("{}: {e}", args.input.display()))?
+                .into_iter();
+            let mut files = Vec::new();
+            for (image, name) in images.into_iter().zip(&names) {
+                let image =
+                    image.or_else(|| cpu_images.next()).ok_or("a texture was not transcoded")?;
                 let path = dir.join(name);
                 output::write_atomic(&path, &container.bytes(&image))?;
                 files.push(path);
@@ -772,6 +783,12 @@ fn decode_on_gpu(
 type GpuLevels =
     Box<dyn Fn(&nmat_core::bc::BcTexture, &mut dyn FnMut(u64)) -> Result<Option<Vec<Vec<u8>>>>>;
 
+/// The formats `nmat-wgpu` encodes (the others are encoded on the CPU).
+fn gpu_encodes(format: nmat_core::bc::BcFormat) -> bool {
+    use nmat_core::bc::BcFormat;
+    matches!(format, BcFormat::Bc1 | BcFormat::Bc4 | BcFormat::Bc5)
+}
+
 #[cfg(feature = "gpu")]
 fn gpu_transcoder(m: &Material<'_>) -> Result<GpuLevels> {
     let (device, queue, info) = pollster::block_on(nmat_wgpu::default_device()).ok_or(
@@ -781,8 +798,7 @@ fn gpu_transcoder(m: &Material<'_>) -> Result<GpuLevels> {
     let ctx = nmat_wgpu::Context::new(&device);
     let gm = ctx.upload(&device, m)?;
     Ok(Box::new(move |texture, progress| {
-        use nmat_core::bc::BcFormat;
-        if !matches!(texture.format, BcFormat::Bc1 | BcFormat::Bc4 | BcFormat::Bc5) {
+        if !gpu_encodes(texture.format) {
             return Ok(None);
         }
         let mut levels = Vec::new();

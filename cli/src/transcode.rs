@@ -2,7 +2,7 @@
 
 use crate::gpu_files::{self, BcImage};
 use nmat_core::bc::{self, BcFormat, BcTexture, MapChannels};
-use nmat_core::{BlockRegion, Decoder, Material, Semantic};
+use nmat_core::{BcTarget, BlockRegion, Decoder, Material, Semantic};
 use rayon::prelude::*;
 
 /// Which formats the maps get: one for every map (`None`: from each map's meaning), and the
@@ -75,34 +75,52 @@ fn sanitize(name: &str) -> String {
 /// Block rows transcoded between two progress reports.
 const BATCH_ROWS: usize = 16;
 
-/// Transcodes every mip of `texture` (block rows in parallel on rayon's threads; the bytes do
-/// not depend on how many). `progress` receives the texels done after each batch of rows.
+/// Transcodes every mip of `textures`, all of them in one pass of the network per block row
+/// (`Decoder::transcode_textures`; block rows in parallel on rayon's threads; the bytes do not
+/// depend on how many). `progress` receives the texels decoded after each batch of rows.
 pub fn transcode(
     m: &Material<'_>,
     decoder: &Decoder,
-    texture: &BcTexture,
+    textures: &[BcTexture],
     progress: &mut dyn FnMut(u64),
-) -> Result<BcImage, nmat_core::Error> {
-    let bytes = texture.format.block_bytes();
-    let mut levels = Vec::new();
+) -> Result<Vec<BcImage>, nmat_core::Error> {
+    let mut levels: Vec<Vec<Vec<u8>>> = vec![Vec::new(); textures.len()];
     for mip in 0..m.mip_count() {
         let all = BlockRegion::mip(m, mip);
-        let row = (all.width as usize * bytes).max(1);
-        let mut level = vec![0u8; row * all.height as usize];
+        let rows = all.height as usize;
+        let row_bytes: Vec<usize> =
+            textures.iter().map(|t| all.width as usize * t.format.block_bytes()).collect();
+        let mut mip_levels: Vec<Vec<u8>> = row_bytes.iter().map(|r| vec![0u8; r * rows]).collect();
+        // Per block row, each texture's slice of it.
+        let mut per_row: Vec<Vec<&mut [u8]>> = (0..rows).map(|_| Vec::new()).collect();
+        for (level, &row) in mip_levels.iter_mut().zip(&row_bytes) {
+            for (slices, chunk) in per_row.iter_mut().zip(level.chunks_mut(row.max(1))) {
+                slices.push(chunk);
+            }
+        }
         let (w, h) = m.mip_size(mip);
-        for (b, batch) in level.chunks_mut(row * BATCH_ROWS).enumerate() {
-            batch.par_chunks_mut(row).enumerate().try_for_each(|(k, out)| {
+        for (b, batch) in per_row.chunks_mut(BATCH_ROWS).enumerate() {
+            batch.par_iter_mut().enumerate().try_for_each(|(k, slices)| {
                 let y = (b * BATCH_ROWS + k) as u32;
                 let region = BlockRegion { y, height: 1, ..all };
-                decoder.transcode_blocks(m, texture, mip, region, out, row)
+                let mut targets: Vec<BcTarget<'_>> = textures
+                    .iter()
+                    .zip(slices.iter_mut())
+                    .map(|(t, out)| BcTarget { texture: *t, row_pitch: out.len(), out })
+                    .collect();
+                decoder.transcode_textures(m, mip, region, &mut targets)
             })?;
-            let rows = (batch.len() / row * 4) as u32;
+            let texel_rows = (batch.len() * 4) as u32;
             let done = (b * BATCH_ROWS * 4) as u32;
-            progress(u64::from(w) * u64::from(rows.min(h.saturating_sub(done))));
+            let texels = u64::from(w) * u64::from(texel_rows.min(h.saturating_sub(done)));
+            progress(texels);
         }
-        levels.push(level);
+        drop(per_row);
+        for (all_levels, level) in levels.iter_mut().zip(mip_levels) {
+            all_levels.push(level);
+        }
     }
-    Ok(image(m, texture, levels))
+    Ok(textures.iter().zip(levels).map(|(t, l)| image(m, t, l)).collect())
 }
 
 /// The image of `texture` from its mips' blocks (e.g. transcoded on the GPU).

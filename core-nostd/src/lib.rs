@@ -112,7 +112,7 @@ pub use container::{
 pub use decode::ChannelMask;
 #[cfg(feature = "alloc")]
 #[doc(inline)]
-pub use decoder::{BlockRegion, Decoder, Kernel};
+pub use decoder::{BcTarget, BlockRegion, Decoder, Kernel};
 #[doc(inline)]
 pub use error::{Argument, Error, Field};
 #[doc(inline)]

@@ -240,6 +240,78 @@ fn transcoded_mips_equal_blocks_of_decoded_texels() {
     }
 }
 
+/// Several textures in one pass (`Decoder::transcode_textures`: one decode of the union of their
+/// channels) give each texture's bytes from `transcode_blocks` alone, on every fixture, mip and
+/// kernel, with a different row pitch per target; a bad target makes the call write nothing.
+#[test]
+fn textures_in_one_pass_equal_each_texture_alone() {
+    use nmat_core::bc::{BcFormat, layout_with};
+    use nmat_core::{Argument, BcTarget, BlockRegion, Container, Decoder, Error, Kernel};
+    let dir = nmat_tests::fixtures_dir();
+    let mut files: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "nmat"))
+        .collect();
+    files.sort();
+    for file in files {
+        let bytes = std::fs::read(&file).unwrap();
+        let m = Container::parse(&bytes).unwrap();
+        let mut textures = layout_with(&m, |_| None).to_vec();
+        textures.extend(layout_with(&m, |map| (map.count >= 3).then_some(BcFormat::Bc7Rgb)));
+        textures.extend(layout_with(&m, |_| Some(BcFormat::Bc4)));
+        for kernel in Kernel::ALL.into_iter().filter(|k| k.is_available()) {
+            let d = Decoder::with_kernel(&m, kernel).unwrap();
+            for mip in 0..m.mip_count() {
+                let region = BlockRegion::mip(&m, mip);
+                let pitch = |k: usize, t: &nmat_core::bc::BcTexture| {
+                    region.width as usize * t.format.block_bytes() + 3 * k
+                };
+                let alone: Vec<Vec<u8>> = textures
+                    .iter()
+                    .enumerate()
+                    .map(|(k, t)| {
+                        let mut out = vec![0u8; pitch(k, t) * region.height as usize];
+                        d.transcode_blocks(&m, t, mip, region, &mut out, pitch(k, t)).unwrap();
+                        out
+                    })
+                    .collect();
+                let mut outs: Vec<Vec<u8>> = alone.iter().map(|a| vec![0u8; a.len()]).collect();
+                let mut targets: Vec<BcTarget<'_>> = textures
+                    .iter()
+                    .zip(&mut outs)
+                    .enumerate()
+                    .map(|(k, (t, out))| BcTarget { texture: *t, out, row_pitch: pitch(k, t) })
+                    .collect();
+                d.transcode_textures(&m, mip, region, &mut targets).unwrap();
+                assert!(outs == alone, "{} {kernel:?} mip {mip}", file.display());
+            }
+        }
+        // One target too short: an error naming the output, and no target is written.
+        let d = Decoder::new(&m);
+        let region = BlockRegion::mip(&m, 0);
+        let mut outs: Vec<Vec<u8>> = textures
+            .iter()
+            .map(|t| {
+                vec![0u8; region.width as usize * t.format.block_bytes() * region.height as usize]
+            })
+            .collect();
+        outs.last_mut().unwrap().pop();
+        let mut targets: Vec<BcTarget<'_>> = textures
+            .iter()
+            .zip(&mut outs)
+            .map(|(t, out)| BcTarget {
+                texture: *t,
+                out,
+                row_pitch: region.width as usize * t.format.block_bytes(),
+            })
+            .collect();
+        let e = d.transcode_textures(&m, 0, region, &mut targets).unwrap_err();
+        assert!(matches!(e, Error::BadArgument { argument: Argument::Output, .. }), "{e:?}");
+        assert!(outs.iter().all(|o| o.iter().all(|&b| b == 0)), "{}", file.display());
+    }
+}
+
 /// Bad arguments are typed errors naming the argument, and nothing is written.
 #[test]
 fn transcode_refuses_bad_arguments() {

@@ -40,7 +40,7 @@ pub use kernel::Kernel;
 use kernel::{Available, GROUP, Job, Layers};
 use packed::PackedLayer;
 use span::{MAX_X_PERIOD, Slots, SpanGather};
-pub use transcode::BlockRegion;
+pub use transcode::{BcTarget, BlockRegion};
 
 /// The first layer's accumulators for the inputs of a span that repeat along x (the positional
 /// encoding, whose period is at most `MAX_X_PERIOD` texels, and the span-constant features of y
