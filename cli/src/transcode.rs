@@ -84,6 +84,9 @@ pub fn transcode(
     textures: &[BcTexture],
     progress: &mut dyn FnMut(u64),
 ) -> Result<Vec<BcImage>, nmat_core::Error> {
+    if textures.is_empty() {
+        return Ok(Vec::new());
+    }
     let mut levels: Vec<Vec<Vec<u8>>> = vec![Vec::new(); textures.len()];
     for mip in 0..m.mip_count() {
         let all = BlockRegion::mip(m, mip);

@@ -7,13 +7,8 @@ use nmat_tests::generate::{generate, golden_configs};
 use nmat_tests::{decode_all_u8, fixtures_dir};
 use nmat_wgpu::{Context, TexelRequest};
 
-fn device() -> (wgpu::Device, wgpu::Queue) {
-    let (device, queue, info) = pollster::block_on(nmat_wgpu::default_device()).expect(
-        "no GPU adapter found: install a Vulkan driver (CI: apt-get install mesa-vulkan-drivers libvulkan1)",
-    );
-    eprintln!("adapter: {} ({:?}, {:?})", info.name, info.backend, info.device_type);
-    (device, queue)
-}
+mod common;
+use common::{device, trained_material};
 
 fn cpu_requests(m: &Material<'_>, reqs: &[TexelRequest], mask: ChannelMask) -> Vec<u8> {
     let mut out = Vec::new();
@@ -89,13 +84,8 @@ fn random_access_requests_and_subsets_match_the_cpu() {
 fn a_trained_material_decodes_identically_on_the_gpu() {
     let (device, queue) = device();
     let ctx = Context::new(&device);
-    let set = nmat_encode::demo::bricks(64);
-    let options = nmat_encode::EncodeOptions {
-        train: nmat_encode::TrainOptions { steps: 150, ..Default::default() },
-        ..Default::default()
-    };
-    let out = nmat_encode::encode(&set, &options, &mut |_| {}).unwrap();
-    let m = Container::parse(&out.bytes).unwrap();
+    let trained = trained_material();
+    let m = Container::parse(&trained).unwrap();
     let gm = ctx.upload(&device, &m).unwrap();
     let gpu = ctx.decode_chain(&device, &queue, &gm, ChannelMask::ALL).unwrap();
     assert!(gpu == decode_all_u8(&m), "trained material differs on the GPU");

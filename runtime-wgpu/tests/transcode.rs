@@ -10,15 +10,10 @@ use nmat_tests::fixtures_dir;
 use nmat_tests::generate::{FixtureConfig, generate, golden_configs};
 use nmat_wgpu::{Context, GpuError, GpuMaterial};
 
-const GPU_FORMATS: [BcFormat; 3] = [BcFormat::Bc1, BcFormat::Bc4, BcFormat::Bc5];
+mod common;
+use common::{device, trained_material};
 
-fn device() -> (wgpu::Device, wgpu::Queue) {
-    let (device, queue, info) = pollster::block_on(nmat_wgpu::default_device()).expect(
-        "no GPU adapter found: install a Vulkan driver (CI: apt-get install mesa-vulkan-drivers libvulkan1)",
-    );
-    eprintln!("adapter: {} ({:?}, {:?})", info.name, info.backend, info.device_type);
-    (device, queue)
-}
+const GPU_FORMATS: [BcFormat; 3] = [BcFormat::Bc1, BcFormat::Bc4, BcFormat::Bc5];
 
 struct Rng(u64);
 impl Rng {
@@ -153,13 +148,8 @@ fn golden_fixtures_transcode_identically_on_the_gpu() {
 fn trained_and_constant_channel_materials_transcode_identically_on_the_gpu() {
     let (device, queue) = device();
     let ctx = Context::new(&device);
-    let set = nmat_encode::demo::bricks(64);
-    let options = nmat_encode::EncodeOptions {
-        train: nmat_encode::TrainOptions { steps: 150, ..Default::default() },
-        ..Default::default()
-    };
-    let out = nmat_encode::encode(&set, &options, &mut |_| {}).unwrap();
-    check_material(&ctx, &device, &queue, &Container::parse(&out.bytes).unwrap(), "bricks");
+    let trained = trained_material();
+    check_material(&ctx, &device, &queue, &Container::parse(&trained).unwrap(), "bricks");
     // Constant channels (range_min = range_max) take their value's code, not a decoded one.
     let mut spec = generate(&FixtureConfig::ntc("constants", 9, 21, 13, 10));
     for (c, v) in [(3, 0.0), (8, 0.75)] {

@@ -137,14 +137,8 @@ fn encoded_images_decode_like_bcdec() {
     assert!(modes[6] > 0 && modes[1] + modes[2] + modes[3] > 0, "modes {modes:?}");
 }
 
-/// Every fixture (odd sizes, 1×1, strips, 16 channels): each texture of the default layout,
-/// transcoded mip by mip through `Decoder::transcode_blocks` with a padded row pitch, equals
-/// blocks built texel by texel from `Material::decode_texel_u8` and encoded one by one; and the
-/// same with every kernel the CPU has, and when the mip is split into regions.
-#[test]
-fn transcoded_mips_equal_blocks_of_decoded_texels() {
-    use nmat_core::bc::{BcFormat, default_layout, encode_block, layout_with};
-    use nmat_core::{BlockRegion, ChannelMask, Container, Decoder, Kernel};
+/// The committed fixture files (odd sizes, 1×1, strips, 16 channels), sorted.
+fn fixture_files() -> Vec<std::path::PathBuf> {
     let dir = nmat_tests::fixtures_dir();
     let mut files: Vec<_> = std::fs::read_dir(&dir)
         .unwrap()
@@ -153,6 +147,18 @@ fn transcoded_mips_equal_blocks_of_decoded_texels() {
         .collect();
     files.sort();
     assert!(files.len() >= 5, "fixtures in {}", dir.display());
+    files
+}
+
+/// Every fixture (odd sizes, 1×1, strips, 16 channels): each texture of the default layout,
+/// transcoded mip by mip through `Decoder::transcode_blocks` with a padded row pitch, equals
+/// blocks built texel by texel from `Material::decode_texel_u8` and encoded one by one; and the
+/// same with every kernel the CPU has, and when the mip is split into regions.
+#[test]
+fn transcoded_mips_equal_blocks_of_decoded_texels() {
+    use nmat_core::bc::{BcFormat, default_layout, encode_block, layout_with};
+    use nmat_core::{BlockRegion, ChannelMask, Container, Decoder, Kernel};
+    let files = fixture_files();
     for file in files {
         let bytes = std::fs::read(&file).unwrap();
         let m = Container::parse(&bytes).unwrap();
@@ -247,13 +253,7 @@ fn transcoded_mips_equal_blocks_of_decoded_texels() {
 fn textures_in_one_pass_equal_each_texture_alone() {
     use nmat_core::bc::{BcFormat, layout_with};
     use nmat_core::{Argument, BcTarget, BlockRegion, Container, Decoder, Error, Kernel};
-    let dir = nmat_tests::fixtures_dir();
-    let mut files: Vec<_> = std::fs::read_dir(&dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "nmat"))
-        .collect();
-    files.sort();
+    let files = fixture_files();
     for file in files {
         let bytes = std::fs::read(&file).unwrap();
         let m = Container::parse(&bytes).unwrap();
