@@ -775,7 +775,7 @@ fn decode_on_gpu(
     _: &Path,
     _: &mut dyn FnMut(u64),
 ) -> Result<Vec<PathBuf>> {
-    Err("--gpu: this nmat was built without GPU support; build it with `--features gpu`".into())
+    Err(NO_GPU_BUILD.into())
 }
 
 /// Every mip of a texture transcoded on the GPU (`None` for a format the GPU does not encode),
@@ -783,11 +783,21 @@ fn decode_on_gpu(
 type GpuLevels =
     Box<dyn Fn(&nmat_core::bc::BcTexture, &mut dyn FnMut(u64)) -> Result<Option<Vec<Vec<u8>>>>>;
 
-/// The formats `nmat-wgpu` encodes (the others are encoded on the CPU).
+/// Whether `nmat-wgpu` encodes `format` (the others are encoded on the CPU).
+#[cfg(feature = "gpu")]
 fn gpu_encodes(format: nmat_core::bc::BcFormat) -> bool {
-    use nmat_core::bc::BcFormat;
-    matches!(format, BcFormat::Bc1 | BcFormat::Bc4 | BcFormat::Bc5)
+    nmat_wgpu::encodes(format)
 }
+
+#[cfg(not(feature = "gpu"))]
+fn gpu_encodes(_: nmat_core::bc::BcFormat) -> bool {
+    false
+}
+
+/// What `--gpu` says in a build without the `gpu` feature.
+#[cfg(not(feature = "gpu"))]
+const NO_GPU_BUILD: &str =
+    "--gpu: this nmat was built without GPU support; build it with `--features gpu`";
 
 #[cfg(feature = "gpu")]
 fn gpu_transcoder(m: &Material<'_>) -> Result<GpuLevels> {
@@ -812,7 +822,7 @@ fn gpu_transcoder(m: &Material<'_>) -> Result<GpuLevels> {
 
 #[cfg(not(feature = "gpu"))]
 fn gpu_transcoder(_: &Material<'_>) -> Result<GpuLevels> {
-    Err("--gpu: this nmat was built without GPU support; build it with `--features gpu`".into())
+    Err(NO_GPU_BUILD.into())
 }
 
 /// Median seconds of 5 runs of `f`.

@@ -35,7 +35,7 @@
 
 mod transcode;
 
-pub use transcode::{PendingBlocks, aligned_row_pitch, texture_format};
+pub use transcode::{PendingBlocks, aligned_row_pitch, encodes, texture_format};
 
 /// The GPU runtime's design and measured speed (`docs/GPU.md` of the repository).
 #[cfg(doc)]

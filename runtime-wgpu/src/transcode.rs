@@ -59,6 +59,11 @@ pub fn aligned_row_pitch(format: BcFormat, blocks_wide: u32) -> u64 {
         * u64::from(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)
 }
 
+/// Whether the GPU encodes `format` (BC1, BC4 and BC5; BC7 is encoded on the CPU only).
+pub fn encodes(format: BcFormat) -> bool {
+    shader_format(format).is_ok()
+}
+
 /// `format`'s code in the shader (`params.format`), or the error for a format it lacks.
 fn shader_format(format: BcFormat) -> Result<u32, GpuError> {
     match format {

@@ -7,7 +7,7 @@
 use nmat_core::bc::{self, BcFormat, BcTexture, layout_with};
 use nmat_core::{BlockRegion, Container, Decoder, Material};
 use nmat_tests::fixtures_dir;
-use nmat_tests::generate::{FixtureConfig, generate, golden_configs};
+use nmat_tests::generate::{FixtureConfig, Rng, generate, golden_configs};
 use nmat_wgpu::{Context, GpuError, GpuMaterial};
 
 mod common;
@@ -15,17 +15,8 @@ use common::{device, trained_material};
 
 const GPU_FORMATS: [BcFormat; 3] = [BcFormat::Bc1, BcFormat::Bc4, BcFormat::Bc5];
 
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-    fn byte(&mut self) -> u8 {
-        (self.next() >> 56) as u8
-    }
+fn byte(rng: &mut Rng) -> u8 {
+    (rng.next_u64() >> 56) as u8
 }
 
 type Block = ([[u8; 4]; 16], u16);
@@ -35,18 +26,18 @@ type Block = ([[u8; 4]; 16], u16);
 /// blocks, ties on the principal axis, and random masks of valid pixels (none, one, edge shapes,
 /// any).
 fn hard_blocks(n: usize) -> Vec<Block> {
-    let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
+    let mut rng = Rng::new(0x9E37_79B9_7F4A_7C15);
     let mut blocks = Vec::new();
     for k in 0..n {
-        let a: [u8; 4] = std::array::from_fn(|_| rng.byte());
-        let b: [u8; 4] = std::array::from_fn(|_| rng.byte());
+        let a: [u8; 4] = std::array::from_fn(|_| byte(&mut rng));
+        let b: [u8; 4] = std::array::from_fn(|_| byte(&mut rng));
         let noise = [0u8, 1, 3, 12][k % 4];
         let mut jitter = |v: u8| {
-            let d = (rng.next() % (2 * u64::from(noise) + 1)) as i32 - i32::from(noise);
+            let d = (rng.next_u64() % (2 * u64::from(noise) + 1)) as i32 - i32::from(noise);
             (i32::from(v) + d).clamp(0, 255) as u8
         };
         let pixels: [[u8; 4]; 16] = match k % 8 {
-            0 => std::array::from_fn(|_| std::array::from_fn(|_| rng.byte())),
+            0 => std::array::from_fn(|_| std::array::from_fn(|_| byte(&mut rng))),
             1 => std::array::from_fn(|i| if (i * 7 + k) % 3 == 0 { a } else { b }),
             2 => std::array::from_fn(|i| {
                 let t = i as i32;
@@ -72,7 +63,7 @@ fn hard_blocks(n: usize) -> Vec<Block> {
             0 => 0,
             1 => 1 << (k % 16),
             2 => bc::valid_mask(0, 0, 1 + (k % 4) as u32, 1 + (k / 4 % 4) as u32),
-            3 => rng.next() as u16,
+            3 => rng.next_u64() as u16,
             _ => bc::ALL_VALID,
         };
         blocks.push((pixels, valid));
