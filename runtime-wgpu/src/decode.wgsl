@@ -26,14 +26,15 @@ struct Params {
     out_channels: u32,
     // BC transcoding (bc.wgsl): 1 (BC1), 4 (BC4) or 5 (BC5); the material channel of each
     // component (byte k = component k); the code of each constant component (byte k) and which
-    // are constant (bit k); the output row pitch and offset in words.
+    // are constant (bit k); the output row pitch. Every entry point: the output offset in words.
     format: u32,
     components: u32,
     constants: u32,
     constant_mask: u32,
     row_words: u32,
     out_offset: u32,
-    pad0: u32,
+    // Decoding requests: the word where they start in `requests`.
+    in_offset: u32,
     pad1: u32,
 }
 
@@ -308,24 +309,51 @@ fn decode(xi: i32, yi: i32, mip_in: u32) {
     }
 }
 
+// One workgroup's codes, one per u32, in output order (texel, then channel), before packing.
+var<workgroup> staged: array<u32, 1024>;
+
+// Decodes `params.count` texels (requests from word `params.in_offset` of `requests`, or a
+// rectangle), 64 per workgroup, and writes their codes packed four per u32 (code i in byte
+// i % 4 of word i / 4, so the buffer's bytes are the codes in order) from word
+// `params.out_offset` of `out_codes`. A workgroup's codes start on a word boundary (64 texels
+// hold a multiple of 4 codes); the last word of the last workgroup is padded with zeros.
 @compute @workgroup_size(64)
-fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
-    let index = gid.x + gid.y * groups.x * 64u;
-    if (index >= params.count) {
-        return;
-    }
-    if (params.mode == 0u) {
-        decode(requests[3u * index], requests[3u * index + 1u], bitcast<u32>(requests[3u * index + 2u]));
-    } else {
-        let x = params.x0 + index % params.width;
-        let y = params.y0 + index / params.width;
-        decode(i32(x), i32(y), params.mip);
-    }
-    var slot = index * params.out_channels;
-    for (var c = 0u; c < desc[3]; c++) {
-        if ((params.channel_mask & (1u << c)) != 0u) {
-            out_codes[slot] = codes[c];
-            slot++;
+fn main(
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+) {
+    let group = wg.x + wg.y * groups.x;
+    let index = group * 64u + lid;
+    let n = params.out_channels;
+    if (index < params.count) {
+        if (params.mode == 0u) {
+            let r = params.in_offset + 3u * index;
+            decode(requests[r], requests[r + 1u], bitcast<u32>(requests[r + 2u]));
+        } else {
+            let x = params.x0 + index % params.width;
+            let y = params.y0 + index / params.width;
+            decode(i32(x), i32(y), params.mip);
         }
+        var slot = lid * n;
+        for (var c = 0u; c < desc[3]; c++) {
+            if ((params.channel_mask & (1u << c)) != 0u) {
+                staged[slot] = codes[c];
+                slot++;
+            }
+        }
+    }
+    workgroupBarrier();
+    let first = group * 64u;
+    let texels = select(0u, min(params.count - first, 64u), first < params.count);
+    let count = texels * n;
+    for (var w = lid; 4u * w < count; w += 64u) {
+        var word = 0u;
+        for (var k = 0u; k < 4u; k++) {
+            if (4u * w + k < count) {
+                word |= staged[4u * w + k] << (8u * k);
+            }
+        }
+        out_codes[params.out_offset + first / 4u * n + w] = word;
     }
 }

@@ -26,7 +26,11 @@
 //! ```
 //!
 //! For throughput keep several decodes in flight: submit regions with
-//! [`Context::submit_region`] and [`PendingDecode::wait`] on them later. Only downlevel limits
+//! [`Context::submit_region`] and [`PendingDecode::wait`] on them later; their buffers and bind
+//! groups are reused by later calls. An engine that keeps the codes on the GPU records instead:
+//! [`Context::record_region`] and [`Context::record_requests`] (requests read from the caller's
+//! buffer, e.g. written by its own pass) add a dispatch to the caller's command encoder that
+//! writes the codes, packed four per `u32`, into the caller's buffer; nothing is submitted. Only downlevel limits
 //! are needed: the kernel uses 32-bit integers only (no `f16`, no subgroups, no 64-bit integers;
 //! the wide products are computed in pieces). The decode arithmetic is that of the format
 //! specification (`docs/FORMAT.md` of the repository, §6; embedded in `nmat_core::spec`); how the
@@ -45,7 +49,8 @@ pub mod design {}
 
 use nmat_core::bc::BcFormat;
 use nmat_core::{BlockRegion, ChannelMask, Material, TermMode};
-use std::sync::mpsc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, mpsc};
 use wgpu::util::DeviceExt;
 
 pub use wgpu::DeviceType;
@@ -72,8 +77,11 @@ pub enum GpuError {
     RowPitch { row_pitch: u64, min: u64 },
     /// The output buffer lacks `STORAGE` usage, or the offset is not a multiple of 4 bytes.
     OutputBuffer { reason: &'static str },
-    /// The output buffer (from the offset) is too small for the blocks.
+    /// The output buffer (from the offset) is too small for the blocks or codes.
     Output { needed: u64, size: u64 },
+    /// A buffer of requests that lacks `STORAGE` usage, has an offset that is not a multiple of
+    /// 4 bytes, or ends before the last request.
+    RequestBuffer { reason: &'static str },
 }
 
 impl std::fmt::Display for GpuError {
@@ -108,8 +116,9 @@ impl std::fmt::Display for GpuError {
             }
             GpuError::OutputBuffer { reason } => write!(f, "output buffer: {reason}"),
             GpuError::Output { needed, size } => {
-                write!(f, "output buffer of {size} bytes; the blocks need {needed}")
+                write!(f, "output buffer of {size} bytes; the output needs {needed}")
             }
+            GpuError::RequestBuffer { reason } => write!(f, "request buffer: {reason}"),
         }
     }
 }
@@ -134,10 +143,14 @@ pub struct Context {
     layout: wgpu::BindGroupLayout,
     /// Bound where a dispatch has no material or no requests.
     empty: wgpu::Buffer,
+    /// Buffers of finished submit-and-wait decodes, for the next ones.
+    pool: Pool,
 }
 
 /// A material's buffers on the GPU.
 pub struct GpuMaterial {
+    /// Unique per upload: which material a cached bind group binds.
+    id: u64,
     desc: wgpu::Buffer,
     latents: wgpu::Buffer,
     channel_count: usize,
@@ -160,10 +173,16 @@ impl GpuMaterial {
 /// Work submitted to the queue; `wait` maps the result: `channels` 8-bit codes per texel, in
 /// request (or row-major) order.
 pub struct PendingDecode {
-    codes: wgpu::Buffer,
+    /// `scratch`'s output and readback buffers (handles to the same buffers).
+    out: wgpu::Buffer,
     readback: wgpu::Buffer,
+    /// Given back to `pool` on `wait` or drop.
+    scratch: Option<Scratch>,
+    pool: Pool,
     len: usize,
 }
+
+type Pool = Arc<Mutex<Vec<Scratch>>>;
 
 const WORKGROUP: u32 = 64;
 /// Workgroups per dispatch dimension guaranteed by downlevel limits.
@@ -187,7 +206,11 @@ struct Params {
     constant_mask: u32,
     row_words: u32,
     out_offset: u32,
+    in_offset: u32,
 }
+
+/// Size of [`Params`] on the GPU: 16 words.
+const PARAMS_BYTES: u64 = 64;
 
 impl Params {
     fn bytes(&self) -> Vec<u8> {
@@ -206,7 +229,7 @@ impl Params {
             self.constant_mask,
             self.row_words,
             self.out_offset,
-            0,
+            self.in_offset,
             0,
         ];
         words_to_bytes(&words)
@@ -297,6 +320,7 @@ impl Context {
             encode: pipeline("encode_pixels"),
             layout,
             empty,
+            pool: Pool::default(),
         }
     }
 
@@ -314,9 +338,21 @@ impl Context {
             contents: &params.bytes(),
             usage: wgpu::BufferUsages::UNIFORM,
         });
+        self.bind_with(device, material, requests, out, &uniform)
+    }
+
+    /// A bind group of the five bindings, with the parameters in `uniform`.
+    fn bind_with(
+        &self,
+        device: &wgpu::Device,
+        material: Option<&GpuMaterial>,
+        requests: Option<&wgpu::Buffer>,
+        out: &wgpu::Buffer,
+        uniform: &wgpu::Buffer,
+    ) -> wgpu::BindGroup {
         let (desc, latents) =
             material.map_or((&self.empty, &self.empty), |m| (&m.desc, &m.latents));
-        let buffers = [desc, latents, requests.unwrap_or(&self.empty), out, &uniform];
+        let buffers = [desc, latents, requests.unwrap_or(&self.empty), out, uniform];
         let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
             .iter()
             .enumerate()
@@ -443,7 +479,9 @@ impl Context {
             desc[at + 5] += base;
         }
         desc.extend(weights.iter().map(|&w| w as u32));
+        static NEXT_ID: AtomicU64 = AtomicU64::new(0);
         Ok(GpuMaterial {
+            id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
             desc: init("nmat desc", words_to_bytes(&desc)),
             latents: init("nmat latents", words_to_bytes(&latents)),
             channel_count: m.channel_count(),
@@ -458,7 +496,69 @@ impl Context {
         Ok((u32::from(mask), mask.count_ones()))
     }
 
-    #[allow(clippy::too_many_arguments)] // one dispatch's worth of state
+    /// The workgroups of a decode of `params.count` texels, checked against the dispatch and
+    /// binding limits (the codes take `count · out_channels` bytes).
+    fn decode_groups(&self, device: &wgpu::Device, params: &Params) -> Result<u64, GpuError> {
+        let count = u64::from(params.count);
+        let groups = count.div_ceil(u64::from(WORKGROUP));
+        let per_texel = u64::from(params.out_channels).max(1);
+        let max_binding = device.limits().max_storage_buffer_binding_size;
+        let max_groups = u64::from(MAX_GROUPS) * u64::from(MAX_GROUPS);
+        if groups > max_groups || count * per_texel > max_binding {
+            let limit = (max_groups * u64::from(WORKGROUP)).min(max_binding / per_texel);
+            return Err(GpuError::TooLarge { texels: count, limit });
+        }
+        Ok(groups)
+    }
+
+    /// The decode of the rectangle (x0, y0, width, height) of `mip`, checked.
+    fn region_params(
+        &self,
+        gm: &GpuMaterial,
+        mip: u32,
+        (x0, y0, width, height): (u32, u32, u32, u32),
+        channels: ChannelMask,
+    ) -> Result<Params, GpuError> {
+        let (mask, n) = self.mask(gm, channels)?;
+        let region = GpuError::Region { mip, x0, y0, width, height };
+        let Some(&(mw, mh)) = gm.mip_sizes.get(mip as usize) else {
+            return Err(region);
+        };
+        if x0.checked_add(width).is_none_or(|e| e > mw)
+            || y0.checked_add(height).is_none_or(|e| e > mh)
+        {
+            return Err(region);
+        }
+        let count = u64::from(width) * u64::from(height);
+        let count = u32::try_from(count)
+            .map_err(|_| GpuError::TooLarge { texels: count, limit: u64::from(u32::MAX) })?;
+        Ok(Params {
+            mode: 1,
+            count,
+            mip,
+            x0,
+            y0,
+            width: width.max(1),
+            channel_mask: mask,
+            out_channels: n,
+            ..Params::default()
+        })
+    }
+
+    /// Takes reusable buffers with room for `out_bytes` of codes and `request_bytes` of
+    /// requests from the pool, or makes new ones.
+    fn take_scratch(&self, device: &wgpu::Device, out_bytes: u64, request_bytes: u64) -> Scratch {
+        let mut pool = self.pool.lock().unwrap_or_else(|e| e.into_inner());
+        let fits = |s: &Scratch| s.out.size() >= out_bytes && s.requests.size() >= request_bytes;
+        if let Some(k) = pool.iter().position(fits) {
+            return pool.swap_remove(k);
+        }
+        drop(pool);
+        Scratch::new(device, out_bytes, request_bytes)
+    }
+
+    /// Submits a decode with the pool's buffers (bind group reused when the material is the
+    /// one they were last bound to).
     fn submit(
         &self,
         device: &wgpu::Device,
@@ -467,49 +567,138 @@ impl Context {
         params: Params,
         requests: &[u8],
     ) -> Result<PendingDecode, GpuError> {
-        let count = u64::from(params.count);
-        let groups = count.div_ceil(u64::from(WORKGROUP));
-        let limit = u64::from(MAX_GROUPS) * u64::from(MAX_GROUPS) * u64::from(WORKGROUP);
-        let out_bytes = count * u64::from(params.out_channels) * 4;
-        let max_binding = device.limits().max_storage_buffer_binding_size;
-        if groups > u64::from(MAX_GROUPS) * u64::from(MAX_GROUPS) || out_bytes > max_binding {
-            let per_texel = u64::from(params.out_channels) * 4;
-            return Err(GpuError::TooLarge {
-                texels: count,
-                limit: limit.min(max_binding / per_texel.max(1)),
-            });
+        let groups = self.decode_groups(device, &params)?;
+        let len = u64::from(params.count) * u64::from(params.out_channels);
+        let copy = len.next_multiple_of(4).max(4);
+        let mut scratch = self.take_scratch(device, copy, requests.len() as u64);
+        queue.write_buffer(&scratch.uniform, 0, &params.bytes());
+        if !requests.is_empty() {
+            queue.write_buffer(&scratch.requests, 0, requests);
         }
-        let out_size = out_bytes.max(4);
-        let out = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("nmat codes"),
-            size: out_size,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-            mapped_at_creation: false,
-        });
-        let readback = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("nmat readback"),
-            size: out_size,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let requests = (!requests.is_empty()).then(|| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("nmat requests"),
-                contents: requests,
-                usage: wgpu::BufferUsages::STORAGE,
-            })
-        });
-        let bind = self.bind(device, Some(gm), requests.as_ref(), &out, &params);
+        if scratch.bind.as_ref().is_none_or(|(id, _)| *id != gm.id) {
+            let bind = self.bind_with(
+                device,
+                Some(gm),
+                Some(&scratch.requests),
+                &scratch.out,
+                &scratch.uniform,
+            );
+            scratch.bind = Some((gm.id, bind));
+        }
         let mut encoder = device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nmat decode") });
-        dispatch(&mut encoder, &self.pipeline, &bind, groups);
-        encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, out_size);
+        if let Some((_, bind)) = &scratch.bind {
+            dispatch(&mut encoder, &self.pipeline, bind, groups);
+        }
+        encoder.copy_buffer_to_buffer(&scratch.out, 0, &scratch.readback, 0, copy);
         queue.submit([encoder.finish()]);
         Ok(PendingDecode {
-            codes: out,
-            readback,
-            len: (count * u64::from(params.out_channels)) as usize,
+            out: scratch.out.clone(),
+            readback: scratch.readback.clone(),
+            scratch: Some(scratch),
+            pool: Arc::clone(&self.pool),
+            len: len as usize,
         })
+    }
+
+    /// Checks that `out` can take `bytes` from byte `offset` (the last word whole); returns the
+    /// offset in words.
+    fn check_output(
+        device: &wgpu::Device,
+        out: &wgpu::Buffer,
+        offset: u64,
+        bytes: u64,
+    ) -> Result<u32, GpuError> {
+        if !out.usage().contains(wgpu::BufferUsages::STORAGE) {
+            return Err(GpuError::OutputBuffer { reason: "it needs STORAGE usage" });
+        }
+        if !offset.is_multiple_of(4) {
+            return Err(GpuError::OutputBuffer { reason: "the offset is not a multiple of 4" });
+        }
+        if out.size() > device.limits().max_storage_buffer_binding_size {
+            return Err(GpuError::OutputBuffer {
+                reason: "it is larger than the device's storage binding limit",
+            });
+        }
+        let needed = offset + bytes.next_multiple_of(4);
+        if needed > out.size() {
+            return Err(GpuError::Output { needed, size: out.size() });
+        }
+        u32::try_from(offset / 4)
+            .map_err(|_| GpuError::OutputBuffer { reason: "the offset is 2^34 bytes or more" })
+    }
+
+    /// Records, into the caller's `encoder` (nothing is submitted), the decode of the rectangle
+    /// (x0, y0, width, height) of `mip`, row-major, channels in `channels`, into `out` from byte
+    /// `offset`: the codes packed four per `u32`, so the bytes from `offset` are the codes in
+    /// order (texel, then channel), as [`PendingDecode::wait`] returns them; the last word's
+    /// spare bytes are written as zeros. Returns the number of codes. `out` needs `STORAGE`
+    /// usage; `offset` is a multiple of 4. Everything is checked before anything is recorded.
+    #[allow(clippy::too_many_arguments)] // a material, what, and where the codes go
+    pub fn record_region(
+        &self,
+        device: &wgpu::Device,
+        encoder: &mut wgpu::CommandEncoder,
+        gm: &GpuMaterial,
+        mip: u32,
+        rect: (u32, u32, u32, u32),
+        channels: ChannelMask,
+        (out, offset): (&wgpu::Buffer, u64),
+    ) -> Result<u64, GpuError> {
+        let mut params = self.region_params(gm, mip, rect, channels)?;
+        let groups = self.decode_groups(device, &params)?;
+        let len = u64::from(params.count) * u64::from(params.out_channels);
+        params.out_offset = Self::check_output(device, out, offset, len)?;
+        let bind = self.bind(device, Some(gm), None, out, &params);
+        dispatch(encoder, &self.pipeline, &bind, groups);
+        Ok(len)
+    }
+
+    /// Records the decode of `count` [`TexelRequest`]s that are already on the GPU (e.g. written
+    /// by the caller's own pass): 12 bytes each (x, y as `i32`, mip as `u32`, little-endian)
+    /// from byte `requests_offset` of `requests` (`STORAGE` usage, offset a multiple of 4). The
+    /// codes go to `out` as in [`Context::record_region`]. Returns the number of codes.
+    #[allow(clippy::too_many_arguments)] // a material, what, and where the codes go
+    pub fn record_requests(
+        &self,
+        device: &wgpu::Device,
+        encoder: &mut wgpu::CommandEncoder,
+        gm: &GpuMaterial,
+        (requests, requests_offset, count): (&wgpu::Buffer, u64, u32),
+        channels: ChannelMask,
+        (out, offset): (&wgpu::Buffer, u64),
+    ) -> Result<u64, GpuError> {
+        let (mask, n) = self.mask(gm, channels)?;
+        let mut params = Params {
+            mode: 0,
+            count,
+            width: 1,
+            channel_mask: mask,
+            out_channels: n,
+            ..Params::default()
+        };
+        let groups = self.decode_groups(device, &params)?;
+        let reason = if !requests.usage().contains(wgpu::BufferUsages::STORAGE) {
+            Some("it needs STORAGE usage")
+        } else if !requests_offset.is_multiple_of(4) {
+            Some("the offset is not a multiple of 4")
+        } else if requests.size() > device.limits().max_storage_buffer_binding_size {
+            Some("it is larger than the device's storage binding limit")
+        } else if requests_offset + 12 * u64::from(count) > requests.size() {
+            Some("it ends before the last request")
+        } else {
+            None
+        };
+        if let Some(reason) = reason {
+            return Err(GpuError::RequestBuffer { reason });
+        }
+        params.in_offset = u32::try_from(requests_offset / 4)
+            .map_err(|_| GpuError::RequestBuffer { reason: "the offset is 2^34 bytes or more" })?;
+        let len = u64::from(count) * u64::from(n);
+        params.out_offset = Self::check_output(device, out, offset, len)?;
+        let bind = self.bind(device, Some(gm), Some(requests), out, &params);
+        dispatch(encoder, &self.pipeline, &bind, groups);
+        Ok(len)
     }
 
     /// Decodes a batch of arbitrary texels (the random-access path), channels in `channels`.
@@ -531,6 +720,12 @@ impl Context {
             .flat_map(|r| [r.x.to_le_bytes(), r.y.to_le_bytes(), r.mip.to_le_bytes()])
             .flatten()
             .collect();
+        if bytes.len() as u64 > device.limits().max_storage_buffer_binding_size {
+            return Err(GpuError::TooLarge {
+                texels: u64::from(count),
+                limit: device.limits().max_storage_buffer_binding_size / 12,
+            });
+        }
         let params = Params {
             mode: 0,
             count,
@@ -550,37 +745,10 @@ impl Context {
         queue: &wgpu::Queue,
         gm: &GpuMaterial,
         mip: u32,
-        (x0, y0, width, height): (u32, u32, u32, u32),
+        rect: (u32, u32, u32, u32),
         channels: ChannelMask,
     ) -> Result<PendingDecode, GpuError> {
-        let (mask, n) = self.mask(gm, channels)?;
-        let region = GpuError::Region { mip, x0, y0, width, height };
-        let &(mw, mh) = gm.mip_sizes.get(mip as usize).ok_or(GpuError::Region {
-            mip,
-            x0,
-            y0,
-            width,
-            height,
-        })?;
-        if x0.checked_add(width).is_none_or(|e| e > mw)
-            || y0.checked_add(height).is_none_or(|e| e > mh)
-        {
-            return Err(region);
-        }
-        let count = u64::from(width) * u64::from(height);
-        let count = u32::try_from(count)
-            .map_err(|_| GpuError::TooLarge { texels: count, limit: u64::from(u32::MAX) })?;
-        let params = Params {
-            mode: 1,
-            count,
-            mip,
-            x0,
-            y0,
-            width: width.max(1),
-            channel_mask: mask,
-            out_channels: n,
-            ..Params::default()
-        };
+        let params = self.region_params(gm, mip, rect, channels)?;
         self.submit(device, queue, gm, params, &[])
     }
 
@@ -638,10 +806,12 @@ impl Context {
 }
 
 impl PendingDecode {
-    /// The GPU-side result, one `u32` per code (channels fastest), usable as a storage buffer by
-    /// the caller's own passes (e.g. to build textures) without a round trip through the CPU.
+    /// The GPU-side result: the codes packed four per `u32` (the buffer's bytes from 0 are the
+    /// codes in order, channels fastest), usable as a storage buffer by the caller's own passes
+    /// without a round trip through the CPU. The buffer may be longer than the result; it is
+    /// reused by later decodes once this one is waited on or dropped.
     pub fn gpu_buffer(&self) -> &wgpu::Buffer {
-        &self.codes
+        &self.out
     }
 
     /// Number of codes in the result.
@@ -654,23 +824,89 @@ impl PendingDecode {
     }
 
     /// Maps the result (blocking on the device) and returns the codes.
-    pub fn wait(self, device: &wgpu::Device) -> Result<Vec<u8>, GpuError> {
-        let words = read_back(device, &self.readback)?;
-        Ok(words.chunks_exact(4).take(self.len).map(|w| w[0]).collect())
+    pub fn wait(mut self, device: &wgpu::Device) -> Result<Vec<u8>, GpuError> {
+        let mut bytes =
+            read_back(device, &self.readback, (self.len as u64).next_multiple_of(4).max(4))?;
+        bytes.truncate(self.len);
+        self.give_back();
+        Ok(bytes)
+    }
+
+    /// Returns the buffers to the context's pool (at most [`POOL`] are kept).
+    fn give_back(&mut self) {
+        if let Some(scratch) = self.scratch.take() {
+            let mut pool = self.pool.lock().unwrap_or_else(|e| e.into_inner());
+            if pool.len() < POOL {
+                pool.push(scratch);
+            }
+        }
     }
 }
 
-/// Maps `buffer` (blocking on the device) and returns its bytes.
-fn read_back(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Result<Vec<u8>, GpuError> {
+impl Drop for PendingDecode {
+    fn drop(&mut self) {
+        self.give_back();
+    }
+}
+
+/// Buffers of the submit-and-wait calls, reused between calls: a submit takes a set from the
+/// context's pool (or makes one) and its [`PendingDecode`] gives it back.
+struct Scratch {
+    uniform: wgpu::Buffer,
+    requests: wgpu::Buffer,
+    out: wgpu::Buffer,
+    readback: wgpu::Buffer,
+    /// The bind group of these buffers with the material of this id ([`GpuMaterial`]).
+    bind: Option<(u64, wgpu::BindGroup)>,
+}
+
+/// Most sets of buffers a context keeps for reuse.
+const POOL: usize = 8;
+
+impl Scratch {
+    /// Room for `out_bytes` of codes and `request_bytes` of requests, rounded up to a power of
+    /// two (so that nearby sizes reuse the set) where the binding limit allows.
+    fn new(device: &wgpu::Device, out_bytes: u64, request_bytes: u64) -> Scratch {
+        let max_binding = device.limits().max_storage_buffer_binding_size;
+        let room = |n: u64| {
+            let n = n.next_multiple_of(4).max(16);
+            if n.next_power_of_two() <= max_binding { n.next_power_of_two() } else { n }
+        };
+        let buffer = |label, size, usage| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        use wgpu::BufferUsages as U;
+        let out_size = room(out_bytes);
+        Scratch {
+            uniform: buffer("nmat params", PARAMS_BYTES, U::UNIFORM | U::COPY_DST),
+            requests: buffer("nmat requests", room(request_bytes), U::STORAGE | U::COPY_DST),
+            out: buffer("nmat codes", out_size, U::STORAGE | U::COPY_SRC),
+            readback: buffer("nmat readback", out_size, U::MAP_READ | U::COPY_DST),
+            bind: None,
+        }
+    }
+}
+
+/// Maps the first `bytes` of `buffer` (blocking on the device) and returns them.
+fn read_back(
+    device: &wgpu::Device,
+    buffer: &wgpu::Buffer,
+    bytes: u64,
+) -> Result<Vec<u8>, GpuError> {
     let (tx, rx) = mpsc::channel();
-    buffer.map_async(wgpu::MapMode::Read, .., move |r| {
+    buffer.map_async(wgpu::MapMode::Read, ..bytes, move |r| {
         let _ = tx.send(r);
     });
     device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Map(e.to_string()))?;
     rx.recv()
         .map_err(|e| GpuError::Map(e.to_string()))?
         .map_err(|e| GpuError::Map(e.to_string()))?;
-    let view = buffer.get_mapped_range(..).map_err(|e| GpuError::Map(e.to_string()))?;
+    let view = buffer.get_mapped_range(..bytes).map_err(|e| GpuError::Map(e.to_string()))?;
     let bytes = view.to_vec();
     drop(view);
     buffer.unmap();

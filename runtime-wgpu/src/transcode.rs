@@ -29,7 +29,7 @@ impl PendingBlocks {
 
     /// Maps the blocks (blocking on the device) and returns their bytes.
     pub fn wait(self, device: &wgpu::Device) -> Result<Vec<u8>, GpuError> {
-        let mut bytes = read_back(device, &self.readback)?;
+        let mut bytes = read_back(device, &self.readback, self.readback.size())?;
         bytes.truncate(self.len);
         Ok(bytes)
     }
@@ -130,26 +130,17 @@ impl Context {
         }
         let block_bytes = texture.format.block_bytes() as u64;
         let row_bytes = u64::from(region.width) * block_bytes;
-        if row_pitch < row_bytes || row_pitch % 4 != 0 {
+        if row_pitch < row_bytes || !row_pitch.is_multiple_of(4) {
             return Err(GpuError::RowPitch { row_pitch, min: row_bytes.next_multiple_of(4) });
         }
-        if !out.usage().contains(wgpu::BufferUsages::STORAGE) {
-            return Err(GpuError::OutputBuffer { reason: "it needs STORAGE usage" });
-        }
-        if offset % 4 != 0 {
-            return Err(GpuError::OutputBuffer { reason: "the offset is not a multiple of 4" });
-        }
-        let needed = match region.height {
-            0 => offset,
-            h => offset + u64::from(h - 1) * row_pitch + row_bytes,
+        let span = match region.height {
+            0 => 0,
+            h => u64::from(h - 1) * row_pitch + row_bytes,
         };
-        if needed > out.size() {
-            return Err(GpuError::Output { needed, size: out.size() });
-        }
-        let max_binding = device.limits().max_storage_buffer_binding_size;
+        let out_offset = Context::check_output(device, out, offset, span)?;
         let count = u64::from(region.width) * u64::from(region.height);
         let groups = count.div_ceil(BLOCKS_PER_GROUP);
-        if out.size() > max_binding || groups > u64::from(MAX_GROUPS) * u64::from(MAX_GROUPS) {
+        if groups > u64::from(MAX_GROUPS) * u64::from(MAX_GROUPS) {
             return Err(GpuError::TooLarge {
                 texels: count * 16,
                 limit: u64::from(MAX_GROUPS).pow(2) * BLOCKS_PER_GROUP * 16,
@@ -164,7 +155,7 @@ impl Context {
         params.y0 = region.y;
         params.width = region.width.max(1);
         params.row_words = fit(row_pitch / 4)?;
-        params.out_offset = fit(offset / 4)?;
+        params.out_offset = out_offset;
         let bind = self.bind(device, Some(gm), None, out, &params);
         dispatch(encoder, &self.transcode, &bind, groups);
         Ok(())

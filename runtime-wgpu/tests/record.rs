@@ -1,0 +1,163 @@
+//! Decodes recorded into the caller's command encoder and buffers, the packed output, and the
+//! reuse of buffers between submit-and-wait calls: every code against the CPU integer decoder.
+
+use nmat_core::{ChannelMask, Container, Material};
+use nmat_tests::generate::{generate, golden_configs};
+use nmat_wgpu::{Context, GpuError, TexelRequest};
+use wgpu::BufferUsages as U;
+
+mod common;
+use common::{buffer, device, submit_and_read, trained_material};
+
+/// The CPU's codes of `reqs`, channels in `mask`, texel after texel.
+fn cpu_codes(m: &Material<'_>, reqs: &[TexelRequest], mask: ChannelMask) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut buf = [0u8; 16];
+    for r in reqs {
+        let n = m.decode_texel_u8(i64::from(r.x), i64::from(r.y), r.mip, mask, &mut buf).unwrap();
+        out.extend_from_slice(&buf[..n]);
+    }
+    out
+}
+
+fn rect(mip: u32, (x0, y0, w, h): (u32, u32, u32, u32)) -> Vec<TexelRequest> {
+    (y0..y0 + h)
+        .flat_map(|y| (x0..x0 + w).map(move |x| TexelRequest { x: x as i32, y: y as i32, mip }))
+        .collect()
+}
+
+fn golden(name: &str) -> Vec<u8> {
+    let cfg = golden_configs().into_iter().find(|c| c.name == name).unwrap();
+    generate(&cfg).to_bytes().unwrap()
+}
+
+/// Regions with channel counts that do not fill whole words (3 and 1 of 10), over several
+/// workgroups, recorded at an offset into a buffer full of 0xEE: the codes land packed from
+/// the offset, the last word's spare bytes are zero, and nothing outside is touched.
+#[test]
+fn recorded_regions_pack_their_codes_at_the_offset() {
+    let (device, queue) = device();
+    let ctx = Context::new(&device);
+    let bytes = golden("ntc_pbr10_96x80_clamp");
+    let m = Container::parse(&bytes).unwrap();
+    let gm = ctx.upload(&device, &m).unwrap();
+    let cases = [
+        (0, (5, 7, 31, 13), ChannelMask(0b00_1001_0100)),
+        (1, (0, 0, 48, 40), ChannelMask(0b1)),
+        (2, (3, 1, 7, 9), ChannelMask::ALL),
+        (0, (95, 79, 1, 1), ChannelMask(0b111)),
+    ];
+    for (mip, r, mask) in cases {
+        let want = cpu_codes(&m, &rect(mip, r), mask);
+        let offset = 36u64;
+        let size = offset + want.len().next_multiple_of(4) as u64 + 32;
+        let out = buffer(&device, size, U::STORAGE | U::COPY_SRC, Some(0xEE));
+        let mut encoder = device.create_command_encoder(&Default::default());
+        let n =
+            ctx.record_region(&device, &mut encoder, &gm, mip, r, mask, (&out, offset)).unwrap();
+        assert_eq!(n, want.len() as u64);
+        let got = submit_and_read(&device, &queue, encoder, &out);
+        let (at, end) = (offset as usize, offset as usize + want.len());
+        assert!(got[..at].iter().all(|&b| b == 0xEE), "{r:?}: bytes before the offset");
+        assert_eq!(&got[at..end], &want[..], "{r:?} of mip {mip}, mask {mask:?}");
+        let pad = end.next_multiple_of(4);
+        assert!(got[end..pad].iter().all(|&b| b == 0), "{r:?}: the last word's spare bytes");
+        assert!(got[pad..].iter().all(|&b| b == 0xEE), "{r:?}: bytes after the last word");
+    }
+}
+
+/// Requests the caller already has on the GPU, read from an offset, decode as on the CPU.
+#[test]
+fn recorded_requests_read_from_the_callers_buffer() {
+    let (device, queue) = device();
+    let ctx = Context::new(&device);
+    let bytes = golden("ntc_pbr10_96x80_clamp");
+    let m = Container::parse(&bytes).unwrap();
+    let gm = ctx.upload(&device, &m).unwrap();
+    let mut reqs = Vec::new();
+    let mut s = 99u64;
+    for _ in 0..300 {
+        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        let v = (s >> 33) as i64;
+        reqs.push(TexelRequest {
+            x: (v % 300 - 150) as i32,
+            y: ((v >> 9) % 300 - 150) as i32,
+            mip: (v >> 20) as u32 % 10,
+        });
+    }
+    reqs.push(TexelRequest { x: i32::MIN, y: i32::MAX, mip: u32::MAX });
+    let mask = ChannelMask(0b11_0000_0111);
+    let want = cpu_codes(&m, &reqs, mask);
+    let request_bytes: Vec<u8> = reqs
+        .iter()
+        .flat_map(|r| [r.x.to_le_bytes(), r.y.to_le_bytes(), r.mip.to_le_bytes()])
+        .flatten()
+        .collect();
+    let in_offset = 24u64;
+    let requests =
+        buffer(&device, in_offset + request_bytes.len() as u64, U::STORAGE | U::COPY_DST, None);
+    queue.write_buffer(&requests, in_offset, &request_bytes);
+    let out =
+        buffer(&device, 8 + want.len().next_multiple_of(4) as u64, U::STORAGE | U::COPY_SRC, None);
+    let mut encoder = device.create_command_encoder(&Default::default());
+    let count = reqs.len() as u32;
+    ctx.record_requests(&device, &mut encoder, &gm, (&requests, in_offset, count), mask, (&out, 8))
+        .unwrap();
+    let got = submit_and_read(&device, &queue, encoder, &out);
+    assert_eq!(&got[8..8 + want.len()], &want[..]);
+
+    // Bad buffers and offsets are refused before anything is recorded.
+    let mut encoder = device.create_command_encoder(&Default::default());
+    let mut record = |reqs: (&wgpu::Buffer, u64, u32), out: (&wgpu::Buffer, u64)| {
+        ctx.record_requests(&device, &mut encoder, &gm, reqs, mask, out)
+    };
+    let bad_request = |e| matches!(e, Err(GpuError::RequestBuffer { .. }));
+    assert!(bad_request(record((&requests, in_offset + 4, count), (&out, 8))), "past the end");
+    assert!(bad_request(record((&requests, 2, 1), (&out, 8))), "unaligned");
+    let mappable = buffer(&device, 64, U::MAP_READ | U::COPY_DST, None);
+    assert!(bad_request(record((&mappable, 0, 1), (&out, 8))), "no STORAGE usage");
+    let bad_output = |e| matches!(e, Err(GpuError::OutputBuffer { .. }));
+    assert!(bad_output(record((&requests, in_offset, count), (&out, 6))), "unaligned output");
+    assert!(bad_output(record((&requests, in_offset, count), (&mappable, 0))), "output usage");
+    assert!(matches!(
+        record((&requests, in_offset, count), (&out, 12)),
+        Err(GpuError::Output { .. })
+    ));
+    assert!(matches!(
+        record((&requests, in_offset, count), (&out, 8)).map(|n| n == want.len() as u64),
+        Ok(true)
+    ));
+}
+
+/// Submit-and-wait calls reuse their buffers and bind groups: decodes of two materials of the
+/// same shape, alternating, each equal the CPU's (a bind group reused for the wrong material
+/// would return the other's codes), and a pending result's GPU buffer holds the same codes as
+/// `wait` returns.
+#[test]
+fn reused_buffers_keep_materials_and_sizes_apart() {
+    let (device, queue) = device();
+    let ctx = Context::new(&device);
+    let a_bytes = trained_material();
+    let b_bytes = golden("ntc_pbr10_96x80_clamp");
+    let (a, b) = (Container::parse(&a_bytes).unwrap(), Container::parse(&b_bytes).unwrap());
+    let (ga, gb) = (ctx.upload(&device, &a).unwrap(), ctx.upload(&device, &b).unwrap());
+    let mask = ChannelMask(0b111);
+    for round in 0..3u32 {
+        for (m, gm) in [(&a, &ga), (&b, &gb)] {
+            let r = (round, 2 * round, 20 + round, 9);
+            let got = ctx.submit_region(&device, &queue, gm, 0, r, mask).unwrap().wait(&device);
+            assert_eq!(got.unwrap(), cpu_codes(m, &rect(0, r), mask), "round {round}, {r:?}");
+        }
+    }
+    let r = (4, 4, 17, 5);
+    let pending = ctx.submit_region(&device, &queue, &gb, 1, r, ChannelMask::ALL).unwrap();
+    let source = pending.gpu_buffer();
+    let copy = buffer(&device, source.size(), U::STORAGE | U::COPY_SRC | U::COPY_DST, None);
+    let mut encoder = device.create_command_encoder(&Default::default());
+    encoder.copy_buffer_to_buffer(source, 0, &copy, 0, source.size());
+    let on_gpu = submit_and_read(&device, &queue, encoder, &copy);
+    let len = pending.len();
+    let codes = pending.wait(&device).unwrap();
+    assert_eq!(codes, cpu_codes(&b, &rect(1, r), ChannelMask::ALL));
+    assert_eq!(&on_gpu[..len], &codes[..]);
+}
