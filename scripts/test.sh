@@ -23,3 +23,5 @@ if [ -z "${XDG_RUNTIME_DIR:-}" ] || [ ! -d "${XDG_RUNTIME_DIR}" ]; then
   trap 'rm -rf "$XDG_RUNTIME_DIR"' EXIT
 fi
 cargo test --workspace --locked "$@"
+# The CLI's GPU paths exist only in a `--features gpu` build: run its GPU tests there too.
+cargo test -p nmat --features gpu --locked --test cli gpu

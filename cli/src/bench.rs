@@ -20,6 +20,8 @@ pub struct Options {
     pub region: u32,
     /// Timed runs per row; the median is reported.
     pub runs: usize,
+    /// The GPU decoder's table (`--gpu`) instead of the CPU's.
+    pub gpu: bool,
 }
 
 /// One probe of a kernel's peak multiply-add rate (MACs per second), over `macs` multiply-adds.
@@ -85,7 +87,7 @@ fn time(runs: usize, mut f: impl FnMut()) -> Timing {
 }
 
 /// Multiply-adds of one texel decode with `outputs` rows in the last layer.
-fn macs(m: &Material<'_>, outputs: usize) -> usize {
+pub(crate) fn macs(m: &Material<'_>, outputs: usize) -> usize {
     let layers = m.mlp().layers();
     let last = layers.len().saturating_sub(1);
     layers
@@ -161,6 +163,12 @@ fn channels_of(mask: ChannelMask, count: usize) -> Vec<usize> {
 pub fn run(opts: &Options) -> Result<()> {
     println!("machine: {}, {} logical CPUs", cpu_name(), std::thread::available_parallelism()?);
     let mut peaks = Vec::new();
+    if opts.gpu {
+        for input in &opts.inputs {
+            bench_one(input, opts)?;
+        }
+        return Ok(());
+    }
     for kernel in Kernel::ALL {
         if let Some(rate) = peak_rate(kernel) {
             println!("  peak multiply-add rate, {:12} {:7.1} GMAC/s", kernel.name(), rate / 1e9);
@@ -196,6 +204,17 @@ fn bench_one(input: &Path, opts: &Options) -> Result<()> {
     let bytes = crate::read_nmat(input)?;
     let m = crate::parse(&bytes, input)?;
     let (w, h) = m.mip_size(0);
+    if opts.gpu {
+        println!(
+            "{}: {w}×{h}, {} channels, {} mips, {} bytes, {} MACs/texel",
+            input.display(),
+            m.channel_count(),
+            m.mip_count(),
+            bytes.len(),
+            macs(&m, m.channel_count())
+        );
+        return crate::bench_gpu_table(&m, opts);
+    }
     let side = (opts.region.min(w).max(1), opts.region.min(h).max(1));
     let c = m.channel_count();
     let best = Decoder::new(&m);

@@ -2,6 +2,8 @@
 //! whole chain on a bundled procedural material (`nmat demo`). See docs/ENCODING.md.
 
 mod bench;
+#[cfg(feature = "gpu")]
+mod bench_gpu;
 mod bench_train;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
@@ -64,6 +66,11 @@ enum Command {
         /// Timed runs per row (the median is reported).
         #[arg(long, default_value_t = 5)]
         runs: usize,
+        /// Measure the GPU decoder instead (docs/GPU.md): kernels timed with GPU timestamps
+        /// against the adapter's measured integer peak, for a region, the whole chain, random
+        /// requests and channel subsets. Needs the `gpu` feature.
+        #[arg(long)]
+        gpu: bool,
     },
     /// The trainer's throughput (docs/PERFORMANCE.md): steps/s, samples/s, GFLOP/s and share of
     /// the CPU's f32 FMA peak for every matrix-product kernel and thread count, on one material.
@@ -301,11 +308,11 @@ fn run(cli: Cli) -> Result<()> {
         Command::BenchTrain { inputs, profile, steps, threads, kernel, runs, phases } => {
             cmd_bench_train(inputs, &profile, steps, threads, &kernel, runs, phases)
         }
-        Command::Bench { inputs, reference, region, runs } => {
+        Command::Bench { inputs, reference, region, runs, gpu } => {
             if region == 0 || runs == 0 {
                 return Err("--region and --runs must be at least 1".into());
             }
-            bench::run(&bench::Options { inputs, reference, region, runs })
+            bench::run(&bench::Options { inputs, reference, region, runs, gpu })
         }
     }
 }
@@ -755,9 +762,8 @@ fn decode_on_gpu(
     dir: &Path,
     progress: &mut dyn FnMut(u64),
 ) -> Result<Vec<PathBuf>> {
-    let (device, queue, info) = pollster::block_on(nmat_wgpu::default_device()).ok_or(
-        "--gpu: no GPU adapter found (on Linux without a GPU: apt-get install mesa-vulkan-drivers)",
-    )?;
+    let (device, queue, info) =
+        pollster::block_on(nmat_wgpu::default_device()).ok_or(NO_ADAPTER)?;
     eprintln!("decoding on {} ({:?}, {:?})", info.name, info.backend, info.device_type);
     let ctx = nmat_wgpu::Context::new(&device);
     let gm = ctx.upload(&device, m)?;
@@ -794,6 +800,11 @@ fn gpu_encodes(_: nmat_core::bc::BcFormat) -> bool {
     false
 }
 
+/// What `--gpu` says where wgpu finds no adapter.
+#[cfg(feature = "gpu")]
+const NO_ADAPTER: &str =
+    "--gpu: no GPU adapter found (on Linux without a GPU: apt-get install mesa-vulkan-drivers)";
+
 /// What `--gpu` says in a build without the `gpu` feature.
 #[cfg(not(feature = "gpu"))]
 const NO_GPU_BUILD: &str =
@@ -801,9 +812,8 @@ const NO_GPU_BUILD: &str =
 
 #[cfg(feature = "gpu")]
 fn gpu_transcoder(m: &Material<'_>) -> Result<GpuLevels> {
-    let (device, queue, info) = pollster::block_on(nmat_wgpu::default_device()).ok_or(
-        "--gpu: no GPU adapter found (on Linux without a GPU: apt-get install mesa-vulkan-drivers)",
-    )?;
+    let (device, queue, info) =
+        pollster::block_on(nmat_wgpu::default_device()).ok_or(NO_ADAPTER)?;
     eprintln!("transcoding on {} ({:?}, {:?})", info.name, info.backend, info.device_type);
     let ctx = nmat_wgpu::Context::new(&device);
     let gm = ctx.upload(&device, m)?;
@@ -864,6 +874,17 @@ fn bench_gpu(m: &Material<'_>, row: &dyn Fn(&str, f64)) -> Result<()> {
 #[cfg(feature = "gpu")]
 fn wgpu_device_type_cpu() -> nmat_wgpu::DeviceType {
     nmat_wgpu::DeviceType::Cpu
+}
+
+/// `nmat bench --gpu`'s table for `m`.
+#[cfg(feature = "gpu")]
+fn bench_gpu_table(m: &Material<'_>, opts: &bench::Options) -> Result<()> {
+    bench_gpu::table(m, opts)
+}
+
+#[cfg(not(feature = "gpu"))]
+fn bench_gpu_table(_: &Material<'_>, _: &bench::Options) -> Result<()> {
+    Err(NO_GPU_BUILD.into())
 }
 
 #[cfg(not(feature = "gpu"))]

@@ -613,6 +613,29 @@ fn bench_train_reports_every_kernel_row_and_refuses_bad_options() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `nmat bench --gpu` prints the GPU table where the binary has the `gpu` feature and says how to
+/// get it where it has not; either way no CPU rows.
+#[test]
+fn bench_gpu_prints_the_gpu_table_or_says_how_to_build_it() {
+    let dir = temp_dir("bench-gpu");
+    let o = nmat(&["demo", "-o", dir.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    let file = dir.join("demo.nmat");
+    let o = nmat(&["bench", file.to_str().unwrap(), "--gpu", "--runs", "1", "--region", "16"]);
+    let out = text(&o);
+    if out.contains("built without GPU support") {
+        assert!(!o.status.success() && out.contains("--features gpu"), "{out}");
+    } else {
+        assert!(o.status.success(), "{out}");
+        for row in ["| region 16×16 of mip 0, all", "| whole chain, 9 mips |", "random requests"] {
+            assert!(out.contains(row), "missing {row}:\n{out}");
+        }
+        assert!(out.contains("G i32 multiply-add/s") && out.contains("upload"), "{out}");
+    }
+    assert!(!out.contains("peak multiply-add rate"), "CPU rows with --gpu:\n{out}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn fuzz_regression_inputs_of_the_cli_target_never_panic() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/regressions/cli");

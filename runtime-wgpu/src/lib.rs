@@ -37,6 +37,7 @@
 //! kernel maps it onto 32-bit integers and what it costs is in `docs/GPU.md`, embedded here as
 //! [`design`].
 
+pub mod measure;
 mod transcode;
 
 pub use transcode::{PendingBlocks, aligned_row_pitch, encodes, texture_format};
@@ -53,6 +54,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, mpsc};
 use wgpu::util::DeviceExt;
 
+/// The wgpu this crate is built against (its types are in this crate's API).
+pub use wgpu;
 pub use wgpu::DeviceType;
 
 /// Everything that can go wrong, named.
@@ -949,8 +952,10 @@ pub async fn default_device() -> Option<(wgpu::Device, wgpu::Queue, wgpu::Adapte
     let (device, queue) = adapter
         .request_device(&wgpu::DeviceDescriptor {
             label: Some("nmat"),
-            // BC textures where the adapter has them (for transcoded blocks), nothing else.
-            required_features: adapter.features() & wgpu::Features::TEXTURE_COMPRESSION_BC,
+            // BC textures (for transcoded blocks) and timestamp queries (for measuring) where
+            // the adapter has them, nothing else.
+            required_features: adapter.features()
+                & (wgpu::Features::TEXTURE_COMPRESSION_BC | measure::TIMESTAMP_FEATURES),
             required_limits: wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits()),
             experimental_features: wgpu::ExperimentalFeatures::disabled(),
             memory_hints: wgpu::MemoryHints::MemoryUsage,

@@ -10,6 +10,7 @@ pub fn device() -> (wgpu::Device, wgpu::Queue) {
 }
 
 /// The bytes of the demo bricks (64²) trained for 150 steps.
+#[allow(dead_code)] // not every test file uses every helper
 pub fn trained_material() -> Vec<u8> {
     let set = nmat_encode::demo::bricks(64);
     let options = nmat_encode::EncodeOptions {

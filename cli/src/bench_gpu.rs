@@ -1,0 +1,240 @@
+//! `nmat bench --gpu`: the GPU decoder measured like a GPU (docs/GPU.md, "Measured"): kernels
+//! timed with GPU timestamps where the adapter has them, against the adapter's own integer peak
+//! (`nmat_wgpu::measure`), for a region, the whole chain, random requests and channel subsets;
+//! upload and a region's round trip (submit, decode, read back) on their own rows.
+
+use crate::Result;
+use crate::bench::{Options, macs};
+use nmat_core::{ChannelMask, Material};
+use nmat_wgpu::measure::{self, Clock};
+use nmat_wgpu::wgpu;
+use nmat_wgpu::{Context, GpuError, GpuMaterial, TexelRequest};
+use std::time::Instant;
+
+/// Each timed submission runs at least this long (repeats of the work in one submission).
+const MIN_SECONDS: f64 = 0.05;
+
+pub fn table(m: &Material<'_>, opts: &Options) -> Result<()> {
+    let (device, queue, info) =
+        pollster::block_on(nmat_wgpu::default_device()).ok_or(crate::NO_ADAPTER)?;
+    let software = info.device_type == nmat_wgpu::DeviceType::Cpu;
+    println!(
+        "  GPU {} ({:?}{})",
+        info.name,
+        info.backend,
+        if software { ", a software rasterizer on the CPU: not a GPU's numbers" } else { "" }
+    );
+    let peak = measure::probe_peak(&device, &queue)?;
+    println!(
+        "  peak: {:.1} G i32 multiply-add/s, {} (register-only WGSL loops, {})",
+        peak.i32_mad_per_s / 1e9,
+        peak.dot4_mac_per_s.map_or("no dot4I8Packed".to_string(), |r| format!(
+            "{:.1} G MAC/s through dot4I8Packed",
+            r / 1e9
+        )),
+        peak.clock.name()
+    );
+    let ctx = Context::new(&device);
+    let start = Instant::now();
+    let gm = ctx.upload(&device, m)?;
+    device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| e.to_string())?;
+    let upload = start.elapsed().as_secs_f64();
+    let c = m.channel_count();
+    let (w, h) = m.mip_size(0);
+    let side = (opts.region.min(w).max(1), opts.region.min(h).max(1));
+    let chain: u64 = (0..m.mip_count()).map(|k| texels(m.mip_size(k))).sum();
+    let requests = random_requests(m, texels(side));
+    let request_bytes: Vec<u8> = requests
+        .iter()
+        .flat_map(|r| [r.x.to_le_bytes(), r.y.to_le_bytes(), r.mip.to_le_bytes()])
+        .flatten()
+        .collect();
+    use wgpu::util::DeviceExt;
+    let request_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("bench requests"),
+        contents: &request_bytes,
+        usage: wgpu::BufferUsages::STORAGE,
+    });
+    let out = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("bench codes"),
+        size: (chain.max(texels(side)) * c as u64).next_multiple_of(4),
+        usage: wgpu::BufferUsages::STORAGE,
+        mapped_at_creation: false,
+    });
+    println!(
+        "  median of {} runs; Mtexel/s and % of the i32 roofline (MACs per texel × texels/s ÷ peak \
+         multiply-adds/s) from the kernels' time alone ({})",
+        opts.runs,
+        peak.clock.name()
+    );
+    println!("  | what | texels | MACs/texel | µs per call | Mtexel/s | % of i32 roofline |");
+    println!("  |---|---:|---:|---:|---:|---:|");
+    let all = ChannelMask::ALL;
+    let region = Work::Region(side, all);
+    let mut rows = vec![
+        (
+            format!("region {}×{} of mip 0, all {c} channels", side.0, side.1),
+            texels(side),
+            c,
+            region,
+        ),
+        (format!("whole chain, {} mips", m.mip_count()), chain, c, Work::Chain),
+        (
+            format!("{} random requests over the chain", requests.len()),
+            texels(side),
+            c,
+            Work::Requests,
+        ),
+        (
+            format!("region {}×{}, channel 0", side.0, side.1),
+            texels(side),
+            1,
+            Work::Region(side, ChannelMask(1)),
+        ),
+    ];
+    if c > 3 {
+        let mask = ChannelMask(0b111);
+        rows.push((
+            format!("region {}×{}, channels 0-2", side.0, side.1),
+            texels(side),
+            3,
+            Work::Region(side, mask),
+        ));
+    }
+    let gpu = Gpu {
+        ctx: &ctx,
+        device: &device,
+        gm: &gm,
+        m,
+        out: &out,
+        requests: (&request_buffer, requests.len() as u32),
+    };
+    for (name, n, outputs, work) in &rows {
+        let seconds = median_time(&device, &queue, opts.runs, &|e| gpu.record(e, work))?;
+        let rate = *n as f64 / seconds;
+        let macs_per_texel = macs(m, *outputs);
+        println!(
+            "  | {name} | {n} | {macs_per_texel} | {:.1} | {:.3} | {:.2} |",
+            seconds * 1e6,
+            rate / 1e6,
+            100.0 * rate * macs_per_texel as f64 / peak.i32_mad_per_s
+        );
+    }
+    let round_trips: Vec<f64> = (0..opts.runs)
+        .map(|_| {
+            let start = Instant::now();
+            ctx.submit_region(&device, &queue, &gm, 0, (0, 0, side.0, side.1), all)?
+                .wait(&device)?;
+            Ok(start.elapsed().as_secs_f64())
+        })
+        .collect::<Result<_>>()?;
+    println!(
+        "  upload {:.2} ms (once per material); region round trip (submit, decode, read back, wall clock) {:.2} ms",
+        upload * 1e3,
+        median(round_trips) * 1e3
+    );
+    Ok(())
+}
+
+/// What a row decodes.
+enum Work {
+    /// The top-left (width, height) of mip 0, these channels.
+    Region((u32, u32), ChannelMask),
+    /// Every mip, every channel.
+    Chain,
+    /// The random requests, every channel.
+    Requests,
+}
+
+/// What recording needs.
+struct Gpu<'a> {
+    ctx: &'a Context,
+    device: &'a wgpu::Device,
+    gm: &'a GpuMaterial,
+    m: &'a Material<'a>,
+    out: &'a wgpu::Buffer,
+    requests: (&'a wgpu::Buffer, u32),
+}
+
+impl Gpu<'_> {
+    fn record(
+        &self,
+        e: &mut wgpu::CommandEncoder,
+        work: &Work,
+    ) -> std::result::Result<(), GpuError> {
+        let Gpu { ctx, device, gm, out, .. } = *self;
+        let all = ChannelMask::ALL;
+        match *work {
+            Work::Region((w, h), mask) => {
+                ctx.record_region(device, e, gm, 0, (0, 0, w, h), mask, (out, 0))?;
+            }
+            Work::Chain => {
+                let mut at = 0;
+                for mip in 0..self.m.mip_count() {
+                    let (w, h) = self.m.mip_size(mip);
+                    let n = ctx.record_region(device, e, gm, mip, (0, 0, w, h), all, (out, at))?;
+                    at += n.next_multiple_of(4);
+                }
+            }
+            Work::Requests => {
+                let (buffer, count) = self.requests;
+                ctx.record_requests(device, e, gm, (buffer, 0, count), all, (out, 0))?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Median seconds per call of `work`: each run repeats it in one submission until that takes
+/// at least [`MIN_SECONDS`].
+fn median_time(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    runs: usize,
+    work: &dyn Fn(&mut wgpu::CommandEncoder) -> std::result::Result<(), GpuError>,
+) -> Result<f64> {
+    let (first, _): (f64, Clock) = measure::time_recorded(device, queue, 1, work)?;
+    let repeats = (MIN_SECONDS / first.max(1e-9)).ceil().clamp(1.0, 1000.0) as u32;
+    let mut times = Vec::with_capacity(runs);
+    for _ in 0..runs {
+        times.push(measure::time_recorded(device, queue, repeats, work)?.0);
+    }
+    Ok(median(times))
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(0.0)
+}
+
+fn texels((w, h): (u32, u32)) -> u64 {
+    u64::from(w) * u64::from(h)
+}
+
+/// `n` texels drawn uniformly over the whole chain (each mip in proportion to its area), by a
+/// fixed LCG so runs compare.
+fn random_requests(m: &Material<'_>, n: u64) -> Vec<TexelRequest> {
+    let areas: Vec<u64> = (0..m.mip_count()).map(|k| texels(m.mip_size(k))).collect();
+    let total: u64 = areas.iter().sum();
+    let mut s = 0x9E37_79B9_7F4A_7C15u64;
+    let mut next = || {
+        s = s.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+        s >> 33
+    };
+    (0..n)
+        .map(|_| {
+            let mut t = next() % total.max(1);
+            let mut mip = 0;
+            while mip + 1 < areas.len() && t >= areas[mip] {
+                t -= areas[mip];
+                mip += 1;
+            }
+            let (w, _) = m.mip_size(mip as u32);
+            TexelRequest {
+                x: (t % u64::from(w)) as i32,
+                y: (t / u64::from(w)) as i32,
+                mip: mip as u32,
+            }
+        })
+        .collect()
+}

@@ -1,0 +1,198 @@
+//! Measuring the GPU like a GPU (docs/GPU.md, "Measured"): recorded work timed between GPU
+//! timestamps where the device has them, and the adapter's peak rates of 32-bit integer
+//! multiply-adds and `dot4I8Packed` from register-only WGSL loops (`probe.wgsl`), the roofline
+//! the decoder is compared against.
+
+use crate::{GpuError, dispatch};
+use std::task::{Context as TaskContext, Poll};
+use std::time::Instant;
+use wgpu::util::DeviceExt;
+
+/// How a time was taken.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Clock {
+    /// Between two GPU timestamps around the work (`TIMESTAMP_QUERY` and
+    /// `TIMESTAMP_QUERY_INSIDE_ENCODERS`): the kernels alone.
+    Timestamps,
+    /// From submit to completion on the CPU's clock: includes the submission.
+    WallClock,
+}
+
+impl Clock {
+    pub fn name(self) -> &'static str {
+        match self {
+            Clock::Timestamps => "GPU timestamps",
+            Clock::WallClock => "wall clock (no timestamp queries)",
+        }
+    }
+}
+
+/// The features [`time_recorded`] times with; request them (where the adapter has them) when
+/// creating a device for measuring. [`crate::default_device`] does.
+pub const TIMESTAMP_FEATURES: wgpu::Features =
+    wgpu::Features::TIMESTAMP_QUERY.union(wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS);
+
+/// Seconds per repeat of the work `record` adds to a command encoder, recorded `repeats` times
+/// into one submission (after one untimed warm-up submission of a single repeat).
+pub fn time_recorded(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    repeats: u32,
+    mut record: impl FnMut(&mut wgpu::CommandEncoder) -> Result<(), GpuError>,
+) -> Result<(f64, Clock), GpuError> {
+    let repeats = repeats.max(1);
+    let wait = |device: &wgpu::Device| {
+        device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Map(e.to_string()))
+    };
+    let mut warm = device.create_command_encoder(&Default::default());
+    record(&mut warm)?;
+    queue.submit([warm.finish()]);
+    wait(device)?;
+    let timestamps = device.features().contains(TIMESTAMP_FEATURES);
+    let mut encoder = device.create_command_encoder(&Default::default());
+    let queries = timestamps.then(|| {
+        device.create_query_set(&wgpu::QuerySetDescriptor {
+            label: Some("nmat timing"),
+            ty: wgpu::QueryType::Timestamp,
+            count: 2,
+        })
+    });
+    if let Some(q) = &queries {
+        encoder.write_timestamp(q, 0);
+    }
+    for _ in 0..repeats {
+        record(&mut encoder)?;
+    }
+    let Some(q) = &queries else {
+        let start = Instant::now();
+        queue.submit([encoder.finish()]);
+        wait(device)?;
+        return Ok((start.elapsed().as_secs_f64() / f64::from(repeats), Clock::WallClock));
+    };
+    encoder.write_timestamp(q, 1);
+    let resolve = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("nmat timestamps"),
+        size: 16,
+        usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+        mapped_at_creation: false,
+    });
+    let back = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("nmat timestamps readback"),
+        size: 16,
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    encoder.resolve_query_set(q, 0..2, &resolve, 0);
+    encoder.copy_buffer_to_buffer(&resolve, 0, &back, 0, 16);
+    queue.submit([encoder.finish()]);
+    let bytes = crate::read_back(device, &back, 16)?;
+    let tick = |k: usize| {
+        let mut word = [0u8; 8];
+        word.copy_from_slice(&bytes[8 * k..8 * k + 8]);
+        u64::from_le_bytes(word)
+    };
+    let ns = tick(1).saturating_sub(tick(0)) as f64 * f64::from(queue.get_timestamp_period());
+    Ok((ns * 1e-9 / f64::from(repeats), Clock::Timestamps))
+}
+
+/// The adapter's peak rates, measured by [`probe_peak`].
+#[derive(Clone, Copy, Debug)]
+pub struct Peak {
+    /// 32-bit integer multiply-adds per second (`a = a * m + c`).
+    pub i32_mad_per_s: f64,
+    /// 8-bit multiply-accumulates per second through `dot4I8Packed` (4 per call), or `None`
+    /// where the shader language lacks it.
+    pub dot4_mac_per_s: Option<f64>,
+    pub clock: Clock,
+}
+
+/// Invocations of one probe dispatch: enough to fill any current GPU.
+const PROBE_GROUPS: u32 = 4096;
+/// Operations per iteration of a probe loop: 4 rounds × 8 chains.
+const PROBE_OPS: f64 = 32.0;
+
+/// Measures [`Peak`] on `device`: each probe grows its loop until one dispatch takes at least
+/// 20 ms, then reports the best of three.
+pub fn probe_peak(device: &wgpu::Device, queue: &wgpu::Queue) -> Result<Peak, GpuError> {
+    let probe = include_str!("probe.wgsl");
+    let mad = pipeline(device, probe, "mad").ok_or(GpuError::Map(
+        "the integer peak probe did not compile on this device".to_string(),
+    ))?;
+    let (mad_rate, clock) = rate(device, queue, &mad, 1.0)?;
+    let dot4 = pipeline(device, &format!("{probe}\n{}", include_str!("probe_dot4.wgsl")), "dot4");
+    let dot4_mac_per_s = match dot4 {
+        Some(p) => Some(rate(device, queue, &p, 4.0)?.0),
+        None => None,
+    };
+    Ok(Peak { i32_mad_per_s: mad_rate, dot4_mac_per_s, clock })
+}
+
+/// The compute pipeline of `entry` in `source`, or `None` where the device refuses it.
+fn pipeline(device: &wgpu::Device, source: &str, entry: &str) -> Option<wgpu::ComputePipeline> {
+    let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some("nmat probe"),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    });
+    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(entry),
+        layout: None,
+        module: &module,
+        entry_point: Some(entry),
+        compilation_options: Default::default(),
+        cache: None,
+    });
+    // wgpu's native backends report the scope at once; a pending answer counts as refused.
+    let mut error = std::pin::pin!(scope.pop());
+    match error.as_mut().poll(&mut TaskContext::from_waker(std::task::Waker::noop())) {
+        Poll::Ready(None) => Some(pipeline),
+        _ => None,
+    }
+}
+
+/// Operations per second of a probe pipeline doing `per_op` units per operation.
+fn rate(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    pipeline: &wgpu::ComputePipeline,
+    per_op: f64,
+) -> Result<(f64, Clock), GpuError> {
+    let invocations = u64::from(PROBE_GROUPS) * 64;
+    let sink = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("nmat probe sink"),
+        size: invocations * 4,
+        usage: wgpu::BufferUsages::STORAGE,
+        mapped_at_creation: false,
+    });
+    let run = |iterations: u32| -> Result<(f64, Clock), GpuError> {
+        let words = [iterations, 0x0101_0103, 0x2545_F491, 0];
+        let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("nmat probe"),
+            contents: &crate::words_to_bytes(&words),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("nmat probe"),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: sink.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: uniform.as_entire_binding() },
+            ],
+        });
+        time_recorded(device, queue, 1, |encoder| {
+            dispatch(encoder, pipeline, &bind, u64::from(PROBE_GROUPS));
+            Ok(())
+        })
+    };
+    let mut iterations = 16u32;
+    let (mut seconds, mut clock) = run(iterations)?;
+    while seconds < 0.02 && iterations < 1 << 20 {
+        iterations *= 4;
+        (seconds, clock) = run(iterations)?;
+    }
+    for _ in 0..2 {
+        seconds = seconds.min(run(iterations)?.0);
+    }
+    let ops = invocations as f64 * f64::from(iterations) * PROBE_OPS * per_op;
+    Ok((ops / seconds.max(1e-12), clock))
+}

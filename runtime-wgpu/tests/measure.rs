@@ -1,0 +1,36 @@
+//! The measuring tools of `nmat_wgpu::measure` on whatever adapter wgpu finds (lavapipe in CI).
+
+use nmat_wgpu::measure::{self, Clock};
+
+mod common;
+use common::device;
+
+/// The probes report finite positive rates, and `dot4I8Packed` (4 MACs a call) where the
+/// language has it; work timed with 4 repeats takes about a quarter of the total per repeat.
+#[test]
+fn peaks_and_timings_are_positive_and_scale_with_the_work() {
+    let (device, queue) = device();
+    let peak = measure::probe_peak(&device, &queue).unwrap();
+    assert!(peak.i32_mad_per_s.is_finite() && peak.i32_mad_per_s > 1e6, "{peak:?}");
+    assert!(peak.dot4_mac_per_s.is_none_or(|r| r.is_finite() && r > 1e6), "{peak:?}");
+    let want = if device.features().contains(measure::TIMESTAMP_FEATURES) {
+        Clock::Timestamps
+    } else {
+        Clock::WallClock
+    };
+    assert_eq!(peak.clock, want);
+    // A failing record is passed through, not timed.
+    let failed = measure::time_recorded(&device, &queue, 3, |_| {
+        Err(nmat_wgpu::GpuError::Map("refused".to_string()))
+    });
+    assert!(matches!(failed, Err(nmat_wgpu::GpuError::Map(m)) if m == "refused"));
+    let mut calls = 0;
+    let (seconds, clock) = measure::time_recorded(&device, &queue, 4, |_| {
+        calls += 1;
+        Ok(())
+    })
+    .unwrap();
+    assert_eq!(calls, 1 + 4, "one warm-up and four timed repeats");
+    assert!(seconds.is_finite() && seconds >= 0.0);
+    assert_eq!(clock, want);
+}
