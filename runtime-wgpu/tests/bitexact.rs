@@ -2,23 +2,13 @@
 //! every golden fixture, a trained material, and random-access requests at odd coordinates with
 //! channel subsets. Runs on whatever adapter wgpu finds (lavapipe in CI); no adapter is a failure.
 
-use nmat_core::{ChannelMask, Container, Material};
+use nmat_core::{ChannelMask, Container};
 use nmat_tests::generate::{generate, golden_configs};
 use nmat_tests::{decode_all_u8, fixtures_dir};
 use nmat_wgpu::{Context, TexelRequest};
 
 mod common;
-use common::{device, trained_material};
-
-fn cpu_requests(m: &Material<'_>, reqs: &[TexelRequest], mask: ChannelMask) -> Vec<u8> {
-    let mut out = Vec::new();
-    let mut buf = [0u8; 16];
-    for r in reqs {
-        let n = m.decode_texel_u8(i64::from(r.x), i64::from(r.y), r.mip, mask, &mut buf).unwrap();
-        out.extend_from_slice(&buf[..n]);
-    }
-    out
-}
+use common::{cpu_codes, device, random_requests, trained_material};
 
 #[test]
 fn golden_fixtures_decode_identically_on_the_gpu() {
@@ -45,24 +35,14 @@ fn random_access_requests_and_subsets_match_the_cpu() {
     let bytes = spec.to_bytes().unwrap();
     let m = Container::parse(&bytes).unwrap();
     let gm = ctx.upload(&device, &m).unwrap();
-    let mut reqs = Vec::new();
-    let mut s = 12345u64;
-    for _ in 0..500 {
-        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        let v = (s >> 33) as i64;
-        reqs.push(TexelRequest {
-            x: (v % 400 - 200) as i32,
-            y: ((v >> 9) % 400 - 200) as i32,
-            mip: (v >> 20) as u32 % 9,
-        });
-    }
+    let mut reqs = random_requests(12345, 500, 400, 9);
     reqs.extend([
         TexelRequest { x: i32::MIN, y: i32::MAX, mip: 0 },
         TexelRequest { x: i32::MAX, y: i32::MIN, mip: u32::MAX },
     ]);
     for mask in [ChannelMask::ALL, ChannelMask(0b1), ChannelMask(0b10_1001_0110)] {
         let gpu = ctx.decode_requests(&device, &queue, &gm, &reqs, mask).unwrap();
-        assert_eq!(gpu, cpu_requests(&m, &reqs, mask), "mask {mask:?}");
+        assert_eq!(gpu, cpu_codes(&m, &reqs, mask), "mask {mask:?}");
     }
     // A region equals the same texels decoded one by one.
     let region = ctx
@@ -72,7 +52,7 @@ fn random_access_requests_and_subsets_match_the_cpu() {
         .unwrap();
     let as_requests: Vec<TexelRequest> =
         (7..18).flat_map(|y| (5..35).map(move |x| TexelRequest { x, y, mip: 1 })).collect();
-    assert_eq!(region, cpu_requests(&m, &as_requests, ChannelMask(0b111)));
+    assert_eq!(region, cpu_codes(&m, &as_requests, ChannelMask(0b111)));
     // Sizes are validated before anything is submitted.
     assert!(ctx.submit_region(&device, &queue, &gm, 1, (40, 0, 10, 1), ChannelMask::ALL).is_err());
     assert!(ctx.submit_region(&device, &queue, &gm, 9, (0, 0, 1, 1), ChannelMask::ALL).is_err());

@@ -1,24 +1,13 @@
 //! Decodes recorded into the caller's command encoder and buffers, the packed output, and the
 //! reuse of buffers between submit-and-wait calls: every code against the CPU integer decoder.
 
-use nmat_core::{ChannelMask, Container, Material};
+use nmat_core::{ChannelMask, Container};
 use nmat_tests::generate::{generate, golden_configs};
 use nmat_wgpu::{Context, GpuError, TexelRequest};
 use wgpu::BufferUsages as U;
 
 mod common;
-use common::{buffer, device, submit_and_read, trained_material};
-
-/// The CPU's codes of `reqs`, channels in `mask`, texel after texel.
-fn cpu_codes(m: &Material<'_>, reqs: &[TexelRequest], mask: ChannelMask) -> Vec<u8> {
-    let mut out = Vec::new();
-    let mut buf = [0u8; 16];
-    for r in reqs {
-        let n = m.decode_texel_u8(i64::from(r.x), i64::from(r.y), r.mip, mask, &mut buf).unwrap();
-        out.extend_from_slice(&buf[..n]);
-    }
-    out
-}
+use common::{buffer, cpu_codes, device, random_requests, submit_and_read, trained_material};
 
 fn rect(mip: u32, (x0, y0, w, h): (u32, u32, u32, u32)) -> Vec<TexelRequest> {
     (y0..y0 + h)
@@ -74,17 +63,7 @@ fn recorded_requests_read_from_the_callers_buffer() {
     let bytes = golden("ntc_pbr10_96x80_clamp");
     let m = Container::parse(&bytes).unwrap();
     let gm = ctx.upload(&device, &m).unwrap();
-    let mut reqs = Vec::new();
-    let mut s = 99u64;
-    for _ in 0..300 {
-        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        let v = (s >> 33) as i64;
-        reqs.push(TexelRequest {
-            x: (v % 300 - 150) as i32,
-            y: ((v >> 9) % 300 - 150) as i32,
-            mip: (v >> 20) as u32 % 10,
-        });
-    }
+    let mut reqs = random_requests(99, 300, 300, 10);
     reqs.push(TexelRequest { x: i32::MIN, y: i32::MAX, mip: u32::MAX });
     let mask = ChannelMask(0b11_0000_0111);
     let want = cpu_codes(&m, &reqs, mask);

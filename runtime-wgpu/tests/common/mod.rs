@@ -59,3 +59,42 @@ pub fn submit_and_read(
     device.poll(wgpu::PollType::wait_indefinitely()).unwrap();
     back.get_mapped_range(..).unwrap().to_vec()
 }
+
+/// The CPU's codes of `reqs`, channels in `mask`, texel after texel.
+#[allow(dead_code)]
+pub fn cpu_codes(
+    m: &nmat_core::Material<'_>,
+    reqs: &[nmat_wgpu::TexelRequest],
+    mask: nmat_core::ChannelMask,
+) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut buf = [0u8; 16];
+    for r in reqs {
+        let n = m.decode_texel_u8(i64::from(r.x), i64::from(r.y), r.mip, mask, &mut buf).unwrap();
+        out.extend_from_slice(&buf[..n]);
+    }
+    out
+}
+
+/// `count` requests from an LCG seeded with `seed`: x and y in [−span/2, span/2), mip below
+/// `mips` (coordinates outside the mip wrap or clamp, mips past the chain clamp).
+#[allow(dead_code)]
+pub fn random_requests(
+    seed: u64,
+    count: usize,
+    span: i64,
+    mips: u32,
+) -> Vec<nmat_wgpu::TexelRequest> {
+    let mut s = seed;
+    (0..count)
+        .map(|_| {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            let v = (s >> 33) as i64;
+            nmat_wgpu::TexelRequest {
+                x: (v % span - span / 2) as i32,
+                y: ((v >> 9) % span - span / 2) as i32,
+                mip: (v >> 20) as u32 % mips,
+            }
+        })
+        .collect()
+}
