@@ -30,9 +30,9 @@
 //! groups are reused by later calls. An engine that keeps the codes on the GPU records instead:
 //! [`Context::record_region`] and [`Context::record_requests`] (requests read from the caller's
 //! buffer, e.g. written by its own pass) add a dispatch to the caller's command encoder that
-//! writes the codes, packed four per `u32`, into the caller's buffer; nothing is submitted. Only downlevel limits
-//! are needed: the kernel uses 32-bit integers only (no `f16`, no subgroups, no 64-bit integers;
-//! the wide products are computed in pieces). The decode arithmetic is that of the format
+//! writes the codes, packed four per `u32`, into the caller's buffer; nothing is submitted.
+//! Only downlevel limits are needed: the kernel uses 32-bit integers only (no `f16`, no
+//! subgroups, no 64-bit integers; the wide products are computed in pieces). The decode arithmetic is that of the format
 //! specification (`docs/FORMAT.md` of the repository, §6; embedded in `nmat_core::spec`); how the
 //! kernel maps it onto 32-bit integers and what it costs is in `docs/GPU.md`, embedded here as
 //! [`design`].
@@ -78,12 +78,14 @@ pub enum GpuError {
     Blocks { mip: u32, region: BlockRegion },
     /// A row pitch shorter than a row of blocks, or not a multiple of 4 bytes.
     RowPitch { row_pitch: u64, min: u64 },
-    /// The output buffer lacks `STORAGE` usage, or the offset is not a multiple of 4 bytes.
+    /// The output buffer lacks `STORAGE` usage, is larger than the device's storage binding
+    /// limit, or the offset is not a multiple of 4 bytes.
     OutputBuffer { reason: &'static str },
     /// The output buffer (from the offset) is too small for the blocks or codes.
     Output { needed: u64, size: u64 },
-    /// A buffer of requests that lacks `STORAGE` usage, has an offset that is not a multiple of
-    /// 4 bytes, or ends before the last request.
+    /// A buffer of requests that lacks `STORAGE` usage, is larger than the device's storage
+    /// binding limit, has an offset that is not a multiple of 4 bytes, or ends before the last
+    /// request.
     RequestBuffer { reason: &'static str },
 }
 
