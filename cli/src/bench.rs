@@ -162,24 +162,22 @@ fn channels_of(mask: ChannelMask, count: usize) -> Vec<usize> {
 
 pub fn run(opts: &Options) -> Result<()> {
     println!("machine: {}, {} logical CPUs", cpu_name(), std::thread::available_parallelism()?);
-    let mut peaks = Vec::new();
-    if opts.gpu {
-        for input in &opts.inputs {
-            bench_one(input, opts)?;
+    // The GPU table (`--gpu`) has its own peak, measured on the adapter.
+    if !opts.gpu {
+        for kernel in Kernel::ALL {
+            if let Some(rate) = peak_rate(kernel) {
+                println!(
+                    "  peak multiply-add rate, {:12} {:7.1} GMAC/s",
+                    kernel.name(),
+                    rate / 1e9
+                );
+            }
         }
-        return Ok(());
+        println!(
+            "  roofline = MACs per texel ÷ the {} peak rate per thread; % roofline = roofline time ÷ measured time, each run against the peak measured just before it (median of the runs)\n",
+            Kernel::best().name()
+        );
     }
-    for kernel in Kernel::ALL {
-        if let Some(rate) = peak_rate(kernel) {
-            println!("  peak multiply-add rate, {:12} {:7.1} GMAC/s", kernel.name(), rate / 1e9);
-            peaks.push((kernel, rate));
-        }
-    }
-    let best = Kernel::best();
-    println!(
-        "  roofline = MACs per texel ÷ the {} peak rate per thread; % roofline = roofline time ÷ measured time, each run against the peak measured just before it (median of the runs)\n",
-        best.name()
-    );
     let start = Instant::now();
     for input in &opts.inputs {
         bench_one(input, opts)?;

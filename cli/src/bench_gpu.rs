@@ -4,7 +4,7 @@
 //! upload and a region's round trip (submit, decode, read back) on their own rows.
 
 use crate::Result;
-use crate::bench::{Options, macs};
+use crate::bench::{Options, macs, median};
 use nmat_core::{ChannelMask, Material};
 use nmat_wgpu::measure::{self, Clock};
 use nmat_wgpu::wgpu;
@@ -200,11 +200,6 @@ fn median_time(
         times.push(measure::time_recorded(device, queue, repeats, work)?.0);
     }
     Ok(median(times))
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied().unwrap_or(0.0)
 }
 
 fn texels((w, h): (u32, u32)) -> u64 {
