@@ -8,7 +8,7 @@ use crate::bench::{Options, macs, median};
 use nmat_core::{ChannelMask, Material};
 use nmat_wgpu::measure::{self, Clock};
 use nmat_wgpu::wgpu;
-use nmat_wgpu::{Context, GpuError, GpuMaterial, TexelRequest};
+use nmat_wgpu::{Context, GpuError, GpuMaterial, Kernel, TexelRequest};
 use std::time::Instant;
 
 /// Each timed submission runs at least this long (repeats of the work in one submission).
@@ -39,6 +39,12 @@ pub fn table(m: &Material<'_>, opts: &Options) -> Result<()> {
     let gm = ctx.upload(&device, m)?;
     device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| e.to_string())?;
     let upload = start.elapsed().as_secs_f64();
+    // The other kernels the device runs, for a region row each (same codes, other speed).
+    let others: Vec<GpuMaterial> = Kernel::ALL
+        .into_iter()
+        .filter(|&k| k != gm.kernel())
+        .filter_map(|k| ctx.upload_with(&device, m, Some(k)).ok())
+        .collect();
     let c = m.channel_count();
     let (w, h) = m.mip_size(0);
     let side = (opts.region.min(w).max(1), opts.region.min(h).max(1));
@@ -61,6 +67,7 @@ pub fn table(m: &Material<'_>, opts: &Options) -> Result<()> {
         usage: wgpu::BufferUsages::STORAGE,
         mapped_at_creation: false,
     });
+    println!("  kernel: {} (the fastest this device runs; docs/GPU.md)", gm.kernel().name());
     println!(
         "  median of {} runs; Mtexel/s and % of the i32 roofline (MACs per texel × texels/s ÷ peak \
          multiply-adds/s) from the kernels' time alone ({})",
@@ -77,19 +84,22 @@ pub fn table(m: &Material<'_>, opts: &Options) -> Result<()> {
             texels(side),
             c,
             region,
+            &gm,
         ),
-        (format!("whole chain, {} mips", m.mip_count()), chain, c, Work::Chain),
+        (format!("whole chain, {} mips", m.mip_count()), chain, c, Work::Chain, &gm),
         (
             format!("{} random requests over the chain", requests.len()),
             texels(side),
             c,
             Work::Requests,
+            &gm,
         ),
         (
             format!("region {}×{}, channel 0", side.0, side.1),
             texels(side),
             1,
             Work::Region(side, ChannelMask(1)),
+            &gm,
         ),
     ];
     if c > 3 {
@@ -99,17 +109,23 @@ pub fn table(m: &Material<'_>, opts: &Options) -> Result<()> {
             texels(side),
             3,
             Work::Region(side, mask),
+            &gm,
         ));
     }
-    let gpu = Gpu {
-        ctx: &ctx,
-        device: &device,
-        gm: &gm,
-        m,
-        out: &out,
-        requests: (&request_buffer, requests.len() as u32),
-    };
-    for (name, n, outputs, work) in &rows {
+    for other in &others {
+        let name =
+            format!("region {}×{}, all channels, {} kernel", side.0, side.1, other.kernel().name());
+        rows.push((name, texels(side), c, Work::Region(side, all), other));
+    }
+    for (name, n, outputs, work, gm) in &rows {
+        let gpu = Gpu {
+            ctx: &ctx,
+            device: &device,
+            gm,
+            m,
+            out: &out,
+            requests: (&request_buffer, requests.len() as u32),
+        };
         let seconds = median_time(&device, &queue, opts.runs, &|e| gpu.record(e, work))?;
         let rate = *n as f64 / seconds;
         let macs_per_texel = macs(m, *outputs);

@@ -73,6 +73,40 @@ impl Requant {
         let product = i64::from(acc) * i64::from(self.multiplier);
         (product + (1i64 << (self.shift - 1))) >> self.shift
     }
+
+    /// The accumulators `[lo, hi]` such that clamping an accumulator to them leaves its
+    /// saturated requantized value unchanged (for the SIMD and GPU kernels, which then work in
+    /// 32 bits): `hi` is the least accumulator whose value saturates at the top (`i32::MAX` if
+    /// none does), `lo` the greatest one saturating at the bottom (`i32::MIN` if none does). The
+    /// value is non-decreasing in the accumulator and grows by at most ⌈m / 2^s⌉ ≤ 2^30 per step,
+    /// so over `[lo, hi]` it stays within (−2^31, 2^31).
+    pub fn saturation_range(self) -> (i32, i32) {
+        let value = |acc: i32| self.apply(acc);
+        let top = i64::from(i16::MAX);
+        let bottom = i64::from(i16::MIN);
+        let hi = if value(i32::MAX) < top {
+            i32::MAX
+        } else {
+            // The least acc with value(acc) ≥ top, by bisection of the monotone value.
+            let (mut below, mut at) = (i64::from(i32::MIN) - 1, i64::from(i32::MAX));
+            while at - below > 1 {
+                let mid = below + (at - below) / 2;
+                if value(mid as i32) >= top { at = mid } else { below = mid }
+            }
+            at as i32
+        };
+        let lo = if value(i32::MIN) > bottom {
+            i32::MIN
+        } else {
+            let (mut at, mut above) = (i64::from(i32::MIN), i64::from(i32::MAX) + 1);
+            while above - at > 1 {
+                let mid = at + (above - at) / 2;
+                if value(mid as i32) <= bottom { at = mid } else { above = mid }
+            }
+            at as i32
+        };
+        (lo, hi)
+    }
 }
 
 /// Saturates to the i16 activation range.

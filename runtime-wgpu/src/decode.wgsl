@@ -217,7 +217,9 @@ var<private> act_b: array<i32, 128>;
 // The codes `decode` wrote, by channel (channels outside params.channel_mask are not written).
 var<private> codes: array<u32, 16>;
 
-fn decode(xi: i32, yi: i32, mip_in: u32) {
+// The input features of texel (xi, yi) of `mip_in` (addressed and clamped to the chain as on
+// the CPU) in act_a[0..input width): latents, positional encoding, LOD (§6.2–6.4).
+fn features(xi: i32, yi: i32, mip_in: u32) {
     let mip = min(mip_in, desc[2] - 1u);
     let mw = max(desc[0] >> mip, 1u);
     let mh = max(desc[1] >> mip, 1u);
@@ -272,6 +274,10 @@ fn decode(xi: i32, yi: i32, mip_in: u32) {
         act_a[n] = i32(mip << (f_in - 4u));
         n++;
     }
+}
+
+fn decode(xi: i32, yi: i32, mip_in: u32) {
+    features(xi, yi, mip_in);
     let layer_count = desc[8];
     var out_frac = 1u;
     for (var l = 0u; l < layer_count; l++) {

@@ -38,8 +38,10 @@
 //! [`design`].
 
 pub mod measure;
+mod tiled;
 mod transcode;
 
+pub use tiled::Kernel;
 pub use transcode::{PendingBlocks, aligned_row_pitch, encodes, texture_format};
 
 /// The GPU runtime's design and measured speed (`docs/GPU.md` of the repository).
@@ -50,6 +52,7 @@ pub mod design {}
 
 use nmat_core::bc::BcFormat;
 use nmat_core::{BlockRegion, ChannelMask, Material, TermMode};
+use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, mpsc};
 use wgpu::util::DeviceExt;
@@ -87,6 +90,8 @@ pub enum GpuError {
     /// binding limit, has an offset that is not a multiple of 4 bytes, or ends before the last
     /// request.
     RequestBuffer { reason: &'static str },
+    /// A kernel asked for by [`Context::upload_with`] that this device cannot run.
+    Kernel { kernel: Kernel, reason: &'static str },
 }
 
 impl std::fmt::Display for GpuError {
@@ -124,6 +129,9 @@ impl std::fmt::Display for GpuError {
                 write!(f, "output buffer of {size} bytes; the output needs {needed}")
             }
             GpuError::RequestBuffer { reason } => write!(f, "request buffer: {reason}"),
+            GpuError::Kernel { kernel, reason } => {
+                write!(f, "the {} kernel does not run on this device: {reason}", kernel.name())
+            }
         }
     }
 }
@@ -142,10 +150,15 @@ pub struct TexelRequest {
 
 /// The cached pipelines (decode, BC transcode, BC encode of given pixels). Create one per device.
 pub struct Context {
+    /// The reference decode kernel (`main` in decode.wgsl).
     pipeline: wgpu::ComputePipeline,
     transcode: wgpu::ComputePipeline,
     encode: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
+    pipeline_layout: wgpu::PipelineLayout,
+    /// Tiled pipelines by source (one per kernel and material shape); `None` where the device
+    /// refused the source.
+    tiled: Mutex<HashMap<String, Option<Arc<wgpu::ComputePipeline>>>>,
     /// Bound where a dispatch has no material or no requests.
     empty: wgpu::Buffer,
     /// Buffers of finished submit-and-wait decodes, for the next ones.
@@ -163,11 +176,18 @@ pub struct GpuMaterial {
     /// Per channel: the code of a constant channel (`Channel::constant_code`), which BC
     /// transcoding uses instead of the decoded one, as the CPU does.
     constant_codes: Vec<Option<u8>>,
+    kernel: Kernel,
+    /// The tiled kernel's pipeline and texels per workgroup (`None`: the reference kernel).
+    tiled: Option<(Arc<wgpu::ComputePipeline>, u32)>,
 }
 
 impl GpuMaterial {
     pub fn channel_count(&self) -> usize {
         self.channel_count
+    }
+    /// The kernel that decodes this material's regions and requests.
+    pub fn kernel(&self) -> Kernel {
+        self.kernel
     }
     /// Width and height of each mip.
     pub fn mip_sizes(&self) -> &[(u32, u32)] {
@@ -324,6 +344,8 @@ impl Context {
             transcode: pipeline("transcode"),
             encode: pipeline("encode_pixels"),
             layout,
+            pipeline_layout,
+            tiled: Mutex::default(),
             empty,
             pool: Pool::default(),
         }
@@ -373,9 +395,24 @@ impl Context {
         })
     }
 
-    /// Uploads a parsed material once: the latent words as stored, the int8 weights widened to
-    /// i32, and per row (bias, requantization multiplier, shift) derived exactly as the CPU does.
+    /// Uploads a parsed material once: the latent words as stored, the int8 weights (widened to
+    /// i32 for the reference kernel, packed four per word for the tiled ones), and per row the
+    /// bias and requantization constants derived exactly as the CPU does; and prepares the
+    /// fastest kernel the device runs ([`Kernel::ALL`] order; pipelines are shared by materials
+    /// of the same network shape).
     pub fn upload(&self, device: &wgpu::Device, m: &Material<'_>) -> Result<GpuMaterial, GpuError> {
+        self.upload_with(device, m, None)
+    }
+
+    /// [`Context::upload`] with the kernel chosen by the caller (`None`: the fastest the device
+    /// runs), e.g. to compare kernels; [`GpuError::Kernel`] where the device cannot run it.
+    pub fn upload_with(
+        &self,
+        device: &wgpu::Device,
+        m: &Material<'_>,
+        kernel: Option<Kernel>,
+    ) -> Result<GpuMaterial, GpuError> {
+        let (kernel, tiled) = self.kernel_for(device, m, kernel)?;
         let mlp = m.mlp();
         let mut desc = vec![0u32; 30];
         desc[0] = m.width();
@@ -484,6 +521,10 @@ impl Context {
             desc[at + 5] += base;
         }
         desc.extend(weights.iter().map(|&w| w as u32));
+        if kernel != Kernel::Reference {
+            let layers_at = desc[13] as usize;
+            tiled::append_tables(&mut desc, layers_at, m, kernel == Kernel::Dot4);
+        }
         static NEXT_ID: AtomicU64 = AtomicU64::new(0);
         Ok(GpuMaterial {
             id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
@@ -492,7 +533,53 @@ impl Context {
             channel_count: m.channel_count(),
             mip_sizes: (0..m.mip_count()).map(|mip| m.mip_size(mip)).collect(),
             constant_codes: m.channels().iter().map(|c| c.constant_code()).collect(),
+            kernel,
+            tiled,
         })
+    }
+
+    /// The kernel `wanted` (or the fastest that compiles) for `m`, with its tiled pipeline and
+    /// texels per workgroup.
+    #[allow(clippy::type_complexity)]
+    fn kernel_for(
+        &self,
+        device: &wgpu::Device,
+        m: &Material<'_>,
+        wanted: Option<Kernel>,
+    ) -> Result<(Kernel, Option<(Arc<wgpu::ComputePipeline>, u32)>), GpuError> {
+        let tiled = |kernel| -> Result<(Arc<wgpu::ComputePipeline>, u32), &'static str> {
+            let bytes = device.limits().max_compute_workgroup_storage_size;
+            let shape = tiled::Shape::new(m, kernel, bytes)
+                .ok_or("the network is too wide for the device's workgroup memory")?;
+            let mut cache = self.tiled.lock().unwrap_or_else(|e| e.into_inner());
+            let pipeline = cache.entry(shape.source(kernel)).or_insert_with_key(|source| {
+                try_pipeline(device, source, "tiled", Some(&self.pipeline_layout)).map(Arc::new)
+            });
+            let refused = match kernel {
+                Kernel::Dot4 => "the device refused the shader (its WGSL may lack dot4I8Packed)",
+                _ => "the device refused the shader",
+            };
+            pipeline.clone().map(|p| (p, shape.texels)).ok_or(refused)
+        };
+        match wanted {
+            Some(Kernel::Reference) => Ok((Kernel::Reference, None)),
+            Some(kernel) => match tiled(kernel) {
+                Ok(t) => Ok((kernel, Some(t))),
+                Err(reason) => Err(GpuError::Kernel { kernel, reason }),
+            },
+            None => Ok([Kernel::Dot4, Kernel::Int32]
+                .into_iter()
+                .find_map(|k| tiled(k).ok().map(|t| (k, Some(t))))
+                .unwrap_or((Kernel::Reference, None))),
+        }
+    }
+
+    /// The decode pipeline of `gm` and its texels per workgroup.
+    fn decode_pipeline<'a>(&'a self, gm: &'a GpuMaterial) -> (&'a wgpu::ComputePipeline, u32) {
+        match &gm.tiled {
+            Some((pipeline, texels)) => (pipeline, *texels),
+            None => (&self.pipeline, WORKGROUP),
+        }
     }
 
     fn mask(&self, gm: &GpuMaterial, channels: ChannelMask) -> Result<(u32, u32), GpuError> {
@@ -503,14 +590,20 @@ impl Context {
 
     /// The workgroups of a decode of `params.count` texels, checked against the dispatch and
     /// binding limits (the codes take `count · out_channels` bytes).
-    fn decode_groups(&self, device: &wgpu::Device, params: &Params) -> Result<u64, GpuError> {
+    fn decode_groups(
+        &self,
+        device: &wgpu::Device,
+        gm: &GpuMaterial,
+        params: &Params,
+    ) -> Result<u64, GpuError> {
+        let texels = u64::from(self.decode_pipeline(gm).1);
         let count = u64::from(params.count);
-        let groups = count.div_ceil(u64::from(WORKGROUP));
+        let groups = count.div_ceil(texels);
         let per_texel = u64::from(params.out_channels).max(1);
         let max_binding = device.limits().max_storage_buffer_binding_size;
         let max_groups = u64::from(MAX_GROUPS) * u64::from(MAX_GROUPS);
         if groups > max_groups || count * per_texel > max_binding {
-            let limit = (max_groups * u64::from(WORKGROUP)).min(max_binding / per_texel);
+            let limit = (max_groups * texels).min(max_binding / per_texel);
             return Err(GpuError::TooLarge { texels: count, limit });
         }
         Ok(groups)
@@ -572,7 +665,7 @@ impl Context {
         params: Params,
         requests: &[u8],
     ) -> Result<PendingDecode, GpuError> {
-        let groups = self.decode_groups(device, &params)?;
+        let groups = self.decode_groups(device, gm, &params)?;
         let len = u64::from(params.count) * u64::from(params.out_channels);
         let copy = len.next_multiple_of(4).max(4);
         let mut scratch = self.take_scratch(device, copy, requests.len() as u64);
@@ -593,7 +686,7 @@ impl Context {
         let mut encoder = device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nmat decode") });
         if let Some((_, bind)) = &scratch.bind {
-            dispatch(&mut encoder, &self.pipeline, bind, groups);
+            dispatch(&mut encoder, self.decode_pipeline(gm).0, bind, groups);
         }
         encoder.copy_buffer_to_buffer(&scratch.out, 0, &scratch.readback, 0, copy);
         queue.submit([encoder.finish()]);
@@ -651,11 +744,11 @@ impl Context {
         (out, offset): (&wgpu::Buffer, u64),
     ) -> Result<u64, GpuError> {
         let mut params = self.region_params(gm, mip, rect, channels)?;
-        let groups = self.decode_groups(device, &params)?;
+        let groups = self.decode_groups(device, gm, &params)?;
         let len = u64::from(params.count) * u64::from(params.out_channels);
         params.out_offset = Self::check_output(device, out, offset, len)?;
         let bind = self.bind(device, Some(gm), None, out, &params);
-        dispatch(encoder, &self.pipeline, &bind, groups);
+        dispatch(encoder, self.decode_pipeline(gm).0, &bind, groups);
         Ok(len)
     }
 
@@ -682,7 +775,7 @@ impl Context {
             out_channels: n,
             ..Params::default()
         };
-        let groups = self.decode_groups(device, &params)?;
+        let groups = self.decode_groups(device, gm, &params)?;
         let reason = if !requests.usage().contains(wgpu::BufferUsages::STORAGE) {
             Some("it needs STORAGE usage")
         } else if !requests_offset.is_multiple_of(4) {
@@ -702,7 +795,7 @@ impl Context {
         let len = u64::from(count) * u64::from(n);
         params.out_offset = Self::check_output(device, out, offset, len)?;
         let bind = self.bind(device, Some(gm), Some(requests), out, &params);
-        dispatch(encoder, &self.pipeline, &bind, groups);
+        dispatch(encoder, self.decode_pipeline(gm).0, &bind, groups);
         Ok(len)
     }
 
@@ -918,6 +1011,39 @@ fn read_back(
     Ok(bytes)
 }
 
+/// The compute pipeline of `entry` in `source` (with `layout`, or the one wgpu derives), or
+/// `None` where the device refuses it (a shader language feature it lacks, a limit).
+pub(crate) fn try_pipeline(
+    device: &wgpu::Device,
+    source: &str,
+    entry: &str,
+    layout: Option<&wgpu::PipelineLayout>,
+) -> Option<wgpu::ComputePipeline> {
+    let internal = device.push_error_scope(wgpu::ErrorFilter::Internal);
+    let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(entry),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    });
+    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(entry),
+        layout,
+        module: &module,
+        entry_point: Some(entry),
+        compilation_options: Default::default(),
+        cache: None,
+    });
+    // wgpu's native backends report a scope at once; a pending answer counts as refused.
+    let mut clean = true;
+    for scope in [validation, internal] {
+        let mut error = std::pin::pin!(scope.pop());
+        let waker = std::task::Waker::noop();
+        let answer = error.as_mut().poll(&mut std::task::Context::from_waker(waker));
+        clean &= matches!(answer, std::task::Poll::Ready(None));
+    }
+    clean.then_some(pipeline)
+}
+
 /// Records one dispatch of `groups` workgroups (spread over x and y past the per-dimension limit).
 fn dispatch(
     encoder: &mut wgpu::CommandEncoder,
@@ -958,7 +1084,14 @@ pub async fn default_device() -> Option<(wgpu::Device, wgpu::Queue, wgpu::Adapte
             // the adapter has them, nothing else.
             required_features: adapter.features()
                 & (wgpu::Features::TEXTURE_COMPRESSION_BC | measure::TIMESTAMP_FEATURES),
-            required_limits: wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits()),
+            // Downlevel limits, but all the workgroup memory the adapter has: the tiled kernel
+            // decodes more texels per workgroup with more.
+            required_limits: wgpu::Limits {
+                max_compute_workgroup_storage_size: adapter
+                    .limits()
+                    .max_compute_workgroup_storage_size,
+                ..wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits())
+            },
             experimental_features: wgpu::ExperimentalFeatures::disabled(),
             memory_hints: wgpu::MemoryHints::MemoryUsage,
             trace: wgpu::Trace::Off,

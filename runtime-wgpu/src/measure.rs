@@ -3,8 +3,7 @@
 //! multiply-adds and `dot4I8Packed` from register-only WGSL loops (`probe.wgsl`), the roofline
 //! the decoder is compared against.
 
-use crate::{GpuError, dispatch};
-use std::task::{Context as TaskContext, Poll};
+use crate::{GpuError, dispatch, try_pipeline};
 use std::time::Instant;
 use wgpu::util::DeviceExt;
 
@@ -115,39 +114,17 @@ const PROBE_OPS: f64 = 32.0;
 /// 20 ms, then reports the best of three.
 pub fn probe_peak(device: &wgpu::Device, queue: &wgpu::Queue) -> Result<Peak, GpuError> {
     let probe = include_str!("probe.wgsl");
-    let mad = pipeline(device, probe, "mad").ok_or(GpuError::Map(
+    let mad = try_pipeline(device, probe, "mad", None).ok_or(GpuError::Map(
         "the integer peak probe did not compile on this device".to_string(),
     ))?;
     let (mad_rate, clock) = rate(device, queue, &mad, 1.0)?;
-    let dot4 = pipeline(device, &format!("{probe}\n{}", include_str!("probe_dot4.wgsl")), "dot4");
+    let dot4_source = format!("{probe}\n{}", include_str!("probe_dot4.wgsl"));
+    let dot4 = try_pipeline(device, &dot4_source, "dot4", None);
     let dot4_mac_per_s = match dot4 {
         Some(p) => Some(rate(device, queue, &p, 4.0)?.0),
         None => None,
     };
     Ok(Peak { i32_mad_per_s: mad_rate, dot4_mac_per_s, clock })
-}
-
-/// The compute pipeline of `entry` in `source`, or `None` where the device refuses it.
-fn pipeline(device: &wgpu::Device, source: &str, entry: &str) -> Option<wgpu::ComputePipeline> {
-    let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some("nmat probe"),
-        source: wgpu::ShaderSource::Wgsl(source.into()),
-    });
-    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-        label: Some(entry),
-        layout: None,
-        module: &module,
-        entry_point: Some(entry),
-        compilation_options: Default::default(),
-        cache: None,
-    });
-    // wgpu's native backends report the scope at once; a pending answer counts as refused.
-    let mut error = std::pin::pin!(scope.pop());
-    match error.as_mut().poll(&mut TaskContext::from_waker(std::task::Waker::noop())) {
-        Poll::Ready(None) => Some(pipeline),
-        _ => None,
-    }
 }
 
 /// Operations per second of a probe pipeline doing `per_op` units per operation.

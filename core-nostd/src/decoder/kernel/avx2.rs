@@ -57,7 +57,7 @@ impl Layers for Avx2 {
 /// The requantization constants of each row (multiplier m, shift s: `(acc·m + 2^(s−1)) >> s`,
 /// then saturated to i16) for [`requantize`], which per 8-row block works in 32-bit lanes where
 /// it can: the accumulator is first clamped to `[clamp_lo, clamp_hi]`, the widest range outside
-/// which the row saturates anyway, so the requantized value fits an i32 (see `clamp_range`) and
+/// which the row saturates anyway, so the requantized value fits an i32 (see `Requant::saturation_range`) and
 /// the i16 saturation is a 32-bit one. The 64-bit product plus `round` = 2^(s−1) (lane order
 /// rows 0, 2, 4, 6, 1, 3, 5, 7, as the 64-bit multiply takes the even 32-bit lanes) is shifted
 /// left by `lift` = max(0, 32 − s) (exact: the value fits an i32, so the shifted one fits an
@@ -87,7 +87,12 @@ impl Lanes {
             8 * block + if lane < 4 { 2 * lane } else { 2 * (lane - 4) + 1 }
         });
         let narrow: Vec<u32> = order.map(|o| pick(o).1).collect();
-        let (clamp_lo, clamp_hi) = (0..rows).map(|o| clamp_range(pick(o).0, pick(o).1)).unzip();
+        let (clamp_lo, clamp_hi) = (0..rows)
+            .map(|o| {
+                let (m, s) = pick(o);
+                crate::mlp::Requant { multiplier: m as i32, shift: s }.saturation_range()
+            })
+            .unzip();
         let lift: Vec<u64> = narrow.iter().map(|&s| u64::from(32u32.saturating_sub(s))).collect();
         Lanes {
             clamp_lo,
@@ -98,40 +103,6 @@ impl Lanes {
             post_shift: (0..rows).map(|o| pick(o).1.saturating_sub(32)).collect(),
         }
     }
-}
-
-/// For a row with multiplier `m` (≥ 0) and shift `s`: the accumulators `[lo, hi]` such that
-/// clamping an accumulator to them leaves its saturated requantized value unchanged — `hi` is
-/// the least accumulator whose value saturates at the top (i32::MAX if none does), `lo` the
-/// greatest one saturating at the bottom. The value is non-decreasing in the accumulator and
-/// grows by at most ⌈m / 2^s⌉ ≤ 2^30 per step, so over `[lo, hi]` it stays within
-/// (−2^31, 2^31).
-fn clamp_range(m: i64, s: u32) -> (i32, i32) {
-    let value = |acc: i32| (i64::from(acc) * m + (1i64 << (s - 1))) >> s;
-    let top = i64::from(i16::MAX);
-    let bottom = i64::from(i16::MIN);
-    let hi = if value(i32::MAX) < top {
-        i32::MAX
-    } else {
-        // The least acc with value(acc) ≥ top, by bisection of the monotone value.
-        let (mut below, mut at) = (i64::from(i32::MIN) - 1, i64::from(i32::MAX));
-        while at - below > 1 {
-            let mid = below + (at - below) / 2;
-            if value(mid as i32) >= top { at = mid } else { below = mid }
-        }
-        at as i32
-    };
-    let lo = if value(i32::MIN) > bottom {
-        i32::MIN
-    } else {
-        let (mut at, mut above) = (i64::from(i32::MIN), i64::from(i32::MAX) + 1);
-        while above - at > 1 {
-            let mid = at + (above - at) / 2;
-            if value(mid as i32) <= bottom { at = mid } else { above = mid }
-        }
-        at as i32
-    };
-    (lo, hi)
 }
 
 #[target_feature(enable = "avx2")]

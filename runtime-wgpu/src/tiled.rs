@@ -1,0 +1,247 @@
+//! The tiled kernel (tiled.wgsl): a pipeline per material shape, and the packed weights and row
+//! tables it reads. docs/GPU.md ("The tiled kernel") argues the arithmetic.
+
+use nmat_core::{Layer, Material};
+use std::fmt::Write as _;
+
+/// Which kernel decodes a material's regions and requests. Every kernel gives the same codes
+/// (the CPU's); they differ in speed only.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Kernel {
+    /// Tiled (4 rows × 4 texels per invocation over workgroup memory), products from
+    /// `dot4I8Packed` (two per four W8A16 multiply-adds). Where the device's shader language has
+    /// it.
+    Dot4,
+    /// Tiled, products from 32-bit multiply-adds. Any device.
+    Int32,
+    /// One texel per invocation, everything read through the material's descriptors: the first
+    /// kernel, kept as the reference (and used by BC transcoding).
+    Reference,
+}
+
+impl Kernel {
+    /// Every kernel, fastest first: the order [`crate::Context::upload`] tries them in.
+    pub const ALL: [Kernel; 3] = [Kernel::Dot4, Kernel::Int32, Kernel::Reference];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Kernel::Dot4 => "tiled dot4",
+            Kernel::Int32 => "tiled i32",
+            Kernel::Reference => "reference",
+        }
+    }
+}
+
+/// Texels per workgroup the tiled kernel tries, largest first.
+const TEXELS: [u32; 5] = [64, 32, 16, 8, 4];
+/// Words per row in a layer's row table (tiled.wgsl).
+const ROW_WORDS: usize = 8;
+
+/// What a tiled pipeline is specialised to: widths are literals in its source.
+pub(crate) struct Shape {
+    /// Texels per workgroup (`P`).
+    pub texels: u32,
+    /// The widest layer (inputs or outputs) rounded up to 4 (`WMAX`).
+    wmax: u32,
+    channels: u32,
+    /// Per layer: words of 4 inputs per row, groups of 4 rows.
+    layers: Vec<(u32, u32)>,
+}
+
+impl Shape {
+    /// The shape of `m`'s network for `kernel` (tiled ones only), with as many texels per
+    /// workgroup as `workgroup_bytes` of workgroup memory allow.
+    pub fn new(m: &Material<'_>, kernel: Kernel, workgroup_bytes: u32) -> Option<Shape> {
+        let layers = m.mlp().layers();
+        let wmax =
+            layers.iter().flat_map(|l| [l.inputs(), l.outputs()]).max()?.next_multiple_of(4) as u32;
+        let channels = m.channel_count() as u32;
+        // Activation buffers (two) and the staged codes, in bytes per texel.
+        let per_texel = match kernel {
+            Kernel::Dot4 => 4 * wmax + 4 * channels,
+            Kernel::Int32 => 8 * wmax + 4 * channels,
+            Kernel::Reference => return None,
+        };
+        let texels = TEXELS.into_iter().find(|p| p * per_texel <= workgroup_bytes)?;
+        let layers = layers
+            .iter()
+            .map(|l| (l.inputs().div_ceil(4) as u32, l.outputs().div_ceil(4) as u32))
+            .collect();
+        Some(Shape { texels, wmax, channels, layers })
+    }
+
+    /// The WGSL of the pipeline: this shape's constants and layer calls, then `decode`.
+    pub fn source(&self, kernel: Kernel) -> String {
+        let mut calls = String::new();
+        for (l, &(kw, groups)) in self.layers.iter().enumerate() {
+            let last = l + 1 == self.layers.len();
+            let _ = writeln!(
+                calls,
+                "    layer(lid, {l}u, {kw}u, {groups}u, {}u, {last});\n    workgroupBarrier();",
+                l % 2
+            );
+        }
+        let products = match kernel {
+            Kernel::Dot4 => include_str!("tiled_dot4.wgsl"),
+            _ => include_str!("tiled_i32.wgsl"),
+        };
+        format!(
+            "const P: u32 = {}u;\nconst WMAX: u32 = {}u;\nconst CH: u32 = {}u;\n\
+             fn layers(lid: u32) {{\n{calls}}}\n{}\n{products}\n{}",
+            self.texels,
+            self.wmax,
+            self.channels,
+            include_str!("decode.wgsl"),
+            include_str!("tiled.wgsl"),
+        )
+    }
+}
+
+/// Appends the tiled kernel's tables of every layer to `desc` and sets the layer records'
+/// words 6 (packed weights) and 7 (row table), whose records start at `desc[layers_at]`.
+pub(crate) fn append_tables(desc: &mut Vec<u32>, layers_at: usize, m: &Material<'_>, dot4: bool) {
+    for (l, layer) in m.mlp().layers().iter().enumerate() {
+        let rows = layer.outputs().next_multiple_of(4);
+        let kw = layer.inputs().div_ceil(4);
+        let weights_at = desc.len() as u32;
+        for o in 0..rows {
+            for j in 0..kw {
+                let byte = |b: usize| {
+                    let i = 4 * j + b;
+                    if o < layer.outputs() && i < layer.inputs() {
+                        u32::from(layer.weight_i8(o, i) as u8)
+                    } else {
+                        0
+                    }
+                };
+                desc.push(byte(0) | byte(1) << 8 | byte(2) << 16 | byte(3) << 24);
+            }
+        }
+        let rows_at = desc.len() as u32;
+        for o in 0..rows {
+            desc.extend(row_table(layer, o, dot4));
+        }
+        let record = layers_at + 8 * l;
+        desc[record + 6] = weights_at;
+        desc[record + 7] = rows_at;
+    }
+}
+
+/// Row `o`'s table (tiled.wgsl): bias, m, s, u, m', m'/2^u as f32, lo, hi. A padding row
+/// (o ≥ outputs) requantizes everything to 0.
+fn row_table(layer: &Layer<'_>, o: usize, dot4: bool) -> [u32; ROW_WORDS] {
+    if o >= layer.outputs() {
+        return [0, 0, 1, 1, 0, 0, 0, 0];
+    }
+    let rq = layer.requant(o);
+    let (lo, hi) = rq.saturation_range();
+    let mut bias = layer.bias(o);
+    if dot4 {
+        let sum: i32 = (0..layer.inputs()).map(|i| i32::from(layer.weight_i8(o, i))).sum();
+        bias = bias.wrapping_add(128 * sum);
+    }
+    let m = rq.multiplier as u32;
+    let (u, narrow, c) = narrow(m, rq.shift, lo, hi).unwrap_or((0, 0, 0.0));
+    [bias as u32, m, rq.shift, u, narrow, c.to_bits(), lo as u32, hi as u32]
+}
+
+/// The 32-bit requantization of a row with multiplier `m`, shift `s` and saturation range
+/// `[lo, hi]`, where tiled.wgsl's argument holds: `(u, m', m'/2^u)` with m' = m >> (s − u),
+/// m' < 2^24, u ≤ 31, |acc| ≤ 2^24 and |acc · m'/2^u| ≤ 2^20 on the range; `None` otherwise
+/// (the 64-bit path).
+fn narrow(m: u32, s: u32, lo: i32, hi: i32) -> Option<(u32, u32, f32)> {
+    if m == 0 {
+        return Some((1, 0, 0.0));
+    }
+    let z = m.trailing_zeros().min(s - 1);
+    let (u, mp) = (s - z, m >> z);
+    let reach = i64::from(lo).abs().max(i64::from(hi).abs());
+    let c = f64::from(mp) / f64::from(2u32).powi(u as i32);
+    let fits =
+        u <= 31 && mp < 1 << 24 && reach <= 1 << 24 && reach as f64 * c <= f64::from(1u32 << 20);
+    fits.then_some((u, mp, c as f32))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nmat_core::Requant;
+
+    /// tiled.wgsl's `requant_row` step by step in Rust (f32 and wrapping i32 as WGSL has them).
+    fn requant_row(acc: i32, table: [u32; ROW_WORDS]) -> i32 {
+        let [_, m, s, u, mp, c, lo, hi] = table;
+        let acc = acc.clamp(lo as i32, hi as i32);
+        if u != 0 {
+            let mut q = (acc as f32 * f32::from_bits(c) + 0.5).floor() as i32;
+            let e = acc.wrapping_mul(mp as i32).wrapping_sub(q.wrapping_shl(u));
+            let half = 1i32 << (u - 1);
+            q += if e < -half { -1 } else { 0 } + if e >= half { 1 } else { 0 };
+            return q.clamp(-32768, 32767);
+        }
+        let negative = acc < 0;
+        let p = u64::from(acc.unsigned_abs()) * u64::from(m);
+        let add = (1u64 << (s - 1)) - u64::from(negative);
+        let r = ((p + add) >> s) as u32;
+        let v = if negative { (r as i32).wrapping_neg() } else { r as i32 };
+        v.clamp(-32768, 32767)
+    }
+
+    fn table(m: u32, s: u32) -> [u32; ROW_WORDS] {
+        let (lo, hi) = Requant { multiplier: m as i32, shift: s }.saturation_range();
+        let (u, mp, c) = narrow(m, s, lo, hi).unwrap_or((0, 0, 0.0));
+        [0, m, s, u, mp, c.to_bits(), lo as u32, hi as u32]
+    }
+
+    /// Both paths equal `Requant::apply` saturated to i16 on the accumulators around every
+    /// rounding and saturation boundary and on a spread of others, for multipliers and shifts
+    /// like those of trained files (shifts 34–43, multipliers = 24-bit mantissa << 7) and the
+    /// extremes (shift 1 and 62, multipliers 2^30 and 2^31 − 1, 0).
+    #[test]
+    fn both_requantization_paths_equal_the_cpu() {
+        let mut state = 0x2545_F491_u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let mut rows: Vec<(u32, u32)> = vec![(0, 1), (0, 40)];
+        for s in [1, 2, 7, 8, 16, 24, 30, 31, 32, 33, 40, 50, 61, 62] {
+            rows.extend([(1 << 30, s), ((1 << 31) - 1, s)]);
+        }
+        for _ in 0..400 {
+            let mantissa = (next() as u32 & 0x007F_FFFF) | 0x0080_0000;
+            rows.push((mantissa << 7, 30 + (next() % 16) as u32));
+        }
+        let (mut narrow_rows, mut wide_rows) = (0, 0);
+        for (m, s) in rows {
+            let t = table(m, s);
+            if t[3] != 0 {
+                narrow_rows += 1
+            } else {
+                wide_rows += 1
+            }
+            let rq = Requant { multiplier: m as i32, shift: s };
+            let (lo, hi) = rq.saturation_range();
+            let mut accs = vec![i32::MIN, i32::MIN + 1, -1, 0, 1, i32::MAX - 1, i32::MAX];
+            for edge in [lo, hi] {
+                accs.extend((-3..=3).map(|d| edge.saturating_add(d)));
+            }
+            // Accumulators where the rounded value steps: acc ≈ (k − 1/2) · 2^s / m.
+            for k in [-32768i128, -1000, -1, 0, 1, 7, 1000, 32767] {
+                if m != 0 {
+                    let at = ((2 * k - 1) << (s - 1)) / i128::from(m);
+                    let at = at.clamp(i128::from(i32::MIN) + 2, i128::from(i32::MAX) - 2) as i32;
+                    accs.extend((-2..=2).map(|d| at + d));
+                }
+            }
+            accs.extend((0..200).map(|_| next() as i32 >> (next() % 31)));
+            for acc in accs {
+                let want = rq.apply(acc).clamp(-32768, 32767) as i32;
+                assert_eq!(requant_row(acc, t), want, "acc {acc}, m {m}, s {s}, table {t:?}");
+            }
+        }
+        // Both paths were exercised.
+        assert!(narrow_rows > 100 && wide_rows > 100, "{narrow_rows} narrow, {wide_rows} wide");
+    }
+}

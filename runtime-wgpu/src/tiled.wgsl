@@ -1,0 +1,151 @@
+// The tiled decode kernel (docs/GPU.md, "The tiled kernel"): a workgroup of 64 invocations
+// decodes P texels at once. Each invocation computes one texel's input features; then every
+// layer is a small matrix product over workgroup memory, each invocation computing tiles of
+// 4 rows × 4 texels (16 accumulators in registers) so that every weight read serves 4 texels
+// and every activation read serves 4 rows. Bit-identical with `decode` (decode.wgsl) and with
+// the CPU.
+//
+// Prepended by lib.rs (per material shape): `const P` (texels per workgroup, a multiple of 4
+// up to 64), `const WMAX` (the widest layer rounded up to 4), `const CH` (channels) and
+// `fn layers(lid)`, which calls `layer` once per layer with its widths as literals, a barrier
+// after each. Then decode.wgsl (bindings, features), one of tiled_i32.wgsl / tiled_dot4.wgsl
+// (where activations live and how a tile's products are formed), then this file.
+//
+// Per layer l, desc[layers_at + 8l + 6] is where its packed weights start in `desc`: rows
+// padded to a multiple of 4 rows and 4 columns, 4 int8 weights per word (column 4j + b in byte b
+// of word j). desc[... + 7] is where its row table starts: 8 words per (padded) row:
+//   [0] bias (the 8-bit-product kernel adds 128 × the row's weight sum, see tiled_dot4.wgsl)
+//   [1] multiplier m  [2] shift s  [3] u: 0 for the 64-bit path, else the shift of the 32-bit one
+//   [4] m' = m >> (s − u)  [5] m' / 2^u as f32 bits  [6] lo  [7] hi: the saturation range
+
+// The codes of this workgroup, one per u32, in output order (texel, then channel).
+var<workgroup> tile_codes: array<u32, P * CH>;
+
+// sat16((acc · m + 2^(s−1)) >> s) exactly, with acc first clamped to the row's saturation range
+// [lo, hi] (outside it the result saturates anyway, inside it fits an i32).
+//
+// 32-bit path (u ≠ 0; lib.rs sets it where m' < 2^24, |acc| ≤ 2^24 on [lo, hi], u ≤ 31 and
+// |acc · m' / 2^u| ≤ 2^20): the result is r = floor((acc · m' + 2^(u−1)) / 2^u). The f32
+// estimate q = floor(acc · (m' / 2^u) + 0.5) is within 1 of r (acc and m' / 2^u are exact f32
+// values; the two roundings err by at most 2^−3 in all). Then e = acc · m' − q · 2^u lies in
+// (−(1/2 + 2^−3) · 2^u, (1/2 + 2^−3) · 2^u) ⊂ (−2^31, 2^31), so wrapping i32 arithmetic gives it
+// exactly, and r = q − 1 if e < −2^(u−1), q + 1 if e ≥ 2^(u−1), else q.
+//
+// 64-bit path: |acc| · m as a 64-bit (hi, lo) pair; floor(x / 2^s) of x = acc · m + 2^(s−1) is
+// (|acc| · m + 2^(s−1)) >> s for acc ≥ 0 and −((|acc| · m + 2^(s−1) − 1) >> s) for acc < 0
+// (floor(−y) = −ceil(y)); the clamp keeps the quotient below 2^31.
+fn requant_row(acc_in: i32, rb: u32) -> i32 {
+    let acc = clamp(acc_in, bitcast<i32>(desc[rb + 6u]), bitcast<i32>(desc[rb + 7u]));
+    let u = desc[rb + 3u];
+    if (u != 0u) {
+        var q = i32(floor(f32(acc) * bitcast<f32>(desc[rb + 5u]) + 0.5));
+        let e = acc * bitcast<i32>(desc[rb + 4u]) - (q << u);
+        let half = 1 << (u - 1u);
+        q += select(0, -1, e < -half) + select(0, 1, e >= half);
+        return sat16(q);
+    }
+    let s = desc[rb + 2u];
+    let negative = acc < 0;
+    let magnitude = select(bitcast<u32>(acc), 0u - bitcast<u32>(acc), negative);
+    let p = umul64(magnitude, desc[rb + 1u]);
+    let minus = select(0u, 1u, negative);
+    var add = vec2<u32>(0u, (1u << (s - 1u)) - minus);
+    if (s > 32u) {
+        add = vec2<u32>((1u << (s - 33u)) - minus, 0u - minus);
+    }
+    let lo = p.y + add.y;
+    let hi = p.x + add.x + select(0u, 1u, lo < p.y);
+    var r: u32;
+    if (s < 32u) {
+        r = (lo >> s) | (hi << (32u - s));
+    } else {
+        r = hi >> (s - 32u);
+    }
+    return sat16(select(bitcast<i32>(r), -bitcast<i32>(r), negative));
+}
+
+// Layer `l` (its inputs in `kw` words of 4 per row, its outputs in `row_groups` groups of 4
+// rows) from activation buffer `src` into the other one, or into `tile_codes` if `last`.
+fn layer(lid: u32, l: u32, kw: u32, row_groups: u32, src: u32, last: bool) {
+    let lb = desc[13] + 8u * l;
+    let frac = desc[lb + 2u];
+    let gelu = desc[lb + 3u] == 1u;
+    let weights_at = desc[lb + 6u];
+    let rows_at = desc[lb + 7u];
+    let n = params.out_channels;
+    // Neighbouring invocations take neighbouring texels of the same rows: one weight word
+    // serves the whole subgroup.
+    for (var item = lid; item < row_groups * (P / 4u); item += 64u) {
+        let o0 = 4u * (item / (P / 4u));
+        let t0 = 4u * (item % (P / 4u));
+        if (last && (o0 >= CH || ((params.channel_mask >> o0) & 15u) == 0u)) {
+            continue;
+        }
+        let acc = mac4(src, t0, weights_at + o0 * kw, kw);
+        var v: array<vec4<i32>, 4>;
+        for (var r = 0u; r < 4u; r++) {
+            let rb = rows_at + 8u * (o0 + r);
+            for (var j = 0u; j < 4u; j++) {
+                var z = requant_row(acc[r][j] + bitcast<i32>(desc[rb]), rb);
+                if (gelu) {
+                    z = hard_gelu(z, frac);
+                }
+                v[r][j] = z;
+            }
+        }
+        if (!last) {
+            put_outputs(1u - src, o0, t0, v);
+            continue;
+        }
+        for (var r = 0u; r < 4u; r++) {
+            let o = o0 + r;
+            if (o < CH && (params.channel_mask & (1u << o)) != 0u) {
+                let slot = countOneBits(params.channel_mask & ((1u << o) - 1u));
+                for (var j = 0u; j < 4u; j++) {
+                    let code = clamp((v[r][j] * 255 + (1 << (frac - 1u))) >> frac, 0, 255);
+                    tile_codes[(t0 + j) * n + slot] = u32(code);
+                }
+            }
+        }
+    }
+}
+
+// Decodes `params.count` texels as `main` does (same requests, rectangle and packed output), P
+// per workgroup.
+@compute @workgroup_size(64)
+fn tiled(
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+) {
+    let first = (wg.x + wg.y * groups.x) * P;
+    let inputs = desc[desc[13]];
+    for (var t = lid; t < P; t += 64u) {
+        let index = first + t;
+        if (index < params.count) {
+            if (params.mode == 0u) {
+                let r = params.in_offset + 3u * index;
+                features(requests[r], requests[r + 1u], bitcast<u32>(requests[r + 2u]));
+            } else {
+                let x = params.x0 + index % params.width;
+                let y = params.y0 + index / params.width;
+                features(i32(x), i32(y), params.mip);
+            }
+            put_features(t, inputs);
+        }
+    }
+    workgroupBarrier();
+    layers(lid);
+    let n = params.out_channels;
+    let texels = select(0u, min(params.count - first, P), first < params.count);
+    let count = texels * n;
+    for (var w = lid; 4u * w < count; w += 64u) {
+        var word = 0u;
+        for (var k = 0u; k < 4u; k++) {
+            if (4u * w + k < count) {
+                word |= tile_codes[4u * w + k] << (8u * k);
+            }
+        }
+        out_codes[params.out_offset + first / 4u * n + w] = word;
+    }
+}
