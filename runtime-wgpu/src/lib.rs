@@ -2,7 +2,7 @@
 //! D3D12, OpenGL ES, WebGPU), bit-exact with `nmat_core`'s integer decoder: the same 8-bit codes
 //! as every CPU kernel and the C API.
 //!
-//! The caller owns the device and queue (engines do); a [`Context`] caches the pipeline;
+//! The caller owns the device and queue (engines do); a [`Context`] caches the pipelines;
 //! [`Context::upload`] puts a material's packed latent words (as stored in the file), its int8
 //! weights and its requantization constants into buffers once. Decodes are submit-then-map:
 //! [`Context::submit_requests`] / [`Context::submit_region`] record and submit the work and return
@@ -31,7 +31,9 @@
 //! [`Context::record_region`] and [`Context::record_requests`] (requests read from the caller's
 //! buffer, e.g. written by its own pass) add a dispatch to the caller's command encoder that
 //! writes the codes, packed four per `u32`, into the caller's buffer; nothing is submitted.
-//! Only downlevel limits are needed: the kernel uses 32-bit integers only (no `f16`, no
+//! Upload prepares the fastest of the [`Kernel`]s the device runs (tiled: 4 rows × 4 texels per
+//! invocation over workgroup memory, with `dot4I8Packed` where the device's WGSL has it); all
+//! give the same codes. Only downlevel limits are needed: 32-bit integers only (no `f16`, no
 //! subgroups, no 64-bit integers; the wide products are computed in pieces). The decode arithmetic is that of the format
 //! specification (`docs/FORMAT.md` of the repository, §6; embedded in `nmat_core::spec`); how the
 //! kernel maps it onto 32-bit integers and what it costs is in `docs/GPU.md`, embedded here as
