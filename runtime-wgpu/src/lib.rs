@@ -40,9 +40,11 @@
 //! [`design`].
 
 pub mod measure;
+mod texture;
 mod tiled;
 mod transcode;
 
+pub use texture::TextureTarget;
 pub use tiled::Kernel;
 pub use transcode::{PendingBlocks, aligned_row_pitch, encodes, texture_format};
 
@@ -94,6 +96,9 @@ pub enum GpuError {
     RequestBuffer { reason: &'static str },
     /// A kernel asked for by [`Context::upload_with`] that this device cannot run.
     Kernel { kernel: Kernel, reason: &'static str },
+    /// A texture [`Context::record_map_to_texture`] cannot write (dimension, usage, format,
+    /// mip level, room at the origin).
+    Texture { reason: &'static str },
 }
 
 impl std::fmt::Display for GpuError {
@@ -131,6 +136,7 @@ impl std::fmt::Display for GpuError {
                 write!(f, "output buffer of {size} bytes; the output needs {needed}")
             }
             GpuError::RequestBuffer { reason } => write!(f, "request buffer: {reason}"),
+            GpuError::Texture { reason } => write!(f, "target texture: {reason}"),
             GpuError::Kernel { kernel, reason } => {
                 write!(f, "the {} kernel does not run on this device: {reason}", kernel.name())
             }
@@ -161,6 +167,8 @@ pub struct Context {
     /// Tiled pipelines by source (one per kernel and material shape); `None` where the device
     /// refused the source.
     tiled: Mutex<HashMap<String, Option<Arc<wgpu::ComputePipeline>>>>,
+    /// Store pipelines of `record_map_to_texture` by texture format.
+    stores: Mutex<HashMap<wgpu::TextureFormat, Option<Arc<wgpu::ComputePipeline>>>>,
     /// Bound where a dispatch has no material or no requests.
     empty: wgpu::Buffer,
     /// Buffers of finished submit-and-wait decodes, for the next ones.
@@ -348,6 +356,7 @@ impl Context {
             layout,
             pipeline_layout,
             tiled: Mutex::default(),
+            stores: Mutex::default(),
             empty,
             pool: Pool::default(),
         }
@@ -1082,10 +1091,13 @@ pub async fn default_device() -> Option<(wgpu::Device, wgpu::Queue, wgpu::Adapte
     let (device, queue) = adapter
         .request_device(&wgpu::DeviceDescriptor {
             label: Some("nmat"),
-            // BC textures (for transcoded blocks) and timestamp queries (for measuring) where
-            // the adapter has them, nothing else.
+            // BC textures (for transcoded blocks), timestamp queries (for measuring) and the
+            // adapter's own format features (R8Unorm storage textures) where the adapter has
+            // them, nothing else.
             required_features: adapter.features()
-                & (wgpu::Features::TEXTURE_COMPRESSION_BC | measure::TIMESTAMP_FEATURES),
+                & (wgpu::Features::TEXTURE_COMPRESSION_BC
+                    | measure::TIMESTAMP_FEATURES
+                    | wgpu::Features::TEXTURE_ADAPTER_SPECIFIC_FORMAT_FEATURES),
             // Downlevel limits, but all the workgroup memory the adapter has: the tiled kernel
             // decodes more texels per workgroup with more.
             required_limits: wgpu::Limits {
