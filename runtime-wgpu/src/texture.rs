@@ -44,14 +44,15 @@ impl Context {
         target: TextureTarget<'_>,
     ) -> Result<(), GpuError> {
         let (first, count) = (u32::from(map.first), u32::from(map.count));
+        let mask = ChannelMask((((1u64 << count.min(16)) - 1) << first.min(16)) as u16);
         if !(1..=4).contains(&count) || (first + count) as usize > gm.channel_count() {
-            let bits = ((1u64 << count.min(16)) - 1) << first.min(16);
-            return Err(GpuError::Channels { mask: bits as u16 });
+            return Err(GpuError::Channels { mask: mask.0 });
         }
         let texture = target.texture;
         let format = texture.format();
         let (width, height) = (rect.2, rect.3);
-        let level = (texture.width() >> target.mip_level, texture.height() >> target.mip_level);
+        let size = |s: u32| s.checked_shr(target.mip_level).unwrap_or(0);
+        let level = (size(texture.width()), size(texture.height()));
         let reason = if texture.dimension() != wgpu::TextureDimension::D2 {
             Some("it is not a 2D texture")
         } else if !texture.usage().contains(wgpu::TextureUsages::STORAGE_BINDING) {
@@ -75,7 +76,6 @@ impl Context {
         let store = self.store_pipeline(device, format).ok_or(GpuError::Texture {
             reason: "the device refused a storage texture of its format",
         })?;
-        let mask = ChannelMask((((1u32 << count) - 1) << first) as u16);
         let codes = u64::from(width) * u64::from(height) * u64::from(count);
         let buffer = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("nmat texture codes"),

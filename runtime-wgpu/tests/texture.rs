@@ -141,6 +141,7 @@ fn bad_targets_are_refused_before_anything_is_recorded() {
     let texture_error = |r: Result<(), GpuError>| matches!(r, Err(GpuError::Texture { .. }));
     assert!(texture_error(record(at(&sampled, 0, ORIGIN), RECT, &rgb)), "no storage usage");
     assert!(texture_error(record(at(&storage, 2, (0, 0)), RECT, &rgb)), "mip level 2 of 2");
+    assert!(texture_error(record(at(&storage, 40, (0, 0)), RECT, &rgb)), "mip level 40 of 2");
     assert!(texture_error(record(at(&storage, 1, (0, 0)), RECT, &rgb)), "21 × 9 into 20 × 12");
     assert!(texture_error(record(at(&storage, 0, (20, 0)), RECT, &rgb)), "past the right edge");
     // A map past the material's channels; a region outside the mip.
