@@ -86,12 +86,17 @@ fn expected(m: &nmat_core::Material<'_>, map: &MapChannels, bytes: u32) -> Vec<u
     want
 }
 
+/// The 10-channel golden material (albedo, normal and gray maps).
+fn pbr10() -> Vec<u8> {
+    let cfg = golden_configs().into_iter().find(|c| c.name == "ntc_pbr10_96x80_clamp").unwrap();
+    generate(&cfg).to_bytes().unwrap()
+}
+
 #[test]
 fn maps_decode_into_storage_textures_like_the_cpu() {
     let (device, queue) = device();
     let ctx = Context::new(&device);
-    let cfg = golden_configs().into_iter().find(|c| c.name == "ntc_pbr10_96x80_clamp").unwrap();
-    let bytes = generate(&cfg).to_bytes().unwrap();
+    let bytes = pbr10();
     let m = Container::parse(&bytes).unwrap();
     let gm = ctx.upload(&device, &m).unwrap();
     let usage = wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_SRC;
@@ -124,8 +129,7 @@ fn maps_decode_into_storage_textures_like_the_cpu() {
 fn bad_targets_are_refused_before_anything_is_recorded() {
     let (device, _queue) = device();
     let ctx = Context::new(&device);
-    let cfg = golden_configs().into_iter().find(|c| c.name == "ntc_pbr10_96x80_clamp").unwrap();
-    let bytes = generate(&cfg).to_bytes().unwrap();
+    let bytes = pbr10();
     let m = Container::parse(&bytes).unwrap();
     let gm = ctx.upload(&device, &m).unwrap();
     let rgb = *maps(&m).iter().find(|map| map.count == 3).unwrap();
