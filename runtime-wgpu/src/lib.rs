@@ -558,7 +558,11 @@ impl Context {
         m: &Material<'_>,
         wanted: Option<Kernel>,
     ) -> Result<(Kernel, Option<(Arc<wgpu::ComputePipeline>, u32)>), GpuError> {
-        let tiled = |kernel| -> Result<(Arc<wgpu::ComputePipeline>, u32), &'static str> {
+        // The reference kernel needs nothing prepared; a tiled one its pipeline.
+        let prepare = |kernel| -> Result<Option<(Arc<wgpu::ComputePipeline>, u32)>, &'static str> {
+            if kernel == Kernel::Reference {
+                return Ok(None);
+            }
             let bytes = device.limits().max_compute_workgroup_storage_size;
             let shape = tiled::Shape::new(m, kernel, bytes)
                 .ok_or("the network is too wide for the device's workgroup memory")?;
@@ -570,17 +574,16 @@ impl Context {
                 Kernel::Dot4 => "the device refused the shader (its WGSL may lack dot4I8Packed)",
                 _ => "the device refused the shader",
             };
-            pipeline.clone().map(|p| (p, shape.texels)).ok_or(refused)
+            pipeline.clone().map(|p| Some((p, shape.texels))).ok_or(refused)
         };
         match wanted {
-            Some(Kernel::Reference) => Ok((Kernel::Reference, None)),
-            Some(kernel) => match tiled(kernel) {
-                Ok(t) => Ok((kernel, Some(t))),
+            Some(kernel) => match prepare(kernel) {
+                Ok(t) => Ok((kernel, t)),
                 Err(reason) => Err(GpuError::Kernel { kernel, reason }),
             },
-            None => Ok([Kernel::Dot4, Kernel::Int32]
+            None => Ok(Kernel::ALL
                 .into_iter()
-                .find_map(|k| tiled(k).ok().map(|t| (k, Some(t))))
+                .find_map(|k| prepare(k).ok().map(|t| (k, t)))
                 .unwrap_or((Kernel::Reference, None))),
         }
     }
