@@ -38,7 +38,7 @@ fn add64(a: vec2<u32>, b: vec2<u32>) -> vec2<u32> {
 fn imul64(a: i32, b: i32) -> vec2<u32> {
     let ma = select(bitcast<u32>(a), 0u - bitcast<u32>(a), a < 0);
     let mb = select(bitcast<u32>(b), 0u - bitcast<u32>(b), b < 0);
-    let p = umul64(ma, mb);
+    let p = nmat_umul64(ma, mb);
     return select(p, neg64(p), (a < 0) != (b < 0));
 }
 
@@ -258,8 +258,8 @@ fn refine1(valid: u32, indices: u32) -> Refined {
         return r;
     }
     for (var c = 0u; c < 3u; c++) {
-        r.e0[c] = clamp(floor_div(2 * 3 * (bb * x[c] - ab * y[c]) + det, 2 * det), 0, 255);
-        r.e1[c] = clamp(floor_div(2 * 3 * (aa * y[c] - ab * x[c]) + det, 2 * det), 0, 255);
+        r.e0[c] = clamp(nmat_floor_div(2 * 3 * (bb * x[c] - ab * y[c]) + det, 2 * det), 0, 255);
+        r.e1[c] = clamp(nmat_floor_div(2 * 3 * (aa * y[c] - ab * x[c]) + det, 2 * det), 0, 255);
     }
     return r;
 }
@@ -419,8 +419,8 @@ fn refine4(valid: u32, eight: bool) -> Pair {
     let det = aa * bb - ab * ab;
     r.ok = det != 0;
     if (r.ok) {
-        r.a0 = u32(clamp(floor_div(2 * d * (bb * x - ab * y) + det, 2 * det), 0, 255));
-        r.a1 = u32(clamp(floor_div(2 * d * (aa * y - ab * x) + det, 2 * det), 0, 255));
+        r.a0 = u32(clamp(nmat_floor_div(2 * d * (bb * x - ab * y) + det, 2 * det), 0, 255));
+        r.a1 = u32(clamp(nmat_floor_div(2 * d * (aa * y - ab * x) + det, 2 * det), 0, 255));
     }
     return r;
 }
@@ -466,8 +466,10 @@ fn encode_bc4(valid: u32) -> vec2<u32> {
                 let l = i32(lo);
                 let h = i32(hi);
                 let n = j - i;
-                let a0 = u32(clamp(floor_div(2 * (l * n + (7 - i) * (h - l)) + n, 2 * n), 0, 255));
-                let a1 = u32(clamp(floor_div(2 * (l * n - i * (h - l)) + n, 2 * n), 0, 255));
+                let q0 = nmat_floor_div(2 * (l * n + (7 - i) * (h - l)) + n, 2 * n);
+                let q1 = nmat_floor_div(2 * (l * n - i * (h - l)) + n, 2 * n);
+                let a0 = u32(clamp(q0, 0, 255));
+                let a1 = u32(clamp(q1, 0, 255));
                 if (a0 > a1) {
                     consider4(valid, a0, a1);
                 }
@@ -564,19 +566,19 @@ fn transcode(
     let bx = params.x0 + block % params.width;
     let by = params.y0 + block / params.width;
     let mip = params.mip;
-    let mw = max(desc[0] >> mip, 1u);
-    let mh = max(desc[1] >> mip, 1u);
+    let mw = max(nmat_desc[0] >> mip, 1u);
+    let mh = max(nmat_desc[1] >> mip, 1u);
     let x = 4u * bx + texel % 4u;
     let y = 4u * by + texel / 4u;
     var pixel = 0u;
     if (live && x < mw && y < mh) {
         if (params.channel_mask != 0u) {
-            decode(i32(x), i32(y), mip);
+            nmat_decode(i32(x), i32(y), mip, params.channel_mask);
         }
         for (var k = 0u; k < 4u; k++) {
             var code = (params.constants >> (8u * k)) & 255u;
             if (((params.constant_mask >> k) & 1u) == 0u) {
-                code = codes[(params.components >> (8u * k)) & 15u];
+                code = nmat_codes[(params.components >> (8u * k)) & 15u];
             }
             pixel |= code << (8u * k);
         }

@@ -40,10 +40,12 @@
 //! [`design`].
 
 pub mod measure;
+mod sample;
 mod texture;
 mod tiled;
 mod transcode;
 
+pub use sample::SampleBindings;
 pub use texture::TextureTarget;
 pub use tiled::Kernel;
 pub use transcode::{PendingBlocks, aligned_row_pitch, encodes, texture_format};
@@ -286,8 +288,9 @@ fn shader_source() -> String {
         .collect();
     format!(
         "// BC1 single-colour endpoints per 8-bit value: 5-bit pair in bytes 0-1, 6-bit in 2-3.\n\
-         const BC1_SINGLE = array<u32, 256>({});\n{}\n{}",
+         const BC1_SINGLE = array<u32, 256>({});\n{}\n{}\n{}",
         table.join(", "),
+        include_str!("texel.wgsl"),
         include_str!("decode.wgsl"),
         include_str!("bc.wgsl")
     )
@@ -425,7 +428,7 @@ impl Context {
     ) -> Result<GpuMaterial, GpuError> {
         let (kernel, tiled) = self.kernel_for(device, m, kernel)?;
         let mlp = m.mlp();
-        let mut desc = vec![0u32; 30];
+        let mut desc = vec![0u32; 31];
         desc[0] = m.width();
         desc[1] = m.height();
         desc[2] = m.mip_count();
@@ -439,6 +442,11 @@ impl Context {
         desc[10] = m.grids().len() as u32;
         for mip in 0..m.mip_count() {
             desc[14 + mip as usize] = m.level_for_mip(mip) as u32;
+        }
+        // Channel ranges (for `nmat_sample`): min and max per channel as f32 bits.
+        desc[30] = desc.len() as u32;
+        for ch in m.channels() {
+            desc.extend([ch.range_min.to_bits(), ch.range_max.to_bits()]);
         }
         // Grids: 8 words each, then their quantizers.
         let mut latents: Vec<u32> = Vec::new();

@@ -87,10 +87,11 @@ impl Shape {
         };
         format!(
             "const P: u32 = {}u;\nconst WMAX: u32 = {}u;\nconst CH: u32 = {}u;\n\
-             fn layers(lid: u32) {{\n{calls}}}\n{}\n{products}\n{}",
+             fn layers(lid: u32) {{\n{calls}}}\n{}\n{}\n{products}\n{}",
             self.texels,
             self.wmax,
             self.channels,
+            include_str!("texel.wgsl"),
             include_str!("decode.wgsl"),
             include_str!("tiled.wgsl"),
         )

@@ -2,18 +2,19 @@
 // decodes P texels at once. Each invocation computes one texel's input features; then every
 // layer is a small matrix product over workgroup memory, each invocation computing tiles of
 // 4 rows × 4 texels (16 accumulators in registers) so that every weight read serves 4 texels
-// and every activation read serves 4 rows. Bit-identical with `decode` (decode.wgsl) and with
-// the CPU.
+// and every activation read serves 4 rows. Bit-identical with `nmat_decode` (texel.wgsl) and
+// with the CPU.
 //
 // Prepended by lib.rs (per material shape): `const P` (texels per workgroup, a multiple of 4
 // up to 64), `const WMAX` (the widest layer rounded up to 4), `const CH` (channels) and
 // `fn layers(lid)`, which calls `layer` once per layer with its widths as literals, a barrier
-// after each. Then decode.wgsl (bindings, features), one of tiled_i32.wgsl / tiled_dot4.wgsl
-// (where activations live and how a tile's products are formed), then this file.
+// after each. Then texel.wgsl (the decoder, `nmat_features`), decode.wgsl (bindings), one of
+// tiled_i32.wgsl / tiled_dot4.wgsl (where activations live and how a tile's products are
+// formed), then this file.
 //
-// Per layer l, desc[layers_at + 8l + 6] is where its packed weights start in `desc`: rows
-// padded to a multiple of 4 rows and 4 columns, 4 int8 weights per word (column 4j + b in byte b
-// of word j). desc[... + 7] is where its row table starts: 8 words per (padded) row:
+// Per layer l, nmat_desc[layers_at + 8l + 6] is where its packed weights start in `nmat_desc`:
+// rows padded to a multiple of 4 rows and 4 columns, 4 int8 weights per word (column 4j + b in
+// byte b of word j). nmat_desc[... + 7] is where its row table starts: 8 words per (padded) row:
 //   [0] bias (the 8-bit-product kernel adds 128 × the row's weight sum, see tiled_dot4.wgsl)
 //   [1] multiplier m  [2] shift s  [3] u: 0 for the 64-bit path, else the shift of the 32-bit one
 //   [4] m' = m >> (s − u)  [5] m' / 2^u as f32 bits  [6] lo  [7] hi: the saturation range
@@ -35,19 +36,19 @@ var<workgroup> tile_codes: array<u32, P * CH>;
 // (|acc| · m + 2^(s−1)) >> s for acc ≥ 0 and −((|acc| · m + 2^(s−1) − 1) >> s) for acc < 0
 // (floor(−y) = −ceil(y)); the clamp keeps the quotient below 2^31.
 fn requant_row(acc_in: i32, rb: u32) -> i32 {
-    let acc = clamp(acc_in, bitcast<i32>(desc[rb + 6u]), bitcast<i32>(desc[rb + 7u]));
-    let u = desc[rb + 3u];
+    let acc = clamp(acc_in, bitcast<i32>(nmat_desc[rb + 6u]), bitcast<i32>(nmat_desc[rb + 7u]));
+    let u = nmat_desc[rb + 3u];
     if (u != 0u) {
-        var q = i32(floor(f32(acc) * bitcast<f32>(desc[rb + 5u]) + 0.5));
-        let e = acc * bitcast<i32>(desc[rb + 4u]) - (q << u);
+        var q = i32(floor(f32(acc) * bitcast<f32>(nmat_desc[rb + 5u]) + 0.5));
+        let e = acc * bitcast<i32>(nmat_desc[rb + 4u]) - (q << u);
         let half = 1 << (u - 1u);
         q += select(0, -1, e < -half) + select(0, 1, e >= half);
-        return sat16(q);
+        return nmat_sat16(q);
     }
-    let s = desc[rb + 2u];
+    let s = nmat_desc[rb + 2u];
     let negative = acc < 0;
     let magnitude = select(bitcast<u32>(acc), 0u - bitcast<u32>(acc), negative);
-    let p = umul64(magnitude, desc[rb + 1u]);
+    let p = nmat_umul64(magnitude, nmat_desc[rb + 1u]);
     let minus = select(0u, 1u, negative);
     var add = vec2<u32>(0u, (1u << (s - 1u)) - minus);
     if (s > 32u) {
@@ -61,17 +62,17 @@ fn requant_row(acc_in: i32, rb: u32) -> i32 {
     } else {
         r = hi >> (s - 32u);
     }
-    return sat16(select(bitcast<i32>(r), -bitcast<i32>(r), negative));
+    return nmat_sat16(select(bitcast<i32>(r), -bitcast<i32>(r), negative));
 }
 
 // Layer `l` (its inputs in `kw` words of 4 per row, its outputs in `row_groups` groups of 4
 // rows) from activation buffer `src` into the other one, or into `tile_codes` if `last`.
 fn layer(lid: u32, l: u32, kw: u32, row_groups: u32, src: u32, last: bool) {
-    let lb = desc[13] + 8u * l;
-    let frac = desc[lb + 2u];
-    let gelu = desc[lb + 3u] == 1u;
-    let weights_at = desc[lb + 6u];
-    let rows_at = desc[lb + 7u];
+    let lb = nmat_desc[13] + 8u * l;
+    let frac = nmat_desc[lb + 2u];
+    let gelu = nmat_desc[lb + 3u] == 1u;
+    let weights_at = nmat_desc[lb + 6u];
+    let rows_at = nmat_desc[lb + 7u];
     let n = params.out_channels;
     // Neighbouring invocations take neighbouring texels of the same rows: one weight word
     // serves the whole subgroup.
@@ -86,9 +87,9 @@ fn layer(lid: u32, l: u32, kw: u32, row_groups: u32, src: u32, last: bool) {
         for (var r = 0u; r < 4u; r++) {
             let rb = rows_at + 8u * (o0 + r);
             for (var j = 0u; j < 4u; j++) {
-                var z = requant_row(acc[r][j] + bitcast<i32>(desc[rb]), rb);
+                var z = requant_row(acc[r][j] + bitcast<i32>(nmat_desc[rb]), rb);
                 if (gelu) {
-                    z = hard_gelu(z, frac);
+                    z = nmat_hard_gelu(z, frac);
                 }
                 v[r][j] = z;
             }
@@ -119,17 +120,17 @@ fn tiled(
     @builtin(num_workgroups) groups: vec3<u32>,
 ) {
     let first = (wg.x + wg.y * groups.x) * P;
-    let inputs = desc[desc[13]];
+    let inputs = nmat_desc[nmat_desc[13]];
     for (var t = lid; t < P; t += 64u) {
         let index = first + t;
         if (index < params.count) {
             if (params.mode == 0u) {
                 let r = params.in_offset + 3u * index;
-                features(requests[r], requests[r + 1u], bitcast<u32>(requests[r + 2u]));
+                nmat_features(requests[r], requests[r + 1u], bitcast<u32>(requests[r + 2u]));
             } else {
                 let x = params.x0 + index % params.width;
                 let y = params.y0 + index / params.width;
-                features(i32(x), i32(y), params.mip);
+                nmat_features(i32(x), i32(y), params.mip);
             }
             put_features(t, inputs);
         }

@@ -19,13 +19,13 @@ fn split4(a: vec4<i32>) -> vec2<u32> {
     );
 }
 
-// act_a[0..inputs) of texel t into buffer 0, zeros up to WMAX.
+// nmat_act_a[0..inputs) of texel t into buffer 0, zeros up to WMAX.
 fn put_features(t: u32, inputs: u32) {
     for (var j = 0u; j < WMAX / 4u; j++) {
         var a = vec4<i32>(0);
         for (var b = 0u; b < 4u; b++) {
             let k = 4u * j + b;
-            a[b] = select(0, act_a[min(k, 127u)], k < inputs);
+            a[b] = select(0, nmat_act_a[min(k, 127u)], k < inputs);
         }
         let s = split4(a);
         hi_tile[j * P + t] = s.x;
@@ -43,7 +43,7 @@ fn mac4(src: u32, t0: u32, w0: u32, kw: u32) -> array<vec4<i32>, 4> {
         let h = vec4<u32>(hi_tile[i], hi_tile[i + 1u], hi_tile[i + 2u], hi_tile[i + 3u]);
         let l = vec4<u32>(lo_tile[i], lo_tile[i + 1u], lo_tile[i + 2u], lo_tile[i + 3u]);
         for (var r = 0u; r < 4u; r++) {
-            let w = desc[w0 + r * kw + j];
+            let w = nmat_desc[w0 + r * kw + j];
             high[r] += vec4<i32>(dot4I8Packed(w, h.x), dot4I8Packed(w, h.y),
                 dot4I8Packed(w, h.z), dot4I8Packed(w, h.w));
             low[r] += vec4<i32>(dot4I8Packed(w, l.x), dot4I8Packed(w, l.y),

@@ -3,15 +3,15 @@
 
 var<workgroup> tile: array<i32, 2u * WMAX * P>;
 
-// act_a[0..inputs) of texel t into buffer 0, zeros up to WMAX.
+// nmat_act_a[0..inputs) of texel t into buffer 0, zeros up to WMAX.
 fn put_features(t: u32, inputs: u32) {
     for (var k = 0u; k < WMAX; k++) {
-        tile[k * P + t] = select(0, act_a[min(k, 127u)], k < inputs);
+        tile[k * P + t] = select(0, nmat_act_a[min(k, 127u)], k < inputs);
     }
 }
 
 // Σ_k w[o0 + r][k] · x[k][t0 + j] for the 4 × 4 tile (r, j), `kw` words of 4 weights per row
-// from desc[w0] (rows kw words apart).
+// from nmat_desc[w0] (rows kw words apart).
 fn mac4(src: u32, t0: u32, w0: u32, kw: u32) -> array<vec4<i32>, 4> {
     var acc: array<vec4<i32>, 4>;
     let base = src * WMAX * P + t0;
@@ -24,7 +24,7 @@ fn mac4(src: u32, t0: u32, w0: u32, kw: u32) -> array<vec4<i32>, 4> {
         let i3 = i + 3u * P;
         let x3 = vec4<i32>(tile[i3], tile[i3 + 1u], tile[i3 + 2u], tile[i3 + 3u]);
         for (var r = 0u; r < 4u; r++) {
-            let w = bitcast<i32>(desc[w0 + r * kw + j]);
+            let w = bitcast<i32>(nmat_desc[w0 + r * kw + j]);
             acc[r] += extractBits(w, 0u, 8u) * x0 + extractBits(w, 8u, 8u) * x1
                 + extractBits(w, 16u, 8u) * x2 + extractBits(w, 24u, 8u) * x3;
         }

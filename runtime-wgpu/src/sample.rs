@@ -1,0 +1,134 @@
+//! Inference on sample: the decoder as a WGSL module an engine includes in its own shaders
+//! (`nmat_sample`, `nmat_texel`; sample.wgsl), bound to a material uploaded by [`Context::upload`].
+//!
+//! [`Context::upload`]: crate::Context::upload
+
+use crate::GpuMaterial;
+
+/// Where a shader that includes [`SampleBindings::module`] finds its material: two read-only
+/// storage buffers, bindings `first_binding` and `first_binding + 1` of bind group `group`, so
+/// the material can share a group with the engine's own resources.
+///
+/// ```no_run
+/// # fn demo(device: &wgpu::Device, gpu: &nmat_wgpu::GpuMaterial) {
+/// use nmat_wgpu::SampleBindings;
+/// let bindings = SampleBindings { group: 1, first_binding: 0 };
+/// // The engine's fragment shader calls nmat_sample(uv, lod, rnd, NMAT_TRILINEAR, mask).
+/// let source = format!("{}\n{}", bindings.module(), "/* the engine's shader */");
+/// let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+///     label: Some("material"),
+///     entries: &bindings.layout_entries(wgpu::ShaderStages::FRAGMENT),
+/// });
+/// let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+///     label: Some("material"),
+///     layout: &layout,
+///     entries: &gpu.sample_entries(bindings),
+/// });
+/// # let _ = (source, group); }
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct SampleBindings {
+    pub group: u32,
+    pub first_binding: u32,
+}
+
+impl SampleBindings {
+    /// The WGSL module: the two bindings, the bit-exact texel decoder and the filtered lookup.
+    /// Its entries are `nmat_sample(uv, lod, rnd, mode, channels) -> array<f32, 16>` and
+    /// `nmat_texel(xy, mip, channels) -> array<u32, 16>`, with `nmat_channel_count()`,
+    /// `nmat_mip_count()`, `nmat_mip_size(mip)` and the constants `NMAT_NEAREST`,
+    /// `NMAT_BILINEAR`, `NMAT_TRILINEAR`, `NMAT_STOCHASTIC`, `NMAT_ALL_CHANNELS` (semantics in
+    /// the comments of the module and in `docs/GPU.md`). Every name it declares at module scope
+    /// starts with `nmat_`, `Nmat` or `NMAT_`. Concatenate it with the shader that calls it (WGSL
+    /// declarations may come in any order). One material per module: a shader sampling two
+    /// materials binds them one after the other (or includes two modules renamed by the engine).
+    pub fn module(&self) -> String {
+        let (g, b) = (self.group, self.first_binding);
+        format!(
+            "// nmat: the material's bindings (nmat_wgpu::SampleBindings).\n\
+             @group({g}) @binding({b}) var<storage, read> nmat_desc: array<u32>;\n\
+             @group({g}) @binding({}) var<storage, read> nmat_latents: array<u32>;\n\n{}\n{}",
+            b + 1,
+            include_str!("texel.wgsl"),
+            include_str!("sample.wgsl"),
+        )
+    }
+
+    /// The two entries of a bind group layout for the module's bindings (read-only storage
+    /// buffers visible to `visibility`), to put in the engine's layout of `group`.
+    pub fn layout_entries(
+        &self,
+        visibility: wgpu::ShaderStages,
+    ) -> [wgpu::BindGroupLayoutEntry; 2] {
+        [0, 1].map(|k| wgpu::BindGroupLayoutEntry {
+            binding: self.first_binding + k,
+            visibility,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only: true },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        })
+    }
+}
+
+impl GpuMaterial {
+    /// The two bind group entries that bind this material where `bindings` says, to put in the
+    /// engine's bind group of `bindings.group`.
+    pub fn sample_entries(&self, bindings: SampleBindings) -> [wgpu::BindGroupEntry<'_>; 2] {
+        [
+            wgpu::BindGroupEntry {
+                binding: bindings.first_binding,
+                resource: self.desc.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: bindings.first_binding + 1,
+                resource: self.latents.as_entire_binding(),
+            },
+        ]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::SampleBindings;
+
+    /// The name a module-scope declaration line introduces, if the line is one.
+    fn declared(line: &str) -> Option<&str> {
+        if line.starts_with(char::is_whitespace) {
+            return None;
+        }
+        let rest = line.strip_prefix("fn ").or_else(|| line.strip_prefix("const "));
+        let rest = rest.or_else(|| line.strip_prefix("struct "));
+        let rest = rest.or_else(|| {
+            line.split_once("var<").and_then(|(_, r)| r.split_once("> ")).map(|(_, r)| r)
+        });
+        rest.map(|r| r.split(|c: char| !(c.is_alphanumeric() || c == '_')).next().unwrap_or(""))
+    }
+
+    #[test]
+    fn every_module_scope_name_is_namespaced() {
+        let source = SampleBindings { group: 2, first_binding: 5 }.module();
+        let names: Vec<&str> = source.lines().filter_map(declared).collect();
+        for must in [
+            "nmat_sample",
+            "nmat_texel",
+            "nmat_decode",
+            "nmat_desc",
+            "nmat_latents",
+            "NMAT_TRILINEAR",
+        ] {
+            assert!(names.contains(&must), "{must} not declared: {names:?}");
+        }
+        let foreign: Vec<&&str> = names
+            .iter()
+            .filter(|n| {
+                !(n.starts_with("nmat_") || n.starts_with("Nmat") || n.starts_with("NMAT_"))
+            })
+            .collect();
+        assert!(foreign.is_empty(), "names an engine's shader could collide with: {foreign:?}");
+        assert!(source.contains("@group(2) @binding(5) var<storage, read> nmat_desc"));
+        assert!(source.contains("@group(2) @binding(6) var<storage, read> nmat_latents"));
+    }
+}
