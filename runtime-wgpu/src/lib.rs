@@ -33,11 +33,14 @@
 //! writes the codes, packed four per `u32`, into the caller's buffer; nothing is submitted.
 //! Upload prepares the fastest of the [`Kernel`]s the device runs (tiled: 4 rows × 4 texels per
 //! invocation over workgroup memory, with `dot4I8Packed` where the device's WGSL has it); all
-//! give the same codes. Only downlevel limits are needed: 32-bit integers only (no `f16`, no
-//! subgroups, no 64-bit integers; the wide products are computed in pieces). The decode arithmetic is that of the format
-//! specification (`docs/FORMAT.md` of the repository, §6; embedded in `nmat_core::spec`); how the
-//! kernel maps it onto 32-bit integers and what it costs is in `docs/GPU.md`, embedded here as
-//! [`design`].
+//! give the same codes. To decode where a material is drawn, an engine includes the decoder in its
+//! own shaders: [`SampleBindings::module`] is a WGSL module with `nmat_sample(uv, lod, rnd, mode,
+//! channels)` (the CPU's filters) and `nmat_texel`, bound with [`GpuMaterial::sample_entries`]
+//! (example `sample_quad`). Only downlevel limits are needed: 32-bit integers only (no `f16`,
+//! no subgroups, no 64-bit integers; the wide products are computed in pieces). The decode
+//! arithmetic is that of the format specification (`docs/FORMAT.md` of the repository, §6;
+//! embedded in `nmat_core::spec`); how the kernel maps it onto 32-bit integers and what it costs
+//! is in `docs/GPU.md`, embedded here as [`design`].
 
 pub mod measure;
 mod sample;
