@@ -174,6 +174,9 @@ pub struct Context {
     tiled: Mutex<HashMap<String, Option<Arc<wgpu::ComputePipeline>>>>,
     /// Store pipelines of `record_map_to_texture` by texture format.
     stores: Mutex<HashMap<wgpu::TextureFormat, Option<Arc<wgpu::ComputePipeline>>>>,
+    /// The codes between the two passes of `record_map_to_texture`, shared by all its calls
+    /// (replaced by a larger one when a call needs more).
+    texture_codes: Mutex<Option<wgpu::Buffer>>,
     /// Bound where a dispatch has no material or no requests.
     empty: wgpu::Buffer,
     /// Buffers of finished submit-and-wait decodes, for the next ones.
@@ -363,6 +366,7 @@ impl Context {
             pipeline_layout,
             tiled: Mutex::default(),
             stores: Mutex::default(),
+            texture_codes: Mutex::default(),
             empty,
             pool: Pool::default(),
         }

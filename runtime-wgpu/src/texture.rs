@@ -31,7 +31,8 @@ impl Context {
     /// y0 + j) lands on `target.origin` + (i, j), component c holding channel `map.first + c` as
     /// unorm8 (the code / 255, exactly the CPU's code). Everything is checked before anything is
     /// recorded (`GpuError::Channels` for a map outside the material, `GpuError::Texture` for
-    /// the target). Creates a buffer of width × height × channels bytes for the codes per call.
+    /// the target). The codes pass through a buffer the `Context` keeps for all such calls (grown
+    /// when a call needs more); each call creates only its small uniform and bind groups.
     #[allow(clippy::too_many_arguments)] // a material, what, and where the texels go
     pub fn record_map_to_texture(
         &self,
@@ -77,12 +78,7 @@ impl Context {
             reason: "the device refused a storage texture of its format",
         })?;
         let codes = u64::from(width) * u64::from(height) * u64::from(count);
-        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("nmat texture codes"),
-            size: codes.next_multiple_of(4).max(4),
-            usage: wgpu::BufferUsages::STORAGE,
-            mapped_at_creation: false,
-        });
+        let buffer = self.texture_codes(device, codes.next_multiple_of(4).max(4));
         // Checks the region (inside the mip) before anything is recorded.
         self.record_region(device, encoder, gm, mip, rect, mask, (&buffer, 0))?;
         let words = [target.origin.0, target.origin.1, width, height, count, 0, 0, 0];
@@ -122,6 +118,28 @@ impl Context {
             pass.dispatch_workgroups(width.div_ceil(8), height.div_ceil(8), 1);
         }
         Ok(())
+    }
+
+    /// The buffer between the decode and the store pass, at least `bytes` long. One buffer serves
+    /// every call: the queue runs recorded passes in order and wgpu orders each pass's accesses
+    /// after the previous pass's, so a later call's decode cannot overwrite codes an earlier
+    /// call's store has yet to read. A call that needs more replaces it (the commands already
+    /// recorded keep the old one alive).
+    fn texture_codes(&self, device: &wgpu::Device, bytes: u64) -> wgpu::Buffer {
+        let mut slot = self.texture_codes.lock().unwrap_or_else(|e| e.into_inner());
+        match &*slot {
+            Some(buffer) if buffer.size() >= bytes => buffer.clone(),
+            _ => {
+                let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("nmat texture codes"),
+                    size: bytes.next_power_of_two(),
+                    usage: wgpu::BufferUsages::STORAGE,
+                    mapped_at_creation: false,
+                });
+                *slot = Some(buffer.clone());
+                buffer
+            }
+        }
     }
 
     /// The store pipeline for `format` (cached), or `None` where the device refuses it.

@@ -1,6 +1,7 @@
 //! Decoding into the caller's storage textures (`Context::record_map_to_texture`) against the
 //! CPU, byte for byte: every map of a 10-channel golden material (1- and 3-channel maps) into an
-//! `Rgba8Unorm` texture at an offset, a one-channel map into `R8Unorm` where the device allows
+//! `Rgba8Unorm` texture at an offset (all recorded into one encoder, through the `Context`'s one
+//! codes buffer), a one-channel map into `R8Unorm` where the device allows
 //! that storage format, the texels around the region untouched, and bad targets refused.
 
 use nmat_core::bc::{MapChannels, maps};
@@ -102,12 +103,18 @@ fn maps_decode_into_storage_textures_like_the_cpu() {
     let usage = wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_SRC;
     let all = maps(&m);
     assert!(all.iter().any(|map| map.count == 1) && all.iter().any(|map| map.count == 3));
-    for map in &all {
-        let target = texture(&device, wgpu::TextureFormat::Rgba8Unorm, usage);
-        let mut encoder = device.create_command_encoder(&Default::default());
-        let at = TextureTarget { texture: &target, mip_level: 0, origin: ORIGIN };
+    // Every map recorded into one encoder (their codes pass through the same buffer), then read.
+    let targets: Vec<wgpu::Texture> =
+        all.iter().map(|_| texture(&device, wgpu::TextureFormat::Rgba8Unorm, usage)).collect();
+    let mut encoder = device.create_command_encoder(&Default::default());
+    for (map, target) in all.iter().zip(&targets) {
+        let at = TextureTarget { texture: target, mip_level: 0, origin: ORIGIN };
         ctx.record_map_to_texture(&device, &mut encoder, &gm, 1, RECT, map, at).unwrap();
-        let got = read_texture(&device, &queue, encoder, &target, 4);
+    }
+    queue.submit([encoder.finish()]);
+    for (map, target) in all.iter().zip(&targets) {
+        let encoder = device.create_command_encoder(&Default::default());
+        let got = read_texture(&device, &queue, encoder, target, 4);
         assert!(got == expected(&m, map, 4), "{map:?} into Rgba8Unorm");
     }
     // One channel into R8Unorm, where the device has that storage format.
