@@ -1,7 +1,8 @@
 //! `nmat bench --gpu`: the GPU decoder measured like a GPU (docs/GPU.md, "Measured"): kernels
 //! timed with GPU timestamps where the adapter has them, against the adapter's own integer peak
-//! (`nmat_wgpu::measure`), for a region, the whole chain, random requests and channel subsets;
-//! upload and a region's round trip (submit, decode, read back) on their own rows.
+//! (`nmat_wgpu::measure`), for a region, the whole chain, random requests, channel subsets and
+//! `nmat_sample` (the shader module) with stochastic and trilinear filtering; upload and a
+//! region's round trip (submit, decode, read back) on their own rows.
 
 use crate::Result;
 use crate::bench::{Options, macs, median};
@@ -112,6 +113,25 @@ pub fn table(m: &Material<'_>, opts: &Options) -> Result<()> {
             &gm,
         ));
     }
+    // Inference on sample: nmat_sample (the module engines include) once per texel of the region,
+    // a quarter texel off centre and halfway between mips 0 and 1 (so a trilinear sample decodes
+    // all 8 texels), in a compute shader; its rate is of decoded texels.
+    let sampler = Sampler::new(&device, side);
+    let mut refused = Vec::new();
+    for (mode, decodes) in [("NMAT_STOCHASTIC", 1), ("NMAT_TRILINEAR", 8)] {
+        if !sampler.pipelines.iter().any(|(m, _)| *m == mode) {
+            refused.push(mode);
+            continue;
+        }
+        let filter = mode.trim_start_matches("NMAT_").to_lowercase();
+        let name = format!(
+            "nmat_sample {filter}, {}×{} samples × {decodes} decode{}, all channels",
+            side.0,
+            side.1,
+            if decodes == 1 { "" } else { "s" }
+        );
+        rows.push((name, texels(side) * decodes, c, Work::Sample(side, mode), &gm));
+    }
     for other in &others {
         let name =
             format!("region {}×{}, all channels, {} kernel", side.0, side.1, other.kernel().name());
@@ -125,6 +145,7 @@ pub fn table(m: &Material<'_>, opts: &Options) -> Result<()> {
             m,
             out: &out,
             requests: (&request_buffer, requests.len() as u32),
+            sampler: &sampler,
         };
         let seconds = median_time(&device, &queue, opts.runs, &|e| gpu.record(e, work))?;
         let rate = *n as f64 / seconds;
@@ -135,6 +156,9 @@ pub fn table(m: &Material<'_>, opts: &Options) -> Result<()> {
             rate / 1e6,
             100.0 * rate * macs_per_texel as f64 / peak.i32_mad_per_s
         );
+    }
+    if !refused.is_empty() {
+        println!("  no nmat_sample row for {}: the device refused the shader", refused.join(", "));
     }
     let round_trips: Vec<f64> = (0..opts.runs)
         .map(|_| {
@@ -160,6 +184,117 @@ enum Work {
     Chain,
     /// The random requests, every channel.
     Requests,
+    /// One `nmat_sample` with this mode per texel of the top-left (width, height) of mip 0.
+    Sample((u32, u32), &'static str),
+}
+
+/// Compute pipelines calling `nmat_sample` (one per mode), the sink they write to.
+struct Sampler {
+    layout: wgpu::BindGroupLayout,
+    pipelines: Vec<(&'static str, wgpu::ComputePipeline)>,
+    sink: wgpu::Buffer,
+}
+
+impl Sampler {
+    const BINDINGS: nmat_wgpu::SampleBindings =
+        nmat_wgpu::SampleBindings { group: 0, first_binding: 0 };
+
+    fn new(device: &wgpu::Device, (w, h): (u32, u32)) -> Sampler {
+        let [desc, latents] = Self::BINDINGS.layout_entries(wgpu::ShaderStages::COMPUTE);
+        let sink = wgpu::BindGroupLayoutEntry {
+            binding: 2,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only: false },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("bench sample"),
+            entries: &[desc, latents, sink],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("bench sample"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipelines = ["NMAT_STOCHASTIC", "NMAT_TRILINEAR"]
+            .into_iter()
+            .filter_map(|mode| {
+                // u = (x + ¼) / width (every bilinear weight nonzero on mips 0 and 1), random
+                // numbers on a 1/16 lattice;
+                // the sum of the channels is written so that nothing is optimised away.
+                let source = format!(
+                    "{}\n@group(0) @binding(2) var<storage, read_write> sink: array<f32>;\n\
+                     @compute @workgroup_size(64)\n\
+                     fn bench_sample(@builtin(global_invocation_id) id: vec3<u32>,\n\
+                                     @builtin(num_workgroups) groups: vec3<u32>) {{\n\
+                         let i = id.x + id.y * groups.x * 64u;\n\
+                         if (i >= {w}u * {h}u) {{ return; }}\n\
+                         let p = vec2<u32>(i % {w}u, i / {w}u);\n\
+                         let size = vec2<f32>(nmat_mip_size(0u));\n\
+                         let k = vec3<u32>(p.x * 7u + p.y * 13u, p.x * 5u + p.y * 3u, p.x + p.y * 11u);\n\
+                         let rnd = (vec3<f32>(k % vec3<u32>(16u)) + 0.5) * 0.0625;\n\
+                         let s = nmat_sample((vec2<f32>(p) + 0.25) / size, 0.5, rnd, {mode}, NMAT_ALL_CHANNELS);\n\
+                         var sum = 0.0;\n\
+                         for (var c = 0u; c < 16u; c++) {{ sum += s[c]; }}\n\
+                         sink[i] = sum;\n\
+                     }}\n",
+                    Self::BINDINGS.module()
+                );
+                // A device that refuses the shader loses the row, not the table.
+                let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+                let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                    label: Some("bench sample"),
+                    source: wgpu::ShaderSource::Wgsl(source.into()),
+                });
+                let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some("bench sample"),
+                    layout: Some(&pipeline_layout),
+                    module: &module,
+                    entry_point: Some("bench_sample"),
+                    compilation_options: Default::default(),
+                    cache: None,
+                });
+                let refused = pollster::block_on(scope.pop()).is_some();
+                (!refused).then_some((mode, pipeline))
+            })
+            .collect();
+        let sink = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("bench sample sink"),
+            size: 4 * texels((w, h)).max(1),
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+        Sampler { layout, pipelines, sink }
+    }
+
+    fn record(
+        &self,
+        device: &wgpu::Device,
+        e: &mut wgpu::CommandEncoder,
+        gm: &GpuMaterial,
+        mode: &str,
+        n: u64,
+    ) {
+        let Some((_, pipeline)) = self.pipelines.iter().find(|(m, _)| *m == mode) else {
+            return;
+        };
+        let [desc, latents] = gm.sample_entries(Self::BINDINGS);
+        let sink = wgpu::BindGroupEntry { binding: 2, resource: self.sink.as_entire_binding() };
+        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("bench sample"),
+            layout: &self.layout,
+            entries: &[desc, latents, sink],
+        });
+        let groups = n.div_ceil(64) as u32;
+        let mut pass = e.begin_compute_pass(&Default::default());
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, &group, &[]);
+        pass.dispatch_workgroups(groups.min(65_535), groups.div_ceil(65_535), 1);
+    }
 }
 
 /// What recording needs.
@@ -170,6 +305,7 @@ struct Gpu<'a> {
     m: &'a Material<'a>,
     out: &'a wgpu::Buffer,
     requests: (&'a wgpu::Buffer, u32),
+    sampler: &'a Sampler,
 }
 
 impl Gpu<'_> {
@@ -196,6 +332,7 @@ impl Gpu<'_> {
                 let (buffer, count) = self.requests;
                 ctx.record_requests(device, e, gm, (buffer, 0, count), all, (out, 0))?;
             }
+            Work::Sample(side, mode) => self.sampler.record(device, e, gm, mode, texels(side)),
         }
         Ok(())
     }

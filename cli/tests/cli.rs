@@ -627,7 +627,13 @@ fn bench_gpu_prints_the_gpu_table_or_says_how_to_build_it() {
         assert!(!o.status.success() && out.contains("--features gpu"), "{out}");
     } else {
         assert!(o.status.success(), "{out}");
-        for row in ["| region 16×16 of mip 0, all", "| whole chain, 9 mips |", "random requests"] {
+        let rows = [
+            "| region 16×16 of mip 0, all",
+            "| whole chain, 9 mips |",
+            "random requests",
+            "| nmat_sample trilinear, 16×16 samples × 8 decodes",
+        ];
+        for row in rows {
             assert!(out.contains(row), "missing {row}:\n{out}");
         }
         assert!(out.contains("G i32 multiply-add/s") && out.contains("upload"), "{out}");
