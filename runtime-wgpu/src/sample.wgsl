@@ -106,6 +106,7 @@ fn nmat_sample(
     let mask = nmat_valid_channels(channels);
     let last = nmat_desc[2] - 1u;
     let level = clamp(lod, 0.0, f32(last));
+    let nearest = min(u32(floor(level + 0.5)), last);
     let low = min(u32(floor(level)), last);
     let high = min(low + 1u, last);
     let t = level - f32(low);
@@ -114,7 +115,7 @@ fn nmat_sample(
         nmat_acc[c] = 0.0;
     }
     if (mode == NMAT_BILINEAR) {
-        nmat_sample_bilinear(uv, min(u32(floor(level + 0.5)), last), 1.0, mask);
+        nmat_sample_bilinear(uv, nearest, 1.0, mask);
     } else if (mode == NMAT_TRILINEAR) {
         nmat_sample_bilinear(uv, low, 1.0 - t, mask);
         if (high != low) {
@@ -129,11 +130,10 @@ fn nmat_sample(
         let y = select(ay.first, ay.first + 1, r.y < ay.frac);
         nmat_tap(x, y, mip, 1.0, mask);
     } else {
-        let mip = min(u32(floor(level + 0.5)), last);
-        let size = nmat_mip_size(mip);
+        let size = nmat_mip_size(nearest);
         let x = nmat_axis(uv.x, size.x, false).first;
         let y = nmat_axis(uv.y, size.y, false).first;
-        nmat_tap(x, y, mip, 1.0, mask);
+        nmat_tap(x, y, nearest, 1.0, mask);
     }
     var out: array<f32, 16>;
     for (var c = 0u; c < 16u; c++) {
