@@ -4,6 +4,7 @@
 use crate::bytes::{align4, f32_at, i16_at, i32_at, slice, u8_at, u16_at, u32_at};
 use crate::checksum::file_checksum;
 use crate::error::{Error, Field, at_most, malformed, unsupported};
+use crate::jpeg::Jpeg;
 use crate::latents::{LatentGrid, packed_len};
 use crate::limits::*;
 use crate::material::{
@@ -20,8 +21,11 @@ pub const VERSION_MAJOR: u16 = 2;
 /// The previous major version, still read: its layer blocks carry a second, f16 copy of the
 /// network, which is validated and skipped (FORMAT.md §10).
 pub const LEGACY_VERSION_MAJOR: u16 = 1;
-/// Minor version written by this crate; a reader accepts every minor of its major (§1.3).
+/// Minor version written by this crate for neural materials; a reader accepts every minor of its
+/// major (§1.3).
 pub const VERSION_MINOR: u16 = 0;
+/// Minor version of files with a JPEG section (2.1 added it, §11).
+pub const JPEG_VERSION_MINOR: u16 = 1;
 pub const HEADER_LEN: usize = 32;
 pub const SECTION_ENTRY_LEN: usize = 16;
 /// Section flag: a reader that does not know the section's kind must reject the file.
@@ -48,8 +52,10 @@ impl SectionKind {
     pub const LEVELS: SectionKind = SectionKind(2);
     pub const MLP: SectionKind = SectionKind(3);
     pub const LATENTS: SectionKind = SectionKind(4);
-    pub(crate) const KNOWN: [SectionKind; 4] =
-        [Self::MATERIAL, Self::LEVELS, Self::MLP, Self::LATENTS];
+    /// Indexed JPEG streams (FORMAT.md §11), in place of LEVELS, MLP and LATENTS.
+    pub const JPEG: SectionKind = SectionKind(5);
+    pub(crate) const KNOWN: [SectionKind; 5] =
+        [Self::MATERIAL, Self::LEVELS, Self::MLP, Self::LATENTS, Self::JPEG];
 }
 
 /// The fixed 32-byte file header (§1).
@@ -115,16 +121,7 @@ impl Container {
         let sections = read_section_table(bytes, &header)?;
         let material = sections.material;
         let (width, height, mip_count, address_mode, channels) = parse_material(material)?;
-        let levels = parse_levels(sections.levels, sections.latents, mip_count)?;
-        let mlp = parse_mlp(sections.mlp, channels.len(), header.version_major)?;
-        for (l, width_of_level) in levels.widths.iter().enumerate() {
-            let expected =
-                width_of_level + 4 * usize::from(mlp.pe_frequencies) + usize::from(mlp.lod_input);
-            if expected != mlp.input_width() {
-                return Err(malformed(Field::LevelFeatureWidth, l, expected as i64));
-            }
-        }
-        Ok(Material {
+        let mut found = Material {
             version_major: header.version_major,
             version_minor: header.version_minor,
             width,
@@ -132,15 +129,40 @@ impl Container {
             mip_count,
             address_mode,
             channels,
-            mip_to_level: levels.mip_to_level,
-            grids: levels.grids,
-            levels: levels.levels,
-            mlp,
+            mip_to_level: [0; MAX_MIPS],
+            grids: heapless::Vec::new(),
+            levels: heapless::Vec::new(),
+            mlp: Mlp::empty(),
+            jpeg: None,
             file_len: bytes.len(),
-            section_lens: [material, sections.levels, sections.mlp, sections.latents]
-                .map(<[u8]>::len),
+            section_lens: [0; 5],
             optional_sections: sections.optional,
-        })
+        };
+        let neural = match sections.codec {
+            Codec::Jpeg(jpeg) => {
+                let sizes = core::array::from_fn(|m| found.mip_size(m as u32));
+                found.jpeg = Some(Jpeg::parse(jpeg, &found.channels, sizes, mip_count)?);
+                found.section_lens = [material.len(), 0, 0, 0, jpeg.len()];
+                return Ok(found);
+            }
+            Codec::Neural(neural) => neural,
+        };
+        let [levels_bytes, mlp_bytes, latents] = neural;
+        let levels = parse_levels(levels_bytes, latents, mip_count)?;
+        let mlp = parse_mlp(mlp_bytes, found.channels.len(), header.version_major)?;
+        for (l, width_of_level) in levels.widths.iter().enumerate() {
+            let expected =
+                width_of_level + 4 * usize::from(mlp.pe_frequencies) + usize::from(mlp.lod_input);
+            if expected != mlp.input_width() {
+                return Err(malformed(Field::LevelFeatureWidth, l, expected as i64));
+            }
+        }
+        found.mip_to_level = levels.mip_to_level;
+        found.grids = levels.grids;
+        found.levels = levels.levels;
+        found.mlp = mlp;
+        found.section_lens = [material, levels_bytes, mlp_bytes, latents, &[]].map(<[u8]>::len);
+        Ok(found)
     }
 }
 
@@ -195,9 +217,13 @@ fn read_header(bytes: &[u8]) -> Result<Header, Error> {
 struct Sections<'a> {
     optional: heapless::Vec<(SectionKind, &'a [u8]), MAX_SECTIONS>,
     material: &'a [u8],
-    levels: &'a [u8],
-    mlp: &'a [u8],
-    latents: &'a [u8],
+    codec: Codec<'a>,
+}
+
+/// What a material stores besides MATERIAL: LEVELS, MLP and LATENTS, or a JPEG section.
+enum Codec<'a> {
+    Neural([&'a [u8]; 3]),
+    Jpeg(&'a [u8]),
 }
 
 fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'a>, Error> {
@@ -209,7 +235,7 @@ fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'
     let table_end = HEADER_LEN + SECTION_ENTRY_LEN * count;
     need_bytes(bytes, 0, table_end, Field::SectionCount, 0)?;
     let mut ranges = [(0usize, 0usize); MAX_SECTIONS];
-    let mut found: [Option<&'a [u8]>; 4] = [None; 4];
+    let mut found: [Option<&'a [u8]>; 5] = [None; 5];
     let mut optional = heapless::Vec::new();
     for i in 0..count {
         let e = HEADER_LEN + SECTION_ENTRY_LEN * i;
@@ -254,13 +280,15 @@ fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'
             (k + 1) as i64,
         ))
     };
-    Ok(Sections {
-        optional,
-        material: need(0)?,
-        levels: need(1)?,
-        mlp: need(2)?,
-        latents: need(3)?,
-    })
+    let codec = match found.get(4).copied().flatten() {
+        // A JPEG material has no network: LEVELS, MLP or LATENTS beside it contradict it.
+        Some(jpeg) => match (1..4).find(|&k| found.get(k).is_some_and(Option::is_some)) {
+            Some(k) => return Err(malformed(Field::SectionKind, k, (k + 1) as i64)),
+            None => Codec::Jpeg(jpeg),
+        },
+        None => Codec::Neural([need(1)?, need(2)?, need(3)?]),
+    };
+    Ok(Sections { optional, material: need(0)?, codec })
 }
 
 fn exact_length(

@@ -4,7 +4,7 @@
 
 use crate::error::{Argument, Error};
 use crate::latents::{Footprint, LatentGrid, address, footprint};
-use crate::limits::{MAX_FRAC_BITS, MAX_GRID_CHANNELS, MAX_GRIDS, MAX_WIDTH};
+use crate::limits::{MAX_CHANNELS, MAX_FRAC_BITS, MAX_GRID_CHANNELS, MAX_GRIDS, MAX_WIDTH};
 use crate::material::{AddressMode, Material, TermMode};
 use crate::mlp::{forward_float, forward_int, saturate_i16};
 use crate::posenc::triangle_q;
@@ -159,10 +159,32 @@ impl<'a> Material<'a> {
     }
 
     /// The float network's outputs for the rows in `rows`, in unit scale (1.0 = top of range).
-    fn run_float(&self, x: i64, y: i64, mip: u32, rows: u16) -> [f32; MAX_WIDTH] {
+    pub(crate) fn run_float(&self, x: i64, y: i64, mip: u32, rows: u16) -> [f32; MAX_WIDTH] {
+        if let Some(codes) = self.jpeg_codes(x, y, mip, rows) {
+            // A JPEG texel in unit scale: code / 255 (FORMAT.md §11.8).
+            let mut io = [0f32; MAX_WIDTH];
+            for (v, c) in io.iter_mut().zip(codes) {
+                *v = f32::from(c) / 255.0;
+            }
+            return io;
+        }
         let mut io = self.inputs(x, y, mip);
         forward_float(&self.mlp.layers, &mut io, rows);
         io
+    }
+
+    /// A JPEG material's 8-bit codes of an (unaddressed) texel, indexed by channel; `None` for
+    /// a neural material.
+    pub(crate) fn jpeg_codes(
+        &self,
+        x: i64,
+        y: i64,
+        mip: u32,
+        rows: u16,
+    ) -> Option<[u8; MAX_CHANNELS]> {
+        let jpeg = self.jpeg.as_ref()?;
+        let (x, y, mip) = self.address_texel(x, y, mip);
+        Some(jpeg.texel_codes(x, y, mip, rows))
     }
 
     pub(crate) fn last_frac_bits(&self) -> u32 {
@@ -247,6 +269,12 @@ impl<'a> Material<'a> {
         narrow: impl Fn(i32) -> T,
     ) -> Result<usize, Error> {
         let rows = self.check_out(channels, out.len())?;
+        if let Some(codes) = self.jpeg_codes(x, y, mip, rows) {
+            // 8-bit codes, widened exactly (c · 65535 / 255 = c · 257).
+            return Ok(write_selected(rows, &codes, out, |&c| {
+                narrow(i32::from(c) * full_scale / 255)
+            }));
+        }
         let f = self.last_frac_bits();
         let y_out = self.run_int(x, y, mip, rows);
         Ok(write_selected(rows, &y_out, out, |&v| narrow(code(v, f, full_scale))))
@@ -391,7 +419,11 @@ pub fn code(y: i16, f: u32, max: i32) -> i32 {
 }
 
 pub(crate) fn selected<T>(items: &[T], rows: u16) -> impl Iterator<Item = &T> {
-    // The set bits of `rows`, lowest first: one step per selected item, not one per item.
+    selected_indices(rows).filter_map(move |i| items.get(i))
+}
+
+/// The set bits of `rows`, lowest first: one step per selected item, not one per item.
+pub(crate) fn selected_indices(rows: u16) -> impl Iterator<Item = usize> {
     let mut bits = rows;
     core::iter::from_fn(move || {
         if bits == 0 {
@@ -401,7 +433,6 @@ pub(crate) fn selected<T>(items: &[T], rows: u16) -> impl Iterator<Item = &T> {
         bits &= bits - 1;
         Some(i)
     })
-    .filter_map(move |i| items.get(i))
 }
 
 pub(crate) fn write_selected<S, T>(

@@ -70,6 +70,28 @@ pub enum Field {
     FloatWeight,
     /// A version-1 file's f32 float bias is not finite (FORMAT.md §10).
     FloatBias,
+    /// JPEG section (FORMAT.md §11): its version.
+    JpegVersion,
+    JpegMapCount,
+    JpegQuantCount,
+    JpegHuffmanCount,
+    JpegReserved,
+    /// A map record: its first channel does not follow the previous map, or the maps do not
+    /// cover every channel (`index` = map count, value = channels covered).
+    JpegMap,
+    JpegMapChannels,
+    JpegSubsampling,
+    JpegQuantTable,
+    JpegHuffmanTable,
+    /// A Huffman table holds a symbol baseline JPEG does not define.
+    JpegHuffmanSymbol,
+    /// A stream record (`index` = map · mip_count + mip).
+    JpegStream,
+    JpegStreamOffset,
+    JpegStreamLength,
+    JpegTableRef,
+    /// An MCU's bit offset goes backwards or past the stream's entropy data.
+    JpegIndex,
 }
 
 /// An argument of a decode call.

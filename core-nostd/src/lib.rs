@@ -89,6 +89,7 @@ pub mod decode;
 pub mod decoder;
 pub mod error;
 pub mod filter;
+pub mod jpeg;
 pub mod latents;
 pub mod limits;
 pub mod material;
@@ -117,12 +118,17 @@ pub use decoder::{BcTarget, BlockRegion, Decoder, Kernel};
 pub use error::{Argument, Error, Field};
 #[doc(inline)]
 pub use filter::{Filter, Precision, SampleRequest};
+#[cfg(feature = "alloc")]
+#[doc(inline)]
+pub use jpeg::writer::{HuffmanTableSpec, JpegMaterialSpec, JpegStreamSpec};
+#[doc(inline)]
+pub use jpeg::{Jpeg, JpegMap};
 #[doc(inline)]
 pub use latents::LatentGrid;
 #[doc(inline)]
 pub use material::{
-    AddressMode, Channel, ColorSpace, DecodeCost, FeatureLevel, Material, Mlp, Semantic, Term,
-    TermMode,
+    AddressMode, Channel, Codec, ColorSpace, DecodeCost, FeatureLevel, Material, Mlp, Semantic,
+    Term, TermMode,
 };
 #[doc(inline)]
 pub use mlp::{Activation, Layer, Requant};

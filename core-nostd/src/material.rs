@@ -107,6 +107,15 @@ pub struct FeatureLevel {
     pub terms: heapless::Vec<Term, MAX_TERMS>,
 }
 
+/// How a material stores its texels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Codec {
+    /// Latent grids and an MLP (FORMAT.md §2–§6).
+    Neural,
+    /// Indexed baseline JPEG streams, one per map and mip (FORMAT.md §11).
+    Jpeg,
+}
+
 /// The decoder network (FORMAT.md §5).
 #[derive(Clone, Debug)]
 pub struct Mlp<'a> {
@@ -118,6 +127,16 @@ pub struct Mlp<'a> {
 }
 
 impl<'a> Mlp<'a> {
+    /// The network of a material that has none (a JPEG material): no layers, no inputs.
+    pub(crate) fn empty() -> Mlp<'a> {
+        Mlp {
+            input_frac_bits: crate::limits::MIN_INPUT_FRAC_BITS,
+            pe_frequencies: 0,
+            lod_input: false,
+            input_width: 0,
+            layers: heapless::Vec::new(),
+        }
+    }
     /// Fraction bits of the input vector's Q-format (latents, positional encoding, LOD).
     pub fn input_frac_bits(&self) -> u8 {
         self.input_frac_bits
@@ -169,8 +188,10 @@ pub struct Material<'a> {
     pub(crate) levels: heapless::Vec<FeatureLevel, MAX_LEVELS>,
     pub(crate) mlp: Mlp<'a>,
     pub(crate) file_len: usize,
-    /// Lengths of the MATERIAL, LEVELS, MLP and LATENTS sections.
-    pub(crate) section_lens: [usize; 4],
+    /// The JPEG section of a JPEG material (FORMAT.md §11); `None` for a neural one.
+    pub(crate) jpeg: Option<crate::jpeg::Jpeg<'a>>,
+    /// Lengths of the MATERIAL, LEVELS, MLP, LATENTS and JPEG sections (0: absent).
+    pub(crate) section_lens: [usize; 5],
     pub(crate) optional_sections:
         heapless::Vec<(crate::SectionKind, &'a [u8]), { crate::limits::MAX_SECTIONS }>,
 }
@@ -224,6 +245,15 @@ impl<'a> Material<'a> {
     pub fn mlp(&self) -> &Mlp<'a> {
         &self.mlp
     }
+    /// How this material stores its texels. Every decode call works for both codecs; the model
+    /// accessors ([`Material::grids`], [`Material::levels`], [`Material::mlp`]) are empty for JPEG.
+    pub fn codec(&self) -> Codec {
+        if self.jpeg.is_some() { Codec::Jpeg } else { Codec::Neural }
+    }
+    /// The JPEG section of a JPEG material.
+    pub fn jpeg(&self) -> Option<&crate::jpeg::Jpeg<'a>> {
+        self.jpeg.as_ref()
+    }
     /// Size of the file this material was parsed from, in bytes.
     pub fn file_len(&self) -> usize {
         self.file_len
@@ -232,7 +262,7 @@ impl<'a> Material<'a> {
     pub fn section_len(&self, kind: crate::SectionKind) -> Option<usize> {
         let required = crate::SectionKind::KNOWN.iter().position(|&k| k == kind);
         match required {
-            Some(i) => self.section_lens.get(i).copied(),
+            Some(i) => self.section_lens.get(i).copied().filter(|&n| n > 0 || i == 0),
             None => self.optional_section(kind).map(<[u8]>::len),
         }
     }

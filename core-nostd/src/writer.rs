@@ -89,27 +89,27 @@ pub struct MaterialSpec {
     pub optional_sections: Vec<(u32, Vec<u8>)>,
 }
 
-fn spec_error(value: usize, limit: usize) -> Error {
+pub(crate) fn spec_error(value: usize, limit: usize) -> Error {
     Error::BadArgument { argument: Argument::Spec, value: value as u64, limit: limit as u64 }
 }
 
-fn put_u16(out: &mut Vec<u8>, v: u16) {
+pub(crate) fn put_u16(out: &mut Vec<u8>, v: u16) {
     out.extend_from_slice(&v.to_le_bytes());
 }
-fn put_u32(out: &mut Vec<u8>, v: u32) {
+pub(crate) fn put_u32(out: &mut Vec<u8>, v: u32) {
     out.extend_from_slice(&v.to_le_bytes());
 }
 /// Copies `src` into the front of `dst` (as much as fits).
 fn copy_into(dst: &mut [u8], src: &[u8]) {
     dst.iter_mut().zip(src).for_each(|(d, s)| *d = *s);
 }
-fn pad4(out: &mut Vec<u8>) {
+pub(crate) fn pad4(out: &mut Vec<u8>) {
     out.resize(align4(out.len()), 0);
 }
-fn len_u8(n: usize) -> Result<u8, Error> {
+pub(crate) fn len_u8(n: usize) -> Result<u8, Error> {
     u8::try_from(n).map_err(|_| spec_error(n, 255))
 }
-fn len_u32(n: usize) -> Result<u32, Error> {
+pub(crate) fn len_u32(n: usize) -> Result<u32, Error> {
     u32::try_from(n).map_err(|_| spec_error(n, u32::MAX as usize))
 }
 
@@ -133,6 +133,80 @@ pub fn pack_codes(codes: &[u8], bits: u8) -> Vec<u8> {
     words.iter().flat_map(|w| w.to_le_bytes()).collect()
 }
 
+/// The MATERIAL section (FORMAT.md §3).
+pub(crate) fn material_section(
+    (width, height, mip_count): (u32, u32, u8),
+    address_mode: AddressMode,
+    channels: &[ChannelSpec],
+) -> Result<Vec<u8>, Error> {
+    let mut s = Vec::new();
+    put_u32(&mut s, width);
+    put_u32(&mut s, height);
+    s.push(mip_count);
+    s.push(len_u8(channels.len())?);
+    s.push(address_mode as u8);
+    s.push(0);
+    for ch in channels {
+        let mut name = [0u8; 16];
+        let bytes = ch.name.as_bytes();
+        if bytes.len() > name.len() {
+            return Err(spec_error(bytes.len(), name.len()));
+        }
+        copy_into(&mut name, bytes);
+        s.extend_from_slice(&name);
+        s.extend_from_slice(&[ch.semantic.0, ch.component, ch.color_space as u8, 0]);
+        s.extend_from_slice(&ch.range_min.to_le_bytes());
+        s.extend_from_slice(&ch.range_max.to_le_bytes());
+        s.extend_from_slice(&[0; 4]);
+    }
+    Ok(s)
+}
+
+/// A whole file from its required sections (written with the REQUIRED flag, in order) and the
+/// optional ones, checked by parsing it.
+pub(crate) fn assemble(
+    required: Vec<(SectionKind, Vec<u8>)>,
+    optional: &[(u32, Vec<u8>)],
+    minor: u16,
+) -> Result<Vec<u8>, Error> {
+    let mut sections: Vec<(SectionKind, u32, &[u8])> =
+        required.iter().map(|(k, d)| (*k, SECTION_REQUIRED, d.as_slice())).collect();
+    for (kind, data) in optional {
+        let kind = SectionKind(*kind);
+        if SectionKind::KNOWN.contains(&kind) {
+            return Err(spec_error(kind.0 as usize, 0));
+        }
+        sections.push((kind, 0, data));
+    }
+    let mut out = Vec::new();
+    out.extend_from_slice(&MAGIC);
+    put_u16(&mut out, VERSION_MAJOR);
+    put_u16(&mut out, minor);
+    put_u32(&mut out, 0); // flags
+    put_u32(&mut out, 0); // file length, patched below
+    put_u32(&mut out, sections.len() as u32);
+    put_u32(&mut out, 0); // checksum, patched below
+    out.extend_from_slice(&[0; 8]);
+    let mut offset = HEADER_LEN + SECTION_ENTRY_LEN * sections.len();
+    for (kind, flags, data) in &sections {
+        put_u32(&mut out, kind.0);
+        put_u32(&mut out, *flags);
+        put_u32(&mut out, len_u32(offset)?);
+        put_u32(&mut out, len_u32(data.len())?);
+        offset = align4(offset + data.len());
+    }
+    for (_, _, data) in &sections {
+        out.extend_from_slice(data);
+        pad4(&mut out);
+    }
+    let file_len = len_u32(out.len())?;
+    copy_into(out.get_mut(12..).unwrap_or(&mut []), &file_len.to_le_bytes());
+    let crc = file_checksum(&out);
+    copy_into(out.get_mut(20..).unwrap_or(&mut []), &crc.to_le_bytes());
+    Container::parse(&out)?;
+    Ok(out)
+}
+
 impl MaterialSpec {
     /// Serializes and validates. Errors are the parser's (naming the field) or `BadArgument(Spec)`
     /// for vectors whose lengths contradict the sizes they declare.
@@ -140,70 +214,21 @@ impl MaterialSpec {
         let material = self.material_section()?;
         let (levels, latents) = self.levels_and_latents()?;
         let mlp = self.mlp_section()?;
-        let mut sections = alloc::vec![
-            (SectionKind::MATERIAL, SECTION_REQUIRED, material),
-            (SectionKind::LEVELS, SECTION_REQUIRED, levels),
-            (SectionKind::MLP, SECTION_REQUIRED, mlp),
-            (SectionKind::LATENTS, SECTION_REQUIRED, latents),
+        let required = alloc::vec![
+            (SectionKind::MATERIAL, material),
+            (SectionKind::LEVELS, levels),
+            (SectionKind::MLP, mlp),
+            (SectionKind::LATENTS, latents),
         ];
-        for (kind, data) in &self.optional_sections {
-            let kind = SectionKind(*kind);
-            if SectionKind::KNOWN.contains(&kind) {
-                return Err(spec_error(kind.0 as usize, 0));
-            }
-            sections.push((kind, 0, data.clone()));
-        }
-        let mut out = Vec::new();
-        out.extend_from_slice(&MAGIC);
-        put_u16(&mut out, VERSION_MAJOR);
-        put_u16(&mut out, VERSION_MINOR);
-        put_u32(&mut out, 0); // flags
-        put_u32(&mut out, 0); // file length, patched below
-        put_u32(&mut out, sections.len() as u32);
-        put_u32(&mut out, 0); // checksum, patched below
-        out.extend_from_slice(&[0; 8]);
-        let mut offset = HEADER_LEN + SECTION_ENTRY_LEN * sections.len();
-        for (kind, flags, data) in &sections {
-            put_u32(&mut out, kind.0);
-            put_u32(&mut out, *flags);
-            put_u32(&mut out, len_u32(offset)?);
-            put_u32(&mut out, len_u32(data.len())?);
-            offset = align4(offset + data.len());
-        }
-        for (_, _, data) in &sections {
-            out.extend_from_slice(data);
-            pad4(&mut out);
-        }
-        let file_len = len_u32(out.len())?;
-        copy_into(out.get_mut(12..).unwrap_or(&mut []), &file_len.to_le_bytes());
-        let crc = file_checksum(&out);
-        copy_into(out.get_mut(20..).unwrap_or(&mut []), &crc.to_le_bytes());
-        Container::parse(&out)?;
-        Ok(out)
+        assemble(required, &self.optional_sections, VERSION_MINOR)
     }
 
     fn material_section(&self) -> Result<Vec<u8>, Error> {
-        let mut s = Vec::new();
-        put_u32(&mut s, self.width);
-        put_u32(&mut s, self.height);
-        s.push(self.mip_count);
-        s.push(len_u8(self.channels.len())?);
-        s.push(self.address_mode as u8);
-        s.push(0);
-        for ch in &self.channels {
-            let mut name = [0u8; 16];
-            let bytes = ch.name.as_bytes();
-            if bytes.len() > name.len() {
-                return Err(spec_error(bytes.len(), name.len()));
-            }
-            copy_into(&mut name, bytes);
-            s.extend_from_slice(&name);
-            s.extend_from_slice(&[ch.semantic.0, ch.component, ch.color_space as u8, 0]);
-            s.extend_from_slice(&ch.range_min.to_le_bytes());
-            s.extend_from_slice(&ch.range_max.to_le_bytes());
-            s.extend_from_slice(&[0; 4]);
-        }
-        Ok(s)
+        material_section(
+            (self.width, self.height, self.mip_count),
+            self.address_mode,
+            &self.channels,
+        )
     }
 
     fn levels_and_latents(&self) -> Result<(Vec<u8>, Vec<u8>), Error> {

@@ -14,6 +14,7 @@
 pub mod demo;
 pub mod error;
 mod gemm;
+pub mod jpeg;
 mod memhint;
 pub mod metrics;
 pub mod profile;

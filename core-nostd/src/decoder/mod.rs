@@ -114,6 +114,9 @@ pub struct Decoder {
 }
 
 fn identity(material: &Material<'_>) -> (usize, usize) {
+    if let Some(jpeg) = material.jpeg() {
+        return (jpeg.section().as_ptr() as usize, jpeg.section().len());
+    }
     material
         .mlp
         .layers
@@ -253,6 +256,21 @@ impl Decoder {
         full_scale: i32,
         narrow: impl Fn(i32) -> T,
     ) {
+        if let Some(jpeg) = material.jpeg() {
+            let (x0, y, mip) = at;
+            let (rows, n) = rows;
+            let texel = |i: usize| {
+                let (x, y, _) = material.address_texel(x0.wrapping_add(i as i64), y, mip);
+                (x, y)
+            };
+            let mip = mip.min(material.mip_count() - 1);
+            jpeg.span_codes(mip, count, rows, texel, |i, slot, c| {
+                if let Some(o) = out.get_mut(i * n + slot) {
+                    *o = narrow(i32::from(c) * full_scale / 255);
+                }
+            });
+            return;
+        }
         let job = SpanJob { decoder: self, material, at, count, rows, out, full_scale, narrow };
         kernel::run(self.kernel, job);
     }
@@ -369,6 +387,10 @@ impl Decoder {
         material.sample_with(req, out, &|x, y, mip, channels, precision, out| {
             let rows = material.check_out(channels, out.len())?;
             Ok(match precision {
+                Precision::Float if material.jpeg().is_some() => {
+                    let io = material.run_float(x, y, mip, rows);
+                    write_selected(rows, &io, out, |v| unit(*v))
+                }
                 Precision::Float => {
                     let mut io = material.inputs(x, y, mip);
                     self.forward_float(&mut io);
@@ -429,6 +451,21 @@ impl Decoder {
         out: &mut [f32],
     ) -> Result<usize, Error> {
         let (rows, n) = self.check_span(material, count, channels, out.len())?;
+        if material.jpeg().is_some() {
+            // The codes, then each mapped into its channel's range like a unit-scale value.
+            let mut codes = alloc::vec![0u8; count * n];
+            self.span_codes(material, (x0, y, mip), count, (rows, n), &mut codes, 255, |c| c as u8);
+            let mut unit_values = [0f32; MAX_WIDTH];
+            for (texel, c) in out.chunks_exact_mut(n).zip(codes.chunks_exact(n)) {
+                for (k, ch) in crate::decode::selected_indices(rows).enumerate() {
+                    if let (Some(v), Some(&c)) = (unit_values.get_mut(ch), c.get(k)) {
+                        *v = f32::from(c) / 255.0;
+                    }
+                }
+                material.write_ranged(rows, &unit_values, texel);
+            }
+            return Ok(count * n);
+        }
         let mut slots = Slots::new();
         let mut gather = SpanGather::new(material, y, mip, &mut slots);
         let mut io = [0f32; MAX_WIDTH];
@@ -473,6 +510,9 @@ impl Decoder {
         full_scale: i32,
         narrow: impl Fn(i32) -> T,
     ) -> usize {
+        if let Some(codes) = material.jpeg_codes(at.0, at.1, at.2, rows) {
+            return write_selected(rows, &codes, out, |&c| narrow(i32::from(c) * full_scale / 255));
+        }
         let job = TexelJob { decoder: self, material, at, rows, out, full_scale, narrow };
         kernel::run(self.kernel, job)
     }
@@ -502,6 +542,10 @@ impl Decoder {
         rows: u16,
         out: &mut [f32],
     ) -> usize {
+        if material.jpeg().is_some() {
+            let io = material.run_float(x, y, mip, rows);
+            return material.write_ranged(rows, &io, out);
+        }
         let mut io = material.inputs(x, y, mip);
         self.forward_float(&mut io);
         material.write_ranged(rows, &io, out)

@@ -1,0 +1,196 @@
+//! Indexed JPEG (docs/FORMAT.md §11) against an independent decoder: files made by the
+//! `jpeg-encoder` crate, indexed by `nmat_encode::jpeg`, decoded texel by texel and row by row by
+//! `nmat-core`, and compared with libjpeg-turbo's `djpeg -dct int -nosmooth` (the integer IDCT and
+//! chroma replicated, not interpolated: what an MCU decoded on its own can give).
+
+use std::process::Command;
+
+use jpeg_encoder::{ColorType, Encoder, SamplingFactor};
+use nmat_core::{ChannelMask, Container, Decoder};
+use nmat_encode::jpeg::{JpegError, index_jpeg, material_from_jpeg};
+
+/// A texture-like test image: gradients, a few hard edges and noise.
+fn pattern(w: u32, h: u32, components: usize, seed: u32) -> Vec<u8> {
+    let mut state = seed.wrapping_mul(2_654_435_761).wrapping_add(1);
+    let mut out = Vec::with_capacity((w * h) as usize * components);
+    for y in 0..h {
+        for x in 0..w {
+            for c in 0..components as u32 {
+                state ^= state << 13;
+                state ^= state >> 17;
+                state ^= state << 5;
+                let base = (x * 255 / w.max(1) + y * 97 / h.max(1) + c * 60) % 256;
+                let edge = if (x / 5 + y / 7 + c) % 3 == 0 { 70 } else { 0 };
+                let noise = state % 24;
+                out.push(((base + edge + noise) % 256) as u8);
+            }
+        }
+    }
+    out
+}
+
+fn jpeg(
+    w: u32,
+    h: u32,
+    components: usize,
+    sampling: SamplingFactor,
+    quality: u8,
+    restart: u16,
+) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut e = Encoder::new(&mut out, quality);
+    e.set_sampling_factor(sampling);
+    if restart > 0 {
+        e.set_restart_interval(restart);
+    }
+    let color = if components == 1 { ColorType::Luma } else { ColorType::Rgb };
+    e.encode(&pattern(w, h, components, w * 31 + h), w as u16, h as u16, color).unwrap();
+    out
+}
+
+/// `djpeg -dct int -nosmooth` of `file`: samples, or `None` without djpeg.
+fn djpeg(file: &[u8]) -> Option<Vec<u8>> {
+    let dir = tempdir();
+    let path = dir.join("in.jpg");
+    std::fs::write(&path, file).unwrap();
+    let out = Command::new("djpeg").args(["-dct", "int", "-nosmooth", "-pnm"]).arg(&path).output();
+    let _ = std::fs::remove_dir_all(&dir);
+    let out = out.ok()?;
+    assert!(out.status.success(), "djpeg failed: {}", String::from_utf8_lossy(&out.stderr));
+    // PNM: magic, width, height, maxval, one whitespace byte, then samples.
+    let mut fields = 0;
+    let mut i = 0;
+    let bytes = out.stdout;
+    while fields < 4 {
+        while bytes[i].is_ascii_whitespace() {
+            i += 1;
+        }
+        while !bytes[i].is_ascii_whitespace() {
+            i += 1;
+        }
+        fields += 1;
+    }
+    Some(bytes[i + 1..].to_vec())
+}
+
+fn tempdir() -> std::path::PathBuf {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    static N: AtomicUsize = AtomicUsize::new(0);
+    let d = std::env::temp_dir().join(format!(
+        "nmat-jpeg-{}-{}",
+        std::process::id(),
+        N.fetch_add(1, Ordering::SeqCst)
+    ));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn have_djpeg() -> bool {
+    let found = Command::new("djpeg").arg("-version").output().is_ok();
+    if !found {
+        eprintln!("djpeg not found (apt-get install libjpeg-turbo-progs): not compared with it");
+    }
+    found
+}
+
+const SIZES: [(u32, u32); 6] = [(1, 1), (17, 9), (8, 8), (33, 47), (64, 64), (100, 37)];
+const MODES: [(usize, SamplingFactor, &str); 5] = [
+    (1, SamplingFactor::F_1_1, "gray"),
+    (3, SamplingFactor::R_4_4_4, "4:4:4"),
+    (3, SamplingFactor::R_4_2_0, "4:2:0"),
+    (3, SamplingFactor::R_4_2_2, "4:2:2"),
+    (3, SamplingFactor::R_4_4_0, "4:4:0"),
+];
+
+#[test]
+fn indexed_streams_decode_like_djpeg_texel_by_texel_and_row_by_row() {
+    let compare = have_djpeg();
+    let mut worst = 0u8;
+    for (w, h) in SIZES {
+        for (components, sampling, name) in MODES {
+            for (quality, restart) in [(40, 0), (92, 3)] {
+                let what = format!("{w}×{h} {name} q{quality} restart {restart}");
+                let file = jpeg(w, h, components, sampling, quality, restart);
+                let indexed = index_jpeg(&file).unwrap_or_else(|e| panic!("{what}: {e}"));
+                let bytes = material_from_jpeg(&indexed).to_bytes().unwrap();
+                let m = Container::parse(&bytes).unwrap();
+                assert_eq!(m.codec(), nmat_core::Codec::Jpeg);
+                // Texel by texel (each MCU decoded on its own, in random order of access).
+                let n = components;
+                let mut texels = vec![0u8; (w * h) as usize * n];
+                for y in (0..h).rev() {
+                    for x in (0..w).rev() {
+                        let at = ((y * w + x) as usize) * n;
+                        let k = m
+                            .decode_texel_u8(
+                                x.into(),
+                                y.into(),
+                                0,
+                                ChannelMask::ALL,
+                                &mut texels[at..at + n],
+                            )
+                            .unwrap();
+                        assert_eq!(k, n);
+                    }
+                }
+                // Row by row through the prepared decoder: the same codes.
+                let decoder = Decoder::new(&m);
+                let mut rows = vec![0u8; texels.len()];
+                for (y, row) in rows.chunks_exact_mut((w as usize) * n).enumerate() {
+                    decoder
+                        .decode_span_u8(&m, 0, y as i64, 0, w as usize, ChannelMask::ALL, row)
+                        .unwrap();
+                }
+                assert_eq!(rows, texels, "{what}: spans differ from texels");
+                if compare {
+                    let want = djpeg(&file).unwrap();
+                    assert_eq!(want.len(), texels.len(), "{what}");
+                    // Exactly: the same integer IDCT, replication and colour conversion.
+                    for (i, (&a, &b)) in texels.iter().zip(&want).enumerate() {
+                        worst = worst.max(a.abs_diff(b));
+                        assert_eq!(a, b, "{what}: sample {i} is {a}, djpeg {b}");
+                    }
+                }
+            }
+        }
+    }
+    eprintln!("largest difference from djpeg -dct int -nosmooth: {worst}");
+}
+
+#[test]
+fn texels_of_other_channels_and_addresses_follow_the_material_rules() {
+    let file = jpeg(40, 24, 3, SamplingFactor::R_4_2_0, 80, 0);
+    let bytes = material_from_jpeg(&index_jpeg(&file).unwrap()).to_bytes().unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    let mut all = [0u8; 3];
+    m.decode_texel_u8(5, 7, 0, ChannelMask::ALL, &mut all).unwrap();
+    // One channel alone, 16-bit codes, float values and wrapped addresses agree.
+    let mut g = [0u8; 1];
+    m.decode_texel_u8(5, 7, 0, ChannelMask::single(1), &mut g).unwrap();
+    assert_eq!(g[0], all[1]);
+    let mut wide = [0u16; 3];
+    m.decode_texel_u16(5 + 40, 7 - 24, 3, ChannelMask::ALL, &mut wide).unwrap();
+    assert_eq!(wide, all.map(|c| u16::from(c) * 257));
+    let mut f = [0f32; 3];
+    m.decode_texel(5, 7, 0, ChannelMask::ALL, &mut f).unwrap();
+    assert_eq!(f, all.map(|c| f32::from(c) / 255.0));
+}
+
+#[test]
+fn files_that_cannot_be_indexed_say_why() {
+    let mut progressive = Vec::new();
+    let mut e = Encoder::new(&mut progressive, 80);
+    e.set_progressive(true);
+    e.encode(&pattern(32, 32, 3, 1), 32, 32, ColorType::Rgb).unwrap();
+    assert_eq!(index_jpeg(&progressive), Err(JpegError::Progressive));
+    assert!(index_jpeg(&progressive).unwrap_err().to_string().contains("jpegtran"));
+    assert_eq!(index_jpeg(b"\x89PNG\r\n"), Err(JpegError::NotJpeg));
+    let file = jpeg(32, 32, 3, SamplingFactor::R_4_2_0, 80, 0);
+    for cut in [3, 20, file.len() / 2, file.len() - 2] {
+        let err = index_jpeg(&file[..cut]).unwrap_err();
+        assert!(
+            matches!(err, JpegError::Truncated { .. } | JpegError::Corrupt { .. }),
+            "cut at {cut}: {err}"
+        );
+    }
+}
