@@ -41,6 +41,16 @@ enum Command {
     /// Transcode a .nmat file to GPU block-compressed textures (BC1/BC4/BC5/BC7, whole mip
     /// chain) in KTX2 or DDS files, for engines that sample BC textures with unchanged shaders.
     Transcode(TranscodeArgs),
+    /// Turn a baseline JPEG file into a .nmat material (one map, mip 0 only) without re-encoding
+    /// it: an index of its MCUs and their DC values makes every texel decodable on its own
+    /// (docs/FORMAT.md §11). Progressive or arithmetic-coded files are refused.
+    Index {
+        /// The JPEG file (gray or YCbCr; 4:4:4, 4:2:2, 4:4:0 or 4:2:0).
+        input: PathBuf,
+        /// The .nmat file to write.
+        #[arg(short, long)]
+        output: PathBuf,
+    },
     /// Print what a .nmat file holds.
     Info { input: PathBuf },
     /// Compare a .nmat file with the source maps: PSNR per map and mip, SSIM, BPPC.
@@ -297,6 +307,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Encode(args) => cmd_encode(args),
         Command::Decode(args) => cmd_decode(args),
         Command::Transcode(args) => cmd_transcode(args),
+        Command::Index { input, output } => cmd_index(&input, &output),
         Command::Info { input } => {
             let bytes = read_nmat(&input)?;
             let m = parse(&bytes, &input)?;
@@ -315,6 +326,35 @@ fn run(cli: Cli) -> Result<()> {
             bench::run(&bench::Options { inputs, reference, region, runs, gpu })
         }
     }
+}
+
+fn cmd_index(input: &Path, out: &Path) -> Result<()> {
+    output::check_output(out, &[input.to_path_buf()])?;
+    let file = std::fs::read(input).map_err(|e| format!("{}: {e}", input.display()))?;
+    let indexed =
+        nmat_encode::jpeg::index_jpeg(&file).map_err(|e| format!("{}: {e}", input.display()))?;
+    let bytes = nmat_encode::jpeg::material_from_jpeg(&indexed)
+        .to_bytes()
+        .map_err(|e| format!("{}: cannot index: {e}", input.display()))?;
+    output::write_atomic(out, &bytes)?;
+    let m = parse(&bytes, out)?;
+    let (extra, coded) = m.jpeg().map_or((0, 0), |j| j.overhead_bits());
+    let texels = f64::from(indexed.width) * f64::from(indexed.height);
+    println!(
+        "{}: {}×{} {}, {} bytes ({} bytes of JPEG data; index and DC values {:.3} bits per pixel)",
+        out.display(),
+        indexed.width,
+        indexed.height,
+        if indexed.map.channel_count == 3 {
+            format!("YCbCr {}×{} luma per chroma sample", indexed.map.luma_h, indexed.map.luma_v)
+        } else {
+            "gray".to_string()
+        },
+        bytes.len(),
+        coded / 8,
+        extra as f64 / texels
+    );
+    Ok(())
 }
 
 /// `--max-memory`: a size with an optional binary unit (K, M, G; MiB without one), in bytes.

@@ -505,6 +505,10 @@ pub fn describe(path: &Path, m: &Material<'_>) -> String {
     if let Some(maps) = source_maps(m) {
         s.push_str(&map_lines(&maps));
     }
+    if let Some(jpeg) = m.jpeg() {
+        s.push_str(&jpeg_lines(m, jpeg));
+        return s;
+    }
     let _ = writeln!(s, "\nlatent grids:");
     for (i, g) in m.grids().iter().enumerate() {
         let _ = writeln!(
@@ -539,6 +543,43 @@ pub fn describe(path: &Path, m: &Material<'_>) -> String {
         mlp.lod_input()
     );
     s.push_str(&budget_table(&file_budget(m), texel_channels(m)));
+    s
+}
+
+/// The maps of a JPEG material and what its index costs.
+fn jpeg_lines(m: &Material<'_>, jpeg: &nmat_core::Jpeg<'_>) -> String {
+    let mut s = String::from("\nindexed JPEG maps (one stream per mip):\n");
+    for map in jpeg.maps() {
+        let layout = if map.channel_count == 3 {
+            format!("YCbCr, {}×{} luma per chroma sample", map.luma_h, map.luma_v)
+        } else {
+            "gray".to_string()
+        };
+        let (w, h) = map.mcu_size();
+        let last = map.first_channel + map.channel_count - 1;
+        let _ = writeln!(s, "  channels {}..{}: {layout}, MCU {w}×{h}", map.first_channel, last);
+    }
+    let (extra, coded) = jpeg.overhead_bits();
+    let texels: f64 = (0..m.mip_count())
+        .map(|k| {
+            let (w, h) = m.mip_size(k);
+            f64::from(w) * f64::from(h)
+        })
+        .sum();
+    let _ = writeln!(
+        s,
+        "  entropy-coded data {} bytes; index and DC values {} bytes ({:.3} bits per texel of the chain)",
+        coded / 8,
+        extra.div_ceil(8),
+        extra as f64 / texels
+    );
+    let section = m.section_len(SectionKind::JPEG).unwrap_or(0);
+    let _ = writeln!(
+        s,
+        "  JPEG section {section} bytes ({:.4} BPPC) of the file's {}",
+        section as f64 * 8.0 / texel_channels(m),
+        m.file_len()
+    );
     s
 }
 

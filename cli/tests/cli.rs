@@ -875,3 +875,40 @@ fn transcode_refuses_bad_arguments_and_keeps_existing_files() {
     assert!(o.status.success(), "{}", text(&o));
     assert!(std::fs::read(out.join("albedo.bc1.ktx2")).unwrap().starts_with(b"\xABKTX 20"));
 }
+
+#[test]
+fn index_turns_a_baseline_jpeg_into_a_material_every_command_reads() {
+    let dir = temp_dir("index");
+    let (w, h) = (40u32, 24u32);
+    let pixels: Vec<u8> = (0..w * h * 3).map(|i| ((i * 7 + i / 120 * 13) % 251) as u8).collect();
+    let mut jpeg = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 85)
+        .encode(&pixels, w, h, image::ExtendedColorType::Rgb8)
+        .unwrap();
+    let input = dir.join("photo.jpg");
+    std::fs::write(&input, &jpeg).unwrap();
+    let out = dir.join("photo.nmat");
+    let o = nmat(&["index", input.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(
+        text(&o).contains("40×24 YCbCr") && text(&o).contains("bits per pixel"),
+        "{}",
+        text(&o)
+    );
+    let o = nmat(&["info", out.to_str().unwrap()]);
+    assert!(
+        text(&o).contains("format 2.1") && text(&o).contains("indexed JPEG maps"),
+        "{}",
+        text(&o)
+    );
+    let decoded = dir.join("decoded");
+    let o = nmat(&["decode", out.to_str().unwrap(), "-o", decoded.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    // Nothing replaces the source, and a file that is not a JPEG is named.
+    let o = nmat(&["index", input.to_str().unwrap(), "-o", input.to_str().unwrap()]);
+    assert!(!o.status.success() && text(&o).contains("is one of the input"), "{}", text(&o));
+    assert_eq!(std::fs::read(&input).unwrap(), jpeg);
+    let o = nmat(&["index", out.to_str().unwrap(), "-o", dir.join("x.nmat").to_str().unwrap()]);
+    assert!(!o.status.success() && text(&o).contains("not a JPEG file"), "{}", text(&o));
+    assert!(!dir.join("x.nmat").exists());
+}

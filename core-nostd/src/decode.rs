@@ -161,7 +161,7 @@ impl<'a> Material<'a> {
     /// The float network's outputs for the rows in `rows`, in unit scale (1.0 = top of range).
     pub(crate) fn run_float(&self, x: i64, y: i64, mip: u32, rows: u16) -> [f32; MAX_WIDTH] {
         if let Some(codes) = self.jpeg_codes(x, y, mip, rows) {
-            // A JPEG texel in unit scale: code / 255 (FORMAT.md §11.8).
+            // A JPEG texel in unit scale: code / 255 (FORMAT.md §11.5).
             let mut io = [0f32; MAX_WIDTH];
             for (v, c) in io.iter_mut().zip(codes) {
                 *v = f32::from(c) / 255.0;

@@ -194,3 +194,46 @@ fn files_that_cannot_be_indexed_say_why() {
         );
     }
 }
+
+#[test]
+fn damaged_jpeg_materials_are_refused_or_decode_without_panicking() {
+    use nmat_core::ParseOptions;
+    let file = jpeg(24, 20, 3, SamplingFactor::R_4_2_0, 75, 0);
+    let bytes = material_from_jpeg(&index_jpeg(&file).unwrap()).to_bytes().unwrap();
+    let decode_all = |m: &nmat_core::Material<'_>| {
+        let mut out = [0u8; 3];
+        for y in 0..20 {
+            for x in 0..24 {
+                m.decode_texel_u8(x, y, 0, ChannelMask::ALL, &mut out).unwrap();
+            }
+        }
+        let decoder = Decoder::new(m);
+        let mut row = vec![0u8; 24 * 3];
+        decoder.decode_span_u8(m, -5, 3, 0, 24, ChannelMask::ALL, &mut row).unwrap();
+    };
+    let unchecked = ParseOptions { verify_checksum: false };
+    // Every truncation is refused.
+    for cut in 0..bytes.len() {
+        assert!(Container::parse_with(&bytes[..cut], unchecked).is_err(), "cut at {cut}");
+    }
+    // Every single-bit flip is refused by the checksum, and without it either refused with a
+    // typed error or decodes (entropy-coded data has no redundancy to check).
+    let (mut refused, mut decoded) = (0, 0);
+    for bit in 0..bytes.len() * 8 {
+        let mut bad = bytes.clone();
+        bad[bit / 8] ^= 1 << (bit % 8);
+        assert!(Container::parse(&bad).is_err(), "bit {bit} passed the checksum");
+        match Container::parse_with(&bad, unchecked) {
+            Ok(m) => {
+                decode_all(&m);
+                decoded += 1;
+            }
+            Err(e) => {
+                assert!(!e.to_string().is_empty());
+                refused += 1;
+            }
+        }
+    }
+    eprintln!("{refused} flips refused, {decoded} decoded");
+    assert!(refused > 0 && decoded > 0);
+}

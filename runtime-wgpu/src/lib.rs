@@ -104,6 +104,9 @@ pub enum GpuError {
     /// A texture [`Context::record_map_to_texture`] cannot write (dimension, usage, format,
     /// mip level, room at the origin).
     Texture { reason: &'static str },
+    /// A JPEG material (docs/FORMAT.md §11): the GPU runtime decodes neural materials only so
+    /// far; decode it on the CPU (`nmat_core`).
+    Codec,
 }
 
 impl std::fmt::Display for GpuError {
@@ -112,6 +115,10 @@ impl std::fmt::Display for GpuError {
             GpuError::Channels { mask } => {
                 write!(f, "channel mask {mask:#06x} is empty or names a missing channel")
             }
+            GpuError::Codec => write!(
+                f,
+                "a JPEG material: the GPU runtime decodes neural materials only; decode it on the CPU"
+            ),
             GpuError::Region { mip, x0, y0, width, height } => {
                 write!(
                     f,
@@ -433,6 +440,9 @@ impl Context {
         m: &Material<'_>,
         kernel: Option<Kernel>,
     ) -> Result<GpuMaterial, GpuError> {
+        if m.codec() != nmat_core::Codec::Neural {
+            return Err(GpuError::Codec);
+        }
         let (kernel, tiled) = self.kernel_for(device, m, kernel)?;
         let mlp = m.mlp();
         let mut desc = vec![0u32; 31];

@@ -1,4 +1,4 @@
-//! Reading the entropy-coded data of an indexed JPEG stream (docs/FORMAT.md §11.5): a bit reader
+//! Reading the entropy-coded data of an indexed JPEG stream (docs/FORMAT.md §11.3): a bit reader
 //! that starts at any bit, canonical Huffman tables, and one block's coefficients. Decoding is
 //! total: a code no table holds decodes as symbol 0, bits past the end read as 0, and a run past
 //! the last coefficient ends the block, so hostile data cannot fail or panic here.

@@ -1,4 +1,4 @@
-//! The 8×8 inverse DCT of indexed JPEG streams (docs/FORMAT.md §11.6): the integer
+//! The 8×8 inverse DCT of indexed JPEG streams (docs/FORMAT.md §11.4): the integer
 //! Loeffler–Ligtenberg–Moschytz factorisation with 13-bit constants and 2 extra bits between the
 //! passes, the "islow" method of the IJG decoder (`djpeg -dct int`). Every operation wraps in 32
 //! bits, so any coefficients give a defined result (conforming streams never wrap).

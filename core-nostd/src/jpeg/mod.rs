@@ -430,7 +430,7 @@ impl Stream<'_> {
     }
 }
 
-/// YCbCr to RGB in 16-bit fixed point, as the IJG decoder (FORMAT.md §11.7).
+/// YCbCr to RGB in 16-bit fixed point, as the IJG decoder (FORMAT.md §11.5).
 #[inline(always)]
 pub(crate) fn ycc_to_rgb(y: u8, cb: u8, cr: u8) -> [u8; 3] {
     let (y, cb, cr) = (i32::from(y), i32::from(cb) - 128, i32::from(cr) - 128);
