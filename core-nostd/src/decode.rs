@@ -212,8 +212,7 @@ impl<'a> Material<'a> {
         for ((slot, v), ch) in
             out.iter_mut().zip(selected(y_out, rows)).zip(selected(&self.channels, rows))
         {
-            let u = unit(*v);
-            *slot = ch.range_min * (1.0 - u) + ch.range_max * u;
+            *slot = ranged(ch, *v);
             n += 1;
         }
         n
@@ -411,6 +410,12 @@ pub(crate) fn unit(v: f32) -> f32 {
     }
 }
 
+/// A unit-scale value (clamped to [0, 1]) mapped into `ch`'s range (§6.8).
+pub(crate) fn ranged(ch: &crate::material::Channel<'_>, v: f32) -> f32 {
+    let u = unit(v);
+    ch.range_min * (1.0 - u) + ch.range_max * u
+}
+
 /// Output code of a Q.`f` value for a full scale of `max` (255 or 65535). |y·max| < 2^31.
 #[inline(always)]
 pub fn code(y: i16, f: u32, max: i32) -> i32 {
@@ -419,11 +424,7 @@ pub fn code(y: i16, f: u32, max: i32) -> i32 {
 }
 
 pub(crate) fn selected<T>(items: &[T], rows: u16) -> impl Iterator<Item = &T> {
-    selected_indices(rows).filter_map(move |i| items.get(i))
-}
-
-/// The set bits of `rows`, lowest first: one step per selected item, not one per item.
-pub(crate) fn selected_indices(rows: u16) -> impl Iterator<Item = usize> {
+    // The set bits of `rows`, lowest first: one step per selected item, not one per item.
     let mut bits = rows;
     core::iter::from_fn(move || {
         if bits == 0 {
@@ -433,6 +434,7 @@ pub(crate) fn selected_indices(rows: u16) -> impl Iterator<Item = usize> {
         bits &= bits - 1;
         Some(i)
     })
+    .filter_map(move |i| items.get(i))
 }
 
 pub(crate) fn write_selected<S, T>(

@@ -237,3 +237,19 @@ fn damaged_jpeg_materials_are_refused_or_decode_without_panicking() {
     eprintln!("{refused} flips refused, {decoded} decoded");
     assert!(refused > 0 && decoded > 0);
 }
+
+#[test]
+fn float_spans_equal_float_texels() {
+    let file = jpeg(40, 24, 3, SamplingFactor::R_4_2_0, 80, 0);
+    let bytes = material_from_jpeg(&index_jpeg(&file).unwrap()).to_bytes().unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    let decoder = Decoder::new(&m);
+    let mask = ChannelMask(0b101);
+    let mut span = vec![0f32; 50 * 2];
+    decoder.decode_span_f32(&m, -5, 9, 0, 50, mask, &mut span).unwrap();
+    for (i, pair) in span.chunks_exact(2).enumerate() {
+        let mut want = [0f32; 2];
+        m.decode_texel(i as i64 - 5, 9, 0, mask, &mut want).unwrap();
+        assert_eq!(pair, want, "texel {i}");
+    }
+}

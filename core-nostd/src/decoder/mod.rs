@@ -264,7 +264,7 @@ impl Decoder {
                 (x, y)
             };
             let mip = mip.min(material.mip_count() - 1);
-            jpeg.span_codes(mip, count, rows, texel, |i, slot, c| {
+            jpeg.span_codes(mip, count, rows, texel, |i, slot, _, c| {
                 if let Some(o) = out.get_mut(i * n + slot) {
                     *o = narrow(i32::from(c) * full_scale / 255);
                 }
@@ -451,19 +451,20 @@ impl Decoder {
         out: &mut [f32],
     ) -> Result<usize, Error> {
         let (rows, n) = self.check_span(material, count, channels, out.len())?;
-        if material.jpeg().is_some() {
-            // The codes, then each mapped into its channel's range like a unit-scale value.
-            let mut codes = alloc::vec![0u8; count * n];
-            self.span_codes(material, (x0, y, mip), count, (rows, n), &mut codes, 255, |c| c as u8);
-            let mut unit_values = [0f32; MAX_WIDTH];
-            for (texel, c) in out.chunks_exact_mut(n).zip(codes.chunks_exact(n)) {
-                for (k, ch) in crate::decode::selected_indices(rows).enumerate() {
-                    if let (Some(v), Some(&c)) = (unit_values.get_mut(ch), c.get(k)) {
-                        *v = f32::from(c) / 255.0;
-                    }
+        if let Some(jpeg) = material.jpeg() {
+            // Each code in unit scale (c / 255), mapped into its channel's range.
+            let texel = |i: usize| {
+                let (x, y, _) = material.address_texel(x0.wrapping_add(i as i64), y, mip);
+                (x, y)
+            };
+            let mip = mip.min(material.mip_count() - 1);
+            jpeg.span_codes(mip, count, rows, texel, |i, slot, channel, c| {
+                if let (Some(o), Some(ch)) =
+                    (out.get_mut(i * n + slot), material.channels().get(channel))
+                {
+                    *o = crate::decode::ranged(ch, f32::from(c) / 255.0);
                 }
-                material.write_ranged(rows, &unit_values, texel);
-            }
+            });
             return Ok(count * n);
         }
         let mut slots = Slots::new();

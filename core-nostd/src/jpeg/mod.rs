@@ -472,8 +472,8 @@ impl Jpeg<'_> {
     }
 
     /// The codes of `count` texels of one row: `texel(i)` is the addressed (x, y) of texel i of
-    /// `mip`; `put(i, slot, code)` receives each selected channel's code (`slot` counts the
-    /// selected channels from 0). An MCU is decoded once per run of texels inside it.
+    /// `mip`; `put(i, slot, channel, code)` receives each selected channel's code (`slot` counts
+    /// the selected channels from 0). An MCU is decoded once per run of texels inside it.
     #[cfg_attr(not(feature = "alloc"), allow(dead_code))]
     pub(crate) fn span_codes(
         &self,
@@ -481,7 +481,7 @@ impl Jpeg<'_> {
         count: usize,
         rows: u16,
         texel: impl Fn(usize) -> (u32, u32),
-        mut put: impl FnMut(usize, usize, u8),
+        mut put: impl FnMut(usize, usize, usize, u8),
     ) {
         let mut pixels = [0u8; MAX_MCU_SAMPLES];
         for (m, map) in self.maps.iter().enumerate() {
@@ -507,7 +507,7 @@ impl Jpeg<'_> {
                 let mut slot = before;
                 for c in 0..n {
                     if selected & (1 << (first + c)) != 0 {
-                        put(i, slot, u8_at(&pixels, at + c));
+                        put(i, slot, first + c, u8_at(&pixels, at + c));
                         slot += 1;
                     }
                 }
