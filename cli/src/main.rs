@@ -154,6 +154,22 @@ impl From<EffortArg> for Effort {
     }
 }
 
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum CodecArg {
+    Neural,
+    Jpeg,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum SubsamplingArg {
+    #[value(name = "4:2:0")]
+    S420,
+    #[value(name = "4:2:2")]
+    S422,
+    #[value(name = "4:4:4")]
+    S444,
+}
+
 #[derive(Clone, Copy, ValueEnum)]
 enum Address {
     Wrap,
@@ -171,12 +187,24 @@ struct EncodeArgs {
     /// ao, metallic, emissive, opacity). Repeatable.
     #[arg(long = "map", value_name = "ROLE=PATH")]
     maps: Vec<String>,
-    /// Rate/layout profile.
-    #[arg(long, conflicts_with_all = ["bppc", "target_psnr"])]
+    /// neural: a network and latent grids (the profiles); jpeg: every map as indexed baseline
+    /// JPEG (a colour map as YCbCr, others gray), decodable texel by texel like a neural one.
+    #[arg(long, value_enum, default_value_t = CodecArg::Neural)]
+    codec: CodecArg,
+    /// Rate/layout profile (neural).
+    #[arg(long, conflicts_with_all = ["bppc", "target_psnr", "quality"])]
     profile: Option<String>,
-    /// Pick the profile nearest to this many bits per pixel per channel.
-    #[arg(long, conflicts_with = "target_psnr")]
+    /// Neural: pick the profile nearest to this many bits per pixel per channel; jpeg: the
+    /// highest quality whose file is at most this rate.
+    #[arg(long, conflicts_with_all = ["target_psnr", "quality"])]
     bppc: Option<f64>,
+    /// JPEG quality, 1–100 on the IJG scale (cjpeg's) [default: 85] (jpeg).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=100))]
+    quality: Option<u8>,
+    /// Chroma resolution of colour maps (albedo, emissive, specular colour); normals are always
+    /// 4:4:4 (jpeg).
+    #[arg(long, value_enum, default_value_t = SubsamplingArg::S420)]
+    subsampling: SubsamplingArg,
     /// Search for the smallest profile whose whole-chain PSNR reaches this many dB.
     #[arg(long)]
     target_psnr: Option<f64>,
@@ -461,6 +489,17 @@ fn cmd_encode(args: EncodeArgs) -> Result<()> {
         Address::Wrap => AddressMode::Wrap,
         Address::Clamp => AddressMode::Clamp,
     };
+    if args.codec == CodecArg::Jpeg {
+        return encode_jpeg(&args, &set, address_mode);
+    }
+    if let Some(q) = args.quality {
+        return Err(Box::new(EncodeError::BadOption {
+            option: "--quality",
+            value: q.to_string(),
+            reason: "sets the JPEG codec's quality; pass --codec jpeg (neural rates are \
+                     --profile, --bppc or --target-psnr)",
+        }));
+    }
     let train = train_options(&args.train, nmat_encode::train::DEFAULT_STEPS)?;
     let start = Instant::now();
     let encoded = if let Some(target) = args.target_psnr {
@@ -494,7 +533,61 @@ fn cmd_encode(args: EncodeArgs) -> Result<()> {
         encoded.bytes.len(),
         start.elapsed().as_secs_f64()
     );
-    print!("{}", output::quality_table(&set, &encoded.quality, Some(encoded.config.profile)));
+    print!(
+        "{}",
+        output::quality_table(
+            &set,
+            &encoded.quality,
+            Some(&format!("profile {}", encoded.config.profile)),
+        )
+    );
+    Ok(())
+}
+
+/// `nmat encode --codec jpeg`: at `--quality` or the highest quality within `--bppc`.
+fn encode_jpeg(args: &EncodeArgs, set: &TextureSet, address_mode: AddressMode) -> Result<()> {
+    use nmat_encode::jpeg::{JpegOptions, Subsampling};
+    let neural_only = [
+        ("--profile", args.profile.is_some()),
+        ("--target-psnr", args.target_psnr.is_some()),
+        ("--dry-run", args.dry_run),
+        ("--steps", args.train.steps.is_some()),
+    ];
+    if let Some((option, _)) = neural_only.iter().find(|(_, given)| *given) {
+        return Err(format!(
+            "{option} belongs to the neural codec; --codec jpeg takes --quality or --bppc"
+        )
+        .into());
+    }
+    let subsampling = match args.subsampling {
+        SubsamplingArg::S420 => Subsampling::S420,
+        SubsamplingArg::S422 => Subsampling::S422,
+        SubsamplingArg::S444 => Subsampling::S444,
+    };
+    let quality = args.quality.unwrap_or(nmat_encode::jpeg::DEFAULT_QUALITY);
+    let options = JpegOptions { quality, subsampling, address_mode };
+    let start = Instant::now();
+    let encoded = match args.bppc {
+        Some(bppc) => nmat_encode::jpeg::encode_jpeg_to_rate(set, bppc, &options)?,
+        None => nmat_encode::jpeg::encode_jpeg(set, &options)?,
+    };
+    if let Some(bppc) = args.bppc.filter(|&b| encoded.quality.bppc > b) {
+        eprintln!(
+            "note: {:.3} BPPC at quality 1 is above --bppc {bppc}: the MCU index and DC values \
+             alone cost 0.21 bits per pixel of a 4:2:0 map and 0.47 of a gray one",
+            encoded.quality.bppc
+        );
+    }
+    output::write_atomic(&args.output, &encoded.bytes)?;
+    println!(
+        "wrote {} ({} bytes) in {:.1} s",
+        args.output.display(),
+        encoded.bytes.len(),
+        start.elapsed().as_secs_f64()
+    );
+    let maps = nmat_encode::jpeg::plan_maps(set, subsampling);
+    let setting = format!("jpeg quality {} ({} JPEG maps)", encoded.jpeg_quality, maps.len());
+    print!("{}", output::quality_table(set, &encoded.quality, Some(&setting)));
     Ok(())
 }
 
@@ -1089,7 +1182,10 @@ fn cmd_demo(out: &Path, train: &TrainArgs, profile: &str) -> Result<()> {
         written.len(),
         decoded.display()
     );
-    print!("{}", output::quality_table(&set, &encoded.quality, Some(profile.name())));
+    print!(
+        "{}",
+        output::quality_table(&set, &encoded.quality, Some(&format!("profile {}", profile.name())))
+    );
     // This binary as the user can type it from here (`target/release/nmat` after `cargo run`).
     let nmat = match (std::env::current_exe(), std::env::current_dir()) {
         (Ok(exe), Ok(here)) => exe.strip_prefix(&here).unwrap_or(&exe).display().to_string(),

@@ -646,10 +646,10 @@ pub fn budget_table(b: &ByteBudget, texel_channels: f64) -> String {
 }
 
 /// The quality report of `encode`, `eval` and `demo`.
-pub fn quality_table(set: &TextureSet, q: &ChainQuality, profile: Option<&str>) -> String {
+pub fn quality_table(set: &TextureSet, q: &ChainQuality, setting: Option<&str>) -> String {
     let mut s = String::new();
-    if let Some(p) = profile {
-        let _ = writeln!(s, "profile {p}");
+    if let Some(line) = setting {
+        let _ = writeln!(s, "{line}");
     }
     let _ = writeln!(
         s,

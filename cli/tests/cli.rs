@@ -912,3 +912,51 @@ fn index_turns_a_baseline_jpeg_into_a_material_every_command_reads() {
     assert!(!o.status.success() && text(&o).contains("not a JPEG file"), "{}", text(&o));
     assert!(!dir.join("x.nmat").exists());
 }
+
+#[test]
+fn encode_codec_jpeg_writes_a_material_decode_and_eval_read() {
+    let dir = temp_dir("encode-jpeg");
+    let src = dir.join("src");
+    std::fs::create_dir_all(&src).unwrap();
+    write_maps(&src, 64);
+    let (s, file) = (src.to_str().unwrap(), dir.join("bricks.nmat"));
+    let f = file.to_str().unwrap();
+    let o = nmat(&["encode", s, "-o", f, "--codec", "jpeg", "--quality", "70"]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("jpeg quality 70 (4 JPEG maps)"), "{}", text(&o));
+    let o = nmat(&["info", f]);
+    assert!(
+        text(&o).contains("indexed JPEG maps") && text(&o).contains("MCU 16×16"),
+        "{}",
+        text(&o)
+    );
+    let o = nmat(&["eval", f, "--ref", s]);
+    assert!(o.status.success() && text(&o).contains("overall: PSNR"), "{}", text(&o));
+    let decoded = dir.join("decoded");
+    let o = nmat(&["decode", f, "-o", decoded.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert_eq!(files_in(&decoded), files_in(&src));
+    // A rate: the highest quality within it.
+    let o = nmat(&["encode", s, "-o", f, "--codec", "jpeg", "--bppc", "1.5"]);
+    let overall = text(&o).lines().find(|l| l.starts_with("overall:")).map(str::to_string);
+    let bppc: f64 = overall
+        .as_deref()
+        .and_then(|l| l.split(", ").last())
+        .and_then(|l| l.split(' ').next())
+        .and_then(|b| b.parse().ok())
+        .unwrap_or_else(|| panic!("{}", text(&o)));
+    assert!(bppc <= 1.5, "{}", text(&o));
+    // Options of the other codec are refused by name, and nothing is written.
+    let other = dir.join("other.nmat");
+    let g = other.to_str().unwrap();
+    for (args, needle) in [
+        (vec!["--codec", "jpeg", "--profile", "ntc-0.2"], "--profile belongs to the neural codec"),
+        (vec!["--codec", "jpeg", "--steps", "10"], "--steps belongs to the neural codec"),
+        (vec!["--quality", "50"], "--quality 50: sets the JPEG codec's quality"),
+        (vec!["--codec", "jpeg", "--quality", "0"], "'--quality"),
+    ] {
+        let o = nmat(&[&["encode", s, "-o", g][..], &args].concat());
+        assert!(!o.status.success() && text(&o).contains(needle), "{args:?}: {}", text(&o));
+        assert!(!other.exists());
+    }
+}

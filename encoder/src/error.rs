@@ -28,6 +28,8 @@ pub enum EncodeError {
     TooManyChannels { channels: usize, limit: usize },
     /// An option value that cannot be used.
     BadOption { option: &'static str, value: String, reason: &'static str },
+    /// A channel's map at a mip could not be coded as JPEG (`--codec jpeg`).
+    Jpeg { channel: String, mip: u32, detail: String },
     /// The container rejected what the encoder built (a bug in the encoder).
     Format(nmat_core::Error),
 }
@@ -94,6 +96,12 @@ impl fmt::Display for EncodeError {
             ),
             EncodeError::BadOption { option, value, reason } => {
                 write!(f, "{option} {value}: {reason}")
+            }
+            EncodeError::Jpeg { channel, mip, detail } => {
+                write!(
+                    f,
+                    "the map of channel {channel} at mip {mip}: cannot code it as JPEG: {detail}"
+                )
             }
             EncodeError::Format(e) => {
                 write!(f, "internal error, the encoder built an invalid file: {e}")

@@ -122,28 +122,7 @@ fn to_spec(
         layers.push(train::export_layer(l, frac, out_frac, &rows, activation));
         frac = out_frac;
     }
-    let channels = set
-        .channels
-        .iter()
-        .map(|c| {
-            let (lo, hi) = c.role.nominal_range(c.component);
-            let (range_min, range_max) = match c.constant {
-                Some(u) => {
-                    let v = lo + u * (hi - lo);
-                    (v, v)
-                }
-                None => (lo, hi),
-            };
-            ChannelSpec {
-                name: c.name.clone(),
-                semantic: c.role.semantic(),
-                component: c.component,
-                color_space: c.role.color_space(),
-                range_min,
-                range_max,
-            }
-        })
-        .collect();
+    let channels = channel_specs(set);
     let grids = model
         .grids
         .iter()
@@ -186,4 +165,30 @@ fn to_spec(
         },
         optional_sections: vec![(source_maps::SECTION_KIND, source_maps::encode(&set.maps))],
     })
+}
+
+/// The material's channels as written: each with its role's meaning, colour space and nominal
+/// range, a constant channel as the one-value range it stands for (both codecs).
+pub(crate) fn channel_specs(set: &TextureSet) -> Vec<ChannelSpec> {
+    set.channels
+        .iter()
+        .map(|c| {
+            let (lo, hi) = c.role.nominal_range(c.component);
+            let (range_min, range_max) = match c.constant {
+                Some(u) => {
+                    let v = lo + u * (hi - lo);
+                    (v, v)
+                }
+                None => (lo, hi),
+            };
+            ChannelSpec {
+                name: c.name.clone(),
+                semantic: c.role.semantic(),
+                component: c.component,
+                color_space: c.role.color_space(),
+                range_min,
+                range_max,
+            }
+        })
+        .collect()
 }

@@ -253,3 +253,119 @@ fn float_spans_equal_float_texels() {
         assert_eq!(pair, want, "texel {i}");
     }
 }
+
+/// `nmat encode --codec jpeg`: the bundled brick material (albedo, normal, roughness, height).
+mod encode {
+    use nmat_core::{Codec, Container, JpegMap};
+    use nmat_encode::EncodeError;
+    use nmat_encode::jpeg::{JpegOptions, Subsampling, encode_jpeg, encode_jpeg_to_rate};
+
+    fn options(quality: u8) -> JpegOptions {
+        JpegOptions { quality, ..JpegOptions::default() }
+    }
+
+    fn map(first_channel: u8, channel_count: u8, luma_h: u8, luma_v: u8) -> JpegMap {
+        JpegMap { first_channel, channel_count, luma_h, luma_v }
+    }
+
+    #[test]
+    fn every_map_and_mip_is_stored_and_quality_buys_fidelity() {
+        let set = nmat_encode::demo::bricks(64);
+        let mut last = (0.0, 0.0);
+        for q in [10, 50, 90] {
+            let e = encode_jpeg(&set, &options(q)).unwrap();
+            let m = Container::parse(&e.bytes).unwrap();
+            assert_eq!(m.codec(), Codec::Jpeg);
+            assert_eq!(m.mip_count(), 7);
+            // Albedo is colour (4:2:0 by default); the normal is data (4:4:4); the rest gray.
+            let expected = [map(0, 3, 2, 2), map(3, 3, 1, 1), map(6, 1, 1, 1), map(7, 1, 1, 1)];
+            assert_eq!(m.jpeg().unwrap().maps(), expected);
+            assert_eq!(e.jpeg_quality, q);
+            assert!((e.quality.bppc - m.bppc()).abs() < 1e-12);
+            assert!(
+                e.quality.psnr > last.0 && e.quality.bppc > last.1,
+                "quality {q}: {:.2} dB at {:.3} BPPC after {:?}",
+                e.quality.psnr,
+                e.quality.bppc,
+                last
+            );
+            last = (e.quality.psnr, e.quality.bppc);
+        }
+        // The same inputs give the same bytes.
+        assert_eq!(encode_jpeg(&set, &options(90)).unwrap().bytes, {
+            encode_jpeg(&set, &options(90)).unwrap().bytes
+        });
+        let full = JpegOptions { subsampling: Subsampling::S444, ..options(90) };
+        let m444 = encode_jpeg(&set, &full).unwrap();
+        let m = Container::parse(&m444.bytes).unwrap();
+        assert_eq!(m.jpeg().unwrap().maps()[0], map(0, 3, 1, 1));
+        // This albedo's colour varies texel to texel: half-resolution chroma loses most of it.
+        assert!(
+            m444.quality.mse[0][0] < encode_jpeg(&set, &options(90)).unwrap().quality.mse[0][0]
+        );
+        assert!(m444.quality.psnr > 33.0, "quality 90, 4:4:4: {:.2} dB", m444.quality.psnr);
+    }
+
+    #[test]
+    fn a_constant_channel_decodes_to_its_value_exactly() {
+        let mut set = nmat_encode::demo::bricks(32);
+        let c = set.channel_count();
+        set.channels[7].constant = Some(0.25);
+        for mip in &mut set.mips {
+            mip.data.iter_mut().skip(7).step_by(c).for_each(|v| *v = 0.25);
+        }
+        let e = encode_jpeg(&set, &options(40)).unwrap();
+        assert!(e.quality.mse.iter().all(|per_channel| per_channel[7] == 0.0));
+        assert!(e.quality.mse[0][6] > 0.0);
+    }
+
+    #[test]
+    fn a_rate_gives_the_highest_quality_within_it() {
+        let set = nmat_encode::demo::bricks(64);
+        for target in [1.2, 2.0] {
+            let e = encode_jpeg_to_rate(&set, target, &options(85)).unwrap();
+            assert!(e.quality.bppc <= target, "{} > {target}", e.quality.bppc);
+            assert!(e.jpeg_quality < 100);
+            let above = encode_jpeg(&set, &options(e.jpeg_quality + 1)).unwrap();
+            assert!(above.quality.bppc > target, "quality {} fits too", e.jpeg_quality + 1);
+        }
+        // Below what quality 1 costs: quality 1, over the rate.
+        let e = encode_jpeg_to_rate(&set, 0.01, &options(85)).unwrap();
+        assert_eq!(e.jpeg_quality, 1);
+        assert!(e.quality.bppc > 0.01);
+        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            let err = encode_jpeg_to_rate(&set, bad, &options(85)).err().unwrap();
+            assert!(matches!(err, EncodeError::BadOption { option: "--bppc", .. }), "{err}");
+        }
+        for bad in [0, 101] {
+            let err = encode_jpeg(&set, &options(bad)).err().unwrap();
+            assert!(matches!(err, EncodeError::BadOption { option: "--quality", .. }), "{err}");
+        }
+    }
+}
+
+/// The committed JPEG fixture of the C API test (tests/fixtures/jpeg/README.md): the `.nmat` is the
+/// `.jpg` indexed today, the `.u8` is djpeg's decode of the `.jpg`, and the material decodes to it.
+#[test]
+fn the_committed_jpeg_fixture_is_its_jpeg_indexed_and_decodes_like_djpeg() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/jpeg");
+    let read = |ext: &str| std::fs::read(dir.join(format!("pattern_420_37x21.{ext}"))).unwrap();
+    let (jpg, nmat, expected) = (read("jpg"), read("nmat"), read("u8"));
+    let indexed = material_from_jpeg(&index_jpeg(&jpg).unwrap()).to_bytes().unwrap();
+    assert!(indexed == nmat, "indexing the .jpg no longer gives the committed .nmat");
+    if let Some(samples) = djpeg(&jpg) {
+        assert!(samples == expected, "djpeg no longer gives the committed .u8");
+    }
+    let m = Container::parse(&nmat).unwrap();
+    let (w, h) = m.mip_size(0);
+    assert_eq!((w, h), (37, 21));
+    let mut decoded = Vec::new();
+    for y in 0..i64::from(h) {
+        for x in 0..i64::from(w) {
+            let mut t = [0u8; 16];
+            let n = m.decode_texel_u8(x, y, 0, ChannelMask::ALL, &mut t).unwrap();
+            decoded.extend_from_slice(&t[..n]);
+        }
+    }
+    assert!(decoded == expected, "the material no longer decodes to the committed .u8");
+}

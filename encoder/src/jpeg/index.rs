@@ -491,7 +491,7 @@ fn index_scan(
     Ok(IndexedJpeg { width, height, map, quant: out_quant, huffman: out_huffman, stream })
 }
 
-fn position_or_push<T: PartialEq>(list: &mut Vec<T>, item: T) -> u8 {
+pub(super) fn position_or_push<T: PartialEq>(list: &mut Vec<T>, item: T) -> u8 {
     match list.iter().position(|x| *x == item) {
         Some(i) => i as u8,
         None => {
