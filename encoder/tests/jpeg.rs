@@ -369,3 +369,17 @@ fn the_committed_jpeg_fixture_is_its_jpeg_indexed_and_decodes_like_djpeg() {
     }
     assert!(decoded == expected, "the material no longer decodes to the committed .u8");
 }
+
+/// The inputs the `jpeg` fuzz target found (fuzz/regressions/jpeg/): indexed once, each made a
+/// material the parser refused; now the indexer refuses them with the reason.
+#[test]
+fn fuzz_found_jpeg_files_are_refused_with_the_reason() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/regressions/jpeg");
+    let read = |name: &str| std::fs::read(dir.join(name)).unwrap();
+    let e = index_jpeg(&read("dc-table-with-symbol-48.jpg")).unwrap_err();
+    assert!(e.to_string().contains("a symbol baseline JPEG does not have"), "{e}");
+    let e = index_jpeg(&read("mcus-run-past-a-restart-marker.jpg")).unwrap_err();
+    assert!(matches!(e, JpegError::Corrupt { mcu: 2, .. }), "{e}");
+    // The seed they grew from still indexes.
+    assert!(index_jpeg(&read("restart-markers-420-37x21.jpg")).is_ok());
+}

@@ -45,6 +45,47 @@ pub struct JpegMap {
     pub luma_v: u8,
 }
 
+/// Why a Huffman table cannot be stored in a JPEG material (docs/FORMAT.md §11.1).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum HuffmanProblem {
+    /// No codes, more than 256, or a number of symbols other than the counts add up to.
+    Count(usize),
+    /// The codes up to this length overflow it, or the all-ones code is used.
+    Length(u32),
+    /// A symbol a table of its class cannot hold.
+    Symbol(u8),
+}
+
+/// Checks a Huffman table of `class` (0 DC, 1 AC) as a JPEG material stores it: canonical codes
+/// that fit their lengths without the all-ones code (ITU T.81 annex C) and baseline symbols (DC:
+/// 0 ..= 11; AC: run/size with size ≤ 10, size 0 only in end-of-block and 16 zeros).
+pub fn check_huffman_table(
+    class: u8,
+    counts: &[u8; 16],
+    values: &[u8],
+) -> Result<(), HuffmanProblem> {
+    let total: usize = counts.iter().map(|&n| usize::from(n)).sum();
+    if total != values.len() || total == 0 || total > 256 {
+        return Err(HuffmanProblem::Count(values.len()));
+    }
+    let mut code = 0u32;
+    for (l, &n) in (1..=16u32).zip(counts) {
+        code += u32::from(n);
+        if code >= 1 << l {
+            return Err(HuffmanProblem::Length(l));
+        }
+        code <<= 1;
+    }
+    let symbol_ok = |&v: &u8| match class {
+        0 => v <= 11,
+        _ => v & 15 <= 10 && (v & 15 != 0 || v == 0 || v == 0xF0),
+    };
+    match values.iter().find(|v| !symbol_ok(v)) {
+        Some(&bad) => Err(HuffmanProblem::Symbol(bad)),
+        None => Ok(()),
+    }
+}
+
 impl JpegMap {
     /// Width and height of one MCU in texels.
     pub fn mcu_size(&self) -> (u32, u32) {
@@ -172,27 +213,15 @@ impl<'a> Jpeg<'a> {
                 return Err(malformed(Field::JpegHuffmanTable, t, class));
             }
             let counts: [u8; 16] = core::array::from_fn(|i| u8_at(head, 4 + i));
-            let total: usize = counts.iter().map(|&n| usize::from(n)).sum();
-            if total != count || count == 0 || count > 256 {
+            if count == 0 || count > 256 {
                 return Err(malformed(Field::JpegHuffmanTable, t, count as i64));
             }
-            // Canonical codes must fit their lengths without the all-ones code (T.81 C).
-            let mut code = 0u32;
-            for (l, &n) in (1..=16u32).zip(&counts) {
-                code += u32::from(n);
-                if code >= 1 << l {
-                    return Err(malformed(Field::JpegHuffmanTable, t, l));
-                }
-                code <<= 1;
-            }
             let values = take(s, pos + HUFFMAN_HEADER_LEN, count, Field::JpegHuffmanTable, t)?;
-            let symbol_ok = |&v: &u8| match class {
-                0 => v <= 11,
-                _ => v & 15 <= 10 && (v & 15 != 0 || v == 0 || v == 0xF0),
-            };
-            if let Some(&bad) = values.iter().find(|v| !symbol_ok(v)) {
-                return Err(malformed(Field::JpegHuffmanSymbol, t, bad));
-            }
+            check_huffman_table(class, &counts, values).map_err(|problem| match problem {
+                HuffmanProblem::Count(n) => malformed(Field::JpegHuffmanTable, t, n as i64),
+                HuffmanProblem::Length(l) => malformed(Field::JpegHuffmanTable, t, l),
+                HuffmanProblem::Symbol(v) => malformed(Field::JpegHuffmanSymbol, t, v),
+            })?;
             let _ = huffman_at.push(pos as u32);
             pos = align4(pos + HUFFMAN_HEADER_LEN + count);
         }

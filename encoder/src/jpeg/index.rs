@@ -5,7 +5,7 @@
 
 use std::fmt;
 
-use nmat_core::jpeg::QUANT_TABLE_LEN;
+use nmat_core::jpeg::{HuffmanProblem, QUANT_TABLE_LEN, check_huffman_table};
 use nmat_core::{HuffmanTableSpec, JpegMap, JpegStreamSpec};
 
 /// Why a JPEG file cannot be indexed.
@@ -262,6 +262,17 @@ pub fn index_jpeg(file: &[u8]) -> Result<IndexedJpeg, JpegError> {
                     if tc > 1 || th > 3 {
                         return Err(bad("bad Huffman table class or id"));
                     }
+                    check_huffman_table(tc, &counts, &values).map_err(|p| {
+                        bad(match p {
+                            HuffmanProblem::Count(_) => "a Huffman table without codes",
+                            HuffmanProblem::Length(_) => {
+                                "a Huffman table whose codes overflow their lengths"
+                            }
+                            HuffmanProblem::Symbol(_) => {
+                                "a Huffman table with a symbol baseline JPEG does not have"
+                            }
+                        })
+                    })?;
                     let t = Some(HuffmanTableSpec { class: tc, counts, values });
                     if tc == 0 {
                         dc_tables[usize::from(th)] = t
@@ -438,6 +449,10 @@ fn index_scan(
             let &at = next_restart
                 .next()
                 .ok_or(JpegError::Corrupt { mcu, reason: "a restart marker is missing" })?;
+            if reader.pos > 8 * at as u64 {
+                let reason = "the MCUs before a restart marker run past it";
+                return Err(JpegError::Corrupt { mcu: mcu - 1, reason });
+            }
             reader.pos = 8 * at as u64;
             pred = [0; 3];
         }
