@@ -116,9 +116,14 @@ pub fn table(m: &Material<'_>, opts: &Options) -> Result<()> {
     // Inference on sample: nmat_sample (the module engines include) once per texel of the region,
     // a quarter texel off centre and halfway between mips 0 and 1 (so a trilinear sample decodes
     // all 8 texels), in a compute shader; its rate is of decoded texels.
+    // (A JPEG material has no sample module: it decodes by regions and requests.)
     let sampler = Sampler::new(&device, side);
     let mut refused = Vec::new();
+    let jpeg = gm.codec() == nmat_core::Codec::Jpeg;
     for (mode, decodes) in [("NMAT_STOCHASTIC", 1), ("NMAT_TRILINEAR", 8)] {
+        if jpeg {
+            break;
+        }
         if !sampler.pipelines.iter().any(|(m, _)| *m == mode) {
             refused.push(mode);
             continue;
@@ -159,6 +164,12 @@ pub fn table(m: &Material<'_>, opts: &Options) -> Result<()> {
     }
     if !refused.is_empty() {
         println!("  no nmat_sample row for {}: the device refused the shader", refused.join(", "));
+    }
+    if jpeg {
+        println!(
+            "  a JPEG material: one workgroup per MCU (a request decodes its whole MCU); no \
+             nmat_sample rows (neural materials only)"
+        );
     }
     let round_trips: Vec<f64> = (0..opts.runs)
         .map(|_| {

@@ -40,8 +40,10 @@
 //! no subgroups, no 64-bit integers; the wide products are computed in pieces). The decode
 //! arithmetic is that of the format specification (`docs/FORMAT.md` of the repository, §6;
 //! embedded in `nmat_core::spec`); how the kernel maps it onto 32-bit integers and what it costs
-//! is in `docs/GPU.md`, embedded here as [`design`].
+//! is in `docs/GPU.md`, embedded here as [`design`]. JPEG materials (§11) upload and decode
+//! through the same region and request calls, one workgroup per MCU ([`GpuMaterial::codec`]).
 
+mod jpeg;
 pub mod measure;
 mod sample;
 mod texture;
@@ -104,8 +106,9 @@ pub enum GpuError {
     /// A texture [`Context::record_map_to_texture`] cannot write (dimension, usage, format,
     /// mip level, room at the origin).
     Texture { reason: &'static str },
-    /// A JPEG material (docs/FORMAT.md §11): the GPU runtime decodes neural materials only so
-    /// far; decode it on the CPU (`nmat_core`).
+    /// A JPEG material (docs/FORMAT.md §11) given to a path that decodes neural materials only
+    /// (`nmat_sample`, textures, BC transcoding): decode its regions or requests, or decode it
+    /// on the CPU (`nmat_core`).
     Codec,
 }
 
@@ -117,7 +120,8 @@ impl std::fmt::Display for GpuError {
             }
             GpuError::Codec => write!(
                 f,
-                "a JPEG material: the GPU runtime decodes neural materials only; decode it on the CPU"
+                "a JPEG material: this GPU path decodes neural materials only; use the region or \
+                 request decode calls, or decode it on the CPU"
             ),
             GpuError::Region { mip, x0, y0, width, height } => {
                 write!(
@@ -188,6 +192,8 @@ pub struct Context {
     empty: wgpu::Buffer,
     /// Buffers of finished submit-and-wait decodes, for the next ones.
     pool: Pool,
+    /// The JPEG decode pipeline (jpeg.wgsl), built when a JPEG material is first decoded.
+    jpeg: Mutex<Option<Arc<jpeg::JpegPipelines>>>,
 }
 
 /// A material's buffers on the GPU.
@@ -204,6 +210,8 @@ pub struct GpuMaterial {
     kernel: Kernel,
     /// The tiled kernel's pipeline and texels per workgroup (`None`: the reference kernel).
     tiled: Option<(Arc<wgpu::ComputePipeline>, u32)>,
+    /// A JPEG material's maps (`desc` and `latents` then hold its descriptor and section).
+    jpeg: Option<jpeg::JpegMaps>,
 }
 
 impl GpuMaterial {
@@ -217,6 +225,15 @@ impl GpuMaterial {
     /// Width and height of each mip.
     pub fn mip_sizes(&self) -> &[(u32, u32)] {
         &self.mip_sizes
+    }
+    /// The material's codec. A JPEG material decodes through regions and requests (submitted or
+    /// recorded); `nmat_sample`, textures and BC transcoding refuse it with [`GpuError::Codec`].
+    pub fn codec(&self) -> nmat_core::Codec {
+        if self.jpeg.is_some() { nmat_core::Codec::Jpeg } else { nmat_core::Codec::Neural }
+    }
+    /// [`GpuError::Codec`] for a JPEG material (paths that decode neural materials only).
+    pub(crate) fn neural(&self) -> Result<(), GpuError> {
+        if self.jpeg.is_some() { Err(GpuError::Codec) } else { Ok(()) }
     }
 }
 
@@ -376,6 +393,7 @@ impl Context {
             texture_codes: Mutex::default(),
             empty,
             pool: Pool::default(),
+            jpeg: Mutex::default(),
         }
     }
 
@@ -440,8 +458,34 @@ impl Context {
         m: &Material<'_>,
         kernel: Option<Kernel>,
     ) -> Result<GpuMaterial, GpuError> {
-        if m.codec() != nmat_core::Codec::Neural {
-            return Err(GpuError::Codec);
+        static NEXT_ID: AtomicU64 = AtomicU64::new(0);
+        let init = |label, contents: Vec<u8>| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents: &contents,
+                usage: wgpu::BufferUsages::STORAGE,
+            })
+        };
+        if m.codec() == nmat_core::Codec::Jpeg {
+            // One kernel decodes JPEG materials; asking for a network kernel is an error.
+            if let Some(k) = kernel.filter(|&k| k != Kernel::Reference) {
+                return Err(GpuError::Kernel {
+                    kernel: k,
+                    reason: "a JPEG material has no network",
+                });
+            }
+            let (desc, section, maps) = jpeg::upload_words(m)?;
+            return Ok(GpuMaterial {
+                id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
+                desc: init("nmat jpeg desc", words_to_bytes(&desc)),
+                latents: init("nmat jpeg section", words_to_bytes(&section)),
+                channel_count: m.channel_count(),
+                mip_sizes: (0..m.mip_count()).map(|mip| m.mip_size(mip)).collect(),
+                constant_codes: m.channels().iter().map(|c| c.constant_code()).collect(),
+                kernel: Kernel::Reference,
+                tiled: None,
+                jpeg: Some(maps),
+            });
         }
         let (kernel, tiled) = self.kernel_for(device, m, kernel)?;
         let mlp = m.mlp();
@@ -542,13 +586,6 @@ impl Context {
                 0,
             ]);
         }
-        let init = |label, contents: Vec<u8>| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents: &contents,
-                usage: wgpu::BufferUsages::STORAGE,
-            })
-        };
         // The weights follow the descriptors in one buffer: move the layers' offsets past them.
         let base = desc.len() as u32;
         for l in 0..mlp.layers().len() {
@@ -561,7 +598,6 @@ impl Context {
             let layers_at = desc[13] as usize;
             tiled::append_tables(&mut desc, layers_at, m, kernel == Kernel::Dot4);
         }
-        static NEXT_ID: AtomicU64 = AtomicU64::new(0);
         Ok(GpuMaterial {
             id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
             desc: init("nmat desc", words_to_bytes(&desc)),
@@ -571,6 +607,7 @@ impl Context {
             constant_codes: m.channels().iter().map(|c| c.constant_code()).collect(),
             kernel,
             tiled,
+            jpeg: None,
         })
     }
 
@@ -704,6 +741,9 @@ impl Context {
         params: Params,
         requests: &[u8],
     ) -> Result<PendingDecode, GpuError> {
+        if gm.jpeg.is_some() {
+            return self.submit_jpeg(device, queue, gm, params, requests);
+        }
         let groups = self.decode_groups(device, gm, &params)?;
         let len = u64::from(params.count) * u64::from(params.out_channels);
         let copy = len.next_multiple_of(4).max(4);
@@ -783,9 +823,13 @@ impl Context {
         (out, offset): (&wgpu::Buffer, u64),
     ) -> Result<u64, GpuError> {
         let mut params = self.region_params(gm, mip, rect, channels)?;
-        let groups = self.decode_groups(device, gm, &params)?;
         let len = u64::from(params.count) * u64::from(params.out_channels);
         params.out_offset = Self::check_output(device, out, offset, len)?;
+        if gm.jpeg.is_some() {
+            self.record_jpeg(device, encoder, gm, params, None, out)?;
+            return Ok(len);
+        }
+        let groups = self.decode_groups(device, gm, &params)?;
         let bind = self.bind(device, Some(gm), None, out, &params);
         dispatch(encoder, self.decode_pipeline(gm).0, &bind, groups);
         Ok(len)
@@ -833,6 +877,10 @@ impl Context {
             .map_err(|_| GpuError::RequestBuffer { reason: "the offset is 2^34 bytes or more" })?;
         let len = u64::from(count) * u64::from(n);
         params.out_offset = Self::check_output(device, out, offset, len)?;
+        if gm.jpeg.is_some() {
+            self.record_jpeg(device, encoder, gm, params, Some(requests), out)?;
+            return Ok(len);
+        }
         let bind = self.bind(device, Some(gm), Some(requests), out, &params);
         dispatch(encoder, self.decode_pipeline(gm).0, &bind, groups);
         Ok(len)

@@ -102,6 +102,7 @@ impl Context {
         region: BlockRegion,
         (out, offset, row_pitch): (&wgpu::Buffer, u64, u64),
     ) -> Result<(), GpuError> {
+        gm.neural()?;
         let format = shader_format(texture.format)?;
         let mut params = Params { format, mip, ..Params::default() };
         for (k, &c) in texture.channel_list().iter().enumerate() {

@@ -42,6 +42,27 @@ impl Bits<'_> {
 
 /// A Huffman table (the counts of codes of each length 1..=16 and the symbols in code order, as
 /// in a JPEG DHT segment), ready to decode.
+/// The canonical decoding tables of a Huffman table whose codes of length 1 ..= 16 number
+/// `counts` (ITU T.81 F.2.2.3): for each length `l`, the largest code of that length (−1: none)
+/// and what to add to a code of that length to get its symbol's index in the table's values.
+pub fn huffman_decoding(counts: &[u8; 16]) -> ([i32; 17], [i32; 17]) {
+    let mut maxcode = [-1i32; 17];
+    let mut offset = [0i32; 17];
+    let (mut code, mut k) = (0i32, 0i32);
+    for (l, &n) in (1..=16).zip(counts) {
+        let n = i32::from(n);
+        if let (Some(m), Some(o)) = (maxcode.get_mut(l), offset.get_mut(l)) {
+            *o = k - code;
+            if n > 0 {
+                *m = code + n - 1;
+            }
+        }
+        code = (code + n) << 1;
+        k += n;
+    }
+    (maxcode, offset)
+}
+
 pub(crate) struct Huffman<'a> {
     /// Largest code of each length (−1: none), left-aligned to 16 bits as `(code + 1) << (16 − l) − 1`
     /// is compared with the next 16 bits.
@@ -53,24 +74,10 @@ pub(crate) struct Huffman<'a> {
 
 impl<'a> Huffman<'a> {
     pub fn new(counts: &[u8; 16], values: &'a [u8]) -> Huffman<'a> {
-        let mut maxcode = [-1i32; 17];
-        let mut offset = [0i32; 17];
-        let (mut code, mut k) = (0i32, 0i32);
-        for (l, &n) in (1..=16).zip(counts) {
-            let n = i32::from(n);
-            if let (Some(m), Some(o)) = (maxcode.get_mut(l), offset.get_mut(l)) {
-                *o = k - code;
-                if n > 0 {
-                    *m = code + n - 1;
-                }
-            }
-            code = (code + n) << 1;
-            k += n;
-        }
+        let (maxcode, offset) = huffman_decoding(counts);
         Huffman { maxcode, offset, values }
     }
 
-    /// Decodes one symbol (0 where no code of length ≤ 16 matches; 16 bits are then consumed).
     #[inline(always)]
     pub fn decode(&self, bits: &mut Bits<'_>) -> u8 {
         let word = bits.peek16() as i32;

@@ -5,6 +5,7 @@
 //! once; decoding an MCU never fails.
 
 pub(crate) mod entropy;
+pub use entropy::huffman_decoding;
 pub(crate) mod idct;
 #[cfg(feature = "alloc")]
 pub mod writer;
@@ -43,6 +44,26 @@ pub struct JpegMap {
     pub channel_count: u8,
     pub luma_h: u8,
     pub luma_v: u8,
+}
+
+/// Where one stream (a map at a mip) lies in a JPEG section, in bytes from the section's start,
+/// and which tables it uses ([`Jpeg::stream_parts`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StreamParts {
+    /// The MCU index (FORMAT.md §11.2).
+    pub index_at: usize,
+    /// The 12-bit DC values.
+    pub dc_at: usize,
+    /// The entropy-coded data and its length in bytes.
+    pub data_at: usize,
+    pub data_len: usize,
+    /// MCU columns and rows.
+    pub mcus: (u32, u32),
+    /// The quantization table of Y, Cb, Cr (64 bytes, zigzag order; gray: Y only).
+    pub quant_at: [usize; 3],
+    /// The DC and AC Huffman table of Y, Cb, Cr ([`Jpeg::huffman_table`]).
+    pub dc_table: [u8; 3],
+    pub ac_table: [u8; 3],
 }
 
 /// Why a Huffman table cannot be stored in a JPEG material (docs/FORMAT.md §11.1).
@@ -280,10 +301,44 @@ impl<'a> Jpeg<'a> {
         &self.maps
     }
 
-    /// The section's bytes (a decoder's identity).
-    #[cfg_attr(not(feature = "alloc"), allow(dead_code))]
-    pub(crate) fn section(&self) -> &'a [u8] {
+    /// The section's bytes (FORMAT.md §11.1), which [`Jpeg::stream_parts`] and
+    /// [`Jpeg::huffman_table`] point into.
+    pub fn section(&self) -> &'a [u8] {
         self.section
+    }
+
+    /// Where the stream of `map` at `mip` lies in [`Jpeg::section`] and which tables it uses:
+    /// for decoders that read the section themselves (the GPU runtime). `None` for a map or mip
+    /// the material lacks.
+    pub fn stream_parts(&self, map: usize, mip: u32) -> Option<StreamParts> {
+        let m = *self.maps.get(map)?;
+        let size = *self.mip_sizes.get(mip as usize)?;
+        let r = self.streams_at
+            + (map * usize::from(self.mip_count) + mip as usize) * STREAM_RECORD_LEN;
+        let rec = slice(self.section, r, STREAM_RECORD_LEN)?;
+        let (offset, entropy) = (u32_at(rec, 0) as usize, u32_at(rec, 4) as usize);
+        let (index_len, dc_len, _) = stream_layout(&m, size);
+        let (mw, mh) = m.mcu_size();
+        Some(StreamParts {
+            index_at: offset,
+            dc_at: offset + index_len,
+            data_at: offset + index_len + dc_len,
+            data_len: entropy,
+            mcus: (size.0.div_ceil(mw), size.1.div_ceil(mh)),
+            quant_at: core::array::from_fn(|c| {
+                self.quant_at + usize::from(u8_at(rec, 8 + c)) * QUANT_TABLE_LEN
+            }),
+            dc_table: core::array::from_fn(|c| u8_at(rec, 11 + c)),
+            ac_table: core::array::from_fn(|c| u8_at(rec, 14 + c)),
+        })
+    }
+
+    /// Huffman table `t`: its class (0 DC, 1 AC), its code counts per length 1 ..= 16 and where
+    /// its symbols start in [`Jpeg::section`].
+    pub fn huffman_table(&self, t: u8) -> Option<(u8, [u8; 16], usize)> {
+        let at = *self.huffman_at.get(usize::from(t))? as usize;
+        let counts = core::array::from_fn(|i| u8_at(self.section, at + 4 + i));
+        Some((u8_at(self.section, at), counts, at + HUFFMAN_HEADER_LEN))
     }
 
     /// Number of MCUs of map `map` at `mip` and the columns of its MCU grid.

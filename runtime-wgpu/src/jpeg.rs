@@ -1,0 +1,208 @@
+//! Indexed-JPEG materials (docs/FORMAT.md §11) on the GPU: the section uploaded as it is stored,
+//! a small descriptor of where each stream and table lies (`jpeg.wgsl` documents the words), and
+//! a pass that clears the output, then one dispatch per map with one workgroup per MCU. Regions
+//! and requests, submitted or recorded; the sampling module, the texture and the BC paths refuse
+//! a JPEG material with [`GpuError::Codec`].
+
+use std::sync::Arc;
+
+use nmat_core::Material;
+use nmat_core::jpeg::huffman_decoding;
+
+use crate::{
+    Context, GpuError, GpuMaterial, MAX_GROUPS, Params, PendingDecode, dispatch, try_pipeline,
+};
+
+/// Sections from this size on are refused: bit positions must stay below 2^32 on the GPU.
+const MAX_SECTION_BYTES: usize = 1 << 28;
+
+/// The JPEG decode and the pass that clears its output first.
+pub(crate) struct JpegPipelines {
+    decode: wgpu::ComputePipeline,
+    clear: wgpu::ComputePipeline,
+}
+
+/// What the host needs of a JPEG material's maps: first channel, channel count, MCU size.
+#[derive(Clone, Debug)]
+pub(crate) struct JpegMaps {
+    maps: Vec<(u32, u32, u32, u32)>,
+}
+
+/// The descriptor words and the section words of a JPEG material (layout in jpeg.wgsl).
+pub(crate) fn upload_words(m: &Material<'_>) -> Result<(Vec<u32>, Vec<u32>, JpegMaps), GpuError> {
+    let j = m.jpeg().ok_or(GpuError::Codec)?;
+    let section = j.section();
+    if section.len() >= MAX_SECTION_BYTES {
+        return Err(GpuError::TooLarge {
+            texels: section.len() as u64,
+            limit: MAX_SECTION_BYTES as u64 - 1,
+        });
+    }
+    let mut desc = vec![0u32; 16 + 2 * 16];
+    desc[0] = m.width();
+    desc[1] = m.height();
+    desc[2] = m.mip_count();
+    desc[3] = m.channel_count() as u32;
+    desc[4] = m.address_mode() as u32;
+    desc[5] = j.maps().len() as u32;
+    for mip in 0..m.mip_count() {
+        let (w, h) = m.mip_size(mip);
+        desc[16 + 2 * mip as usize] = w;
+        desc[17 + 2 * mip as usize] = h;
+    }
+    desc[6] = desc.len() as u32;
+    let mut maps = Vec::new();
+    for map in j.maps() {
+        let (mw, mh) = map.mcu_size();
+        let record = [map.first_channel, map.channel_count, map.luma_h, map.luma_v];
+        desc.extend(record.map(u32::from));
+        maps.push((u32::from(map.first_channel), u32::from(map.channel_count), mw, mh));
+    }
+    desc[7] = desc.len() as u32;
+    let mut tables = 0u8;
+    for map in 0..j.maps().len() {
+        for mip in 0..m.mip_count() {
+            let p = j.stream_parts(map, mip).ok_or(GpuError::Codec)?;
+            let mut record = vec![
+                p.index_at as u32,
+                p.dc_at as u32,
+                p.data_at as u32,
+                p.data_len as u32,
+                p.mcus.0,
+                p.mcus.1,
+            ];
+            record.extend(p.quant_at.map(|q| q as u32));
+            record.extend(p.dc_table.map(u32::from));
+            record.extend(p.ac_table.map(u32::from));
+            record.push(0);
+            tables = tables.max(p.dc_table.into_iter().chain(p.ac_table).max().unwrap_or(0) + 1);
+            desc.extend(record);
+        }
+    }
+    desc[8] = desc.len() as u32;
+    for t in 0..tables {
+        let (_, counts, values_at) = j.huffman_table(t).ok_or(GpuError::Codec)?;
+        let (maxcode, offset) = huffman_decoding(&counts);
+        desc.extend(maxcode.map(|v| v as u32));
+        desc.extend(offset.map(|v| v as u32));
+        let values: u32 = counts.iter().map(|&c| u32::from(c)).sum();
+        desc.extend([values_at as u32, values]);
+    }
+    let words = section
+        .chunks(4)
+        .map(|w| {
+            let mut b = [0u8; 4];
+            b[..w.len()].copy_from_slice(w);
+            u32::from_le_bytes(b)
+        })
+        .collect();
+    Ok((desc, words, JpegMaps { maps }))
+}
+
+impl Context {
+    /// The JPEG pipelines (decode, clear), built on first use.
+    fn jpeg_pipelines(&self, device: &wgpu::Device) -> Result<Arc<JpegPipelines>, GpuError> {
+        let mut slot = self.jpeg.lock().unwrap_or_else(|e| e.into_inner());
+        if slot.is_none() {
+            let source = include_str!("jpeg.wgsl");
+            let layout = Some(&self.pipeline_layout);
+            let decode = try_pipeline(device, source, "jpeg_main", layout);
+            let clear = try_pipeline(device, source, "jpeg_clear", layout);
+            if let (Some(decode), Some(clear)) = (decode, clear) {
+                *slot = Some(Arc::new(JpegPipelines { decode, clear }));
+            }
+        }
+        slot.clone().ok_or(GpuError::Kernel {
+            kernel: crate::Kernel::Reference,
+            reason: "the device refused the JPEG decode shader",
+        })
+    }
+
+    /// Records the decode of `params` (a rectangle or requests, checked by the caller, the
+    /// output offset set) of JPEG material `gm` into `out`: the codes' words cleared, then one
+    /// dispatch per map that holds a selected channel, one workgroup per MCU (rectangles) or per
+    /// request.
+    pub(crate) fn record_jpeg(
+        &self,
+        device: &wgpu::Device,
+        encoder: &mut wgpu::CommandEncoder,
+        gm: &GpuMaterial,
+        params: Params,
+        requests: Option<&wgpu::Buffer>,
+        out: &wgpu::Buffer,
+    ) -> Result<(), GpuError> {
+        let maps = gm.jpeg.as_ref().ok_or(GpuError::Codec)?;
+        let pipelines = self.jpeg_pipelines(device)?;
+        let len = u64::from(params.count) * u64::from(params.out_channels);
+        let max_binding = device.limits().max_storage_buffer_binding_size;
+        let max_groups = u64::from(MAX_GROUPS) * u64::from(MAX_GROUPS);
+        let too_large = GpuError::TooLarge {
+            texels: u64::from(params.count),
+            limit: (max_binding / u64::from(params.out_channels).max(1)).min(max_groups),
+        };
+        if len > max_binding {
+            return Err(too_large);
+        }
+        // Workgroups of each map: its MCUs the rectangle touches, or one per request.
+        let mut dispatches = Vec::new();
+        for (k, &(first, count, mw, mh)) in maps.maps.iter().enumerate() {
+            if params.channel_mask & (((1 << count) - 1) << first) == 0 {
+                continue;
+            }
+            let mut p = params;
+            p.format = k as u32;
+            let groups = if params.mode == 0 {
+                u64::from(params.count)
+            } else if params.count == 0 {
+                0
+            } else {
+                let height = params.count / params.width;
+                let columns = (params.x0 + params.width - 1) / mw - params.x0 / mw + 1;
+                let rows = (params.y0 + height - 1) / mh - params.y0 / mh + 1;
+                p.components = columns;
+                p.constants = columns * rows;
+                u64::from(columns) * u64::from(rows)
+            };
+            if groups > max_groups {
+                return Err(too_large);
+            }
+            dispatches.push((p, groups));
+        }
+        let bind = self.bind(device, Some(gm), requests, out, &params);
+        dispatch(encoder, &pipelines.clear, &bind, len.div_ceil(4).div_ceil(64));
+        for (p, groups) in &dispatches {
+            let bind = self.bind(device, Some(gm), requests, out, p);
+            dispatch(encoder, &pipelines.decode, &bind, *groups);
+        }
+        Ok(())
+    }
+
+    /// [`Context::submit`] for a JPEG material: the pool's buffers, [`Context::record_jpeg`].
+    pub(crate) fn submit_jpeg(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        gm: &GpuMaterial,
+        params: Params,
+        requests: &[u8],
+    ) -> Result<PendingDecode, GpuError> {
+        let len = u64::from(params.count) * u64::from(params.out_channels);
+        let copy = len.next_multiple_of(4).max(4);
+        let scratch = self.take_scratch(device, copy, requests.len() as u64);
+        if !requests.is_empty() {
+            queue.write_buffer(&scratch.requests, 0, requests);
+        }
+        let mut encoder = device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nmat jpeg") });
+        self.record_jpeg(device, &mut encoder, gm, params, Some(&scratch.requests), &scratch.out)?;
+        encoder.copy_buffer_to_buffer(&scratch.out, 0, &scratch.readback, 0, copy);
+        queue.submit([encoder.finish()]);
+        Ok(PendingDecode {
+            out: scratch.out.clone(),
+            readback: scratch.readback.clone(),
+            scratch: Some(scratch),
+            pool: Arc::clone(&self.pool),
+            len: len as usize,
+        })
+    }
+}

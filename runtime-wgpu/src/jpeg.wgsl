@@ -1,0 +1,371 @@
+// Indexed-JPEG materials (docs/FORMAT.md §11) on the GPU, bit-identical with nmat_core's
+// decoder: one workgroup per MCU (the JPEG-texture paper's layout). Invocation 0 decodes the MCU's
+// entropy-coded blocks (sequential by nature) into workgroup memory, 8 invocations per block run
+// the two passes of the islow IDCT, and every invocation then writes the texels it owns. One
+// dispatch decodes one map; lib.rs dispatches each map that holds a selected channel.
+//
+// `jdesc` (written by `Context::upload` for a JPEG material), in u32 words:
+//   0 width, 1 height, 2 mip_count, 3 channel_count, 4 address mode (0 wrap, 1 clamp),
+//   5 map_count, 6 maps_at, 7 streams_at, 8 huffman_at; 16 + 2·mip: the mip's width and height;
+//   maps_at + 4·map: first_channel, channel_count, luma_h, luma_v;
+//   streams_at + 16·(map · mip_count + mip): index_at, dc_at, data_at, data_len, mcus_x, mcus_y,
+//     quant_at (Y, Cb, Cr), dc table (Y, Cb, Cr), ac table (Y, Cb, Cr): byte offsets into `section`
+//     and table numbers (`Jpeg::stream_parts`);
+//   huffman_at + 36·table: maxcode[0..17] and offset[0..17] as i32 bits (`huffman_decoding`),
+//     then where the symbols start in `section` and how many there are.
+// `section` is the file's JPEG section, four bytes per word, little-endian.
+
+struct Params {
+    // 0: decode `count` requests from `requests`; 1: the rectangle (x0, y0, width, height) of
+    // `mip`, row-major.
+    mode: u32,
+    count: u32,
+    mip: u32,
+    x0: u32,
+    y0: u32,
+    width: u32,
+    channel_mask: u32,
+    out_channels: u32,
+    // The map this dispatch decodes.
+    map: u32,
+    // Rectangles: the MCU columns of the MCUs it touches, and how many MCUs (workgroups).
+    mcu_columns: u32,
+    mcu_count: u32,
+    unused0: u32,
+    unused1: u32,
+    out_offset: u32,
+    in_offset: u32,
+    unused2: u32,
+}
+
+@group(0) @binding(0) var<storage, read> jdesc: array<u32>;
+@group(0) @binding(1) var<storage, read> section: array<u32>;
+@group(0) @binding(2) var<storage, read> requests: array<i32>;
+// Codes packed four per word; each dispatch ORs its bytes into a cleared buffer (several maps
+// and MCUs share words).
+@group(0) @binding(3) var<storage, read_write> out_codes: array<atomic<u32>>;
+@group(0) @binding(4) var<uniform> params: Params;
+
+// The MCU's blocks (at most 4 luma, Cb, Cr): dequantized coefficients in natural order, then
+// samples; and the IDCT's intermediate rows.
+var<workgroup> blocks: array<i32, 384>;
+var<workgroup> ws: array<i32, 384>;
+
+const ZIGZAG = array<u32, 64>(
+    0u, 1u, 8u, 16u, 9u, 2u, 3u, 10u, 17u, 24u, 32u, 25u, 18u, 11u, 4u, 5u, 12u, 19u, 26u, 33u,
+    40u, 48u, 41u, 34u, 27u, 20u, 13u, 6u, 7u, 14u, 21u, 28u, 35u, 42u, 49u, 56u, 57u, 50u, 43u,
+    36u, 29u, 22u, 15u, 23u, 30u, 37u, 44u, 51u, 58u, 59u, 52u, 45u, 38u, 31u, 39u, 46u, 53u, 60u,
+    61u, 54u, 47u, 55u, 62u, 63u);
+
+fn sbyte(at: u32) -> u32 {
+    return (section[at >> 2u] >> (8u * (at & 3u))) & 255u;
+}
+
+// The entropy-coded data being read: where it starts, its length and the bit position.
+var<private> data_at: u32;
+var<private> data_len: u32;
+var<private> bit_pos: u32;
+
+fn data_byte(i: u32) -> u32 {
+    if (i < data_len) {
+        return sbyte(data_at + i);
+    }
+    return 0u; // bits past the end are 0, as on the CPU
+}
+
+fn peek16() -> u32 {
+    let byte = bit_pos >> 3u;
+    let word = (data_byte(byte) << 16u) | (data_byte(byte + 1u) << 8u) | data_byte(byte + 2u);
+    return (word >> (8u - (bit_pos & 7u))) & 0xFFFFu;
+}
+
+fn take(n: u32) -> u32 {
+    if (n == 0u) {
+        return 0u;
+    }
+    let v = peek16() >> (16u - min(n, 16u));
+    bit_pos += n;
+    return v;
+}
+
+// The symbol of the next code of Huffman table `t`; an unknown code is 16 bits of symbol 0.
+fn huffman(t: u32) -> u32 {
+    let base = jdesc[8] + 36u * t;
+    let word = i32(peek16());
+    for (var l = 1u; l <= 16u; l++) {
+        let code = word >> (16u - l);
+        if (code <= bitcast<i32>(jdesc[base + l])) {
+            bit_pos += l;
+            let at = code + bitcast<i32>(jdesc[base + 17u + l]);
+            if (at < 0 || u32(at) >= jdesc[base + 35u]) {
+                return 0u;
+            }
+            return sbyte(jdesc[base + 34u] + u32(at));
+        }
+    }
+    bit_pos += 16u;
+    return 0u;
+}
+
+fn extend(v: u32, n: u32) -> i32 {
+    if (n == 0u) {
+        return 0;
+    }
+    if (v < (1u << (n - 1u))) {
+        return i32(v) - (1 << n) + 1;
+    }
+    return i32(v);
+}
+
+// One block into `blocks[at..at + 64]` (AC coefficients dequantized, DC left 0); returns the DC
+// difference.
+fn block(at: u32, dc_table: u32, ac_table: u32, quant_at: u32) -> i32 {
+    for (var i = 0u; i < 64u; i++) {
+        blocks[at + i] = 0;
+    }
+    let s = min(huffman(dc_table), 16u);
+    let diff = extend(take(s), s);
+    var k = 1u;
+    loop {
+        if (k >= 64u) {
+            break;
+        }
+        let rs = huffman(ac_table);
+        let run = rs >> 4u;
+        let size = rs & 15u;
+        if (size == 0u) {
+            if (run != 15u) {
+                break;
+            }
+            k += 16u;
+            continue;
+        }
+        k += run;
+        let v = extend(take(size), size);
+        if (k < 64u) {
+            blocks[at + ZIGZAG[k]] = v * i32(sbyte(quant_at + k));
+        }
+        k += 1u;
+    }
+    return diff;
+}
+
+// Stored DC value `k` of the stream (12 bits, sign-extended); 0 past the DC values.
+fn stored_dc(dc_at: u32, dc_len: u32, k: u32) -> i32 {
+    let bit = 12u * k;
+    let i = bit >> 3u;
+    var word = 0u;
+    if (i < dc_len) {
+        word = sbyte(dc_at + i);
+    }
+    if (i + 1u < dc_len) {
+        word |= sbyte(dc_at + i + 1u) << 8u;
+    }
+    let v = (word >> (bit & 7u)) & 0xFFFu;
+    return bitcast<i32>(v << 20u) >> 20u;
+}
+
+// Entropy-decodes MCU `mcu` of the stream whose record starts at word `s` of `jdesc`.
+fn decode_blocks(s: u32, mcu: u32, luma_blocks: u32, colour: bool) {
+    let index_at = jdesc[s];
+    let dc_at = jdesc[s + 1u];
+    data_at = jdesc[s + 2u];
+    data_len = jdesc[s + 3u];
+    let g = mcu / 9u;
+    let j = mcu % 9u;
+    let group = index_at + 20u * g;
+    var start = sbyte(group) | (sbyte(group + 1u) << 8u) | (sbyte(group + 2u) << 16u)
+        | (sbyte(group + 3u) << 24u);
+    if (j > 0u) {
+        let rel = group + 4u + 2u * (j - 1u);
+        start += sbyte(rel) | (sbyte(rel + 1u) << 8u);
+    }
+    bit_pos = start;
+    let values = select(1u, 3u, colour);
+    let dc_len = data_at - dc_at;
+    let quant0 = jdesc[s + 6u];
+    var dc = stored_dc(dc_at, dc_len, mcu * values);
+    for (var b = 0u; b < luma_blocks; b++) {
+        let diff = block(64u * b, jdesc[s + 9u], jdesc[s + 12u], quant0);
+        if (b > 0u) {
+            dc += diff;
+        }
+        blocks[64u * b] = dc * i32(sbyte(quant0));
+    }
+    if (colour) {
+        for (var c = 0u; c < 2u; c++) {
+            let quant = jdesc[s + 7u + c];
+            let at = 64u * (luma_blocks + c);
+            block(at, jdesc[s + 10u + c], jdesc[s + 13u + c], quant);
+            blocks[at] = stored_dc(dc_at, dc_len, mcu * values + 1u + c) * i32(sbyte(quant));
+        }
+    }
+}
+
+// One 1-D pass of the islow IDCT (13-bit constants), outputs scaled by 2^13.
+fn idct_pass(x: array<i32, 8>) -> array<i32, 8> {
+    let z1 = (x[2] + x[6]) * 4433;
+    let t2 = z1 + x[6] * -15137;
+    let t3 = z1 + x[2] * 6270;
+    let t0 = (x[0] + x[4]) << 13u;
+    let t1 = (x[0] - x[4]) << 13u;
+    let e10 = t0 + t3;
+    let e13 = t0 - t3;
+    let e11 = t1 + t2;
+    let e12 = t1 - t2;
+    var a1 = x[7] + x[1];
+    var a2 = x[5] + x[3];
+    var a3 = x[7] + x[3];
+    var a4 = x[5] + x[1];
+    let z5 = (a3 + a4) * 9633;
+    a1 = a1 * -7373;
+    a2 = a2 * -20995;
+    a3 = a3 * -16069 + z5;
+    a4 = a4 * -3196 + z5;
+    let o0 = x[7] * 2446 + a1 + a3;
+    let o1 = x[5] * 16819 + a2 + a4;
+    let o2 = x[3] * 25172 + a2 + a3;
+    let o3 = x[1] * 12299 + a1 + a4;
+    return array<i32, 8>(e10 + o3, e11 + o2, e12 + o1, e13 + o0, e13 - o0, e12 - o1, e11 - o2,
+        e10 - o3);
+}
+
+fn descale(v: i32, n: u32) -> i32 {
+    return (v + (1 << (n - 1u))) >> n;
+}
+
+fn address(v: i32, size: u32) -> u32 {
+    let s = i32(size);
+    if (jdesc[4] == 0u) {
+        return u32(((v % s) + s) % s);
+    }
+    return u32(clamp(v, 0, s - 1));
+}
+
+fn put(byte: u32, code: u32) {
+    atomicOr(&out_codes[params.out_offset + (byte >> 2u)], code << (8u * (byte & 3u)));
+}
+
+// Writes the selected channels of this map at texel (x, y) of the MCU (samples in `blocks`) as
+// the codes of output texel `t`.
+fn write_texel(t: u32, x: u32, y: u32, first: u32, count: u32, lh: u32, lv: u32) {
+    var codes: array<u32, 3>;
+    if (count == 1u) {
+        codes[0] = u32(blocks[8u * y + x]);
+    } else {
+        let luma = 64u * ((y / 8u) * lh + x / 8u) + 8u * (y % 8u) + x % 8u;
+        let chroma = 64u * lh * lv + 8u * (y / lv) + x / lh;
+        let yv = blocks[luma];
+        let cb = blocks[chroma] - 128;
+        let cr = blocks[chroma + 64u] - 128;
+        codes[0] = u32(clamp(yv + ((91881 * cr + 32768) >> 16u), 0, 255));
+        codes[1] = u32(clamp(yv + ((-22554 * cb - 46802 * cr + 32768) >> 16u), 0, 255));
+        codes[2] = u32(clamp(yv + ((116130 * cb + 32768) >> 16u), 0, 255));
+    }
+    let mask = params.channel_mask;
+    var slot = countOneBits(mask & ((1u << first) - 1u));
+    for (var c = 0u; c < count; c++) {
+        if ((mask & (1u << (first + c))) != 0u) {
+            put(t * params.out_channels + slot, codes[c]);
+            slot += 1u;
+        }
+    }
+}
+
+@compute @workgroup_size(64)
+fn jpeg_main(
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+) {
+    let g = wg.x + wg.y * groups.x;
+    let map = jdesc[6] + 4u * params.map;
+    let first = jdesc[map];
+    let count = jdesc[map + 1u];
+    let lh = jdesc[map + 2u];
+    let lv = jdesc[map + 3u];
+    let mw = 8u * lh;
+    let mh = 8u * lv;
+    var mip = params.mip;
+    var mx = 0u;
+    var my = 0u;
+    var tx = 0u;
+    var ty = 0u;
+    if (params.mode == 0u) {
+        if (g >= params.count) {
+            return;
+        }
+        let r = params.in_offset + 3u * g;
+        mip = min(bitcast<u32>(requests[r + 2u]), jdesc[2] - 1u);
+        tx = address(requests[r], jdesc[16u + 2u * mip]);
+        ty = address(requests[r + 1u], jdesc[17u + 2u * mip]);
+        mx = tx / mw;
+        my = ty / mh;
+    } else {
+        if (g >= params.mcu_count) {
+            return;
+        }
+        mx = params.x0 / mw + g % params.mcu_columns;
+        my = params.y0 / mh + g / params.mcu_columns;
+    }
+    let s = jdesc[7] + 16u * (params.map * jdesc[2] + mip);
+    let colour = count == 3u;
+    let n_blocks = select(1u, lh * lv + 2u, colour);
+    if (lid == 0u) {
+        decode_blocks(s, my * jdesc[s + 4u] + mx, select(1u, lh * lv, colour), colour);
+    }
+    workgroupBarrier();
+    // Columns, then rows: invocation 8·b + k takes column (row) k of block b.
+    let b = lid / 8u;
+    let k = lid % 8u;
+    if (b < n_blocks) {
+        var x: array<i32, 8>;
+        for (var i = 0u; i < 8u; i++) {
+            x[i] = blocks[64u * b + 8u * i + k];
+        }
+        var v = idct_pass(x);
+        for (var i = 0u; i < 8u; i++) {
+            ws[64u * b + 8u * i + k] = descale(v[i], 11u);
+        }
+    }
+    workgroupBarrier();
+    if (b < n_blocks) {
+        var x: array<i32, 8>;
+        for (var i = 0u; i < 8u; i++) {
+            x[i] = ws[64u * b + 8u * k + i];
+        }
+        var v = idct_pass(x);
+        for (var i = 0u; i < 8u; i++) {
+            blocks[64u * b + 8u * k + i] = clamp(descale(v[i], 18u) + 128, 0, 255);
+        }
+    }
+    workgroupBarrier();
+    if (params.mode == 0u) {
+        if (lid == 0u) {
+            write_texel(g, tx % mw, ty % mh, first, count, lh, lv);
+        }
+        return;
+    }
+    for (var i = lid; i < mw * mh; i += 64u) {
+        let x = mx * mw + i % mw;
+        let y = my * mh + i / mw;
+        if (x >= params.x0 && x - params.x0 < params.width && y >= params.y0
+            && y - params.y0 < params.count / params.width) {
+            let t = (y - params.y0) * params.width + (x - params.x0);
+            write_texel(t, i % mw, i / mw, first, count, lh, lv);
+        }
+    }
+}
+
+// Zeroes the words the codes of `params` take (from `params.out_offset`), before the maps' passes
+// OR their bytes in.
+@compute @workgroup_size(64)
+fn jpeg_clear(
+    @builtin(global_invocation_id) id: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+) {
+    let i = id.x + id.y * groups.x * 64u;
+    if (i < (params.count * params.out_channels + 3u) / 4u) {
+        atomicStore(&out_codes[params.out_offset + i], 0u);
+    }
+}

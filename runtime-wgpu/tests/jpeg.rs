@@ -1,0 +1,206 @@
+//! Indexed-JPEG materials (docs/FORMAT.md §11) on the GPU: every code equal to `nmat_core`'s
+//! decoder — whole chains, odd rectangles, channel subsets, scattered requests (wrapping, clamped
+//! mips), and streams whose entropy-coded bits were damaged (the decode is total on both sides).
+
+mod common;
+
+use nmat_core::{ChannelMask, Codec, Container, Material, ParseOptions};
+use nmat_wgpu::{Context, GpuError, TexelRequest};
+
+/// The CPU's codes of `rect` of `mip`, row-major, channels of `mask`.
+fn cpu_region(
+    m: &Material<'_>,
+    mip: u32,
+    (x0, y0, w, h): (u32, u32, u32, u32),
+    mask: ChannelMask,
+) -> Vec<u8> {
+    let mut out = Vec::new();
+    for y in y0..y0 + h {
+        for x in x0..x0 + w {
+            let mut t = [0u8; 16];
+            let n = m.decode_texel_u8(i64::from(x), i64::from(y), mip, mask, &mut t).unwrap();
+            out.extend_from_slice(&t[..n]);
+        }
+    }
+    out
+}
+
+/// A JPEG material of the brick maps (colour 4:2:0, normal 4:4:4, two gray maps; 7 mips).
+fn bricks_jpeg(subsampling: nmat_encode::jpeg::Subsampling) -> Vec<u8> {
+    let set = nmat_encode::demo::bricks(64);
+    let options = nmat_encode::jpeg::JpegOptions { quality: 70, subsampling, ..Default::default() };
+    nmat_encode::jpeg::encode_jpeg(&set, &options).unwrap().bytes
+}
+
+fn fixture() -> Vec<u8> {
+    let path =
+        concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/fixtures/jpeg/pattern_420_37x21.nmat");
+    std::fs::read(path).unwrap()
+}
+
+fn check_material(
+    context: &Context,
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    m: &Material<'_>,
+    name: &str,
+) {
+    let gm = context.upload(device, m).unwrap();
+    assert_eq!(gm.codec(), Codec::Jpeg);
+    let all = ChannelMask::ALL;
+    // Every mip whole, all channels.
+    let chain = context.decode_chain(device, queue, &gm, all).unwrap();
+    let mut expected = Vec::new();
+    for mip in 0..m.mip_count() {
+        let (w, h) = m.mip_size(mip);
+        expected.extend(cpu_region(m, mip, (0, 0, w, h), all));
+    }
+    assert!(chain == expected, "{name}: the GPU chain differs from the CPU's");
+    // Odd rectangles and channel subsets (one channel of a colour map, channels of two maps).
+    let (w, h) = m.mip_size(0);
+    let masks = [
+        all,
+        ChannelMask(0b10),
+        ChannelMask(0b1000_0101 & ((1 << m.channel_count()) - 1) as u16 | 1),
+    ];
+    for (rect, mask) in [
+        ((w / 3, h / 4, w / 2, h / 2 + 1), masks[1]),
+        ((1, 2, w - 1, h - 2), masks[2]),
+        ((w - 1, h - 1, 1, 1), masks[0]),
+    ] {
+        let gpu =
+            context.submit_region(device, queue, &gm, 0, rect, mask).unwrap().wait(device).unwrap();
+        assert!(gpu == cpu_region(m, 0, rect, mask), "{name}: region {rect:?} mask {mask:?}");
+    }
+    // Scattered requests: negative and large coordinates wrap (or clamp), a mip past the chain
+    // is the last one.
+    let requests: Vec<TexelRequest> = (0..200i32)
+        .map(|i| TexelRequest { x: i * 37 - 900, y: i * 11 - 50, mip: (i % 9) as u32 })
+        .collect();
+    let gpu = context.decode_requests(device, queue, &gm, &requests, all).unwrap();
+    let mut cpu = Vec::new();
+    for r in &requests {
+        let mip = r.mip.min(m.mip_count() - 1);
+        let mut t = [0u8; 16];
+        let n = m.decode_texel_u8(i64::from(r.x), i64::from(r.y), mip, all, &mut t).unwrap();
+        cpu.extend_from_slice(&t[..n]);
+    }
+    assert!(gpu == cpu, "{name}: requests differ");
+}
+
+#[test]
+fn jpeg_materials_decode_on_the_gpu_exactly_as_on_the_cpu() {
+    let (device, queue) = common::device();
+    let context = Context::new(&device);
+    let materials = [
+        ("fixture 37×21 4:2:0 with restarts", fixture()),
+        ("bricks 4:2:0", bricks_jpeg(nmat_encode::jpeg::Subsampling::S420)),
+        ("bricks 4:2:2", bricks_jpeg(nmat_encode::jpeg::Subsampling::S422)),
+    ];
+    for (name, bytes) in &materials {
+        let m = Container::parse(bytes).unwrap();
+        check_material(&context, &device, &queue, &m, name);
+    }
+}
+
+/// Damaged entropy-coded bits (the checksum skipped): the CPU decodes something for every
+/// texel, and the GPU the same something.
+#[test]
+fn damaged_jpeg_streams_decode_alike_on_the_gpu() {
+    let (device, queue) = common::device();
+    let context = Context::new(&device);
+    let good = bricks_jpeg(nmat_encode::jpeg::Subsampling::S420);
+    let parts = {
+        let m = Container::parse(&good).unwrap();
+        let j = m.jpeg().unwrap();
+        let section_at = good.windows(j.section().len()).position(|w| w == j.section()).unwrap();
+        let p = j.stream_parts(0, 0).unwrap();
+        (section_at + p.data_at, p.data_len)
+    };
+    let mut tried = 0;
+    for k in 0..14 {
+        let mut bytes = good.clone();
+        let at = parts.0 + (k * 7919) % parts.1;
+        if k < 12 {
+            bytes[at] ^= 1 << (k % 8);
+        } else {
+            // Sixteen 1-bits: a code no table has (the decoder's total fallback).
+            bytes[at..at + 4].fill(0xFF);
+        }
+        let Ok(m) = Container::parse_with(&bytes, ParseOptions { verify_checksum: false }) else {
+            continue;
+        };
+        tried += 1;
+        check_material(&context, &device, &queue, &m, &format!("damage at byte {at}"));
+    }
+    assert!(tried >= 12, "only {tried} damaged files parsed");
+}
+
+/// Recorded into the caller's buffer (at an offset, over stale bytes): the same codes as the
+/// submitted decode, the last word's spare bytes zero; requests read from the caller's buffer.
+#[test]
+fn recorded_jpeg_decodes_equal_submitted_ones() {
+    let (device, queue) = common::device();
+    let context = Context::new(&device);
+    let bytes = bricks_jpeg(nmat_encode::jpeg::Subsampling::S420);
+    let m = Container::parse(&bytes).unwrap();
+    let gm = context.upload(&device, &m).unwrap();
+    let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
+    let out = common::buffer(&device, 1 << 16, usage, Some(0xAB));
+    let (rect, mask) = ((5, 3, 23, 17), ChannelMask(0b1100_0101));
+    let mut encoder = device.create_command_encoder(&Default::default());
+    let n = context.record_region(&device, &mut encoder, &gm, 1, rect, mask, (&out, 256)).unwrap();
+    let back = common::submit_and_read(&device, &queue, encoder, &out);
+    let expected = cpu_region(&m, 1, rect, mask);
+    assert_eq!(n as usize, expected.len());
+    assert!(back[256..256 + expected.len()] == expected[..]);
+    let end = 256 + expected.len();
+    assert!(back[end..end.next_multiple_of(4)].iter().all(|&b| b == 0));
+    assert!(back[..256].iter().chain(&back[end.next_multiple_of(4)..]).all(|&b| b == 0xAB));
+
+    let requests: Vec<TexelRequest> =
+        (0..50).map(|i| TexelRequest { x: 3 * i - 20, y: 7 * i, mip: (i % 4) as u32 }).collect();
+    let words: Vec<u8> = requests
+        .iter()
+        .flat_map(|r| [r.x.to_le_bytes(), r.y.to_le_bytes(), r.mip.to_le_bytes()])
+        .flatten()
+        .collect();
+    let request_buffer = common::buffer(
+        &device,
+        12 + words.len() as u64,
+        wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+        Some(0),
+    );
+    queue.write_buffer(&request_buffer, 12, &words);
+    let out = common::buffer(&device, 4096, usage, Some(0xCD));
+    let mut encoder = device.create_command_encoder(&Default::default());
+    let count = requests.len() as u32;
+    context
+        .record_requests(
+            &device,
+            &mut encoder,
+            &gm,
+            (&request_buffer, 12, count),
+            ChannelMask::ALL,
+            (&out, 0),
+        )
+        .unwrap();
+    let back = common::submit_and_read(&device, &queue, encoder, &out);
+    let submitted =
+        context.decode_requests(&device, &queue, &gm, &requests, ChannelMask::ALL).unwrap();
+    assert!(back[..submitted.len()] == submitted[..]);
+}
+
+#[test]
+fn paths_for_neural_materials_refuse_a_jpeg_one() {
+    let (device, queue) = common::device();
+    let context = Context::new(&device);
+    let bytes = fixture();
+    let m = Container::parse(&bytes).unwrap();
+    let gm = context.upload(&device, &m).unwrap();
+    let texture = nmat_core::bc::default_layout(&m)[0];
+    let r = context.transcode_mip(&device, &queue, &gm, &texture, 0);
+    assert!(matches!(r, Err(GpuError::Codec)), "{:?}", r.err());
+    let r = context.upload_with(&device, &m, Some(nmat_wgpu::Kernel::Dot4));
+    assert!(matches!(r, Err(GpuError::Kernel { .. })));
+}
