@@ -313,6 +313,9 @@ fn time_codes(
 }
 
 fn region_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>, notes: &mut Vec<String>) {
+    if setup.m.jpeg().is_some() {
+        return jpeg_rows(setup, runs, rows, notes);
+    }
     let m = setup.m;
     let c = m.channel_count();
     let texels = setup.texels() as f64;
@@ -429,6 +432,101 @@ fn region_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>, notes: &
         &units,
         &all,
     );
+}
+
+/// The rows of a JPEG material (no network, no kernels): the region path (each MCU decoded
+/// once) on 1 and 2 threads and for one channel, row spans (each MCU decoded once per row), and
+/// random access (a whole MCU per texel).
+fn jpeg_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>, notes: &mut Vec<String>) {
+    let m = setup.m;
+    let c = m.channel_count();
+    let texels = setup.texels() as f64;
+    let (w, h) = setup.side;
+    let all: Vec<usize> = (0..c).collect();
+    let mut push = |mode: String, t: Timing, threads: usize, units: &[f32], chans: &[usize]| {
+        let (psnr, max_delta) = setup.judge(units, chans);
+        rows.push(Row {
+            mode,
+            seconds_per_texel: t.secs / texels,
+            peak_macs_per_texel: t.peak_macs / texels,
+            macs_per_texel: 0.0,
+            psnr,
+            max_delta,
+            threads,
+        });
+    };
+    let d = Decoder::new(m);
+    let units = |codes: &[u8]| codes.iter().map(|&v| f32::from(v) / 255.0).collect::<Vec<f32>>();
+    // The region in bands of whole MCU rows, split between `threads`.
+    let region = |threads: usize, mask: ChannelMask, out: &mut [u8]| {
+        let n = out.len() / setup.texels().max(1);
+        if threads <= 1 {
+            let _ = d.decode_region_u8(m, 0, (0, 0, w, h), mask, out, 0);
+            return;
+        }
+        let band = (h as usize).div_ceil(threads).next_multiple_of(16);
+        std::thread::scope(|s| {
+            for (k, part) in out.chunks_mut(band * w as usize * n).enumerate() {
+                let d = &d;
+                s.spawn(move || {
+                    let rows = (part.len() / (w as usize * n).max(1)) as u32;
+                    let rect = (0, (k * band) as u32, w, rows);
+                    let _ = d.decode_region_u8(m, 0, rect, mask, part, 0);
+                });
+            }
+        });
+    };
+    for (threads, mask, chans) in [
+        (1, ChannelMask::ALL, all.clone()),
+        (2, ChannelMask::ALL, all.clone()),
+        (1, ChannelMask::single(0), vec![0]),
+    ] {
+        if c == 1 && mask != ChannelMask::ALL {
+            continue;
+        }
+        let mut codes = vec![0u8; setup.texels() * chans.len()];
+        let secs = time(runs, || region(threads, mask, &mut codes));
+        let thread_word = if threads == 1 { "thread" } else { "threads" };
+        let label = format!(
+            "JPEG region (each MCU once), {} ch, {threads} {thread_word}",
+            if chans.len() == c { format!("all {c}") } else { chans.len().to_string() }
+        );
+        push(label, secs, threads, &units(&codes), &chans);
+    }
+    let (secs, span_units) = time_codes(setup, c, runs, 1, &|y, row| {
+        let _ = d.decode_span_u8(m, 0, i64::from(y), 0, w as usize, ChannelMask::ALL, row);
+    });
+    push(
+        format!("JPEG row spans (an MCU per row), all {c} ch, 1 thread"),
+        secs,
+        1,
+        &span_units,
+        &all,
+    );
+    let order = scattered_order(setup.texels());
+    let (secs, random_units) = time_random(setup, runs, &order, &|x, y, out| {
+        let _ = d.decode_texel_u8(m, x, y, 0, ChannelMask::ALL, out);
+    });
+    push(
+        format!("JPEG random access per texel (an MCU each), all {c} ch"),
+        secs,
+        1,
+        &random_units,
+        &all,
+    );
+    let mut codes = vec![0u8; setup.texels() * c];
+    let ratio =
+        interleaved_ratio(runs, &mut || region(1, ChannelMask::ALL, &mut codes), &mut || {
+            let mut texel = [0u8; 16];
+            for &t in &order {
+                let (x, y) = ((t % w as usize) as i64, (t / w as usize) as i64);
+                let _ = d.decode_texel_u8(m, x, y, 0, ChannelMask::ALL, &mut texel);
+                black_box(&texel);
+            }
+        });
+    notes.push(format!(
+        "random access ÷ region per texel, JPEG, runs alternated: {ratio:.2}× (median of {runs})"
+    ));
 }
 
 /// A permutation of 0..n that jumps around (multiplicative stride coprime with n).

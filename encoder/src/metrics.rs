@@ -20,21 +20,23 @@ pub fn decode_mip_with(m: &Material<'_>, mip: u32, progress: &mut dyn FnMut(u64)
     let row_len = w as usize * m.channel_count();
     let decoder = Decoder::new(m);
     let mut out = vec![0f32; row_len * h as usize];
+    // Rows in parallel; a JPEG material's in tiles of whole MCU rows (each MCU decoded once).
+    let tile = if m.jpeg().is_some() { 16 } else { 1 };
     for (band, rows) in out.chunks_mut(row_len * PROGRESS_ROWS).enumerate() {
-        rows.par_chunks_mut(row_len).enumerate().for_each(|(i, row)| {
-            let y = band * PROGRESS_ROWS + i;
-            let mut codes = vec![0u8; row_len];
-            // A valid material, mask and buffer: this cannot fail.
-            let _ = decoder.decode_span_u8(
+        rows.par_chunks_mut(row_len * tile).enumerate().for_each(|(i, tile_rows)| {
+            let y = (band * PROGRESS_ROWS + i * tile) as u32;
+            let height = (tile_rows.len() / row_len.max(1)) as u32;
+            let mut codes = vec![0u8; tile_rows.len()];
+            // A valid material, region, mask and buffer: this cannot fail.
+            let _ = decoder.decode_region_u8(
                 m,
-                0,
-                y as i64,
                 mip,
-                w as usize,
+                (0, y, w, height),
                 ChannelMask::ALL,
                 &mut codes,
+                0,
             );
-            for (v, &code) in row.iter_mut().zip(&codes) {
+            for (v, &code) in tile_rows.iter_mut().zip(&codes) {
                 *v = f32::from(code) / 255.0;
             }
         });

@@ -383,3 +383,74 @@ fn fuzz_found_jpeg_files_are_refused_with_the_reason() {
     // The seed they grew from still indexes.
     assert!(index_jpeg(&read("restart-markers-420-37x21.jpg")).is_ok());
 }
+
+/// `Decoder::decode_region_u8` (each MCU decoded once) gives the codes of row spans, leaves the
+/// bytes between rows alone and refuses what does not fit; the same for a neural material.
+#[test]
+fn regions_equal_row_spans_for_both_codecs() {
+    use nmat_core::{Argument, Error};
+    let jpeg = nmat_encode::jpeg::encode_jpeg(
+        &nmat_encode::demo::bricks(64),
+        &nmat_encode::jpeg::JpegOptions { quality: 60, ..Default::default() },
+    )
+    .unwrap()
+    .bytes;
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures");
+    let neural = std::fs::read(dir.join("ntc_pbr10_96x80_clamp.nmat")).unwrap();
+    for bytes in [&jpeg, &neural] {
+        let m = Container::parse(bytes).unwrap();
+        let d = Decoder::new(&m);
+        let (w, h) = m.mip_size(0);
+        for (mip, rect, mask) in [
+            (0, (0, 0, w, h), ChannelMask::ALL),
+            (0, (5, 3, 27, 19), ChannelMask(0b1010_0001)),
+            (1, (1, 15, 9, 2), ChannelMask(0b10)),
+            (2, (0, 0, 1, 1), ChannelMask::ALL),
+        ] {
+            let n = m.resolve_channels(mask).unwrap().count_ones() as usize;
+            let (x0, y0, rw, rh) = rect;
+            let pitch = rw as usize * n + 3;
+            let mut out = vec![0xEEu8; pitch * rh as usize];
+            assert_eq!(
+                d.decode_region_u8(&m, mip, rect, mask, &mut out, pitch).unwrap(),
+                rw as usize * n
+            );
+            for y in 0..rh as usize {
+                let mut span = vec![0u8; rw as usize * n];
+                d.decode_span_u8(
+                    &m,
+                    i64::from(x0),
+                    i64::from(y0) + y as i64,
+                    mip,
+                    rw as usize,
+                    mask,
+                    &mut span,
+                )
+                .unwrap();
+                assert!(out[y * pitch..y * pitch + span.len()] == span[..], "{rect:?} row {y}");
+                assert!(out[y * pitch + span.len()..(y + 1) * pitch].iter().all(|&b| b == 0xEE));
+            }
+        }
+        let mut out = vec![0u8; 4096];
+        let bad = |r: Result<usize, Error>| match r {
+            Err(Error::BadArgument { argument, .. }) => argument,
+            other => panic!("{other:?}"),
+        };
+        assert_eq!(
+            bad(d.decode_region_u8(&m, 99, (0, 0, 1, 1), ChannelMask::ALL, &mut out, 0)),
+            Argument::Mip
+        );
+        assert_eq!(
+            bad(d.decode_region_u8(&m, 0, (w - 1, 0, 2, 1), ChannelMask::ALL, &mut out, 0)),
+            Argument::Region
+        );
+        assert_eq!(
+            bad(d.decode_region_u8(&m, 0, (0, 0, 4, 2), ChannelMask::ALL, &mut out, 5)),
+            Argument::RowPitch
+        );
+        assert_eq!(
+            bad(d.decode_region_u8(&m, 0, (0, 0, w, h), ChannelMask::ALL, &mut out, 0)),
+            Argument::Output
+        );
+    }
+}

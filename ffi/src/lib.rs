@@ -806,16 +806,11 @@ pub extern "C" fn nmat_decode_region_u8(
         let h = handle(m)?;
         let (m, decoder) = (h.material(), &h.decoder);
         let out = slice_mut(out, out_len)?;
-        let (mask, n, pitch) =
+        let (mask, _, pitch) =
             region_checks(m, mip, (x0, y0, width, height), channel_mask, 1, row_pitch, out_len)?;
-        let row_len = width as usize * n;
-        for y in 0..height as usize {
-            let row = out.get_mut(y * pitch..y * pitch + row_len).ok_or(NMAT_BUFFER_TOO_SMALL)?;
-            let ty = i64::from(y0) + y as i64;
-            decoder
-                .decode_span_u8(m, i64::from(x0), ty, mip, width as usize, mask, row)
-                .map_err(fail)?;
-        }
+        decoder
+            .decode_region_u8(m, mip, (x0, y0, width, height), mask, out, pitch)
+            .map_err(fail)?;
         Ok(())
     })
 }

@@ -421,6 +421,75 @@ impl Decoder {
         Ok(count * n)
     }
 
+    /// Integer decode of the rectangle (x0, y0, width, height) of `mip`, which must lie inside
+    /// the mip, into rows of `width · channels` codes starting `row_pitch` bytes apart (0:
+    /// packed) in `out`. The same codes as [`Decoder::decode_span_u8`] row by row; for a JPEG
+    /// material each MCU the rectangle touches is decoded once, where a span decodes it once per
+    /// row (8–16 times fewer MCU decodes). Returns the codes per row.
+    #[allow(clippy::too_many_arguments)] // a rectangle, a mask and the output with its pitch
+    pub fn decode_region_u8(
+        &self,
+        material: &Material<'_>,
+        mip: u32,
+        (x0, y0, width, height): (u32, u32, u32, u32),
+        channels: ChannelMask,
+        out: &mut [u8],
+        row_pitch: usize,
+    ) -> Result<usize, Error> {
+        self.check(material)?;
+        if mip >= material.mip_count() {
+            return Err(Error::BadArgument {
+                argument: Argument::Mip,
+                value: u64::from(mip),
+                limit: u64::from(material.mip_count()),
+            });
+        }
+        let (mw, mh) = material.mip_size(mip);
+        let (x1, y1) = (u64::from(x0) + u64::from(width), u64::from(y0) + u64::from(height));
+        if x1 > u64::from(mw) || y1 > u64::from(mh) {
+            let (value, limit) = if x1 > u64::from(mw) { (x1, mw) } else { (y1, mh) };
+            return Err(Error::BadArgument {
+                argument: Argument::Region,
+                value,
+                limit: u64::from(limit),
+            });
+        }
+        let rows = material.resolve_channels(channels)?;
+        let n = rows.count_ones() as usize;
+        let row_len = width as usize * n;
+        let pitch = if row_pitch == 0 { row_len } else { row_pitch };
+        if pitch < row_len {
+            return Err(Error::BadArgument {
+                argument: Argument::RowPitch,
+                value: pitch as u64,
+                limit: row_len as u64,
+            });
+        }
+        let needed = if height == 0 { 0 } else { pitch * (height as usize - 1) + row_len };
+        if out.len() < needed {
+            return Err(Error::BadArgument {
+                argument: Argument::Output,
+                value: out.len() as u64,
+                limit: needed as u64,
+            });
+        }
+        if let Some(jpeg) = material.jpeg() {
+            jpeg.region_codes(mip, (x0, y0, width, height), rows, |x, y, slot, code| {
+                if let Some(o) = out.get_mut(y as usize * pitch + x as usize * n + slot) {
+                    *o = code;
+                }
+            });
+        } else {
+            for y in 0..height as usize {
+                if let Some(row) = out.get_mut(y * pitch..y * pitch + row_len) {
+                    let at = (i64::from(x0), i64::from(y0) + y as i64, mip);
+                    self.span_codes(material, at, width as usize, (rows, n), row, 255, |c| c as u8);
+                }
+            }
+        }
+        Ok(row_len)
+    }
+
     /// Integer decode of a span to 16-bit codes, like [`Decoder::decode_span_u8`].
     #[allow(clippy::too_many_arguments)]
     pub fn decode_span_u16(

@@ -555,6 +555,53 @@ impl Jpeg<'_> {
         codes
     }
 
+    /// The codes of the rectangle (x0, y0, width, height) of `mip` (inside the mip) for the
+    /// channels in `rows`: `put(x, y, slot, code)` with (x, y) from the rectangle's corner and
+    /// `slot` counting the selected channels from 0. Each MCU the rectangle touches is decoded
+    /// once per map (a row span decodes it once per row).
+    #[cfg_attr(not(feature = "alloc"), allow(dead_code))]
+    pub(crate) fn region_codes(
+        &self,
+        mip: u32,
+        (x0, y0, width, height): (u32, u32, u32, u32),
+        rows: u16,
+        mut put: impl FnMut(u32, u32, usize, u8),
+    ) {
+        if width == 0 || height == 0 {
+            return;
+        }
+        let mut pixels = [0u8; MAX_MCU_SAMPLES];
+        for (m, map) in self.maps.iter().enumerate() {
+            let selected = rows & map_rows(map);
+            if selected == 0 {
+                continue;
+            }
+            let Some(stream) = self.stream(m, mip) else { continue };
+            let (mw, mh) = map.mcu_size();
+            let n = usize::from(map.channel_count);
+            let first = usize::from(map.first_channel);
+            let before = (rows & ((1u16 << first) - 1)).count_ones() as usize;
+            let (x1, y1) = (x0.saturating_add(width), y0.saturating_add(height));
+            for my in y0 / mh..=(y1 - 1) / mh {
+                for mx in x0 / mw..=(x1 - 1) / mw {
+                    stream.decode_mcu((my * stream.mcus_x + mx) as usize, &mut pixels);
+                    for y in (my * mh).max(y0)..((my + 1) * mh).min(y1) {
+                        for x in (mx * mw).max(x0)..((mx + 1) * mw).min(x1) {
+                            let at = ((y - my * mh) * mw + (x - mx * mw)) as usize * n;
+                            let mut slot = before;
+                            for c in 0..n {
+                                if selected & (1 << (first + c)) != 0 {
+                                    put(x - x0, y - y0, slot, u8_at(&pixels, at + c));
+                                    slot += 1;
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     /// The codes of `count` texels of one row: `texel(i)` is the addressed (x, y) of texel i of
     /// `mip`; `put(i, slot, channel, code)` receives each selected channel's code (`slot` counts
     /// the selected channels from 0). An MCU is decoded once per run of texels inside it.
