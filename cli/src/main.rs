@@ -361,7 +361,9 @@ fn cmd_index(input: &Path, out: &Path) -> Result<()> {
     let file = std::fs::read(input).map_err(|e| format!("{}: {e}", input.display()))?;
     let indexed =
         nmat_encode::jpeg::index_jpeg(&file).map_err(|e| format!("{}: {e}", input.display()))?;
-    let bytes = nmat_encode::jpeg::material_from_jpeg(&indexed)
+    // `nmat decode` writes the map back as STEM.png.
+    let stem = input.file_stem().map_or("image".into(), |s| s.to_string_lossy());
+    let bytes = nmat_encode::jpeg::material_from_jpeg(&indexed, &format!("{stem}.png"))
         .to_bytes()
         .map_err(|e| format!("{}: cannot index: {e}", input.display()))?;
     output::write_atomic(out, &bytes)?;

@@ -904,6 +904,10 @@ fn index_turns_a_baseline_jpeg_into_a_material_every_command_reads() {
     let decoded = dir.join("decoded");
     let o = nmat(&["decode", out.to_str().unwrap(), "-o", decoded.to_str().unwrap()]);
     assert!(o.status.success(), "{}", text(&o));
+    // One RGB image named after the JPEG.
+    assert_eq!(files_in(&decoded), ["photo.png"]);
+    let png = image::open(decoded.join("photo.png")).unwrap();
+    assert_eq!((png.width(), png.height(), png.color()), (w, h, image::ColorType::Rgb8));
     // Nothing replaces the source, and a file that is not a JPEG is named.
     let o = nmat(&["index", input.to_str().unwrap(), "-o", input.to_str().unwrap()]);
     assert!(!o.status.success() && text(&o).contains("is one of the input"), "{}", text(&o));

@@ -112,7 +112,7 @@ fn indexed_streams_decode_like_djpeg_texel_by_texel_and_row_by_row() {
                 let what = format!("{w}×{h} {name} q{quality} restart {restart}");
                 let file = jpeg(w, h, components, sampling, quality, restart);
                 let indexed = index_jpeg(&file).unwrap_or_else(|e| panic!("{what}: {e}"));
-                let bytes = material_from_jpeg(&indexed).to_bytes().unwrap();
+                let bytes = material_from_jpeg(&indexed, "test.png").to_bytes().unwrap();
                 let m = Container::parse(&bytes).unwrap();
                 assert_eq!(m.codec(), nmat_core::Codec::Jpeg);
                 // Texel by texel (each MCU decoded on its own, in random order of access).
@@ -160,7 +160,7 @@ fn indexed_streams_decode_like_djpeg_texel_by_texel_and_row_by_row() {
 #[test]
 fn texels_of_other_channels_and_addresses_follow_the_material_rules() {
     let file = jpeg(40, 24, 3, SamplingFactor::R_4_2_0, 80, 0);
-    let bytes = material_from_jpeg(&index_jpeg(&file).unwrap()).to_bytes().unwrap();
+    let bytes = material_from_jpeg(&index_jpeg(&file).unwrap(), "test.png").to_bytes().unwrap();
     let m = Container::parse(&bytes).unwrap();
     let mut all = [0u8; 3];
     m.decode_texel_u8(5, 7, 0, ChannelMask::ALL, &mut all).unwrap();
@@ -199,7 +199,7 @@ fn files_that_cannot_be_indexed_say_why() {
 fn damaged_jpeg_materials_are_refused_or_decode_without_panicking() {
     use nmat_core::ParseOptions;
     let file = jpeg(24, 20, 3, SamplingFactor::R_4_2_0, 75, 0);
-    let bytes = material_from_jpeg(&index_jpeg(&file).unwrap()).to_bytes().unwrap();
+    let bytes = material_from_jpeg(&index_jpeg(&file).unwrap(), "test.png").to_bytes().unwrap();
     let decode_all = |m: &nmat_core::Material<'_>| {
         let mut out = [0u8; 3];
         for y in 0..20 {
@@ -241,7 +241,7 @@ fn damaged_jpeg_materials_are_refused_or_decode_without_panicking() {
 #[test]
 fn float_spans_equal_float_texels() {
     let file = jpeg(40, 24, 3, SamplingFactor::R_4_2_0, 80, 0);
-    let bytes = material_from_jpeg(&index_jpeg(&file).unwrap()).to_bytes().unwrap();
+    let bytes = material_from_jpeg(&index_jpeg(&file).unwrap(), "test.png").to_bytes().unwrap();
     let m = Container::parse(&bytes).unwrap();
     let decoder = Decoder::new(&m);
     let mask = ChannelMask(0b101);
@@ -351,7 +351,8 @@ fn the_committed_jpeg_fixture_is_its_jpeg_indexed_and_decodes_like_djpeg() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/jpeg");
     let read = |ext: &str| std::fs::read(dir.join(format!("pattern_420_37x21.{ext}"))).unwrap();
     let (jpg, nmat, expected) = (read("jpg"), read("nmat"), read("u8"));
-    let indexed = material_from_jpeg(&index_jpeg(&jpg).unwrap()).to_bytes().unwrap();
+    let indexed =
+        material_from_jpeg(&index_jpeg(&jpg).unwrap(), "pattern_420_37x21.png").to_bytes().unwrap();
     assert!(indexed == nmat, "indexing the .jpg no longer gives the committed .nmat");
     if let Some(samples) = djpeg(&jpg) {
         assert!(samples == expected, "djpeg no longer gives the committed .u8");

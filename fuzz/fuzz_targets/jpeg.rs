@@ -9,7 +9,7 @@ use nmat_encode::jpeg::{index_jpeg, material_from_jpeg};
 
 fuzz_target!(|data: &[u8]| {
     let Ok(indexed) = index_jpeg(data) else { return };
-    let bytes = match material_from_jpeg(&indexed).to_bytes() {
+    let bytes = match material_from_jpeg(&indexed, "fuzz.png").to_bytes() {
         Ok(bytes) => bytes,
         Err(Error::LimitExceeded { .. }) => return,
         Err(e) => panic!("an indexed JPEG makes an invalid material: {e}"),

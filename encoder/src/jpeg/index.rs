@@ -516,9 +516,15 @@ pub(super) fn position_or_push<T: PartialEq>(list: &mut Vec<T>, item: T) -> u8 {
     }
 }
 
-/// A one-map, one-mip JPEG material from an indexed file: channels R, G, B (albedo, sRGB) for
-/// a colour file, or one gray channel (linear) — what `nmat index` writes.
-pub fn material_from_jpeg(indexed: &IndexedJpeg) -> nmat_core::JpegMaterialSpec {
+/// A one-map, one-mip JPEG material from an indexed file — what `nmat index` writes: channels
+/// R, G, B (albedo, sRGB) for a colour file, one gray channel (albedo, sRGB) for a gray one, and
+/// a SOURCE_MAPS section naming the map `decoded_name` (e.g. `photo.png`), under which `nmat
+/// decode` writes it back as one RGB or gray image.
+pub fn material_from_jpeg(
+    indexed: &IndexedJpeg,
+    decoded_name: &str,
+) -> nmat_core::JpegMaterialSpec {
+    use crate::texset::{FileLayout, Role, SourceMap};
     use nmat_core::{AddressMode, ChannelSpec, ColorSpace, Semantic};
     let channel = |name: &str, component, semantic, color_space| ChannelSpec {
         name: name.to_string(),
@@ -535,7 +541,18 @@ pub fn material_from_jpeg(indexed: &IndexedJpeg) -> nmat_core::JpegMaterialSpec 
             .map(|(k, n)| channel(n, k as u8, Semantic::ALBEDO, ColorSpace::Srgb))
             .collect()
     } else {
-        vec![channel("gray", 0, Semantic::UNKNOWN, ColorSpace::Linear)]
+        vec![channel("gray", 0, Semantic::ALBEDO, ColorSpace::Srgb)]
+    };
+    let colour = indexed.map.channel_count == 3;
+    let map = SourceMap {
+        role: Role::Albedo,
+        file_name: decoded_name.to_string(),
+        layout: if colour { FileLayout::Rgb } else { FileLayout::Gray },
+        first_channel: 0,
+        channel_count: usize::from(indexed.map.channel_count),
+        gray_rgb: false,
+        alpha_value: None,
+        sixteen_bit: false,
     };
     nmat_core::JpegMaterialSpec {
         width: indexed.width,
@@ -547,6 +564,9 @@ pub fn material_from_jpeg(indexed: &IndexedJpeg) -> nmat_core::JpegMaterialSpec 
         quant_tables: indexed.quant.clone(),
         huffman_tables: indexed.huffman.clone(),
         streams: vec![indexed.stream.clone()],
-        optional_sections: Vec::new(),
+        optional_sections: vec![(
+            crate::source_maps::SECTION_KIND,
+            crate::source_maps::encode(std::slice::from_ref(&map)),
+        )],
     }
 }
