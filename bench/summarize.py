@@ -3,7 +3,7 @@
 1. per codec: materials, mean BPPC, mean whole-chain PSNR, mean seconds;
 2. head to head on the materials both sides have: every nmat profile against the JPEG XL, AVIF
    and nmat-JPEG points bisected to its rate (`jpegxl@P`, `avif@P`, `jpeg@P`), nmat at ≈1 BPPC
-   against BC1/BC4 and ASTC 8×8, nmat-JPEG against AVIF at the same rate and against BC1/BC4 at
+   against BC1/BC4 and ASTC 8×8, nmat-JPEG against AVIF and JPEG XL at the same rate and against BC1/BC4 at
    BC1/BC4's rate (`jpeg@bc1`) (mean Δ dB, wins);
 3. encode seconds per profile for the materials named in --big (e.g. the 1024² ones).
 
@@ -33,7 +33,11 @@ matched = sorted((c for c in by if "@" in c), key=lambda c: (c.split("@")[1], c)
 pairs = [("nmat-" + c.split("@")[1], c) for c in matched] + [
     ("nmat-ntc-1.0", "bc1/bc4"), ("nmat-ntc-1.0", "astc8x8"),
     ("nmat-ntc-0.5", "astc12x12"), ("nmat-ntc-2.25", "bc1/bc4"),
-] + [(c, "avif@" + c.split("@")[1]) for c in matched if c.startswith("jpeg@")] + [
+] + [
+    (c, other + "@" + c.split("@")[1])
+    for c in matched if c.startswith("jpeg@")
+    for other in ("avif", "jpegxl")
+] + [
     ("jpeg@bc1", "bc1/bc4"),
 ]
 print()

@@ -4,39 +4,14 @@
  * 4:2:0, restart markers); EXPECTED is libjpeg-turbo's `djpeg -dct int -nosmooth` of that .jpg
  * (RGB samples, no header): an independent decoder (tests/fixtures/jpeg/README.md). */
 #include "nmat.h"
+#include "check.h"
 
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-static int failures = 0;
-#define CHECK(cond)                                                              \
-    do {                                                                         \
-        if (!(cond)) {                                                           \
-            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond); \
-            failures++;                                                          \
-        }                                                                        \
-    } while (0)
-
 enum { W = 37, H = 21, C = 3 };
-
-static uint8_t *read_file(const char *path, size_t *len) {
-    FILE *f = fopen(path, "rb");
-    uint8_t *data = NULL;
-    long size;
-    if (!f) return NULL;
-    if (fseek(f, 0, SEEK_END) == 0 && (size = ftell(f)) >= 0 && fseek(f, 0, SEEK_SET) == 0) {
-        data = (uint8_t *)malloc((size_t)size + 1);
-        if (data && fread(data, 1, (size_t)size, f) != (size_t)size) {
-            free(data);
-            data = NULL;
-        }
-        *len = (size_t)size;
-    }
-    fclose(f);
-    return data;
-}
 
 static void test_texels(const nmat_material *m, const uint8_t *expected) {
     nmat_info info;

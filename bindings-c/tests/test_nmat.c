@@ -3,6 +3,7 @@
  * EXPECTED holds the Rust integer decoder's 8-bit codes of every channel of every texel of every
  * mip of FIXTURE (kept equal by tests/tests/golden.rs). */
 #include "nmat.h"
+#include "check.h"
 
 #include <pthread.h>
 #include <stdint.h>
@@ -10,14 +11,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-static int failures = 0;
-#define CHECK(cond)                                                              \
-    do {                                                                         \
-        if (!(cond)) {                                                           \
-            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond); \
-            failures++;                                                          \
-        }                                                                        \
-    } while (0)
 /* Before every call expected to fail, the last error is set to a known detail (a truncated open);
  * after it, the detail must be non-empty and different: every failure describes itself, never
  * an earlier call. (Expected truncations are the one status the known detail cannot tell apart.) */
@@ -39,23 +32,6 @@ static int detail_is_fresh(void) {
         CHECK((call) == (expected));                                             \
         if (fails_ && (expected) != NMAT_TRUNCATED) CHECK(detail_is_fresh());    \
     } while (0)
-
-static uint8_t *read_file(const char *path, size_t *len) {
-    FILE *f = fopen(path, "rb");
-    uint8_t *data = NULL;
-    long size;
-    if (!f) return NULL;
-    if (fseek(f, 0, SEEK_END) == 0 && (size = ftell(f)) >= 0 && fseek(f, 0, SEEK_SET) == 0) {
-        data = (uint8_t *)malloc((size_t)size + 1);
-        if (data && fread(data, 1, (size_t)size, f) != (size_t)size) {
-            free(data);
-            data = NULL;
-        }
-        *len = (size_t)size;
-    }
-    fclose(f);
-    return data;
-}
 
 /* Decodes every texel of every mip (all channels) and compares with the expected codes. */
 static int matches_expected(const nmat_material *m, const uint8_t *expected, size_t expected_len) {

@@ -528,13 +528,7 @@ fn cmd_encode(args: EncodeArgs) -> Result<()> {
     if let Some(note) = rate_note(&encoded) {
         eprintln!("{note}");
     }
-    output::write_atomic(&args.output, &encoded.bytes)?;
-    println!(
-        "wrote {} ({} bytes) in {:.1} s",
-        args.output.display(),
-        encoded.bytes.len(),
-        start.elapsed().as_secs_f64()
-    );
+    write_encoded(&args.output, &encoded.bytes, start)?;
     print!(
         "{}",
         output::quality_table(
@@ -543,6 +537,14 @@ fn cmd_encode(args: EncodeArgs) -> Result<()> {
             Some(&format!("profile {}", encoded.config.profile)),
         )
     );
+    Ok(())
+}
+
+/// Writes an encoded file atomically and says so, with the time since `start`.
+fn write_encoded(path: &Path, bytes: &[u8], start: Instant) -> Result<()> {
+    output::write_atomic(path, bytes)?;
+    let seconds = start.elapsed().as_secs_f64();
+    println!("wrote {} ({} bytes) in {seconds:.1} s", path.display(), bytes.len());
     Ok(())
 }
 
@@ -580,13 +582,7 @@ fn encode_jpeg(args: &EncodeArgs, set: &TextureSet, address_mode: AddressMode) -
             encoded.quality.bppc
         );
     }
-    output::write_atomic(&args.output, &encoded.bytes)?;
-    println!(
-        "wrote {} ({} bytes) in {:.1} s",
-        args.output.display(),
-        encoded.bytes.len(),
-        start.elapsed().as_secs_f64()
-    );
+    write_encoded(&args.output, &encoded.bytes, start)?;
     let maps = nmat_encode::jpeg::plan_maps(set, subsampling);
     let setting = format!("jpeg quality {} ({} JPEG maps)", encoded.jpeg_quality, maps.len());
     print!("{}", output::quality_table(set, &encoded.quality, Some(&setting)));

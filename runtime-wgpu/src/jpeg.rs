@@ -195,14 +195,6 @@ impl Context {
         let mut encoder = device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nmat jpeg") });
         self.record_jpeg(device, &mut encoder, gm, params, Some(&scratch.requests), &scratch.out)?;
-        encoder.copy_buffer_to_buffer(&scratch.out, 0, &scratch.readback, 0, copy);
-        queue.submit([encoder.finish()]);
-        Ok(PendingDecode {
-            out: scratch.out.clone(),
-            readback: scratch.readback.clone(),
-            scratch: Some(scratch),
-            pool: Arc::clone(&self.pool),
-            len: len as usize,
-        })
+        Ok(self.finish(queue, encoder, scratch, len))
     }
 }

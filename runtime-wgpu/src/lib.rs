@@ -767,15 +767,28 @@ impl Context {
         if let Some((_, bind)) = &scratch.bind {
             dispatch(&mut encoder, self.decode_pipeline(gm).0, bind, groups);
         }
+        Ok(self.finish(queue, encoder, scratch, len))
+    }
+
+    /// Copies the codes of `scratch` to its readback buffer after the work in `encoder`, submits,
+    /// and hands the buffers to the [`PendingDecode`] (`len` codes).
+    fn finish(
+        &self,
+        queue: &wgpu::Queue,
+        mut encoder: wgpu::CommandEncoder,
+        scratch: Scratch,
+        len: u64,
+    ) -> PendingDecode {
+        let copy = len.next_multiple_of(4).max(4);
         encoder.copy_buffer_to_buffer(&scratch.out, 0, &scratch.readback, 0, copy);
         queue.submit([encoder.finish()]);
-        Ok(PendingDecode {
+        PendingDecode {
             out: scratch.out.clone(),
             readback: scratch.readback.clone(),
             scratch: Some(scratch),
             pool: Arc::clone(&self.pool),
             len: len as usize,
-        })
+        }
     }
 
     /// Checks that `out` can take `bytes` from byte `offset` (the last word whole); returns the

@@ -514,6 +514,32 @@ impl Stream<'_> {
     }
 }
 
+/// A map's stream at one mip and where its selected channels go ([`Jpeg::selected_maps`]).
+struct Selected<'a> {
+    stream: Stream<'a>,
+    first: usize,
+    /// The selected channels (material channel bits) of this map.
+    selected: u16,
+    /// Slot of the map's first selected channel among all selected channels.
+    before: usize,
+}
+
+impl Selected<'_> {
+    /// `put(slot, channel, code)` for each selected channel of texel `at` (row-major over the
+    /// MCU) of a decoded MCU.
+    #[cfg_attr(not(feature = "alloc"), allow(dead_code))]
+    fn put_texel(&self, pixels: &[u8], at: usize, mut put: impl FnMut(usize, usize, u8)) {
+        let n = usize::from(self.stream.map.channel_count);
+        let mut slot = self.before;
+        for c in 0..n {
+            if self.selected & (1 << (self.first + c)) != 0 {
+                put(slot, self.first + c, u8_at(pixels, at * n + c));
+                slot += 1;
+            }
+        }
+    }
+}
+
 /// YCbCr to RGB in 16-bit fixed point, as the IJG decoder (FORMAT.md §11.5).
 #[inline(always)]
 pub(crate) fn ycc_to_rgb(y: u8, cb: u8, cr: u8) -> [u8; 3] {
@@ -571,30 +597,18 @@ impl Jpeg<'_> {
             return;
         }
         let mut pixels = [0u8; MAX_MCU_SAMPLES];
-        for (m, map) in self.maps.iter().enumerate() {
-            let selected = rows & map_rows(map);
-            if selected == 0 {
-                continue;
-            }
-            let Some(stream) = self.stream(m, mip) else { continue };
-            let (mw, mh) = map.mcu_size();
-            let n = usize::from(map.channel_count);
-            let first = usize::from(map.first_channel);
-            let before = (rows & ((1u16 << first) - 1)).count_ones() as usize;
-            let (x1, y1) = (x0.saturating_add(width), y0.saturating_add(height));
+        let (x1, y1) = (x0.saturating_add(width), y0.saturating_add(height));
+        for sel in self.selected_maps(mip, rows) {
+            let (mw, mh) = sel.stream.map.mcu_size();
             for my in y0 / mh..=(y1 - 1) / mh {
                 for mx in x0 / mw..=(x1 - 1) / mw {
-                    stream.decode_mcu((my * stream.mcus_x + mx) as usize, &mut pixels);
+                    sel.stream.decode_mcu((my * sel.stream.mcus_x + mx) as usize, &mut pixels);
                     for y in (my * mh).max(y0)..((my + 1) * mh).min(y1) {
                         for x in (mx * mw).max(x0)..((mx + 1) * mw).min(x1) {
-                            let at = ((y - my * mh) * mw + (x - mx * mw)) as usize * n;
-                            let mut slot = before;
-                            for c in 0..n {
-                                if selected & (1 << (first + c)) != 0 {
-                                    put(x - x0, y - y0, slot, u8_at(&pixels, at + c));
-                                    slot += 1;
-                                }
-                            }
+                            let at = ((y - my * mh) * mw + (x - mx * mw)) as usize;
+                            sel.put_texel(&pixels, at, |slot, _, code| {
+                                put(x - x0, y - y0, slot, code)
+                            });
                         }
                     }
                 }
@@ -615,34 +629,36 @@ impl Jpeg<'_> {
         mut put: impl FnMut(usize, usize, usize, u8),
     ) {
         let mut pixels = [0u8; MAX_MCU_SAMPLES];
-        for (m, map) in self.maps.iter().enumerate() {
-            let selected = rows & map_rows(map);
-            if selected == 0 {
-                continue;
-            }
-            let Some(stream) = self.stream(m, mip) else { continue };
-            let (mw, mh) = map.mcu_size();
-            let n = usize::from(map.channel_count);
-            let first = usize::from(map.first_channel);
-            // Slot of this map's first selected channel among all selected channels.
-            let before = (rows & ((1u16 << first) - 1)).count_ones() as usize;
+        for sel in self.selected_maps(mip, rows) {
+            let (mw, mh) = sel.stream.map.mcu_size();
             let mut decoded = None;
             for i in 0..count {
                 let (x, y) = texel(i);
-                let mcu = ((y / mh) * stream.mcus_x + x / mw) as usize;
+                let mcu = ((y / mh) * sel.stream.mcus_x + x / mw) as usize;
                 if decoded != Some(mcu) {
-                    stream.decode_mcu(mcu, &mut pixels);
+                    sel.stream.decode_mcu(mcu, &mut pixels);
                     decoded = Some(mcu);
                 }
-                let at = ((y % mh) * mw + x % mw) as usize * n;
-                let mut slot = before;
-                for c in 0..n {
-                    if selected & (1 << (first + c)) != 0 {
-                        put(i, slot, first + c, u8_at(&pixels, at + c));
-                        slot += 1;
-                    }
-                }
+                let at = ((y % mh) * mw + x % mw) as usize;
+                sel.put_texel(&pixels, at, |slot, channel, code| put(i, slot, channel, code));
             }
         }
+    }
+
+    /// The streams at `mip` of the maps that hold a channel of `rows`, with where their selected
+    /// channels go.
+    fn selected_maps(&self, mip: u32, rows: u16) -> impl Iterator<Item = Selected<'_>> {
+        self.maps.iter().enumerate().filter_map(move |(m, map)| {
+            let selected = rows & map_rows(map);
+            let first = usize::from(map.first_channel);
+            (selected != 0).then_some(())?;
+            Some(Selected {
+                stream: self.stream(m, mip)?,
+                first,
+                selected,
+                // Slot of this map's first selected channel among all selected channels.
+                before: (rows & ((1u16 << first) - 1)).count_ones() as usize,
+            })
+        })
     }
 }
