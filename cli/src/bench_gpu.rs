@@ -289,11 +289,11 @@ impl Sampler {
         gm: &GpuMaterial,
         mode: &str,
         n: u64,
-    ) {
+    ) -> std::result::Result<(), GpuError> {
         let Some((_, pipeline)) = self.pipelines.iter().find(|(m, _)| *m == mode) else {
-            return;
+            return Ok(());
         };
-        let [desc, latents] = gm.sample_entries(Self::BINDINGS);
+        let [desc, latents] = gm.sample_entries(Self::BINDINGS)?;
         let sink = wgpu::BindGroupEntry { binding: 2, resource: self.sink.as_entire_binding() };
         let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("bench sample"),
@@ -305,6 +305,7 @@ impl Sampler {
         pass.set_pipeline(pipeline);
         pass.set_bind_group(0, &group, &[]);
         pass.dispatch_workgroups(groups.min(65_535), groups.div_ceil(65_535), 1);
+        Ok(())
     }
 }
 
@@ -343,7 +344,7 @@ impl Gpu<'_> {
                 let (buffer, count) = self.requests;
                 ctx.record_requests(device, e, gm, (buffer, 0, count), all, (out, 0))?;
             }
-            Work::Sample(side, mode) => self.sampler.record(device, e, gm, mode, texels(side)),
+            Work::Sample(side, mode) => self.sampler.record(device, e, gm, mode, texels(side))?,
         }
         Ok(())
     }

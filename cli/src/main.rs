@@ -137,7 +137,7 @@ struct TrainArgs {
     threads: Option<usize>,
 }
 
-#[derive(Clone, Copy, ValueEnum)]
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
 enum EffortArg {
     Fast,
     Default,
@@ -202,9 +202,9 @@ struct EncodeArgs {
     #[arg(long, value_parser = clap::value_parser!(u8).range(1..=100))]
     quality: Option<u8>,
     /// Chroma resolution of colour maps (albedo, emissive, specular colour); normals are always
-    /// 4:4:4 (jpeg).
-    #[arg(long, value_enum, default_value_t = SubsamplingArg::S420)]
-    subsampling: SubsamplingArg,
+    /// 4:4:4 [default: 4:2:0] (jpeg).
+    #[arg(long, value_enum)]
+    subsampling: Option<SubsamplingArg>,
     /// Search for the smallest profile whose whole-chain PSNR reaches this many dB.
     #[arg(long)]
     target_psnr: Option<f64>,
@@ -502,6 +502,9 @@ fn cmd_encode(args: EncodeArgs) -> Result<()> {
                      --profile, --bppc or --target-psnr)",
         }));
     }
+    if args.subsampling.is_some() {
+        return Err("--subsampling belongs to the JPEG codec; pass --codec jpeg".into());
+    }
     let train = train_options(&args.train, nmat_encode::train::DEFAULT_STEPS)?;
     let start = Instant::now();
     let encoded = if let Some(target) = args.target_psnr {
@@ -556,6 +559,8 @@ fn encode_jpeg(args: &EncodeArgs, set: &TextureSet, address_mode: AddressMode) -
         ("--target-psnr", args.target_psnr.is_some()),
         ("--dry-run", args.dry_run),
         ("--steps", args.train.steps.is_some()),
+        ("--effort", args.train.effort != EffortArg::Default),
+        ("--seed", args.train.seed != TrainOptions::default().seed),
     ];
     if let Some((option, _)) = neural_only.iter().find(|(_, given)| *given) {
         return Err(format!(
@@ -564,9 +569,9 @@ fn encode_jpeg(args: &EncodeArgs, set: &TextureSet, address_mode: AddressMode) -
         .into());
     }
     let subsampling = match args.subsampling {
-        SubsamplingArg::S420 => Subsampling::S420,
-        SubsamplingArg::S422 => Subsampling::S422,
-        SubsamplingArg::S444 => Subsampling::S444,
+        None | Some(SubsamplingArg::S420) => Subsampling::S420,
+        Some(SubsamplingArg::S422) => Subsampling::S422,
+        Some(SubsamplingArg::S444) => Subsampling::S444,
     };
     let quality = args.quality.unwrap_or(nmat_encode::jpeg::DEFAULT_QUALITY);
     let options = JpegOptions { quality, subsampling, address_mode };

@@ -956,6 +956,8 @@ fn encode_codec_jpeg_writes_a_material_decode_and_eval_read() {
     for (args, needle) in [
         (vec!["--codec", "jpeg", "--profile", "ntc-0.2"], "--profile belongs to the neural codec"),
         (vec!["--codec", "jpeg", "--steps", "10"], "--steps belongs to the neural codec"),
+        (vec!["--codec", "jpeg", "--effort", "max"], "--effort belongs to the neural codec"),
+        (vec!["--subsampling", "4:4:4"], "--subsampling belongs to the JPEG codec"),
         (vec!["--quality", "50"], "--quality 50: sets the JPEG codec's quality"),
         (vec!["--codec", "jpeg", "--quality", "0"], "'--quality"),
     ] {

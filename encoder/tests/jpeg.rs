@@ -453,5 +453,13 @@ fn regions_equal_row_spans_for_both_codecs() {
             bad(d.decode_region_u8(&m, 0, (0, 0, w, h), ChannelMask::ALL, &mut out, 0)),
             Argument::Output
         );
+        // A pitch whose rows would wrap around the address space.
+        let one = ChannelMask::single(0);
+        let huge = d.decode_region_u8(&m, 0, (0, 0, 1, 3), one, &mut out, 1 << 63);
+        assert_eq!(bad(huge), Argument::RowPitch);
+        if let Some(j) = m.jpeg() {
+            assert!(j.stream_parts(0, m.mip_count() - 1).is_some());
+            assert!(j.stream_parts(0, m.mip_count()).is_none());
+        }
     }
 }

@@ -185,7 +185,7 @@ impl Quad {
             mapped_at_creation: false,
         });
         queue.write_buffer(&uniform, 0, &words.map(u32::to_le_bytes).concat());
-        let [desc, latents] = gpu.sample_entries(self.bindings);
+        let [desc, latents] = gpu.sample_entries(self.bindings).expect("a neural material");
         let view_entry = wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() };
         let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("sample quad"),

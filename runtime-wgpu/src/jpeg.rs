@@ -29,14 +29,19 @@ pub(crate) struct JpegMaps {
 }
 
 /// The descriptor words and the section words of a JPEG material (layout in jpeg.wgsl).
-pub(crate) fn upload_words(m: &Material<'_>) -> Result<(Vec<u32>, Vec<u32>, JpegMaps), GpuError> {
+pub(crate) fn upload_words(
+    device: &wgpu::Device,
+    m: &Material<'_>,
+) -> Result<(Vec<u32>, Vec<u32>, JpegMaps), GpuError> {
     let j = m.jpeg().ok_or(GpuError::Codec)?;
     let section = j.section();
-    if section.len() >= MAX_SECTION_BYTES {
-        return Err(GpuError::TooLarge {
-            texels: section.len() as u64,
-            limit: MAX_SECTION_BYTES as u64 - 1,
-        });
+    // The section is one storage binding; bit positions must stay below 2^32.
+    let limits = device.limits();
+    let limit = (MAX_SECTION_BYTES as u64 - 1)
+        .min(limits.max_storage_buffer_binding_size)
+        .min(limits.max_buffer_size);
+    if section.len() as u64 > limit {
+        return Err(GpuError::SectionTooLarge { bytes: section.len() as u64, limit });
     }
     let mut desc = vec![0u32; 16 + 2 * 16];
     desc[0] = m.width();
@@ -168,8 +173,11 @@ impl Context {
             }
             dispatches.push((p, groups));
         }
-        let bind = self.bind(device, Some(gm), requests, out, &params);
-        dispatch(encoder, &pipelines.clear, &bind, len.div_ceil(4).div_ceil(64));
+        // The clear pass takes its word count from the host (no 32-bit product in the shader).
+        let words = len.div_ceil(4);
+        let clear = Params { constant_mask: words as u32, ..params };
+        let bind = self.bind(device, Some(gm), requests, out, &clear);
+        dispatch(encoder, &pipelines.clear, &bind, words.div_ceil(64));
         for (p, groups) in &dispatches {
             let bind = self.bind(device, Some(gm), requests, out, p);
             dispatch(encoder, &pipelines.decode, &bind, *groups);

@@ -26,12 +26,14 @@ struct Params {
     width: u32,
     channel_mask: u32,
     out_channels: u32,
+    // (Params in lib.rs names these four words format, components, constants, constant_mask.)
     // The map this dispatch decodes.
     map: u32,
     // Rectangles: the MCU columns of the MCUs it touches, and how many MCUs (workgroups).
     mcu_columns: u32,
     mcu_count: u32,
-    unused0: u32,
+    // The clear pass: how many words to zero.
+    clear_words: u32,
     unused1: u32,
     out_offset: u32,
     in_offset: u32,
@@ -365,7 +367,7 @@ fn jpeg_clear(
     @builtin(num_workgroups) groups: vec3<u32>,
 ) {
     let i = id.x + id.y * groups.x * 64u;
-    if (i < (params.count * params.out_channels + 3u) / 4u) {
+    if (i < params.clear_words) {
         atomicStore(&out_codes[params.out_offset + i], 0u);
     }
 }

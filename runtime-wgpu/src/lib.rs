@@ -106,6 +106,9 @@ pub enum GpuError {
     /// A texture [`Context::record_map_to_texture`] cannot write (dimension, usage, format,
     /// mip level, room at the origin).
     Texture { reason: &'static str },
+    /// A JPEG material's section larger than one storage binding of the device (or 2^28 bytes,
+    /// so that bit positions fit 32 bits).
+    SectionTooLarge { bytes: u64, limit: u64 },
     /// A JPEG material (docs/FORMAT.md §11) given to a path that decodes neural materials only
     /// (`nmat_sample`, textures, BC transcoding): decode its regions or requests, or decode it
     /// on the CPU (`nmat_core`).
@@ -118,6 +121,10 @@ impl std::fmt::Display for GpuError {
             GpuError::Channels { mask } => {
                 write!(f, "channel mask {mask:#06x} is empty or names a missing channel")
             }
+            GpuError::SectionTooLarge { bytes, limit } => write!(
+                f,
+                "the JPEG section has {bytes} bytes; this device binds at most {limit} in one buffer"
+            ),
             GpuError::Codec => write!(
                 f,
                 "a JPEG material: this GPU path decodes neural materials only; use the region or \
@@ -474,7 +481,7 @@ impl Context {
                     reason: "a JPEG material has no network",
                 });
             }
-            let (desc, section, maps) = jpeg::upload_words(m)?;
+            let (desc, section, maps) = jpeg::upload_words(device, m)?;
             return Ok(GpuMaterial {
                 id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
                 desc: init("nmat jpeg desc", words_to_bytes(&desc)),

@@ -3,14 +3,14 @@
 //!
 //! [`Context::upload`]: crate::Context::upload
 
-use crate::GpuMaterial;
+use crate::{GpuError, GpuMaterial};
 
 /// Where a shader that includes [`SampleBindings::module`] finds its material: two read-only
 /// storage buffers, bindings `first_binding` and `first_binding + 1` of bind group `group`, so
 /// the material can share a group with the engine's own resources.
 ///
 /// ```no_run
-/// # fn demo(device: &wgpu::Device, gpu: &nmat_wgpu::GpuMaterial) {
+/// # fn demo(device: &wgpu::Device, gpu: &nmat_wgpu::GpuMaterial) -> Result<(), nmat_wgpu::GpuError> {
 /// use nmat_wgpu::SampleBindings;
 /// let bindings = SampleBindings { group: 1, first_binding: 0 };
 /// // The engine's fragment shader calls nmat_sample(uv, lod, rnd, NMAT_TRILINEAR, mask).
@@ -22,9 +22,9 @@ use crate::GpuMaterial;
 /// let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
 ///     label: Some("material"),
 ///     layout: &layout,
-///     entries: &gpu.sample_entries(bindings),
+///     entries: &gpu.sample_entries(bindings)?, // a neural material
 /// });
-/// # let _ = (source, group); }
+/// # let _ = (source, group); Ok(()) }
 /// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct SampleBindings {
@@ -75,9 +75,14 @@ impl SampleBindings {
 
 impl GpuMaterial {
     /// The two bind group entries that bind this material where `bindings` says, to put in the
-    /// engine's bind group of `bindings.group`.
-    pub fn sample_entries(&self, bindings: SampleBindings) -> [wgpu::BindGroupEntry<'_>; 2] {
-        [
+    /// engine's bind group of `bindings.group`. [`GpuError::Codec`] for a JPEG material: the
+    /// sampling module decodes neural materials only.
+    pub fn sample_entries(
+        &self,
+        bindings: SampleBindings,
+    ) -> Result<[wgpu::BindGroupEntry<'_>; 2], GpuError> {
+        self.neural()?;
+        Ok([
             wgpu::BindGroupEntry {
                 binding: bindings.first_binding,
                 resource: self.desc.as_entire_binding(),
@@ -86,7 +91,7 @@ impl GpuMaterial {
                 binding: bindings.first_binding + 1,
                 resource: self.latents.as_entire_binding(),
             },
-        ]
+        ])
     }
 }
 

@@ -201,6 +201,8 @@ fn paths_for_neural_materials_refuse_a_jpeg_one() {
     let texture = nmat_core::bc::default_layout(&m)[0];
     let r = context.transcode_mip(&device, &queue, &gm, &texture, 0);
     assert!(matches!(r, Err(GpuError::Codec)), "{:?}", r.err());
+    let bindings = nmat_wgpu::SampleBindings { group: 0, first_binding: 0 };
+    assert!(matches!(gm.sample_entries(bindings), Err(GpuError::Codec)));
     let r = context.upload_with(&device, &m, Some(nmat_wgpu::Kernel::Dot4));
     assert!(matches!(r, Err(GpuError::Kernel { .. })));
 }

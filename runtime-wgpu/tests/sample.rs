@@ -129,7 +129,7 @@ fn texel_codes_match_the_cpu_byte_for_byte() {
             queue.write_buffer(&input, 0, &words);
             let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
             let out = buffer(&device, 64 * reqs.len() as u64, usage, None);
-            let [desc, latents] = gpu.sample_entries(bindings);
+            let [desc, latents] = gpu.sample_entries(bindings).unwrap();
             let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: None,
                 layout: &layout,

@@ -465,7 +465,17 @@ impl Decoder {
                 limit: row_len as u64,
             });
         }
-        let needed = if height == 0 { 0 } else { pitch * (height as usize - 1) + row_len };
+        let needed = match height {
+            0 => Some(0),
+            h => pitch.checked_mul(h as usize - 1).and_then(|v| v.checked_add(row_len)),
+        };
+        let Some(needed) = needed else {
+            return Err(Error::BadArgument {
+                argument: Argument::RowPitch,
+                value: pitch as u64,
+                limit: (usize::MAX / (height as usize).max(1)) as u64,
+            });
+        };
         if out.len() < needed {
             return Err(Error::BadArgument {
                 argument: Argument::Output,

@@ -40,8 +40,6 @@ impl Bits<'_> {
     }
 }
 
-/// A Huffman table (the counts of codes of each length 1..=16 and the symbols in code order, as
-/// in a JPEG DHT segment), ready to decode.
 /// The canonical decoding tables of a Huffman table whose codes of length 1 ..= 16 number
 /// `counts` (ITU T.81 F.2.2.3): for each length `l`, the largest code of that length (−1: none)
 /// and what to add to a code of that length to get its symbol's index in the table's values.
@@ -63,6 +61,8 @@ pub fn huffman_decoding(counts: &[u8; 16]) -> ([i32; 17], [i32; 17]) {
     (maxcode, offset)
 }
 
+/// A Huffman table (the counts of codes of each length 1..=16 and the symbols in code order, as
+/// in a JPEG DHT segment), ready to decode.
 pub(crate) struct Huffman<'a> {
     /// Largest code of each length (−1: none), left-aligned to 16 bits as `(code + 1) << (16 − l) − 1`
     /// is compared with the next 16 bits.

@@ -311,6 +311,9 @@ impl<'a> Jpeg<'a> {
     /// for decoders that read the section themselves (the GPU runtime). `None` for a map or mip
     /// the material lacks.
     pub fn stream_parts(&self, map: usize, mip: u32) -> Option<StreamParts> {
+        if mip >= u32::from(self.mip_count) {
+            return None;
+        }
         let m = *self.maps.get(map)?;
         let size = *self.mip_sizes.get(mip as usize)?;
         let r = self.streams_at
@@ -347,6 +350,9 @@ impl<'a> Jpeg<'a> {
         else {
             return (0, 0);
         };
+        if mip >= u32::from(self.mip_count) {
+            return (0, 0);
+        }
         let (mw, mh) = m.mcu_size();
         (w.div_ceil(mw), h.div_ceil(mh))
     }
@@ -377,6 +383,9 @@ impl<'a> Jpeg<'a> {
     }
 
     pub(crate) fn stream(&self, map: usize, mip: u32) -> Option<Stream<'a>> {
+        if mip >= u32::from(self.mip_count) {
+            return None;
+        }
         let m = *self.maps.get(map)?;
         let size = *self.mip_sizes.get(mip as usize)?;
         let r = self.streams_at

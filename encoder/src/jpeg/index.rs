@@ -441,8 +441,11 @@ fn index_scan(
     let mcus = (width.div_ceil(mw) * height.div_ceil(mh)) as usize;
     let mut reader = Reader { data: &data, pos: 0 };
     let mut pred = [0i32; 3];
-    let mut mcu_bits = Vec::with_capacity(mcus);
-    let mut dcs = Vec::with_capacity(mcus * comps.len());
+    // Every MCU takes at least one bit per block: a header declaring more MCUs than the data can
+    // hold fails in the walk below, before it is reserved for.
+    let room = mcus.min(8 * data.len() + 1);
+    let mut mcu_bits = Vec::with_capacity(room);
+    let mut dcs = Vec::with_capacity(room * comps.len());
     let mut next_restart = restarts.iter();
     for mcu in 0..mcus {
         if restart > 0 && mcu > 0 && mcu % restart == 0 {
