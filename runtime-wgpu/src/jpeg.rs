@@ -9,9 +9,7 @@ use std::sync::Arc;
 use nmat_core::Material;
 use nmat_core::jpeg::huffman_decoding;
 
-use crate::{
-    Context, GpuError, GpuMaterial, MAX_GROUPS, Params, PendingDecode, dispatch, try_pipeline,
-};
+use crate::{Context, GpuError, GpuMaterial, MAX_GROUPS, Params, dispatch, try_pipeline};
 
 /// Sections from this size on are refused: bit positions must stay below 2^32 on the GPU.
 const MAX_SECTION_BYTES: usize = 1 << 28;
@@ -183,26 +181,5 @@ impl Context {
             dispatch(encoder, &pipelines.decode, &bind, *groups);
         }
         Ok(())
-    }
-
-    /// [`Context::submit`] for a JPEG material: the pool's buffers, [`Context::record_jpeg`].
-    pub(crate) fn submit_jpeg(
-        &self,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
-        gm: &GpuMaterial,
-        params: Params,
-        requests: &[u8],
-    ) -> Result<PendingDecode, GpuError> {
-        let len = u64::from(params.count) * u64::from(params.out_channels);
-        let copy = len.next_multiple_of(4).max(4);
-        let scratch = self.take_scratch(device, copy, requests.len() as u64);
-        if !requests.is_empty() {
-            queue.write_buffer(&scratch.requests, 0, requests);
-        }
-        let mut encoder = device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nmat jpeg") });
-        self.record_jpeg(device, &mut encoder, gm, params, Some(&scratch.requests), &scratch.out)?;
-        Ok(self.finish(queue, encoder, scratch, len))
     }
 }

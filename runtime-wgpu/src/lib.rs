@@ -748,17 +748,25 @@ impl Context {
         params: Params,
         requests: &[u8],
     ) -> Result<PendingDecode, GpuError> {
-        if gm.jpeg.is_some() {
-            return self.submit_jpeg(device, queue, gm, params, requests);
-        }
-        let groups = self.decode_groups(device, gm, &params)?;
+        // A JPEG material records its own passes (no uniform or bind group to reuse).
+        let groups = match gm.jpeg {
+            Some(_) => None,
+            None => Some(self.decode_groups(device, gm, &params)?),
+        };
         let len = u64::from(params.count) * u64::from(params.out_channels);
         let copy = len.next_multiple_of(4).max(4);
         let mut scratch = self.take_scratch(device, copy, requests.len() as u64);
-        queue.write_buffer(&scratch.uniform, 0, &params.bytes());
         if !requests.is_empty() {
             queue.write_buffer(&scratch.requests, 0, requests);
         }
+        let mut encoder = device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nmat decode") });
+        let Some(groups) = groups else {
+            let requests = Some(&scratch.requests);
+            self.record_jpeg(device, &mut encoder, gm, params, requests, &scratch.out)?;
+            return Ok(self.finish(queue, encoder, scratch, len));
+        };
+        queue.write_buffer(&scratch.uniform, 0, &params.bytes());
         if scratch.bind.as_ref().is_none_or(|(id, _)| *id != gm.id) {
             let bind = self.bind_with(
                 device,
@@ -769,8 +777,6 @@ impl Context {
             );
             scratch.bind = Some((gm.id, bind));
         }
-        let mut encoder = device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nmat decode") });
         if let Some((_, bind)) = &scratch.bind {
             dispatch(&mut encoder, self.decode_pipeline(gm).0, bind, groups);
         }

@@ -383,32 +383,19 @@ impl<'a> Jpeg<'a> {
     }
 
     pub(crate) fn stream(&self, map: usize, mip: u32) -> Option<Stream<'a>> {
-        if mip >= u32::from(self.mip_count) {
-            return None;
-        }
-        let m = *self.maps.get(map)?;
-        let size = *self.mip_sizes.get(mip as usize)?;
-        let r = self.streams_at
-            + (map * usize::from(self.mip_count) + mip as usize) * STREAM_RECORD_LEN;
-        let rec = slice(self.section, r, STREAM_RECORD_LEN)?;
-        let (offset, entropy) = (u32_at(rec, 0) as usize, u32_at(rec, 4) as usize);
-        let (index_len, dc_len, _) = stream_layout(&m, size);
-        let body = slice(self.section, offset, index_len + dc_len + entropy)?;
+        let p = self.stream_parts(map, mip)?;
+        let part = |from: usize, to: usize| self.section.get(from..to);
         let tables = core::array::from_fn(|c| {
-            let q = usize::from(u8_at(rec, 8 + c));
-            let quant = slice(self.section, self.quant_at + q * QUANT_TABLE_LEN, QUANT_TABLE_LEN);
-            (
-                quant.unwrap_or(&[]),
-                self.huffman(u8_at(rec, 11 + c)),
-                self.huffman(u8_at(rec, 14 + c)),
-            )
+            let table = |t: &[u8; 3]| self.huffman(t.get(c).copied().unwrap_or(0));
+            let quant = p.quant_at.get(c).and_then(|&q| slice(self.section, q, QUANT_TABLE_LEN));
+            (quant.unwrap_or(&[]), table(&p.dc_table), table(&p.ac_table))
         });
         Some(Stream {
-            index: body.get(..index_len)?,
-            dc: body.get(index_len..index_len + dc_len)?,
-            data: body.get(index_len + dc_len..)?,
-            mcus_x: size.0.div_ceil(m.mcu_size().0),
-            map: m,
+            index: part(p.index_at, p.dc_at)?,
+            dc: part(p.dc_at, p.data_at)?,
+            data: part(p.data_at, p.data_at.checked_add(p.data_len)?)?,
+            mcus_x: p.mcus.0,
+            map: *self.maps.get(map)?,
             tables,
         })
     }
