@@ -128,6 +128,27 @@ impl TrainKernel {
         }
     }
 
+    /// Runs `f` compiled for this kernel's instruction set as far as the compiler inlines it into
+    /// the call (mark the closure `#[inline(always)]`, and what it calls small or
+    /// `#[inline(always)]`). Only for code whose every operation gives the same bits in any
+    /// instruction set — IEEE add, multiply, divide, square root, min/max; Rust never fuses a
+    /// multiply and an add by itself — so only its speed depends on the kernel.
+    pub(crate) fn run<R>(self, f: impl FnOnce() -> R) -> R {
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            TrainKernel::Avx2 if self.is_available() => {
+                // SAFETY: the CPU has AVX2 and FMA (checked above).
+                unsafe { x86_avx2::run(f) }
+            }
+            #[cfg(target_arch = "x86_64")]
+            TrainKernel::Avx512 if self.is_available() => {
+                // SAFETY: the CPU has AVX-512F (checked above).
+                unsafe { x86_avx512::run(f) }
+            }
+            _ => f(),
+        }
+    }
+
     /// `c[m][n] = fma(a[k][m], b[k][n], c[m][n])` for k = 0 .. rows of `a` in order, for every
     /// row m of `c` and every (padded) column n: accumulates `aᵀ·b` into `c`.
     pub(crate) fn matmul_at_acc(self, a: &Matrix, b: &Matrix, c: &mut Matrix) {

@@ -382,6 +382,7 @@ fn adam_block(m: &mut [f32], v: &mut [f32], p: &mut [f32], g: &[f32], step: Adam
 }
 
 /// One Adam update of parameter `p` with gradient `g` and moments `m`, `v`.
+#[inline(always)]
 fn adam(m: &mut f32, v: &mut f32, p: &mut f32, g: f32, step: AdamStep) {
     *m = B1 * *m + (1.0 - B1) * g;
     *v = B2 * *v + (1.0 - B2) * g * g;
@@ -390,52 +391,40 @@ fn adam(m: &mut f32, v: &mut f32, p: &mut f32, g: f32, step: AdamStep) {
     *p -= step.lr * mh / (vh.sqrt() + 1e-8);
 }
 
-/// The latents' optimizer state: Adam's moments, this step's summed gradient, and per latent
-/// cell (at its first latent) whether this step touched it yet — a byte, zero between steps, so
-/// the flags of a bucket stay in the cache while the sums and moments are read at random. A
-/// sample reads and moves whole cells, so a cell's state is a few consecutive values of each
-/// array.
+/// The latents' optimizer state: per latent cell (cells are whole, consecutive runs of latents)
+/// its Adam moments and this step's summed gradient side by side — the `c` latents of the cell at
+/// latent `first` own `state[3 first .. 3 (first + c)]`, first `m`, then `v`, then the sums — so
+/// the random reads of one cell touch a line or two, not one per array; and, at its first latent,
+/// whether this step touched the cell yet — a byte, zero between steps, so the flags of a bucket
+/// stay in the cache.
 struct LatentState {
-    m: Vec<f32>,
-    v: Vec<f32>,
-    grad: Vec<f32>,
+    state: Vec<f32>,
     touched: Vec<bool>,
 }
 
+/// Values of [`LatentState::state`] per latent.
+const STATE_PER_LATENT: usize = 3;
+
 impl LatentState {
     fn new(n: usize) -> LatentState {
-        LatentState {
-            m: huge_vec(n, 0.0),
-            v: huge_vec(n, 0.0),
-            grad: huge_vec(n, 0.0),
-            touched: vec![false; n],
-        }
+        LatentState { state: huge_vec(STATE_PER_LATENT * n, 0.0), touched: vec![false; n] }
     }
 
     /// The state cut at `edges` (see [`split_at_edges`]), with `latents` cut the same way.
     fn split<'s>(&'s mut self, latents: &'s mut [f32], edges: &[usize]) -> Vec<LatentRange<'s>> {
+        let state_edges: Vec<usize> = edges.iter().map(|&e| STATE_PER_LATENT * e).collect();
         split_at_edges(latents, edges)
             .into_iter()
-            .zip(split_at_edges(&mut self.m, edges))
-            .zip(split_at_edges(&mut self.v, edges))
-            .zip(split_at_edges(&mut self.grad, edges))
+            .zip(split_at_edges(&mut self.state, &state_edges))
             .zip(split_at_edges(&mut self.touched, edges))
-            .map(|((((latents, m), v), grad), touched)| LatentRange {
-                m,
-                v,
-                grad,
-                touched,
-                latents,
-            })
+            .map(|((latents, state), touched)| LatentRange { state, touched, latents })
             .collect()
     }
 }
 
 /// One bucket's latents and their state.
 struct LatentRange<'s> {
-    m: &'s mut [f32],
-    v: &'s mut [f32],
-    grad: &'s mut [f32],
+    state: &'s mut [f32],
     touched: &'s mut [bool],
     latents: &'s mut [f32],
 }
@@ -531,25 +520,28 @@ struct LatentUpdate {
 
 impl LatentUpdate {
     /// Sums the gradients of `bucket` over `results` (in chunk order) and updates the latent
-    /// cells it touched; `range` is that bucket's, which starts at latent `base`.
+    /// cells it touched; `range` is that bucket's, which starts at latent `base`. Inlined into
+    /// [`TrainKernel::run`], so its loops run in the kernel's SIMD lanes.
+    #[inline(always)]
     fn apply(&self, results: &[Grads], (bucket, base): (usize, usize), range: LatentRange) {
         // Cells are read in random order: ask for them far enough ahead to cover a miss to
         // memory (an entry costs a few cycles, an update a few tens).
         const AHEAD: usize = 16;
-        let LatentRange { m, v, grad, touched, latents } = range;
+        const S: usize = STATE_PER_LATENT;
+        let LatentRange { state, touched, latents } = range;
         // The touched cells: first latent (from `base`) and channels.
         let mut cells = Vec::new();
         for r in results {
             let entries = &r.latents[bucket];
             for (j, e) in entries.iter().enumerate() {
                 if let Some(next) = entries.get(j + AHEAD) {
-                    let first = next.latent as usize - base;
+                    let (first, channels) = (next.latent as usize - base, next.channels as usize);
                     prefetch(touched, first);
-                    prefetch(grad, first);
-                    prefetch(grad, first + next.channels as usize - 1);
+                    prefetch(state, S * first + 2 * channels);
+                    prefetch(state, S * (first + channels) - 1);
                 }
                 let (first, channels) = (e.latent as usize - base, e.channels as usize);
-                let sum = &mut grad[first..first + channels];
+                let sum = &mut state[S * first + 2 * channels..S * (first + channels)];
                 let add = &r.latent_grads[e.at as usize..][..channels];
                 if !touched[first] {
                     touched[first] = true;
@@ -562,18 +554,19 @@ impl LatentUpdate {
         }
         for (k, &(first, channels)) in cells.iter().enumerate() {
             if let Some(&(next, c)) = cells.get(k + AHEAD) {
-                for array in [&*m, &*v, &*latents] {
-                    prefetch(array, next);
-                    prefetch(array, next + c - 1);
-                }
+                prefetch(state, S * next);
+                prefetch(state, S * next + c);
+                prefetch(state, S * (next + c) - 1);
+                prefetch(latents, next);
+                prefetch(latents, next + c - 1);
             }
             touched[first] = false;
             // The mean gradient, Adam and the clamp to the unit range, one latent at a time in
             // one loop the compiler runs in SIMD lanes.
-            let cell = first..first + channels;
-            let state =
-                m[cell.clone()].iter_mut().zip(&mut v[cell.clone()]).zip(&grad[cell.clone()]);
-            for (p, ((m, v), &g)) in latents[cell].iter_mut().zip(state) {
+            let (m, rest) = state[S * first..S * (first + channels)].split_at_mut(channels);
+            let (v, grad) = rest.split_at_mut(channels);
+            let cell = m.iter_mut().zip(v).zip(&*grad);
+            for (p, ((m, v), &g)) in latents[first..first + channels].iter_mut().zip(cell) {
                 adam(m, v, p, g * self.inv, self.adam);
                 *p = p.clamp(0.0, 1.0);
             }
@@ -721,6 +714,7 @@ impl<'a> Model<'a> {
         }
     }
 
+    #[inline(always)]
     fn draw(&self, rng: &mut Rng) -> (u32, u32, u32) {
         let r = rng.unit() * self.mip_cdf.last().copied().unwrap_or(1.0);
         let mip = self.mip_cdf.iter().position(|&c| r < c).unwrap_or(self.mip_cdf.len() - 1) as u32;
@@ -730,6 +724,7 @@ impl<'a> Model<'a> {
 
     /// Appends the taps of sample `s` at texel `(x, y, mip)` in the order its features read
     /// them, and asks for the latents they read (they are read a few samples later).
+    #[inline(always)]
     fn plan(&self, s: usize, (x, y, mip): (u32, u32, u32), taps: &mut Vec<Tap>) {
         let ms = &self.set.mips[mip as usize];
         let mip_size = (ms.width, ms.height);
@@ -774,6 +769,7 @@ impl<'a> Model<'a> {
 
     /// Writes the latent features of `taps` (planned by [`Model::plan`]) into the rows of `x`;
     /// in the noisy mode `noise` starts with their draws.
+    #[inline(always)]
     fn evaluate(&self, taps: &[Tap], noise: &[f32], mode: LatentMode, x: &mut Matrix) {
         let mut draws = noise;
         for t in taps {
@@ -804,6 +800,7 @@ impl<'a> Model<'a> {
     }
 
     /// The features after the latents: positional encoding and the mip level.
+    #[inline(always)]
     fn position_features(&self, (x, y, mip): (u32, u32, u32), row: &mut [f32]) {
         let f = INPUT_FRAC_BITS;
         let one = (1u32 << f) as f32;
@@ -831,6 +828,7 @@ impl<'a> Model<'a> {
     /// them (`taps`, in the order the random draws are made: texel, then its noise). A sample's
     /// latent features are computed `LAG` samples after its taps are planned, so the latents it
     /// reads are on their way to the cache meanwhile.
+    #[inline(always)]
     fn gather(
         &self,
         mode: LatentMode,
@@ -875,6 +873,7 @@ impl<'a> Model<'a> {
     }
 
     /// Forward over a chunk: the input of every layer (`x0` first) and every pre-activation.
+    #[inline(always)]
     fn forward(
         layers: &[EvalLayer],
         kernel: TrainKernel,
@@ -895,6 +894,7 @@ impl<'a> Model<'a> {
     }
 
     /// Forward and backward over one chunk of samples; returns the mean squared error.
+    #[inline(always)]
     fn run_chunk(
         &self,
         layers: &[EvalLayer],
@@ -999,7 +999,10 @@ impl<'a> Model<'a> {
                         loss: 0.0,
                     };
                     let how = ChunkMode { kernel, latents: mode, train_latents };
-                    g.loss = self.run_chunk(&layers, how, &mut rng, n, &mut g);
+                    g.loss = kernel.run(
+                        #[inline(always)]
+                        || self.run_chunk(&layers, how, &mut rng, n, &mut g),
+                    );
                     g
                 })
                 .collect();
@@ -1030,7 +1033,10 @@ impl<'a> Model<'a> {
                 let edges = &self.buckets.edges;
                 latent_state.split(&mut self.latents, edges).into_par_iter().enumerate().for_each(
                     |(bucket, range)| {
-                        update.apply(&results, (bucket, edges[bucket]), range);
+                        kernel.run(
+                            #[inline(always)]
+                            || update.apply(&results, (bucket, edges[bucket]), range),
+                        );
                     },
                 );
             }

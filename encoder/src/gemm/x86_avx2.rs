@@ -153,3 +153,12 @@ pub(super) unsafe fn probe(rounds: u64) -> f32 {
     }
     sum.iter().sum()
 }
+
+/// `f()`, compiled with AVX2 and FMA where it is inlined here.
+///
+/// # Safety
+/// The CPU has AVX2 and FMA.
+#[target_feature(enable = "avx2,fma")]
+pub(super) unsafe fn run<R>(f: impl FnOnce() -> R) -> R {
+    f()
+}

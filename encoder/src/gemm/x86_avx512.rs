@@ -123,3 +123,12 @@ pub(super) unsafe fn probe(rounds: u64) -> f32 {
     }
     acc.iter().map(|&v| _mm512_reduce_add_ps(v)).sum()
 }
+
+/// `f()`, compiled with AVX-512F where it is inlined here.
+///
+/// # Safety
+/// The CPU has AVX-512F.
+#[target_feature(enable = "avx512f")]
+pub(super) unsafe fn run<R>(f: impl FnOnce() -> R) -> R {
+    f()
+}
