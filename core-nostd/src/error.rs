@@ -114,6 +114,10 @@ pub enum Argument {
     Region,
     /// A row pitch shorter than a row of the output.
     RowPitch,
+    /// A precision the call cannot serve (a tile cache holds integer codes only).
+    Precision,
+    /// Memory given to a tile cache: no slot, too many, or too few texel bytes for them.
+    CacheMemory,
 }
 
 /// Everything that can go wrong, split by cause.

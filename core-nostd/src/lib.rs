@@ -82,6 +82,7 @@
 
 pub mod bc;
 mod bytes;
+pub mod cache;
 pub mod checksum;
 pub mod container;
 pub mod decode;
@@ -105,6 +106,8 @@ pub mod writer;
 #[allow(rustdoc::broken_intra_doc_links)] // the tables write arrays as u8[4]
 pub mod spec {}
 
+#[doc(inline)]
+pub use cache::{FrameStats, PendingTile, Slot, TILE_SIZE, TileCache, TileKey};
 #[doc(inline)]
 pub use container::{
     Container, Header, LEGACY_VERSION_MAJOR, ParseOptions, SectionKind, VERSION_MAJOR,
