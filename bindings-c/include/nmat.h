@@ -82,6 +82,10 @@ typedef enum {
   NMAT_BC7_RGBA = 8,
 } nmat_bc_format;
 
+// A tile cache over a fixed list of materials. Opaque; create with `nmat_cache_create`, destroy
+// with `nmat_cache_free`.
+typedef struct nmat_cache nmat_cache;
+
 // An opened material. Opaque; create with `nmat_material_open*`, destroy with
 // `nmat_material_free`. (Not `repr(C)`: C sees only an incomplete type.)
 typedef struct nmat_material nmat_material;
@@ -126,6 +130,27 @@ typedef struct {
   uint8_t channels[4];
   uint32_t srgb;
 } nmat_bc_texture;
+
+// What a frame did (`nmat_cache_stats`, `nmat_cache_end_frame`).
+typedef struct {
+  // The frame's number (1 for the first `nmat_cache_begin_frame`).
+  uint32_t frame;
+  // Distinct tiles marked this frame.
+  uint32_t marked;
+  // Of those, tiles already decoded when first marked (kept from the previous frame).
+  uint32_t hits;
+  // Tiles decoded this frame.
+  uint32_t decoded;
+  // Texels those tiles hold.
+  uint32_t decoded_texels;
+  // Tiles dropped: unseen at the end of the frame, or their slot taken for a new tile.
+  uint32_t evicted;
+  // New tiles that found no slot (every slot held a tile this frame marked): their lookups
+  // are decoded directly by `nmat_cache_resolve` — correct, slower.
+  uint32_t overflowed;
+  // Texels `nmat_cache_resolve` decoded itself because their tile was not in the cache.
+  uint32_t resolve_misses;
+} nmat_frame_stats;
 
 #ifdef __cplusplus
 extern "C" {
@@ -281,6 +306,67 @@ size_t nmat_status_message(int32_t status,
 // The detail of the last failure on this thread (which field of the file, which argument), like
 // `nmat_status_message`. Empty if nothing failed yet.
 size_t nmat_last_error(uint8_t *buf, size_t len);
+
+// Creates a cache of `tiles` tiles (16 × 16 texels each, every channel, 8-bit codes) over the
+// `material_count` materials at `materials` (then named by their index, 0 …). Its memory is
+// allocated here, once: `tiles` × (256 × the largest channel count + 24) bytes. The materials
+// must stay open until `nmat_cache_free`. At most 64 materials; `tiles` ≥ 1.
+nmat_status nmat_cache_create(const nmat_material *const *materials,
+                              size_t material_count,
+                              size_t tiles,
+                              nmat_cache **out);
+
+// Destroys a cache (before its materials). NULL is accepted and ignored.
+void nmat_cache_free(nmat_cache *cache);
+
+// Starts a frame: its counters start at zero.
+nmat_status nmat_cache_begin_frame(nmat_cache *cache);
+
+// Marks the tiles that the lookup `nmat_cache_resolve(cache, material, u, v, lod, filter,
+// random, …)` will read: every texel of the filter's footprint (a bilinear lookup marks the
+// neighbour tiles it straddles, a trilinear one those of both mips). `random` as in
+// `nmat_sample`.
+nmat_status nmat_cache_mark(nmat_cache *cache,
+                            uint32_t material,
+                            float u,
+                            float v,
+                            float lod,
+                            uint32_t filter,
+                            const float *random);
+
+// Marks the tile of texel (x, y) of `mip` (coordinates wrap or clamp by the material's address
+// mode; a mip beyond the chain is `NMAT_BAD_ARGUMENT`).
+nmat_status nmat_cache_mark_texel(nmat_cache *cache,
+                                  uint32_t material,
+                                  int64_t x,
+                                  int64_t y,
+                                  uint32_t mip);
+
+// Decodes every marked tile not decoded yet, on `threads` threads (0: one per CPU); writes how
+// many to `*decoded` (may be NULL). On an error the other tiles are still decoded; a tile that
+// failed stays undecoded and its lookups decode directly.
+nmat_status nmat_cache_decode_missing(nmat_cache *cache, uint32_t threads, uint32_t *decoded);
+
+// The filtered lookup of `nmat_sample` in integer mode (`NMAT_MODE_INTEGER`), from the cache:
+// the same values to the bit. Texels whose tile is missing are decoded directly. Any number of
+// threads may resolve from one cache at once (but not while it is marked, decoded or ended).
+nmat_status nmat_cache_resolve(const nmat_cache *cache,
+                               uint32_t material,
+                               float u,
+                               float v,
+                               float lod,
+                               uint32_t filter,
+                               const float *random,
+                               uint32_t channel_mask,
+                               float *out,
+                               size_t out_len);
+
+// This frame's counters so far.
+nmat_status nmat_cache_stats(const nmat_cache *cache, nmat_frame_stats *out);
+
+// Ends the frame: every tile it did not mark is evicted. Writes the frame's counters to `*out`
+// (may be NULL).
+nmat_status nmat_cache_end_frame(nmat_cache *cache, nmat_frame_stats *out);
 
 #ifdef __cplusplus
 }  // extern "C"

@@ -16,7 +16,7 @@
 //! room) is decoded directly — slower, never wrong — and counted in
 //! [`FrameStats::resolve_misses`].
 //!
-//! Memory is the caller's, sized once: one [`Slot`] (bookkeeping, 20 bytes) and
+//! Memory is the caller's, sized once: one [`Slot`] (bookkeeping, 24 bytes) and
 //! [`TileCache::slot_bytes`] texel bytes per tile; nothing is allocated per frame. When a new tile
 //! finds no free slot, `mark` takes the slot of a tile the current frame has not marked (every such
 //! tile was last used in the previous frame: the least recently used); when every slot holds a

@@ -28,6 +28,9 @@
 #[allow(rustdoc::broken_intra_doc_links)]
 pub mod guide {}
 
+mod cache;
+pub use cache::*;
+
 use nmat_core::{
     ChannelMask, Container, Decoder, Error, Filter, Material, Precision, SampleRequest,
 };
@@ -252,6 +255,12 @@ fn to_boxed_ptr<C: Castable>(value: C::RustType) -> *mut C {
 /// The value behind a pointer from [`to_boxed_ptr`]; NULL is `NMAT_NULL_ARGUMENT`.
 fn try_ref<'a, C: Castable>(p: *const C) -> Result<&'a C::RustType, nmat_status> {
     arg(p.cast::<C::RustType>())
+}
+
+/// The value behind a pointer from [`to_boxed_ptr`], for a call that changes it; NULL is
+/// `NMAT_NULL_ARGUMENT`.
+fn try_mut<'a, C: Castable>(p: *mut C) -> Result<&'a mut C::RustType, nmat_status> {
+    arg_mut(p.cast::<C::RustType>())
 }
 
 /// Drops the value behind a pointer from [`to_boxed_ptr`]; NULL is ignored.
@@ -680,28 +689,49 @@ pub extern "C" fn nmat_sample(
         let (m, decoder) = (h.material(), &h.decoder);
         let out = slice_mut(out, out_len)?;
         let (channels, _) = mask(m, channel_mask)?;
-        let filter = match filter {
-            0 => Filter::Nearest,
-            1 => Filter::Bilinear,
-            2 => Filter::Trilinear,
-            3 => Filter::Stochastic,
-            _ => return Err(bad("filter is not an nmat_filter")),
-        };
-        let random = if random.is_null() {
-            if filter == Filter::Stochastic {
-                return Err(arg(random).err().unwrap_or(NMAT_NULL_ARGUMENT));
-            }
-            [0.0; 3]
-        } else {
-            let r = slice(random, 3)?;
-            [r[0], r[1], r[2]]
-        };
         let precision = match decode_mode(mode)? {
             nmat_mode::NMAT_MODE_INTEGER => Precision::Integer,
             nmat_mode::NMAT_MODE_FLOAT => Precision::Float,
         };
-        let req = SampleRequest { u, v, lod, filter, precision, random, channels };
+        let req = SampleRequest { precision, channels, ..request(u, v, lod, filter, random)? };
         decoder.sample(m, &req, out).map(|_| ()).map_err(fail)
+    })
+}
+
+/// The lookup of `nmat_sample` and `nmat_cache_mark`/`_resolve` (integer precision, every
+/// channel; callers set the two): the filter checked, `random` read (NULL only when the filter
+/// does not use it).
+fn request(
+    u: f32,
+    v: f32,
+    lod: f32,
+    filter: u32,
+    random: *const f32,
+) -> Result<SampleRequest, nmat_status> {
+    let filter = match filter {
+        0 => Filter::Nearest,
+        1 => Filter::Bilinear,
+        2 => Filter::Trilinear,
+        3 => Filter::Stochastic,
+        _ => return Err(bad("filter is not an nmat_filter")),
+    };
+    let random = if random.is_null() {
+        if filter == Filter::Stochastic {
+            return Err(arg(random).err().unwrap_or(NMAT_NULL_ARGUMENT));
+        }
+        [0.0; 3]
+    } else {
+        let r = slice(random, 3)?;
+        [r[0], r[1], r[2]]
+    };
+    Ok(SampleRequest {
+        u,
+        v,
+        lod,
+        filter,
+        precision: Precision::Integer,
+        random,
+        channels: ChannelMask::ALL,
     })
 }
 

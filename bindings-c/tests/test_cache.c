@@ -1,0 +1,169 @@
+/* The tile cache through the C API: a neural and an indexed-JPEG material in one cache; every
+ * resolved value equals nmat_sample in integer mode (an independent path: direct decoding);
+ * frame counters, a second frame from the cache, eviction, a cache too small, decoding on
+ * threads, refusals. Compiled as C99 and as C++17 under ASan+UBSan (see ../Makefile).
+ * Usage: test_cache NEURAL.nmat JPEG.nmat */
+#include "nmat.h"
+#include "check.h"
+
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+enum { LOOKUPS = 2000 };
+
+typedef struct {
+    uint32_t material, filter, mask;
+    float u, v, lod, random[3];
+} lookup;
+
+static uint64_t rng_state = 0x9E3779B97F4A7C15ull;
+static float unit(void) {
+    rng_state ^= rng_state << 13;
+    rng_state ^= rng_state >> 7;
+    rng_state ^= rng_state << 17;
+    return (float)(rng_state >> 40) / 16777216.0f;
+}
+
+static size_t popcount(uint32_t v) {
+    size_t n = 0;
+    for (; v; v &= v - 1) n++;
+    return n;
+}
+
+static void make_lookups(lookup *l, size_t n, const nmat_info *info) {
+    size_t i;
+    for (i = 0; i < n; i++) {
+        uint32_t m = (uint32_t)(unit() * 2.0f) & 1;
+        uint32_t all = (1u << info[m].channel_count) - 1;
+        l[i].material = m;
+        l[i].filter = (uint32_t)(unit() * 4.0f) & 3;
+        l[i].mask = 1 + (uint32_t)(unit() * (float)(all - 1));
+        l[i].u = unit() * 1.6f - 0.3f;
+        l[i].v = unit() * 1.6f - 0.3f;
+        l[i].lod = unit() * (float)(info[m].mip_count + 1) - 0.5f;
+        l[i].random[0] = unit();
+        l[i].random[1] = unit();
+        l[i].random[2] = unit();
+    }
+}
+
+/* One frame of `n` lookups; returns how many resolved values differ from nmat_sample. */
+static int run_frame(nmat_cache *cache, const nmat_material *const *m, const lookup *l, size_t n,
+                     uint32_t threads, nmat_frame_stats *stats) {
+    size_t i;
+    int differ = 0;
+    uint32_t decoded = 0;
+    CHECK(nmat_cache_begin_frame(cache) == NMAT_OK);
+    for (i = 0; i < n; i++) {
+        CHECK(nmat_cache_mark(cache, l[i].material, l[i].u, l[i].v, l[i].lod, l[i].filter,
+                              l[i].random) == NMAT_OK);
+    }
+    CHECK(nmat_cache_decode_missing(cache, threads, &decoded) == NMAT_OK);
+    for (i = 0; i < n; i++) {
+        float got[16], want[16];
+        CHECK(nmat_cache_resolve(cache, l[i].material, l[i].u, l[i].v, l[i].lod, l[i].filter,
+                                 l[i].random, l[i].mask, got, 16) == NMAT_OK);
+        CHECK(nmat_sample(m[l[i].material], l[i].u, l[i].v, l[i].lod, l[i].filter,
+                          NMAT_MODE_INTEGER, l[i].random, l[i].mask, want, 16) == NMAT_OK);
+        differ += memcmp(got, want, sizeof(float) * popcount(l[i].mask)) != 0;
+    }
+    CHECK(nmat_cache_end_frame(cache, stats) == NMAT_OK);
+    CHECK(stats->decoded == decoded);
+    return differ;
+}
+
+static void test_frames(const nmat_material *const *m, const nmat_info *info) {
+    static lookup l[LOOKUPS];
+    nmat_cache *cache = NULL;
+    nmat_frame_stats first, second, third;
+    make_lookups(l, LOOKUPS, info);
+    CHECK(nmat_cache_create(m, 2, 1024, &cache) == NMAT_OK && cache != NULL);
+    if (!cache) return;
+    CHECK(run_frame(cache, m, l, LOOKUPS, 1, &first) == 0);
+    CHECK(first.frame == 1 && first.marked > 10 && first.hits == 0);
+    CHECK(first.decoded == first.marked && first.resolve_misses == 0 && first.overflowed == 0);
+    CHECK(first.decoded_texels <= first.decoded * 256 && first.decoded_texels > 0);
+    /* The same lookups again, decoded on two threads: everything comes from the cache. */
+    CHECK(run_frame(cache, m, l, LOOKUPS, 2, &second) == 0);
+    CHECK(second.frame == 2 && second.marked == first.marked && second.hits == first.marked);
+    CHECK(second.decoded == 0 && second.resolve_misses == 0 && second.evicted == 0);
+    /* A frame of a few of them: the tiles only the others read are evicted at its end. */
+    CHECK(run_frame(cache, m, l, LOOKUPS / 100, 0, &third) == 0);
+    CHECK(third.decoded == 0 && third.hits == third.marked && third.marked < first.marked);
+    CHECK(third.evicted == first.marked - third.marked);
+    /* Texel marks: a tile of mip 1 of the neural material (clamped or wrapped coordinates). */
+    CHECK(nmat_cache_begin_frame(cache) == NMAT_OK);
+    CHECK(nmat_cache_mark_texel(cache, 0, -3, 1000, 1) == NMAT_OK);
+    CHECK(nmat_cache_stats(cache, &third) == NMAT_OK && third.marked == 1);
+    CHECK(nmat_cache_end_frame(cache, NULL) == NMAT_OK);
+    nmat_cache_free(cache);
+
+    /* Three tiles for a frame that needs many more: still the same values, counted. */
+    CHECK(nmat_cache_create(m, 2, 3, &cache) == NMAT_OK && cache != NULL);
+    if (!cache) return;
+    CHECK(run_frame(cache, m, l, LOOKUPS / 4, 2, &first) == 0);
+    CHECK(first.marked == 3 && first.overflowed > 0 && first.resolve_misses > 0);
+    nmat_cache_free(cache);
+}
+
+static void test_refusals(const nmat_material *const *m) {
+    nmat_cache *cache = NULL;
+    float out[16];
+    const float random[3] = {0.5f, 0.5f, 0.5f};
+    uint8_t detail[200];
+    CHECK(nmat_cache_create(m, 2, 0, &cache) == NMAT_BAD_ARGUMENT && cache == NULL);
+    CHECK(nmat_last_error(detail, sizeof detail) > 1 && strstr((const char *)detail, "CacheMemory") != NULL);
+    CHECK(nmat_cache_create(m, 0, 8, &cache) == NMAT_BAD_ARGUMENT && cache == NULL);
+    CHECK(nmat_cache_create(NULL, 2, 8, &cache) == NMAT_NULL_ARGUMENT);
+    CHECK(nmat_cache_create(m, 2, 8, NULL) == NMAT_NULL_ARGUMENT);
+    CHECK(nmat_cache_create(m, 2, SIZE_MAX / 2, &cache) == NMAT_SIZE_OVERFLOW && cache == NULL);
+    CHECK(nmat_cache_create(m, 2, 8, &cache) == NMAT_OK);
+    if (!cache) return;
+    CHECK(nmat_cache_begin_frame(NULL) == NMAT_NULL_ARGUMENT);
+    CHECK(nmat_cache_mark(cache, 2, 0.5f, 0.5f, 0.0f, NMAT_FILTER_BILINEAR, NULL) == NMAT_BAD_ARGUMENT);
+    CHECK(nmat_cache_mark(cache, 0, 0.5f, 0.5f, 0.0f, 7, NULL) == NMAT_BAD_ARGUMENT);
+    CHECK(nmat_cache_mark(cache, 0, 0.5f, 0.5f, 0.0f, NMAT_FILTER_STOCHASTIC, NULL) == NMAT_NULL_ARGUMENT);
+    CHECK(nmat_cache_mark(cache, 0, 0.5f, 0.5f, 0.0f, NMAT_FILTER_STOCHASTIC, random) == NMAT_OK);
+    CHECK(nmat_cache_mark_texel(cache, 0, 0, 0, 99) == NMAT_BAD_ARGUMENT);
+    CHECK(nmat_cache_resolve(cache, 0, 0.5f, 0.5f, 0.0f, NMAT_FILTER_NEAREST, NULL, 0, out, 16) == NMAT_BAD_ARGUMENT);
+    CHECK(nmat_cache_resolve(cache, 1, 0.5f, 0.5f, 0.0f, NMAT_FILTER_NEAREST, NULL, 0x7, out, 2) == NMAT_BUFFER_TOO_SMALL);
+    CHECK(nmat_cache_resolve(cache, 1, 0.5f, 0.5f, 0.0f, NMAT_FILTER_NEAREST, NULL, 0x7, NULL, 16) == NMAT_NULL_ARGUMENT);
+    CHECK(nmat_cache_decode_missing(cache, 0, NULL) == NMAT_OK);
+    CHECK(nmat_cache_stats(cache, NULL) == NMAT_NULL_ARGUMENT);
+    CHECK(nmat_cache_end_frame(cache, NULL) == NMAT_OK);
+    nmat_cache_free(cache);
+    nmat_cache_free(NULL);
+}
+
+int main(int argc, char **argv) {
+    nmat_material *m[2] = {NULL, NULL};
+    nmat_info info[2];
+    int i;
+    if (argc != 3) {
+        fprintf(stderr, "usage: %s NEURAL.nmat JPEG.nmat\n", argv[0]);
+        return 2;
+    }
+    for (i = 0; i < 2; i++) {
+        size_t len = 0;
+        uint8_t *bytes = read_file(argv[i + 1], &len);
+        if (!bytes) {
+            fprintf(stderr, "cannot read %s\n", argv[i + 1]);
+            return 2;
+        }
+        CHECK(nmat_material_open(bytes, len, &m[i]) == NMAT_OK);
+        free(bytes);
+        if (!m[i]) return 1;
+        CHECK(nmat_material_info(m[i], &info[i]) == NMAT_OK);
+    }
+    test_frames((const nmat_material *const *)m, info);
+    test_refusals((const nmat_material *const *)m);
+    for (i = 0; i < 2; i++) nmat_material_free(m[i]);
+    if (failures) {
+        fprintf(stderr, "%d check(s) failed\n", failures);
+        return 1;
+    }
+    printf("test_cache: ok\n");
+    return 0;
+}
