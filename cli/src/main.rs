@@ -5,6 +5,7 @@ mod bench;
 #[cfg(feature = "gpu")]
 mod bench_gpu;
 mod bench_train;
+mod walk;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use nmat_cli::input::read_nmat;
@@ -105,6 +106,40 @@ enum Command {
         /// (default: the encoder's; `80,5` is the phase mix of the trainer before the SIMD work).
         #[arg(long, value_delimiter = ',', value_name = "JOINT,QAT")]
         phases: Option<Vec<u32>>,
+    },
+    /// A headless walk down a textured corridor at 1920×1080 with the tile cache: per frame the
+    /// tiles marked, decoded and kept, the texels decoded, and the milliseconds of marking,
+    /// decoding and resolving, against decoding every lookup directly (docs/PERFORMANCE.md,
+    /// "Tile cache"). The materials cover floor, walls, ceiling and end wall in turn.
+    Walk {
+        /// One to four .nmat files with at least 3 channels (channels 0–2 are shown).
+        #[arg(required = true)]
+        inputs: Vec<PathBuf>,
+        /// Frame size in pixels, WIDTHxHEIGHT.
+        #[arg(long, default_value = "1920x1080", value_parser = parse_size)]
+        size: (u32, u32),
+        /// Frames of the camera path (the same path, sampled more or less densely).
+        #[arg(long, default_value_t = 60)]
+        frames: u32,
+        /// Thread counts to measure, comma-separated.
+        #[arg(long, value_delimiter = ',', default_values_t = [1, 2])]
+        threads: Vec<usize>,
+        /// Tiles the cache holds (16×16 texels each).
+        #[arg(long, default_value_t = 16384)]
+        tiles: usize,
+        /// Every how many frames to also decode every lookup directly, without the cache, and
+        /// compare (0: never).
+        #[arg(long, default_value_t = 10)]
+        direct_every: u32,
+        /// Only the walk with mips (trilinear) or without (bilinear at mip 0); default both.
+        #[arg(long)]
+        mips: Option<bool>,
+        /// Write one row per frame and setting to this CSV file.
+        #[arg(long)]
+        csv: Option<PathBuf>,
+        /// Write the last frame of the walk with mips (channels 0–2) to this PNG file.
+        #[arg(long)]
+        image: Option<PathBuf>,
     },
     /// Encode, decode and evaluate a bundled procedural material, and print a report.
     Demo {
@@ -344,6 +379,26 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Eval { input, reference } => cmd_eval(&input, &reference),
         Command::Demo { out, train, profile } => cmd_demo(&out, &train, &profile),
+        Command::Walk { inputs, size, frames, threads, tiles, direct_every, mips, csv, image } => {
+            if frames == 0 || tiles == 0 || threads.contains(&0) || inputs.len() > 4 {
+                return Err(
+                    "--frames, --tiles and --threads must be at least 1, and at most 4 inputs"
+                        .into(),
+                );
+            }
+            walk::run(&walk::Options {
+                inputs,
+                width: size.0,
+                height: size.1,
+                frames,
+                threads,
+                tiles,
+                direct_every,
+                mips: mips.map_or(vec![true, false], |m| vec![m]),
+                csv,
+                image,
+            })
+        }
         Command::BenchTrain { inputs, profile, steps, threads, kernel, runs, phases } => {
             cmd_bench_train(inputs, &profile, steps, threads, &kernel, runs, phases)
         }
@@ -388,6 +443,17 @@ fn cmd_index(input: &Path, out: &Path) -> Result<()> {
 }
 
 /// `--max-memory`: a size with an optional binary unit (K, M, G; MiB without one), in bytes.
+/// `WIDTHxHEIGHT`, each 1 to 16384.
+fn parse_size(text: &str) -> std::result::Result<(u32, u32), String> {
+    let bad = || format!("expected WIDTHxHEIGHT (each 1 to 16384), got {text:?}");
+    let (w, h) = text.split_once(['x', '×']).ok_or_else(bad)?;
+    let (w, h): (u32, u32) = (w.parse().map_err(|_| bad())?, h.parse().map_err(|_| bad())?);
+    if !(1..=16384).contains(&w) || !(1..=16384).contains(&h) {
+        return Err(bad());
+    }
+    Ok((w, h))
+}
+
 fn parse_memory(text: &str) -> std::result::Result<u64, String> {
     let t = text.trim();
     let (digits, shift) = match t.char_indices().last() {

@@ -966,3 +966,54 @@ fn encode_codec_jpeg_writes_a_material_decode_and_eval_read() {
         assert!(!other.exists());
     }
 }
+
+#[test]
+fn walk_resolves_every_frame_like_direct_decoding_and_writes_its_rows() {
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures");
+    let (neural, jpeg) =
+        (fixtures.join("ntc_pbr10_96x80_clamp.nmat"), fixtures.join("jpeg/pattern_420_37x21.nmat"));
+    let dir = temp_dir("walk");
+    let (csv, png) = (dir.join("walk.csv"), dir.join("last.png"));
+    let o = nmat(&[
+        "walk",
+        neural.to_str().unwrap(),
+        jpeg.to_str().unwrap(),
+        "--size",
+        "96x54",
+        "--frames",
+        "4",
+        "--threads",
+        "1,2",
+        "--direct-every",
+        "1",
+        "--csv",
+        csv.to_str().unwrap(),
+        "--image",
+        png.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    // Two settings (with and without mips) × two thread counts, one summary row each.
+    assert_eq!(
+        text(&o).lines().filter(|l| l.starts_with("| yes |") || l.starts_with("| no |")).count(),
+        4
+    );
+    let rows = std::fs::read_to_string(&csv).unwrap();
+    let rows: Vec<&str> = rows.lines().skip(1).collect();
+    assert_eq!(rows.len(), 16, "4 frames × 4 settings");
+    // Every frame was also decoded directly, and the cache gave the same image.
+    assert!(rows.iter().all(|r| r.ends_with(",true")), "{rows:?}");
+    // Frame 0 decodes every tile it marks; later frames of the same walk keep some.
+    let field = |r: &str, i: usize| r.split(',').nth(i).unwrap().parse::<u64>().unwrap();
+    assert!(rows.iter().filter(|r| field(r, 2) == 0).all(|r| field(r, 3) == field(r, 5)));
+    assert!(rows.iter().any(|r| field(r, 2) > 0 && field(r, 4) > 0));
+    let image = image::open(&png).unwrap();
+    assert_eq!((image.width(), image.height()), (96, 54));
+    // Bad arguments are refused with a message, before any work.
+    for bad in [["--size", "96"], ["--frames", "0"], ["--threads", "0"]] {
+        let o = nmat(&["walk", neural.to_str().unwrap(), bad[0], bad[1]]);
+        assert!(!o.status.success() && !text(&o).is_empty(), "{bad:?}");
+    }
+    let o = nmat(&["walk", fixtures.join("strip_1x37.nmat").to_str().unwrap(), "--size", "8x8"]);
+    assert!(!o.status.success(), "{}", text(&o));
+    let _ = std::fs::remove_dir_all(&dir);
+}
