@@ -10,6 +10,7 @@
 use crate::Result;
 use nmat_core::{
     ChannelMask, Decoder, Filter, FrameStats, Material, Precision, SampleRequest, TileCache,
+    TileKey,
 };
 use rayon::prelude::*;
 use std::path::PathBuf;
@@ -302,10 +303,24 @@ fn walk(
     for f in 0..opts.frames {
         let lookups = gbuffer(opts, materials, f, mips);
         cache.begin_frame();
+        // Marking: the footprints on every thread, a row of pixels each (a tile met by the
+        // previous few lookups is not listed again), then one pass that marks them.
         let start = Instant::now();
-        for l in &lookups {
-            cache.mark(usize::from(l.material), &request(l, mips))?;
-        }
+        let found: Vec<Vec<TileKey>> = lookups
+            .par_chunks(opts.width as usize)
+            .map(|row| {
+                let mut keys: Vec<TileKey> = Vec::new();
+                for l in row {
+                    for key in cache.footprint(usize::from(l.material), &request(l, mips))? {
+                        if !keys.iter().rev().take(16).any(|k| *k == key) {
+                            keys.push(key);
+                        }
+                    }
+                }
+                Ok(keys)
+            })
+            .collect::<std::result::Result<_, nmat_core::Error>>()?;
+        cache.mark_tiles(found.into_iter().flatten())?;
         let mark_ms = ms(start);
         let start = Instant::now();
         cache.pending().par_bridge().try_for_each(|t| {

@@ -2,8 +2,8 @@
 //! (the frame protocol of the JPEG-texture paper's block cache and of "inference on feedback").
 //!
 //! A frame runs [`TileCache::begin_frame`], then [`TileCache::mark`] for every lookup it will make
-//! (the same arguments as [`Material::sample`]) or [`TileCache::mark_texel`] for single texels,
-//! then [`TileCache::decode_missing`] (or [`TileCache::pending`] on the caller's threads), then
+//! (the same arguments as [`Material::sample`]) or [`TileCache::mark_texel`] for single texels
+//! (or [`TileCache::footprint`] on many threads, then [`TileCache::mark_tiles`]), then [`TileCache::decode_missing`] (or [`TileCache::pending`] on the caller's threads), then
 //! [`TileCache::resolve`] for the lookups themselves, then [`TileCache::end_frame`], which evicts
 //! every tile the frame did not mark. Tiles are [`TILE_SIZE`]² texels of one mip of one material
 //! (an 8×8, 16×8 or 16×16 JPEG MCU never straddles two), keyed by (material, mip, tile column,
@@ -231,23 +231,64 @@ where
     /// Marks every tile that `resolve(material, req, …)` will read (the channel mask and
     /// precision of `req` do not matter here, but the mask must be valid for the material).
     pub fn mark(&mut self, material: usize, req: &SampleRequest) -> Result<(), Error> {
+        let tiles = self.footprint(material, req)?;
+        for key in tiles {
+            self.mark_tile(key);
+        }
+        Ok(())
+    }
+
+    /// The tiles `resolve(material, req, …)` reads (one to eight), without marking them: a
+    /// shared-reference call, so threads can compute the footprints of a frame's lookups side by
+    /// side and [`TileCache::mark_tiles`] marks what they found.
+    pub fn footprint(
+        &self,
+        material: usize,
+        req: &SampleRequest,
+    ) -> Result<heapless::Vec<TileKey, 8>, Error> {
         let m = self.material(material)?;
         m.resolve_channels(req.channels)?;
-        let touched = RefCell::new(heapless::Vec::<(u32, u32, u32), 8>::new());
+        let touched = RefCell::new(heapless::Vec::<TileKey, 8>::new());
         let mut scratch = [0f32; MAX_CHANNELS];
         let req = SampleRequest { channels: ChannelMask::single(0), ..*req };
         m.sample_with(&req, &mut scratch, &|x, y, mip, _, _, _| {
             let (x, y, mip) = m.address_texel(x, y, mip);
             let mut t = touched.borrow_mut();
-            let tile = (x / TILE_SIZE, y / TILE_SIZE, mip);
-            if !t.contains(&tile) {
+            let key = Self::key(material, x / TILE_SIZE, y / TILE_SIZE, mip);
+            if !t.contains(&key) {
                 // A lookup reads at most 8 texels (trilinear): the push cannot fail.
-                let _ = t.push(tile);
+                let _ = t.push(key);
             }
             Ok(0)
         })?;
-        for (x, y, mip) in touched.into_inner() {
-            self.mark_tile(material, x, y, mip);
+        Ok(touched.into_inner())
+    }
+
+    /// Marks tiles found by [`TileCache::footprint`] (repeats are counted once per frame). A key
+    /// naming a material, mip or tile the cache's materials do not have is refused
+    /// (`Argument::Material`, `Argument::Mip`, `Argument::Region`) and the keys after it are not
+    /// marked.
+    pub fn mark_tiles(&mut self, keys: impl IntoIterator<Item = TileKey>) -> Result<(), Error> {
+        for key in keys {
+            let m = self.material(usize::from(key.material))?;
+            let mip = u32::from(key.mip);
+            if mip >= m.mip_count() {
+                return Err(Error::BadArgument {
+                    argument: Argument::Mip,
+                    value: u64::from(mip),
+                    limit: u64::from(m.mip_count()),
+                });
+            }
+            let (w, h) = m.mip_size(mip);
+            let (x, y) = (u32::from(key.x), u32::from(key.y));
+            if x >= w.div_ceil(TILE_SIZE) || y >= h.div_ceil(TILE_SIZE) {
+                return Err(Error::BadArgument {
+                    argument: Argument::Region,
+                    value: u64::from(x.max(y)),
+                    limit: u64::from(w.div_ceil(TILE_SIZE).max(h.div_ceil(TILE_SIZE))),
+                });
+            }
+            self.mark_tile(key);
         }
         Ok(())
     }
@@ -263,7 +304,7 @@ where
             });
         }
         let (x, y, mip) = m.address_texel(x, y, mip);
-        self.mark_tile(material, x / TILE_SIZE, y / TILE_SIZE, mip);
+        self.mark_tile(Self::key(material, x / TILE_SIZE, y / TILE_SIZE, mip));
         Ok(())
     }
 
@@ -291,8 +332,7 @@ where
         None
     }
 
-    fn mark_tile(&mut self, material: usize, x: u32, y: u32, mip: u32) {
-        let key = Self::key(material, x, y, mip);
+    fn mark_tile(&mut self, key: TileKey) {
         let frame = self.frame;
         if let Some(i) = self.find(key) {
             if let Some(s) = self.slots.as_mut().get_mut(i)

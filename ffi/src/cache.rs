@@ -199,7 +199,9 @@ pub extern "C" fn nmat_cache_decode_missing(
             std::thread::scope(|s| {
                 let running: Vec<_> =
                     parts.into_iter().map(|part| s.spawn(move || run(part))).collect();
-                running.into_iter().map(|t| t.join().unwrap_or((0, None))).collect()
+                // A panic on a decoding thread reaches `guard` (NMAT_INTERNAL_ERROR).
+                let joined = running.into_iter().map(|t| t.join());
+                joined.map(|r| r.unwrap_or_else(|p| std::panic::resume_unwind(p))).collect()
             })
         };
         if !decoded.is_null() {

@@ -294,3 +294,46 @@ fn bad_arguments_are_typed_errors() {
     assert_eq!(cache.stats().resolve_misses, 4);
     assert_eq!(cache.decode_missing().unwrap(), cache.stats().marked);
 }
+
+#[test]
+fn footprints_from_threads_marked_together_equal_marking_each_lookup() {
+    let bytes = fixture_bytes();
+    let materials: Vec<Material> = bytes.iter().map(|b| Container::parse(b).unwrap()).collect();
+    let refs: Vec<&Material> = materials.iter().collect();
+    let decoders: Vec<Decoder> = materials.iter().map(Decoder::new).collect();
+    let decoders: Vec<&Decoder> = decoders.iter().collect();
+    let reqs = requests(&materials, 5, 1200);
+    let mut one = TileCache::with_capacity(&refs, 1024).unwrap();
+    let by_lookup = frame(&mut one, &materials, &decoders, &reqs);
+
+    let mut split = TileCache::with_capacity(&refs, 1024).unwrap();
+    split.begin_frame();
+    let keys: Vec<_> = std::thread::scope(|s| {
+        let cache = &split;
+        let jobs: Vec<_> = reqs
+            .chunks(400)
+            .map(|part| {
+                s.spawn(move || {
+                    part.iter()
+                        .flat_map(|(i, r)| cache.footprint(*i, r).unwrap())
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        jobs.into_iter().flat_map(|j| j.join().unwrap()).collect()
+    });
+    assert!(keys.len() > by_lookup.marked as usize, "repeats are listed: {}", keys.len());
+    split.mark_tiles(keys).unwrap();
+    assert_eq!(split.stats().marked, by_lookup.marked);
+    split.decode_missing_with(&decoders).unwrap();
+    assert_resolved_equal_sample(&split, &materials, &reqs);
+    assert_eq!(split.end_frame().resolve_misses, 0);
+
+    // Keys the materials do not have are refused.
+    let key = |material, mip, x, y| nmat_core::TileKey { material, mip, x, y };
+    bad(split.mark_tiles([key(3, 0, 0, 0)]), Argument::Material);
+    bad(split.mark_tiles([key(0, 7, 0, 0)]), Argument::Mip); // 64×64: 7 mips, 0 to 6
+    bad(split.mark_tiles([key(0, 0, 4, 0)]), Argument::Region); // 4 tiles across
+    bad(split.mark_tiles([key(2, 0, 0, 2)]), Argument::Region); // 37×21: 2 tile rows
+    split.mark_tiles([key(0, 6, 0, 0), key(2, 0, 2, 1)]).unwrap();
+}
