@@ -26,7 +26,7 @@
 #[cfg(feature = "alloc")]
 extern crate alloc;
 
-use core::cell::RefCell;
+use core::cell::{Cell, RefCell};
 use core::sync::atomic::{AtomicU32, Ordering};
 
 use crate::decode::ChannelMask;
@@ -469,10 +469,21 @@ where
             return Err(Error::BadArgument { argument: Argument::Precision, value: 1, limit: 0 });
         }
         let m = self.material(material)?;
+        // The texels of a bilinear footprint mostly share a tile: look it up once.
+        let last = Cell::new(None::<(TileKey, Option<usize>)>);
         m.sample_with(req, out, &|x, y, mip, channels, _, values| {
             let (x, y, mip) = m.address_texel(x, y, mip);
+            let key = Self::key(material, x / TILE_SIZE, y / TILE_SIZE, mip);
+            let slot = match last.get() {
+                Some((k, slot)) if k == key => slot,
+                _ => {
+                    let slot = self.ready_slot(key);
+                    last.set(Some((key, slot)));
+                    slot
+                }
+            };
             let mut codes = [0u8; MAX_CHANNELS];
-            let n = match self.cached_texel(material, x, y, mip) {
+            let n = match slot.and_then(|i| self.cached_texel(i, material, x, y)) {
                 Some(texel) => {
                     let selected = texel
                         .iter()
@@ -498,12 +509,14 @@ where
         })
     }
 
-    /// The codes of every channel of texel (x, y) of `mip` (addressed), if its tile is decoded.
-    fn cached_texel(&self, material: usize, x: u32, y: u32, mip: u32) -> Option<&[u8]> {
-        let i = self.find(Self::key(material, x / TILE_SIZE, y / TILE_SIZE, mip))?;
-        if self.slots.as_ref().get(i)?.state != State::Ready {
-            return None;
-        }
+    /// The slot of tile `key` if it is decoded.
+    fn ready_slot(&self, key: TileKey) -> Option<usize> {
+        let i = self.find(key)?;
+        (self.slots.as_ref().get(i)?.state == State::Ready).then_some(i)
+    }
+
+    /// The codes of every channel of texel (x, y) (addressed) of the decoded tile in slot `i`.
+    fn cached_texel(&self, i: usize, material: usize, x: u32, y: u32) -> Option<&[u8]> {
         let channels = self.materials.get(material)?.channel_count();
         let at = ((y % TILE_SIZE) * TILE_SIZE + x % TILE_SIZE) as usize * channels;
         self.texels.as_ref().get(i * self.slot_bytes + at..)?.get(..channels)
