@@ -148,6 +148,18 @@ pub struct TileCache<'m, S, T> {
     shared: Shared,
 }
 
+/// `mip` is in the material's chain (`Argument::Mip` otherwise).
+fn check_mip(m: &Material<'_>, mip: u32) -> Result<(), Error> {
+    if mip >= m.mip_count() {
+        return Err(Error::BadArgument {
+            argument: Argument::Mip,
+            value: u64::from(mip),
+            limit: u64::from(m.mip_count()),
+        });
+    }
+    Ok(())
+}
+
 /// `BadArgument` on the cache's memory.
 fn memory_error(value: usize, limit: usize) -> Error {
     Error::BadArgument { argument: Argument::CacheMemory, value: value as u64, limit: limit as u64 }
@@ -272,13 +284,7 @@ where
         for key in keys {
             let m = self.material(usize::from(key.material))?;
             let mip = u32::from(key.mip);
-            if mip >= m.mip_count() {
-                return Err(Error::BadArgument {
-                    argument: Argument::Mip,
-                    value: u64::from(mip),
-                    limit: u64::from(m.mip_count()),
-                });
-            }
+            check_mip(m, mip)?;
             let (w, h) = m.mip_size(mip);
             let (x, y) = (u32::from(key.x), u32::from(key.y));
             if x >= w.div_ceil(TILE_SIZE) || y >= h.div_ceil(TILE_SIZE) {
@@ -296,13 +302,7 @@ where
     /// Marks the tile of texel (x, y) of `mip` (addressed like `Material::decode_texel_u8`).
     pub fn mark_texel(&mut self, material: usize, x: i64, y: i64, mip: u32) -> Result<(), Error> {
         let m = self.material(material)?;
-        if mip >= m.mip_count() {
-            return Err(Error::BadArgument {
-                argument: Argument::Mip,
-                value: u64::from(mip),
-                limit: u64::from(m.mip_count()),
-            });
-        }
+        check_mip(m, mip)?;
         let (x, y, mip) = m.address_texel(x, y, mip);
         self.mark_tile(Self::key(material, x / TILE_SIZE, y / TILE_SIZE, mip));
         Ok(())
