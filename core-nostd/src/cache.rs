@@ -19,9 +19,10 @@
 //! Memory is the caller's, sized once: one [`Slot`] (bookkeeping, 24 bytes) and
 //! [`TileCache::slot_bytes`] texel bytes per tile; nothing is allocated per frame. When a new tile
 //! finds no free slot, `mark` takes the slot of a tile the current frame has not marked (every such
-//! tile was last used in the previous frame: the least recently used); when every slot holds a
-//! tile the frame has marked, the tile is not cached, [`FrameStats::overflowed`] counts it and its
-//! lookups decode directly.
+//! tile was last used in the previous frame: the least recently used) — one this frame may still
+//! mark later, which is then decoded again, so size the cache above the largest frame; when every
+//! slot holds a tile the frame has marked, the tile is not cached, [`FrameStats::overflowed`]
+//! counts it and its lookups decode directly.
 
 #[cfg(feature = "alloc")]
 extern crate alloc;

@@ -337,3 +337,60 @@ fn footprints_from_threads_marked_together_equal_marking_each_lookup() {
     bad(split.mark_tiles([key(2, 0, 0, 2)]), Argument::Region); // 37×21: 2 tile rows
     split.mark_tiles([key(0, 6, 0, 0), key(2, 0, 2, 1)]).unwrap();
 }
+
+/// Many frames of random lookups through caches of several sizes: whatever the hash chains,
+/// evictions and slot reuse did, every value equals `Material::sample`, a frame's counters add up,
+/// and the tiles kept match a model of the protocol.
+#[test]
+fn random_frames_through_small_caches_keep_the_books_and_the_values() {
+    use std::collections::HashSet;
+    let bytes = fixture_bytes();
+    let materials: Vec<Material> = bytes.iter().map(|b| Container::parse(b).unwrap()).collect();
+    let refs: Vec<&Material> = materials.iter().collect();
+    let decoders: Vec<Decoder> = materials.iter().map(Decoder::new).collect();
+    let decoders: Vec<&Decoder> = decoders.iter().collect();
+    let mut r = Rng::new(99);
+    for capacity in [1, 2, 7, 16, 61] {
+        let mut cache = TileCache::with_capacity(&refs, capacity).unwrap();
+        // The tiles the model says are cached between frames.
+        let (mut kept, mut frames) = (HashSet::new(), 0);
+        for _ in 0..25 {
+            let reqs = requests(&materials, r.next_u64(), r.range(1, 40) as usize);
+            let mut wanted = HashSet::new();
+            for (i, req) in &reqs {
+                wanted.extend(cache.footprint(*i, req).unwrap());
+            }
+            // `frame` also checks every resolved value against `Material::sample`.
+            let s = frame(&mut cache, &materials, &decoders, &reqs);
+            frames += 1;
+            assert_eq!(s.frame, frames);
+            assert_eq!(s.marked, s.hits + s.decoded, "{s:?}");
+            if wanted.len() <= capacity {
+                assert_eq!(s.marked as usize, wanted.len(), "{s:?}");
+                assert_eq!((s.overflowed, s.resolve_misses), (0, 0), "{s:?}");
+                // Tiles alive at the end = alive at the start + decoded − evicted.
+                assert_eq!(s.evicted + s.marked, kept.len() as u32 + s.decoded, "{s:?}");
+                let both = kept.intersection(&wanted).count();
+                if kept.union(&wanted).count() <= capacity {
+                    // Room for all: every kept tile wanted again is a hit, the others go at the
+                    // end of the frame.
+                    assert_eq!(s.hits as usize, both, "{s:?}");
+                    assert_eq!(s.evicted as usize, kept.len() - both, "{s:?}");
+                } else {
+                    // New tiles may take the slots of kept ones before the frame marks them.
+                    assert!(s.hits as usize <= both, "{s:?}");
+                }
+                kept = wanted;
+            } else {
+                // Every slot ends the frame holding one of its tiles; the rest overflowed.
+                assert_eq!(s.marked as usize, capacity, "{s:?}");
+                assert!(s.overflowed as usize >= wanted.len() - capacity, "{s:?}");
+                assert!(s.resolve_misses > 0, "{s:?}");
+                // Which tiles stayed is the cache's choice: an empty frame evicts them all.
+                cache.begin_frame();
+                assert_eq!(cache.end_frame().evicted, s.marked);
+                (kept, frames) = (HashSet::new(), frames + 1);
+            }
+        }
+    }
+}
