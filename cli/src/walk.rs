@@ -321,7 +321,7 @@ fn walk(
                 Ok(keys)
             })
             .collect::<std::result::Result<_, nmat_core::Error>>()?;
-        cache.mark_tiles(found.into_iter().flatten())?;
+        cache.mark_tiles(&found.concat())?;
         let mark_ms = ms(start);
         let start = Instant::now();
         cache.pending().par_bridge().try_for_each(|t| {

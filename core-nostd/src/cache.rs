@@ -20,9 +20,10 @@
 //! [`TileCache::slot_bytes`] texel bytes per tile; nothing is allocated per frame. When a new tile
 //! finds no free slot, `mark` takes the slot of a tile the current frame has not marked (every such
 //! tile was last used in the previous frame: the least recently used) — one this frame may still
-//! mark later, which is then decoded again, so size the cache above the largest frame; when every
-//! slot holds a tile the frame has marked, the tile is not cached, [`FrameStats::overflowed`]
-//! counts it and its lookups decode directly.
+//! mark later, which is then decoded again ([`TileCache::mark_tiles`], given the frame's tiles at
+//! once, marks the cached ones first and avoids that), so size the cache above the largest frame;
+//! when every slot holds a tile the frame has marked, the tile is not cached,
+//! [`FrameStats::overflowed`] counts it and its lookups decode directly.
 
 #[cfg(feature = "alloc")]
 extern crate alloc;
@@ -277,11 +278,12 @@ where
         Ok(touched.into_inner())
     }
 
-    /// Marks tiles found by [`TileCache::footprint`] (repeats are counted once per frame). A key
-    /// naming a material, mip or tile the cache's materials do not have is refused
-    /// (`Argument::Material`, `Argument::Mip`, `Argument::Region`) and the keys after it are not
-    /// marked.
-    pub fn mark_tiles(&mut self, keys: impl IntoIterator<Item = TileKey>) -> Result<(), Error> {
+    /// Marks tiles found by [`TileCache::footprint`] (repeats are counted once per frame). The
+    /// tiles already cached are marked first, so when the cache is full a new tile only takes the
+    /// slot of a tile none of `keys` needs. A key naming a material, mip or tile the cache's
+    /// materials do not have is refused (`Argument::Material`, `Argument::Mip`,
+    /// `Argument::Region`) before anything is marked.
+    pub fn mark_tiles(&mut self, keys: &[TileKey]) -> Result<(), Error> {
         for key in keys {
             let m = self.material(usize::from(key.material))?;
             let mip = u32::from(key.mip);
@@ -295,6 +297,13 @@ where
                     limit: u64::from(w.div_ceil(TILE_SIZE).max(h.div_ceil(TILE_SIZE))),
                 });
             }
+        }
+        for &key in keys {
+            if self.find(key).is_some() {
+                self.mark_tile(key);
+            }
+        }
+        for &key in keys {
             self.mark_tile(key);
         }
         Ok(())
