@@ -131,6 +131,15 @@ typedef struct {
   uint32_t srgb;
 } nmat_bc_texture;
 
+// One tile: material (its index in the cache), mip, and tile column and row (texel x / 16,
+// y / 16), as `nmat_cache_footprint` lists them.
+typedef struct {
+  uint16_t material;
+  uint8_t mip;
+  uint16_t x;
+  uint16_t y;
+} nmat_tile_key;
+
 // What a frame did (`nmat_cache_stats`, `nmat_cache_end_frame`).
 typedef struct {
   // The frame's number (1 for the first `nmat_cache_begin_frame`).
@@ -341,6 +350,28 @@ nmat_status nmat_cache_mark_texel(nmat_cache *cache,
                                   int64_t x,
                                   int64_t y,
                                   uint32_t mip);
+
+// Lists in `out` (room for `out_len`, 8 always suffice) the tiles the lookup
+// `nmat_cache_resolve(cache, material, u, v, lod, filter, random, …)` reads, and their number in
+// `*count`; marks nothing. Any number of threads may call it at once (like
+// `nmat_cache_resolve`), so a frame's footprints can be found in parallel and marked with one
+// `nmat_cache_mark_tiles`.
+nmat_status nmat_cache_footprint(const nmat_cache *cache,
+                                 uint32_t material,
+                                 float u,
+                                 float v,
+                                 float lod,
+                                 uint32_t filter,
+                                 const float *random,
+                                 nmat_tile_key *out,
+                                 size_t out_len,
+                                 size_t *count);
+
+// Marks `count` tiles listed by `nmat_cache_footprint` (repeats count once per frame). The
+// tiles already cached are marked first, so a full cache gives up only tiles none of `keys`
+// needs. A key the cache's materials do not have is `NMAT_BAD_ARGUMENT`, and then nothing is
+// marked.
+nmat_status nmat_cache_mark_tiles(nmat_cache *cache, const nmat_tile_key *keys, size_t count);
 
 // Decodes every marked tile not decoded yet, on `threads` threads (0: one per CPU); writes how
 // many to `*decoded` (may be NULL). On an error the other tiles are still decoded; a tile that

@@ -1,7 +1,7 @@
 /* The tile cache through the C API: a neural and an indexed-JPEG material in one cache; every
  * resolved value equals nmat_sample in integer mode (an independent path: direct decoding);
  * frame counters, a second frame from the cache, eviction, a cache too small, decoding on
- * threads, refusals. Compiled as C99 and as C++17 under ASan+UBSan (see ../Makefile).
+ * threads, footprints marked in one batch, refusals. Compiled as C99 and as C++17 under ASan+UBSan (see ../Makefile).
  * Usage: test_cache NEURAL.nmat JPEG.nmat */
 #include "nmat.h"
 #include "check.h"
@@ -108,6 +108,56 @@ static void test_frames(const nmat_material *const *m, const nmat_info *info) {
     nmat_cache_free(cache);
 }
 
+/* The footprints listed first (as threads would), then marked in one call: the same tiles as
+ * marking lookup by lookup, and the same values. */
+static void test_batch_marking(const nmat_material *const *m, const nmat_info *info) {
+    static lookup l[LOOKUPS];
+    static nmat_tile_key keys[LOOKUPS * 8];
+    nmat_cache *one = NULL, *batch = NULL;
+    nmat_frame_stats by_lookup, batched;
+    size_t i, n = 0, count = 0;
+    int differ = 0;
+    make_lookups(l, LOOKUPS, info);
+    CHECK(nmat_cache_create(m, 2, 1024, &one) == NMAT_OK);
+    CHECK(nmat_cache_create(m, 2, 1024, &batch) == NMAT_OK);
+    if (!one || !batch) return;
+    CHECK(run_frame(one, m, l, LOOKUPS, 1, &by_lookup) == 0);
+    CHECK(nmat_cache_begin_frame(batch) == NMAT_OK);
+    for (i = 0; i < LOOKUPS; i++) {
+        CHECK(nmat_cache_footprint(batch, l[i].material, l[i].u, l[i].v, l[i].lod, l[i].filter,
+                                   l[i].random, keys + n, 8, &count) == NMAT_OK);
+        CHECK(count >= 1 && count <= 8);
+        n += count;
+    }
+    CHECK(nmat_cache_stats(batch, &batched) == NMAT_OK && batched.marked == 0);
+    CHECK(nmat_cache_mark_tiles(batch, keys, n) == NMAT_OK);
+    CHECK(nmat_cache_decode_missing(batch, 2, NULL) == NMAT_OK);
+    for (i = 0; i < LOOKUPS; i++) {
+        float got[16], want[16];
+        CHECK(nmat_cache_resolve(batch, l[i].material, l[i].u, l[i].v, l[i].lod, l[i].filter,
+                                 l[i].random, l[i].mask, got, 16) == NMAT_OK);
+        CHECK(nmat_sample(m[l[i].material], l[i].u, l[i].v, l[i].lod, l[i].filter,
+                          NMAT_MODE_INTEGER, l[i].random, l[i].mask, want, 16) == NMAT_OK);
+        differ += memcmp(got, want, sizeof(float) * popcount(l[i].mask)) != 0;
+    }
+    CHECK(differ == 0);
+    CHECK(nmat_cache_end_frame(batch, &batched) == NMAT_OK);
+    CHECK(batched.marked == by_lookup.marked && batched.decoded == by_lookup.decoded);
+    CHECK(batched.resolve_misses == 0 && n > batched.marked);
+    /* Too little room for a trilinear footprint, and keys the materials do not have. */
+    keys[0].material = 5;
+    CHECK(nmat_cache_mark_tiles(batch, keys, 1) == NMAT_BAD_ARGUMENT);
+    keys[0].material = 0;
+    keys[0].mip = 30;
+    CHECK(nmat_cache_mark_tiles(batch, keys, 1) == NMAT_BAD_ARGUMENT);
+    CHECK(nmat_cache_footprint(batch, 0, 0.31f, 0.77f, 0.5f, NMAT_FILTER_TRILINEAR, NULL, keys, 1,
+                               &count) == NMAT_BUFFER_TOO_SMALL);
+    CHECK(nmat_cache_footprint(batch, 0, 0.31f, 0.77f, 0.5f, NMAT_FILTER_TRILINEAR, NULL, keys, 8,
+                               NULL) == NMAT_NULL_ARGUMENT);
+    nmat_cache_free(one);
+    nmat_cache_free(batch);
+}
+
 static void test_refusals(const nmat_material *const *m) {
     nmat_cache *cache = NULL;
     float out[16];
@@ -158,6 +208,7 @@ int main(int argc, char **argv) {
         CHECK(nmat_material_info(m[i], &info[i]) == NMAT_OK);
     }
     test_frames((const nmat_material *const *)m, info);
+    test_batch_marking((const nmat_material *const *)m, info);
     test_refusals((const nmat_material *const *)m);
     for (i = 0; i < 2; i++) nmat_material_free(m[i]);
     if (failures) {

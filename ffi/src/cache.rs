@@ -6,7 +6,7 @@ use super::{
     Castable, arg_mut, fail, free_box, guard, handle, mask, nmat_status, request, slice, slice_mut,
     to_boxed_ptr, try_mut, try_ref,
 };
-use nmat_core::{Decoder, FrameStats, Material, Slot, TileCache};
+use nmat_core::{Decoder, FrameStats, Material, Slot, TileCache, TileKey};
 
 /// A tile cache over a fixed list of materials. Opaque; create with `nmat_cache_create`, destroy
 /// with `nmat_cache_free`.
@@ -155,6 +155,72 @@ pub extern "C" fn nmat_cache_mark_texel(
     mip: u32,
 ) -> nmat_status {
     guard(|| try_mut(cache)?.cache.mark_texel(material as usize, x, y, mip).map_err(fail))
+}
+
+/// One tile: material (its index in the cache), mip, and tile column and row (texel x / 16,
+/// y / 16), as `nmat_cache_footprint` lists them.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct nmat_tile_key {
+    pub material: u16,
+    pub mip: u8,
+    pub x: u16,
+    pub y: u16,
+}
+
+/// Lists in `out` (room for `out_len`, 8 always suffice) the tiles the lookup
+/// `nmat_cache_resolve(cache, material, u, v, lod, filter, random, …)` reads, and their number in
+/// `*count`; marks nothing. Any number of threads may call it at once (like
+/// `nmat_cache_resolve`), so a frame's footprints can be found in parallel and marked with one
+/// `nmat_cache_mark_tiles`.
+#[unsafe(no_mangle)]
+#[allow(clippy::too_many_arguments)] // the lookup of nmat_cache_resolve, and where the keys go
+pub extern "C" fn nmat_cache_footprint(
+    cache: *const nmat_cache,
+    material: u32,
+    u: f32,
+    v: f32,
+    lod: f32,
+    filter: u32,
+    random: *const f32,
+    out: *mut nmat_tile_key,
+    out_len: usize,
+    count: *mut usize,
+) -> nmat_status {
+    guard(|| {
+        let c = try_ref(cache)?;
+        let (out, count) = (slice_mut(out, out_len)?, arg_mut(count)?);
+        let req = request(u, v, lod, filter, random)?;
+        let keys = c.cache.footprint(material as usize, &req).map_err(fail)?;
+        if out.len() < keys.len() {
+            return Err(nmat_status::NMAT_BUFFER_TOO_SMALL);
+        }
+        for (o, k) in out.iter_mut().zip(&keys) {
+            *o = nmat_tile_key { material: k.material, mip: k.mip, x: k.x, y: k.y };
+        }
+        *count = keys.len();
+        Ok(())
+    })
+}
+
+/// Marks `count` tiles listed by `nmat_cache_footprint` (repeats count once per frame). The
+/// tiles already cached are marked first, so a full cache gives up only tiles none of `keys`
+/// needs. A key the cache's materials do not have is `NMAT_BAD_ARGUMENT`, and then nothing is
+/// marked.
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_cache_mark_tiles(
+    cache: *mut nmat_cache,
+    keys: *const nmat_tile_key,
+    count: usize,
+) -> nmat_status {
+    guard(|| {
+        let c = try_mut(cache)?;
+        let keys: Vec<TileKey> = slice(keys, count)?
+            .iter()
+            .map(|k| TileKey { material: k.material, mip: k.mip, x: k.x, y: k.y })
+            .collect();
+        c.cache.mark_tiles(&keys).map_err(fail)
+    })
 }
 
 /// Decodes every marked tile not decoded yet, on `threads` threads (0: one per CPU); writes how
