@@ -299,8 +299,8 @@ where
             }
         }
         for &key in keys {
-            if self.find(key).is_some() {
-                self.mark_tile(key);
+            if let Some(i) = self.find(key) {
+                self.touch(i);
             }
         }
         for &key in keys {
@@ -342,17 +342,23 @@ where
         None
     }
 
+    /// Marks the cached tile in slot `i` (once per frame).
+    fn touch(&mut self, i: usize) {
+        let frame = self.frame;
+        if let Some(s) = self.slots.as_mut().get_mut(i)
+            && s.seen != frame
+        {
+            s.seen = frame;
+            self.in_frame += 1;
+            self.stats.marked += 1;
+            self.stats.hits += u32::from(s.state == State::Ready);
+        }
+    }
+
     fn mark_tile(&mut self, key: TileKey) {
         let frame = self.frame;
         if let Some(i) = self.find(key) {
-            if let Some(s) = self.slots.as_mut().get_mut(i)
-                && s.seen != frame
-            {
-                s.seen = frame;
-                self.in_frame += 1;
-                self.stats.marked += 1;
-                self.stats.hits += u32::from(s.state == State::Ready);
-            }
+            self.touch(i);
             return;
         }
         let Some(i) = self.take_slot() else {

@@ -168,6 +168,18 @@ pub struct nmat_tile_key {
     pub y: u16,
 }
 
+impl From<TileKey> for nmat_tile_key {
+    fn from(k: TileKey) -> nmat_tile_key {
+        nmat_tile_key { material: k.material, mip: k.mip, x: k.x, y: k.y }
+    }
+}
+
+impl From<nmat_tile_key> for TileKey {
+    fn from(k: nmat_tile_key) -> TileKey {
+        TileKey { material: k.material, mip: k.mip, x: k.x, y: k.y }
+    }
+}
+
 /// Lists in `out` (room for `out_len`, 8 always suffice) the tiles the lookup
 /// `nmat_cache_resolve(cache, material, u, v, lod, filter, random, …)` reads, and their number in
 /// `*count`; marks nothing. Any number of threads may call it at once (like
@@ -195,8 +207,8 @@ pub extern "C" fn nmat_cache_footprint(
         if out.len() < keys.len() {
             return Err(nmat_status::NMAT_BUFFER_TOO_SMALL);
         }
-        for (o, k) in out.iter_mut().zip(&keys) {
-            *o = nmat_tile_key { material: k.material, mip: k.mip, x: k.x, y: k.y };
+        for (o, &k) in out.iter_mut().zip(&keys) {
+            *o = k.into();
         }
         *count = keys.len();
         Ok(())
@@ -215,10 +227,7 @@ pub extern "C" fn nmat_cache_mark_tiles(
 ) -> nmat_status {
     guard(|| {
         let c = try_mut(cache)?;
-        let keys: Vec<TileKey> = slice(keys, count)?
-            .iter()
-            .map(|k| TileKey { material: k.material, mip: k.mip, x: k.x, y: k.y })
-            .collect();
+        let keys: Vec<TileKey> = slice(keys, count)?.iter().map(|&k| k.into()).collect();
         c.cache.mark_tiles(&keys).map_err(fail)
     })
 }
