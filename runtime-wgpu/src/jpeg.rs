@@ -16,14 +16,14 @@ const MAX_SECTION_BYTES: usize = 1 << 28;
 
 /// The JPEG decode and the pass that clears its output first.
 pub(crate) struct JpegPipelines {
-    decode: wgpu::ComputePipeline,
+    pub(crate) decode: wgpu::ComputePipeline,
     clear: wgpu::ComputePipeline,
 }
 
 /// What the host needs of a JPEG material's maps: first channel, channel count, MCU size.
 #[derive(Clone, Debug)]
 pub(crate) struct JpegMaps {
-    maps: Vec<(u32, u32, u32, u32)>,
+    pub(crate) maps: Vec<(u32, u32, u32, u32)>,
 }
 
 /// The descriptor words and the section words of a JPEG material (layout in jpeg.wgsl).
@@ -104,7 +104,10 @@ pub(crate) fn upload_words(
 
 impl Context {
     /// The JPEG pipelines (decode, clear), built on first use.
-    fn jpeg_pipelines(&self, device: &wgpu::Device) -> Result<Arc<JpegPipelines>, GpuError> {
+    pub(crate) fn jpeg_pipelines(
+        &self,
+        device: &wgpu::Device,
+    ) -> Result<Arc<JpegPipelines>, GpuError> {
         let mut slot = self.jpeg.lock().unwrap_or_else(|e| e.into_inner());
         if slot.is_none() {
             let source = include_str!("jpeg.wgsl");

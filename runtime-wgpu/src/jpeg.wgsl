@@ -17,7 +17,8 @@
 
 struct Params {
     // 0: decode `count` requests from `requests`; 1: the rectangle (x0, y0, width, height) of
-    // `mip`, row-major.
+    // `mip`, row-major; 2: the tile cache's decode queue at `in_offset` (cache.wgsl), every
+    // channel into the tiles' slots.
     mode: u32,
     count: u32,
     mip: u32,
@@ -29,12 +30,14 @@ struct Params {
     // (Params in lib.rs names these four words format, components, constants, constant_mask.)
     // The map this dispatch decodes.
     map: u32,
-    // Rectangles: the MCU columns of the MCUs it touches, and how many MCUs (workgroups).
+    // Rectangles: the MCU columns of the MCUs it touches, and how many MCUs (workgroups); the
+    // tile cache: the MCU columns of a tile, and the MCUs of a tile.
     mcu_columns: u32,
     mcu_count: u32,
     // The clear pass: how many words to zero.
     clear_words: u32,
-    unused1: u32,
+    // The tile cache: words per slot.
+    slot_words: u32,
     out_offset: u32,
     in_offset: u32,
     unused2: u32,
@@ -244,8 +247,11 @@ fn address(v: i32, size: u32) -> u32 {
     return u32(clamp(v, 0, s - 1));
 }
 
+// The first word of the output (the tile cache: of the tile's slot).
+var<private> out_base: u32;
+
 fn put(byte: u32, code: u32) {
-    atomicOr(&out_codes[params.out_offset + (byte >> 2u)], code << (8u * (byte & 3u)));
+    atomicOr(&out_codes[out_base + (byte >> 2u)], code << (8u * (byte & 3u)));
 }
 
 // Writes the selected channels of this map at texel (x, y) of the MCU (samples in `blocks`) as
@@ -293,7 +299,25 @@ fn jpeg_main(
     var my = 0u;
     var tx = 0u;
     var ty = 0u;
-    if (params.mode == 0u) {
+    out_base = params.out_offset;
+    if (params.mode == 2u) {
+        // Tile g / mcu_count of the queue, its MCU g % mcu_count (a tile of 16 × 16 texels
+        // holds whole MCUs; those past the mip's edge are not decoded).
+        let q = params.in_offset;
+        let tile = g / params.mcu_count;
+        if (tile >= u32(requests[q])) {
+            return;
+        }
+        out_base = u32(requests[q + 4u + 2u * tile]) * params.slot_words;
+        let key = u32(requests[q + 5u + 2u * tile]);
+        mip = key >> 26u;
+        let k = g % params.mcu_count;
+        mx = (16u * (key & 0x1FFFu)) / mw + k % params.mcu_columns;
+        my = (16u * ((key >> 13u) & 0x1FFFu)) / mh + k / params.mcu_columns;
+        if (mx * mw >= jdesc[16u + 2u * mip] || my * mh >= jdesc[17u + 2u * mip]) {
+            return;
+        }
+    } else if (params.mode == 0u) {
         if (g >= params.count) {
             return;
         }
@@ -351,7 +375,11 @@ fn jpeg_main(
     for (var i = lid; i < mw * mh; i += 64u) {
         let x = mx * mw + i % mw;
         let y = my * mh + i / mw;
-        if (x >= params.x0 && x - params.x0 < params.width && y >= params.y0
+        if (params.mode == 2u) {
+            if (x < jdesc[16u + 2u * mip] && y < jdesc[17u + 2u * mip]) {
+                write_texel((y % 16u) * 16u + x % 16u, i % mw, i / mw, first, count, lh, lv);
+            }
+        } else if (x >= params.x0 && x - params.x0 < params.width && y >= params.y0
             && y - params.y0 < params.count / params.width) {
             let t = (y - params.y0) * params.width + (x - params.x0);
             write_texel(t, i % mw, i / mw, first, count, lh, lv);

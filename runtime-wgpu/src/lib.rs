@@ -43,6 +43,7 @@
 //! is in `docs/GPU.md`, embedded here as [`design`]. JPEG materials (§11) upload and decode
 //! through the same region and request calls, one workgroup per MCU ([`GpuMaterial::codec`]).
 
+mod cache;
 mod jpeg;
 pub mod measure;
 mod sample;
@@ -50,6 +51,7 @@ mod texture;
 mod tiled;
 mod transcode;
 
+pub use cache::{CacheLookup, GpuTileCache, MAX_CACHE_MATERIALS};
 pub use sample::SampleBindings;
 pub use texture::TextureTarget;
 pub use tiled::Kernel;
@@ -109,6 +111,9 @@ pub enum GpuError {
     /// A JPEG material's section larger than one storage binding of the device (or 2^28 bytes,
     /// so that bit positions fit 32 bits).
     SectionTooLarge { bytes: u64, limit: u64 },
+    /// A tile cache [`Context::create_tile_cache`] cannot make: no material or more than
+    /// [`MAX_CACHE_MATERIALS`], no slot, or more tiles than one storage binding holds.
+    Cache { reason: &'static str },
     /// A JPEG material (docs/FORMAT.md §11) given to a path that decodes neural materials only
     /// (`nmat_sample`, textures, BC transcoding): decode its regions or requests, or decode it
     /// on the CPU (`nmat_core`).
@@ -160,6 +165,7 @@ impl std::fmt::Display for GpuError {
             }
             GpuError::RequestBuffer { reason } => write!(f, "request buffer: {reason}"),
             GpuError::Texture { reason } => write!(f, "target texture: {reason}"),
+            GpuError::Cache { reason } => write!(f, "tile cache: {reason}"),
             GpuError::Kernel { kernel, reason } => {
                 write!(f, "the {} kernel does not run on this device: {reason}", kernel.name())
             }
@@ -211,6 +217,9 @@ pub struct GpuMaterial {
     latents: wgpu::Buffer,
     channel_count: usize,
     mip_sizes: Vec<(u32, u32)>,
+    /// Clamp (true) or wrap addressing, and each channel's range (min, max): for the tile cache.
+    address_clamp: bool,
+    ranges: Vec<(f32, f32)>,
     /// Per channel: the code of a constant channel (`Channel::constant_code`), which BC
     /// transcoding uses instead of the decoded one, as the CPU does.
     constant_codes: Vec<Option<u8>>,
@@ -488,6 +497,8 @@ impl Context {
                 latents: init("nmat jpeg section", words_to_bytes(&section)),
                 channel_count: m.channel_count(),
                 mip_sizes: (0..m.mip_count()).map(|mip| m.mip_size(mip)).collect(),
+                address_clamp: m.address_mode() == nmat_core::AddressMode::Clamp,
+                ranges: m.channels().iter().map(|c| (c.range_min, c.range_max)).collect(),
                 constant_codes: m.channels().iter().map(|c| c.constant_code()).collect(),
                 kernel: Kernel::Reference,
                 tiled: None,
@@ -611,6 +622,8 @@ impl Context {
             latents: init("nmat latents", words_to_bytes(&latents)),
             channel_count: m.channel_count(),
             mip_sizes: (0..m.mip_count()).map(|mip| m.mip_size(mip)).collect(),
+            address_clamp: m.address_mode() == nmat_core::AddressMode::Clamp,
+            ranges: m.channels().iter().map(|c| (c.range_min, c.range_max)).collect(),
             constant_codes: m.channels().iter().map(|c| c.constant_code()).collect(),
             kernel,
             tiled,
@@ -806,7 +819,7 @@ impl Context {
 
     /// Checks that `out` can take `bytes` from byte `offset` (the last word whole); returns the
     /// offset in words.
-    fn check_output(
+    pub(crate) fn check_output(
         device: &wgpu::Device,
         out: &wgpu::Buffer,
         offset: u64,
@@ -829,6 +842,32 @@ impl Context {
         }
         u32::try_from(offset / 4)
             .map_err(|_| GpuError::OutputBuffer { reason: "the offset is 2^34 bytes or more" })
+    }
+
+    /// Checks that `requests` holds `bytes` of requests from byte `offset` and can be bound;
+    /// returns the offset in words.
+    pub(crate) fn check_requests(
+        device: &wgpu::Device,
+        requests: &wgpu::Buffer,
+        offset: u64,
+        bytes: u64,
+    ) -> Result<u32, GpuError> {
+        let reason = if !requests.usage().contains(wgpu::BufferUsages::STORAGE) {
+            Some("it needs STORAGE usage")
+        } else if !offset.is_multiple_of(4) {
+            Some("the offset is not a multiple of 4")
+        } else if requests.size() > device.limits().max_storage_buffer_binding_size {
+            Some("it is larger than the device's storage binding limit")
+        } else if offset + bytes > requests.size() {
+            Some("it ends before the last request")
+        } else {
+            None
+        };
+        if let Some(reason) = reason {
+            return Err(GpuError::RequestBuffer { reason });
+        }
+        u32::try_from(offset / 4)
+            .map_err(|_| GpuError::RequestBuffer { reason: "the offset is 2^34 bytes or more" })
     }
 
     /// Records, into the caller's `encoder` (nothing is submitted), the decode of the rectangle
@@ -885,22 +924,8 @@ impl Context {
             ..Params::default()
         };
         let groups = self.decode_groups(device, gm, &params)?;
-        let reason = if !requests.usage().contains(wgpu::BufferUsages::STORAGE) {
-            Some("it needs STORAGE usage")
-        } else if !requests_offset.is_multiple_of(4) {
-            Some("the offset is not a multiple of 4")
-        } else if requests.size() > device.limits().max_storage_buffer_binding_size {
-            Some("it is larger than the device's storage binding limit")
-        } else if requests_offset + 12 * u64::from(count) > requests.size() {
-            Some("it ends before the last request")
-        } else {
-            None
-        };
-        if let Some(reason) = reason {
-            return Err(GpuError::RequestBuffer { reason });
-        }
-        params.in_offset = u32::try_from(requests_offset / 4)
-            .map_err(|_| GpuError::RequestBuffer { reason: "the offset is 2^34 bytes or more" })?;
+        params.in_offset =
+            Self::check_requests(device, requests, requests_offset, 12 * u64::from(count))?;
         let len = u64::from(count) * u64::from(n);
         params.out_offset = Self::check_output(device, out, offset, len)?;
         if gm.jpeg.is_some() {

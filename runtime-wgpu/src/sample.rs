@@ -47,10 +47,11 @@ impl SampleBindings {
         format!(
             "// nmat: the material's bindings (nmat_wgpu::SampleBindings).\n\
              @group({g}) @binding({b}) var<storage, read> nmat_desc: array<u32>;\n\
-             @group({g}) @binding({}) var<storage, read> nmat_latents: array<u32>;\n\n{}\n{}",
+             @group({g}) @binding({}) var<storage, read> nmat_latents: array<u32>;\n\n{}\n{}\n{}",
             b + 1,
             include_str!("texel.wgsl"),
             include_str!("sample.wgsl"),
+            include_str!("filter.wgsl"),
         )
     }
 

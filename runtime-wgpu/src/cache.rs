@@ -1,0 +1,685 @@
+//! The tile cache on the GPU: `nmat_core::TileCache`'s frame protocol as passes an engine records
+//! into its own command encoder — mark the tiles a frame's lookups read (from a buffer of
+//! lookups its G-buffer pass wrote), compact the marked tiles the cache lacks into a queue, give
+//! them slots (evicting the tiles the frame did not mark), decode them into the cache buffer, and
+//! resolve lookups from it — with no readback and no CPU work per frame. The passes
+//! (cache.wgsl, cache_decode.wgsl, jpeg.wgsl) and their buffers are documented in the shaders;
+//! the design and its measurements are in docs/GPU.md, "The tile cache".
+
+use std::sync::atomic::{AtomicU32, Ordering};
+
+use nmat_core::{ChannelMask, Filter, FrameStats, TILE_SIZE, TileKey};
+use wgpu::util::DeviceExt;
+
+use crate::{Context, GpuError, GpuMaterial, MAX_GROUPS, Params, SampleBindings, read_back};
+
+/// Materials one GPU tile cache serves (as `nmat_core::TileCache`).
+pub const MAX_CACHE_MATERIALS: usize = nmat_core::cache::MAX_CACHE_MATERIALS;
+
+/// Words of the table before the material records, and per record (cache_sample.wgsl).
+const HEADER_WORDS: usize = 16;
+const RECORD_WORDS: usize = 64;
+/// Where the state's free-slot stack starts (cache.wgsl).
+const FREE_AT: usize = 16;
+/// Mips a material record holds pages for.
+const MAX_MIPS: usize = 16;
+/// The frame's counters: the first 8 words of the table.
+const COUNTER_BYTES: u64 = 32;
+
+/// One lookup of a frame, as the mark and resolve passes read it from the caller's buffer:
+/// 32 bytes, little-endian (`bytemuck`-compatible layout): `nmat_core::SampleRequest`'s
+/// coordinates, lod, filter and random numbers, and which material (its index in the cache's
+/// list; [`CacheLookup::NONE`] or any index past the list: no lookup, e.g. the sky, resolved
+/// as zeros). An engine's G-buffer pass writes these from its own shader.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CacheLookup {
+    pub u: f32,
+    pub v: f32,
+    pub lod: f32,
+    pub material: u32,
+    /// `NMAT_NEAREST` (0), `NMAT_BILINEAR` (1), `NMAT_TRILINEAR` (2) or `NMAT_STOCHASTIC` (3):
+    /// [`CacheLookup::filter_code`]; other values filter as nearest.
+    pub filter: u32,
+    pub random: [f32; 3],
+}
+
+impl CacheLookup {
+    /// The material index of a pixel with no lookup.
+    pub const NONE: u32 = u32::MAX;
+    /// Bytes per lookup in a buffer.
+    pub const BYTES: u64 = 32;
+
+    /// The lookup of `req` (its channels and precision are the resolve call's) in material
+    /// `material` of the cache.
+    pub fn new(material: u32, req: &nmat_core::SampleRequest) -> CacheLookup {
+        CacheLookup {
+            u: req.u,
+            v: req.v,
+            lod: req.lod,
+            material,
+            filter: CacheLookup::filter_code(req.filter),
+            random: req.random,
+        }
+    }
+
+    /// A filter's number in a lookup (the module's `NMAT_*` constants).
+    pub fn filter_code(filter: Filter) -> u32 {
+        match filter {
+            Filter::Nearest => 0,
+            Filter::Bilinear => 1,
+            Filter::Trilinear => 2,
+            Filter::Stochastic => 3,
+        }
+    }
+
+    /// The buffer bytes of `lookups`.
+    pub fn bytes(lookups: &[CacheLookup]) -> Vec<u8> {
+        let mut out = Vec::with_capacity(lookups.len() * Self::BYTES as usize);
+        for l in lookups {
+            for word in [l.u.to_bits(), l.v.to_bits(), l.lod.to_bits(), l.material, l.filter] {
+                out.extend(word.to_le_bytes());
+            }
+            for r in l.random {
+                out.extend(r.to_bits().to_le_bytes());
+            }
+        }
+        out
+    }
+}
+
+/// What the host keeps of a cached material.
+struct CachedMaterial {
+    channels: u32,
+    mip_sizes: Vec<(u32, u32)>,
+    /// The table index of each mip's first page.
+    first_page: Vec<u32>,
+}
+
+/// A decode dispatch of the frame: pipeline, bind group, and where its indirect arguments lie.
+struct Decode {
+    pipeline: wgpu::ComputePipeline,
+    bind: wgpu::BindGroup,
+    args: u64,
+}
+
+/// The cache's passes (cache.wgsl).
+struct Passes {
+    mark: wgpu::ComputePipeline,
+    compact: wgpu::ComputePipeline,
+    plan: wgpu::ComputePipeline,
+    allocate: wgpu::ComputePipeline,
+    finish: wgpu::ComputePipeline,
+    clear: wgpu::ComputePipeline,
+    resolve: wgpu::ComputePipeline,
+}
+
+/// A fixed-capacity cache of decoded 16×16 tiles ([`TILE_SIZE`]) of up to
+/// [`MAX_CACHE_MATERIALS`] materials (neural and JPEG) on the GPU, made by
+/// [`Context::create_tile_cache`]. A frame records, in order:
+/// [`GpuTileCache::record_begin_frame`], [`GpuTileCache::record_mark`] (every lookup the frame
+/// will make), [`GpuTileCache::record_decode_missing`], then [`GpuTileCache::record_resolve`] or
+/// the engine's own shaders calling `nmat_cache_sample` ([`GpuTileCache::sample_module`]), then
+/// [`GpuTileCache::record_end_frame`]; [`GpuTileCache::read_stats`] reads the frame's counters
+/// once it has run.
+///
+/// Tiles and counters are those of `nmat_core::TileCache` given the same lookups (the tiles'
+/// codes are the CPU's, byte for byte): a tile the frame does not mark is evicted; a new tile
+/// takes a free slot; when none is left the tile is not cached ([`FrameStats::overflowed`]) and
+/// the texels lookups read from it count as [`FrameStats::resolve_misses`] and read as code 0 —
+/// the GPU cannot decode them on the spot for every material, so size the cache above the
+/// largest frame (the CPU cache decodes such texels directly).
+pub struct GpuTileCache {
+    table: wgpu::Buffer,
+    state: wgpu::Buffer,
+    codes: wgpu::Buffer,
+    /// The indirect dispatches' arguments (cache.wgsl).
+    args: wgpu::Buffer,
+    /// The counters copied at the end of a frame, for `read_stats`.
+    stats: wgpu::Buffer,
+    layout: wgpu::BindGroupLayout,
+    passes: Passes,
+    /// The bind groups of the passes that read no lookups; of the plan and finish passes.
+    frame_bind: wgpu::BindGroup,
+    plan_bind: wgpu::BindGroup,
+    decodes: Vec<Decode>,
+    materials: Vec<CachedMaterial>,
+    slots: u32,
+    pages: u32,
+    slot_words: u32,
+    frame: AtomicU32,
+}
+
+/// The uniform block of cache.wgsl (`NmatCacheParams`).
+fn cache_params(count: u32, in_offset: u32, channels: u32, out_offset: u32) -> Vec<u8> {
+    let words = [count, in_offset, channels, channels.count_ones(), out_offset, 0, 0, 0];
+    words.iter().flat_map(|w| w.to_le_bytes()).collect()
+}
+
+impl Context {
+    /// A tile cache of `slots` tiles over `materials` (indexed 0, 1, … in lookups), neural or
+    /// JPEG, with its buffers allocated once: `slots` × 256 × (the most channels of a material)
+    /// bytes of codes, a page word per tile of every mip, and the queues. Its passes are built
+    /// here. [`GpuError::Cache`] for no material or more than [`MAX_CACHE_MATERIALS`], no slot,
+    /// or codes larger than one storage binding of the device.
+    pub fn create_tile_cache(
+        &self,
+        device: &wgpu::Device,
+        materials: &[&GpuMaterial],
+        slots: u32,
+    ) -> Result<GpuTileCache, GpuError> {
+        if materials.is_empty() || materials.len() > MAX_CACHE_MATERIALS {
+            return Err(GpuError::Cache { reason: "it serves 1 to 64 materials" });
+        }
+        if slots == 0 {
+            return Err(GpuError::Cache { reason: "it needs at least one slot" });
+        }
+        let channels = materials.iter().map(|m| m.channel_count).max().unwrap_or(1).max(1);
+        let slot_words = (TILE_SIZE * TILE_SIZE) as u64 * channels as u64 / 4;
+        let max_binding = device.limits().max_storage_buffer_binding_size;
+        let code_bytes = u64::from(slots) * slot_words * 4;
+        if code_bytes > max_binding {
+            return Err(GpuError::Cache {
+                reason: "its codes are larger than one storage binding of the device",
+            });
+        }
+        // The table: header, material records, ranges, pages.
+        let mut table = vec![0u32; HEADER_WORDS + RECORD_WORDS * materials.len()];
+        let mut ranges = Vec::new();
+        let mut cached = Vec::new();
+        let mut pages = 0u32;
+        for (k, m) in materials.iter().enumerate() {
+            let record = HEADER_WORDS + RECORD_WORDS * k;
+            let (w, h) = m.mip_sizes[0];
+            table[record..record + 5].copy_from_slice(&[
+                w,
+                h,
+                m.mip_sizes.len() as u32,
+                m.channel_count as u32,
+                m.address_clamp as u32,
+            ]);
+            for (c, &(lo, hi)) in m.ranges.iter().enumerate().take(16) {
+                table[record + 24 + 2 * c] = lo.to_bits();
+                table[record + 25 + 2 * c] = hi.to_bits();
+            }
+            let mut first_page = Vec::new();
+            for (mip, &(mw, mh)) in m.mip_sizes.iter().enumerate().take(MAX_MIPS) {
+                first_page.push(pages);
+                ranges.push((pages, (k as u32) << 8 | mip as u32));
+                pages += mw.div_ceil(TILE_SIZE) * mh.div_ceil(TILE_SIZE);
+            }
+            cached.push(CachedMaterial {
+                channels: m.channel_count as u32,
+                mip_sizes: m.mip_sizes.clone(),
+                first_page,
+            });
+        }
+        let ranges_at = table.len() as u32;
+        let pages_at = ranges_at + 2 * ranges.len() as u32;
+        for (c, m) in cached.iter_mut().enumerate() {
+            let record = HEADER_WORDS + RECORD_WORDS * c;
+            for (mip, first) in m.first_page.iter_mut().enumerate() {
+                *first += pages_at;
+                table[record + 8 + mip] = *first;
+            }
+        }
+        for &(first, which) in &ranges {
+            table.extend([first + pages_at, which]);
+        }
+        table[8..15].copy_from_slice(&[
+            materials.len() as u32,
+            ranges.len() as u32,
+            ranges_at,
+            pages_at,
+            pages,
+            slot_words as u32,
+            slots,
+        ]);
+        table.resize(table.len() + pages as usize, 0);
+        // The state: every slot free.
+        let queue_words = 4 + 2 * slots as usize;
+        let mut state = vec![0u32; FREE_AT + 2 * slots as usize + materials.len() * queue_words];
+        state[0] = slots;
+        for (i, s) in state[FREE_AT..FREE_AT + slots as usize].iter_mut().enumerate() {
+            *s = slots - 1 - i as u32;
+        }
+        for words in [&table, &state] {
+            if 4 * words.len() as u64 > max_binding {
+                return Err(GpuError::Cache {
+                    reason: "its tables are larger than one storage binding of the device",
+                });
+            }
+        }
+        use wgpu::BufferUsages as U;
+        let args_bytes = 4 * (8 + 12 * materials.len() as u64);
+        let init = |label, words: &[u32], usage| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents: &crate::words_to_bytes(words),
+                usage,
+            })
+        };
+        let table = init("nmat cache table", &table, U::STORAGE | U::COPY_SRC | U::COPY_DST);
+        let state = init("nmat cache state", &state, U::STORAGE | U::COPY_SRC | U::COPY_DST);
+        let buffer = |label, size, usage| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        let codes = buffer("nmat cache codes", code_bytes, U::STORAGE | U::COPY_SRC);
+        let stats = buffer("nmat cache stats", COUNTER_BYTES, U::MAP_READ | U::COPY_DST);
+        let args = buffer("nmat cache dispatches", args_bytes, U::STORAGE | U::INDIRECT);
+        let empty = buffer("nmat cache no lookups", 32, U::STORAGE);
+        let (layout, passes) = self.cache_passes(device)?;
+        let uniform = |bytes: &[u8]| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("nmat cache params"),
+                contents: bytes,
+                usage: U::UNIFORM,
+            })
+        };
+        let params = uniform(&[0; 32]);
+        let frame_bind = bind(device, &layout, [&table, &state, &empty, &codes], &params);
+        let plan_bind = bind(device, &layout, [&table, &state, &empty, &args], &params);
+        // The decode dispatches of each material, reading its queue.
+        let mut decodes = Vec::new();
+        let neural = self.cache_decode_pipeline(device)?;
+        for (k, m) in materials.iter().enumerate() {
+            let queue_at = (FREE_AT + 2 * slots as usize + k * queue_words) as u32;
+            let args = |per_tile: u32| 4 * (8 + 12 * k as u64 + 3 * u64::from(per_tile.ilog2()));
+            let Some(maps) = &m.jpeg else {
+                let words = [queue_at, slot_words as u32, 0, 0];
+                let params = uniform(&crate::words_to_bytes(&words));
+                let bind = self.bind_with(device, Some(m), Some(&state), &codes, &params);
+                decodes.push(Decode { pipeline: neural.clone(), bind, args: args(1) });
+                continue;
+            };
+            let jpeg = self.jpeg_pipelines(device)?;
+            for (map, &(_, _, mw, mh)) in maps.maps.iter().enumerate() {
+                let (columns, rows) = (TILE_SIZE / mw, TILE_SIZE / mh);
+                let params = Params {
+                    mode: 2,
+                    channel_mask: (1 << m.channel_count) - 1,
+                    out_channels: m.channel_count as u32,
+                    format: map as u32,
+                    components: columns,
+                    constants: columns * rows,
+                    row_words: slot_words as u32,
+                    in_offset: queue_at,
+                    ..Params::default()
+                };
+                let bind = self.bind_with(
+                    device,
+                    Some(m),
+                    Some(&state),
+                    &codes,
+                    &uniform(&params.bytes()),
+                );
+                let pipeline = jpeg.decode.clone();
+                decodes.push(Decode { pipeline, bind, args: args(columns * rows) });
+            }
+        }
+        Ok(GpuTileCache {
+            table,
+            state,
+            codes,
+            args,
+            stats,
+            layout,
+            passes,
+            frame_bind,
+            plan_bind,
+            decodes,
+            materials: cached,
+            slots,
+            pages,
+            slot_words: slot_words as u32,
+            frame: AtomicU32::new(0),
+        })
+    }
+
+    /// The layout and pipelines of cache.wgsl.
+    fn cache_passes(
+        &self,
+        device: &wgpu::Device,
+    ) -> Result<(wgpu::BindGroupLayout, Passes), GpuError> {
+        let storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let uniform = wgpu::BindGroupLayoutEntry {
+            binding: 4,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("nmat cache"),
+            entries: &[
+                storage(0, false),
+                storage(1, false),
+                storage(2, true),
+                storage(3, false),
+                uniform,
+            ],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("nmat cache"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let source = format!(
+            "{}\n{}\n{}",
+            include_str!("cache.wgsl"),
+            include_str!("cache_sample.wgsl"),
+            include_str!("filter.wgsl")
+        );
+        let pipeline = |entry: &str| {
+            crate::try_pipeline(device, &source, entry, Some(&pipeline_layout)).ok_or(
+                GpuError::Kernel {
+                    kernel: crate::Kernel::Reference,
+                    reason: "the device refused the tile cache's shader",
+                },
+            )
+        };
+        let passes = Passes {
+            mark: pipeline("nmat_cache_mark")?,
+            compact: pipeline("nmat_cache_compact")?,
+            plan: pipeline("nmat_cache_plan")?,
+            allocate: pipeline("nmat_cache_allocate")?,
+            finish: pipeline("nmat_cache_finish")?,
+            clear: pipeline("nmat_cache_clear")?,
+            resolve: pipeline("nmat_cache_resolve")?,
+        };
+        Ok((layout, passes))
+    }
+
+    /// The neural decode of new tiles (cache_decode.wgsl), in the decode kernels' layout.
+    fn cache_decode_pipeline(
+        &self,
+        device: &wgpu::Device,
+    ) -> Result<wgpu::ComputePipeline, GpuError> {
+        let source = format!(
+            "{}\n{}",
+            SampleBindings { group: 0, first_binding: 0 }.module(),
+            include_str!("cache_decode.wgsl")
+        );
+        crate::try_pipeline(device, &source, "nmat_cache_decode", Some(&self.pipeline_layout))
+            .ok_or(GpuError::Kernel {
+                kernel: crate::Kernel::Reference,
+                reason: "the device refused the tile cache's decode shader",
+            })
+    }
+}
+
+/// A bind group of cache.wgsl's layout.
+fn bind(
+    device: &wgpu::Device,
+    layout: &wgpu::BindGroupLayout,
+    buffers: [&wgpu::Buffer; 4],
+    uniform: &wgpu::Buffer,
+) -> wgpu::BindGroup {
+    let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
+        .iter()
+        .copied()
+        .chain([uniform])
+        .enumerate()
+        .map(|(binding, b)| wgpu::BindGroupEntry {
+            binding: binding as u32,
+            resource: b.as_entire_binding(),
+        })
+        .collect();
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("nmat cache"),
+        layout,
+        entries: &entries,
+    })
+}
+
+/// Workgroups of 64 invocations for `count` items.
+fn groups_of_64(count: u32) -> u64 {
+    u64::from(count).div_ceil(64)
+}
+
+impl GpuTileCache {
+    /// Tiles the cache holds at most.
+    pub fn capacity(&self) -> u32 {
+        self.slots
+    }
+
+    /// Starts a frame: its counters are cleared (recorded; the frame number counts calls).
+    pub fn record_begin_frame(&self, encoder: &mut wgpu::CommandEncoder) {
+        self.frame.fetch_add(1, Ordering::Relaxed);
+        encoder.clear_buffer(&self.table, 0, Some(COUNTER_BYTES));
+        // The new tiles and the slots given (state words 1 and 2).
+        encoder.clear_buffer(&self.state, 4, Some(8));
+    }
+
+    /// Records the mark pass over `count` [`CacheLookup`]s in `lookups` from byte `offset`
+    /// (`STORAGE` usage, offset a multiple of 4): every tile each lookup's filter reads is
+    /// marked (the same tiles `nmat_core::TileCache::mark` marks for the same request, where
+    /// u · width and v · height are exact in f32 — filter.wgsl). Several calls may mark one frame.
+    pub fn record_mark(
+        &self,
+        device: &wgpu::Device,
+        encoder: &mut wgpu::CommandEncoder,
+        (lookups, offset, count): (&wgpu::Buffer, u64, u32),
+    ) -> Result<(), GpuError> {
+        let bytes = CacheLookup::BYTES * u64::from(count);
+        let in_offset = Context::check_requests(device, lookups, offset, bytes)?;
+        let params = cache_params(count, in_offset, 0xFFFF, 0);
+        let uniform = self.uniform(device, &params);
+        let group =
+            bind(device, &self.layout, [&self.table, &self.state, lookups, &self.codes], &uniform);
+        self.dispatch(encoder, &self.passes.mark, &group, groups_of_64(count));
+        Ok(())
+    }
+
+    /// Records the passes between marking and resolving: compact the marked tiles the cache
+    /// lacks into a queue and evict the tiles the frame did not mark (one invocation per page),
+    /// give the new tiles free slots, clear those slots, and decode each material's new tiles
+    /// into them (neural: every texel by the integer decoder; JPEG: each MCU of the tile once).
+    /// Dispatch sizes are computed on the GPU (indirect dispatches): nothing is read back.
+    pub fn record_decode_missing(&self, encoder: &mut wgpu::CommandEncoder) {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("nmat cache decode"),
+            timestamp_writes: None,
+        });
+        pass.set_bind_group(0, &self.frame_bind, &[]);
+        let pages = groups_of_64(self.pages);
+        pass.set_pipeline(&self.passes.compact);
+        pass.dispatch_workgroups(
+            pages.min(u64::from(MAX_GROUPS)).max(1) as u32,
+            pages.div_ceil(u64::from(MAX_GROUPS)).max(1) as u32,
+            1,
+        );
+        pass.set_bind_group(0, &self.plan_bind, &[]);
+        pass.set_pipeline(&self.passes.plan);
+        pass.dispatch_workgroups(1, 1, 1);
+        pass.set_bind_group(0, &self.frame_bind, &[]);
+        pass.set_pipeline(&self.passes.allocate);
+        pass.dispatch_workgroups_indirect(&self.args, 0);
+        pass.set_bind_group(0, &self.plan_bind, &[]);
+        pass.set_pipeline(&self.passes.finish);
+        pass.dispatch_workgroups(1, 1, 1);
+        pass.set_bind_group(0, &self.frame_bind, &[]);
+        pass.set_pipeline(&self.passes.clear);
+        pass.dispatch_workgroups_indirect(&self.args, 16);
+        for d in &self.decodes {
+            pass.set_pipeline(&d.pipeline);
+            pass.set_bind_group(0, &d.bind, &[]);
+            pass.dispatch_workgroups_indirect(&self.args, d.args);
+        }
+    }
+
+    /// Records the resolve of `count` [`CacheLookup`]s (as [`GpuTileCache::record_mark`]) into
+    /// `out` from byte `out_offset` (`STORAGE` usage, a multiple of 4): per lookup, the filtered
+    /// value of each channel in `channels` as an `f32`, channel by channel (a channel its
+    /// material lacks, or a lookup with no material, gives 0) — `Material::sample`'s values for
+    /// the same request, computed in f32 (to f32 rounding, filter.wgsl), from the cache's codes.
+    /// Returns the number of values written.
+    pub fn record_resolve(
+        &self,
+        device: &wgpu::Device,
+        encoder: &mut wgpu::CommandEncoder,
+        (lookups, offset, count): (&wgpu::Buffer, u64, u32),
+        channels: ChannelMask,
+        (out, out_offset): (&wgpu::Buffer, u64),
+    ) -> Result<u64, GpuError> {
+        if channels.0 == 0 {
+            return Err(GpuError::Channels { mask: channels.0 });
+        }
+        let bytes = CacheLookup::BYTES * u64::from(count);
+        let in_offset = Context::check_requests(device, lookups, offset, bytes)?;
+        let values = u64::from(count) * u64::from(channels.0.count_ones());
+        let out_word = Context::check_output(device, out, out_offset, 4 * values)?;
+        let params = cache_params(count, in_offset, u32::from(channels.0), out_word);
+        let uniform = self.uniform(device, &params);
+        let group = bind(device, &self.layout, [&self.table, out, lookups, &self.codes], &uniform);
+        self.dispatch(encoder, &self.passes.resolve, &group, groups_of_64(count));
+        Ok(values)
+    }
+
+    /// Ends the frame: its counters are copied for [`GpuTileCache::read_stats`] (recorded).
+    /// Tiles the next frame does not mark are evicted by its `record_decode_missing`.
+    pub fn record_end_frame(&self, encoder: &mut wgpu::CommandEncoder) {
+        encoder.copy_buffer_to_buffer(&self.table, 0, &self.stats, 0, COUNTER_BYTES);
+    }
+
+    /// The counters of the last frame whose `record_end_frame` has been submitted (blocks on
+    /// the device): `nmat_core::FrameStats`, with `frame` the number of `record_begin_frame`
+    /// calls so far.
+    pub fn read_stats(&self, device: &wgpu::Device) -> Result<FrameStats, GpuError> {
+        let bytes = read_back(device, &self.stats, COUNTER_BYTES)?;
+        let w: Vec<u32> =
+            bytes.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+        let counter = |i: usize| w.get(i).copied().unwrap_or(0);
+        Ok(FrameStats {
+            frame: self.frame.load(Ordering::Relaxed),
+            marked: counter(0),
+            hits: counter(1),
+            decoded: counter(2),
+            decoded_texels: counter(3),
+            evicted: counter(4),
+            overflowed: counter(5),
+            resolve_misses: counter(6),
+        })
+    }
+
+    /// Every tile the cache holds and its codes (submits a copy and blocks on the device; for
+    /// tests and tools): per tile its key and 16 × 16 texels row by row, each with every channel
+    /// of its material (texels past the mip's edge are 0).
+    pub fn resident_tiles(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+    ) -> Result<Vec<(TileKey, Vec<u8>)>, GpuError> {
+        let copy = |source: &wgpu::Buffer| -> Result<Vec<u8>, GpuError> {
+            let back = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("nmat cache readback"),
+                size: source.size(),
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let mut encoder = device.create_command_encoder(&Default::default());
+            encoder.copy_buffer_to_buffer(source, 0, &back, 0, source.size());
+            queue.submit([encoder.finish()]);
+            read_back(device, &back, source.size())
+        };
+        let table = copy(&self.table)?;
+        let codes = copy(&self.codes)?;
+        let word = |i: u32| {
+            let at = 4 * i as usize;
+            table.get(at..at + 4).map_or(0, |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        };
+        let slot_bytes = 4 * self.slot_words as usize;
+        let mut tiles = Vec::new();
+        for (k, m) in self.materials.iter().enumerate() {
+            for (mip, (&(w, h), &first)) in m.mip_sizes.iter().zip(&m.first_page).enumerate() {
+                let columns = w.div_ceil(TILE_SIZE);
+                for p in 0..columns * h.div_ceil(TILE_SIZE) {
+                    let slot = word(first + p) & 0x7FFF_FFFF;
+                    if slot == 0 {
+                        continue;
+                    }
+                    let at = (slot as usize - 1) * slot_bytes;
+                    let n = (TILE_SIZE * TILE_SIZE * m.channels) as usize;
+                    let key = TileKey {
+                        material: k as u16,
+                        mip: mip as u8,
+                        x: (p % columns) as u16,
+                        y: (p / columns) as u16,
+                    };
+                    tiles.push((key, codes.get(at..at + n).unwrap_or_default().to_vec()));
+                }
+            }
+        }
+        Ok(tiles)
+    }
+
+    /// The WGSL module that resolves lookups from this cache in the engine's own shaders:
+    /// `nmat_cache_sample(material, uv, lod, rnd, mode, channels) -> array<f32, 16>` (the
+    /// sampling module's `nmat_sample` with a material index; the private `nmat_cache_misses`
+    /// says how many texels the cache lacked), bound to two read-only storage buffers where
+    /// `bindings` says ([`SampleBindings::layout_entries`], [`GpuTileCache::sample_entries`]).
+    /// Include it instead of, not next to, the sampling module (they share names).
+    pub fn sample_module(bindings: SampleBindings) -> String {
+        let (g, b) = (bindings.group, bindings.first_binding);
+        format!(
+            "// nmat: the tile cache's bindings (nmat_wgpu::GpuTileCache::sample_module).\n\
+             @group({g}) @binding({b}) var<storage, read> nmat_cache_table: array<u32>;\n\
+             @group({g}) @binding({}) var<storage, read> nmat_cache_codes: array<u32>;\n\
+             fn nmat_cache_word(i: u32) -> u32 {{ return nmat_cache_table[i]; }}\n\
+             fn nmat_cache_code_word(i: u32) -> u32 {{ return nmat_cache_codes[i]; }}\n\
+             fn nmat_fetch(x: i32, y: i32, mip: u32, mask: u32) {{ nmat_cache_read(x, y, mip, mask); }}\n\n{}\n{}",
+            b + 1,
+            include_str!("cache_sample.wgsl"),
+            include_str!("filter.wgsl"),
+        )
+    }
+
+    /// The two bind group entries of [`GpuTileCache::sample_module`]'s bindings.
+    pub fn sample_entries(&self, bindings: SampleBindings) -> [wgpu::BindGroupEntry<'_>; 2] {
+        [
+            wgpu::BindGroupEntry {
+                binding: bindings.first_binding,
+                resource: self.table.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: bindings.first_binding + 1,
+                resource: self.codes.as_entire_binding(),
+            },
+        ]
+    }
+
+    fn uniform(&self, device: &wgpu::Device, bytes: &[u8]) -> wgpu::Buffer {
+        device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("nmat cache params"),
+            contents: bytes,
+            usage: wgpu::BufferUsages::UNIFORM,
+        })
+    }
+
+    fn dispatch(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        pipeline: &wgpu::ComputePipeline,
+        group: &wgpu::BindGroup,
+        groups: u64,
+    ) {
+        crate::dispatch(encoder, pipeline, group, groups);
+    }
+}

@@ -1,0 +1,115 @@
+// The tile cache's material accessors (filter.wgsl says what they provide): texels are read from
+// the cache's tiles, not decoded. Whoever includes this file declares `nmat_cache_word(i)` (word
+// i of the table) and `nmat_cache_code_word(i)` (word i of the codes) and `nmat_fetch`, which
+// calls `nmat_cache_read` (cache.rs writes both buffers; every name starts with `nmat_`, `Nmat`
+// or `NMAT_`, as in the sampling module).
+//
+// The table, in u32 words:
+//   [0, 8) this frame's counters: marked, hits, decoded, decoded texels, evicted, overflowed,
+//     resolve misses, 0 (cleared by `record_begin_frame`)
+//   [8] materials, [9] ranges, [10] ranges_at, [11] pages_at, [12] pages, [13] words per slot,
+//   [14] slots, [15] 0
+//   16 + 64·k: material k: width, height, mip count, channel count, address mode (0 wrap,
+//     1 clamp), 0, 0, 0; at 8 + mip the index of the mip's first page; at 24 + 2·c channel c's
+//     range (min, max) as f32 bits
+//   ranges_at + 2·r: (first page, material << 8 | mip) of every mip of every material, in page
+//     order (how a page finds its tile)
+//   pages_at: one page per tile of every mip of every material, row by row: bit 31 set when the
+//     frame marked the tile, bits 0–30 the slot holding it + 1 (0: not in the cache)
+// The codes: slot s from word s · (words per slot); texel (x, y) of the tile, channel c of its
+// material at byte (16 · y + x) · (channel count) + c.
+
+const NMAT_CACHE_MARK: u32 = 0x80000000u;
+const NMAT_CACHE_MATERIALS_AT: u32 = 16u;
+
+// The codes `nmat_fetch` wrote, by channel.
+var<private> nmat_codes: array<u32, 16>;
+// The material of the lookup being filtered.
+var<private> nmat_cache_material: u32;
+// Texels the last lookup read from tiles the cache did not hold (their codes read as 0).
+var<private> nmat_cache_misses: u32;
+
+fn nmat_cache_record(i: u32) -> u32 {
+    return nmat_cache_word(NMAT_CACHE_MATERIALS_AT + 64u * nmat_cache_material + i);
+}
+
+fn nmat_channel_count() -> u32 {
+    return nmat_cache_record(3u);
+}
+
+fn nmat_mip_count() -> u32 {
+    return nmat_cache_record(2u);
+}
+
+fn nmat_mip_size(mip: u32) -> vec2<u32> {
+    let m = min(mip, nmat_mip_count() - 1u);
+    return max(vec2<u32>(nmat_cache_record(0u) >> m, nmat_cache_record(1u) >> m), vec2<u32>(1u));
+}
+
+fn nmat_channel_range(c: u32) -> vec2<f32> {
+    let at = 24u + 2u * c;
+    return vec2<f32>(bitcast<f32>(nmat_cache_record(at)), bitcast<f32>(nmat_cache_record(at + 1u)));
+}
+
+fn nmat_valid_channels(channels: u32) -> u32 {
+    return channels & ((1u << nmat_channel_count()) - 1u);
+}
+
+fn nmat_cache_address(i: i32, size: u32, clamp_mode: bool) -> u32 {
+    let s = i32(size);
+    if (clamp_mode) {
+        return u32(clamp(i, 0, s - 1));
+    }
+    return u32(((i % s) + s) % s);
+}
+
+// Texel (x, y) of `mip` addressed like `Material::decode_texel_u8` (wrap or clamp, the mip
+// clamped to the chain): (its page, x, y, mip).
+fn nmat_cache_page(x: i32, y: i32, mip: u32) -> vec4<u32> {
+    let m = min(mip, nmat_mip_count() - 1u);
+    let size = nmat_mip_size(m);
+    let clamp_mode = nmat_cache_record(4u) == 1u;
+    let ax = nmat_cache_address(x, size.x, clamp_mode);
+    let ay = nmat_cache_address(y, size.y, clamp_mode);
+    let page = nmat_cache_record(8u + m) + (ay / 16u) * ((size.x + 15u) / 16u) + ax / 16u;
+    return vec4<u32>(page, ax, ay, m);
+}
+
+// The codes of texel (x, y) of `mip` (channels in `mask`) into `nmat_codes`, read from its tile;
+// a tile the cache does not hold reads as codes 0 and counts in `nmat_cache_misses`.
+fn nmat_cache_read(x: i32, y: i32, mip: u32, mask: u32) {
+    let p = nmat_cache_page(x, y, mip);
+    let entry = nmat_cache_word(p.x) & ~NMAT_CACHE_MARK;
+    for (var c = 0u; c < 16u; c++) {
+        nmat_codes[c] = 0u;
+    }
+    if (entry == 0u) {
+        nmat_cache_misses += 1u;
+        return;
+    }
+    let n = nmat_channel_count();
+    let first = (entry - 1u) * nmat_cache_word(13u) * 4u + ((p.z % 16u) * 16u + p.y % 16u) * n;
+    for (var c = 0u; c < n; c++) {
+        if (((mask >> c) & 1u) != 0u) {
+            let byte = first + c;
+            nmat_codes[c] = (nmat_cache_code_word(byte / 4u) >> (8u * (byte % 4u))) & 255u;
+        }
+    }
+}
+
+// A filtered lookup of material `material` (its index in the cache's list) from the cache:
+// `nmat_sample`'s arguments and result (filter.wgsl), the texels read from the tiles a frame
+// marked and decoded. Where the cache held every tile (`nmat_cache_misses == 0u` after the call)
+// the values are those of the sampling module's `nmat_sample` for that material, bit for bit.
+fn nmat_cache_sample(
+    material: u32,
+    uv: vec2<f32>,
+    lod: f32,
+    rnd: vec3<f32>,
+    mode: u32,
+    channels: u32,
+) -> array<f32, 16> {
+    nmat_cache_material = material;
+    nmat_cache_misses = 0u;
+    return nmat_sample(uv, lod, rnd, mode, channels);
+}
