@@ -140,6 +140,10 @@ enum Command {
         /// Write the last frame of the walk with mips (channels 0–2) to this PNG file.
         #[arg(long)]
         image: Option<PathBuf>,
+        /// Also walk with the GPU's tile cache (wgpu), against `nmat_sample` without it (neural
+        /// materials). Needs the `gpu` feature: cargo build --release -p nmat --features gpu
+        #[arg(long)]
+        gpu: bool,
     },
     /// Encode, decode and evaluate a bundled procedural material, and print a report.
     Demo {
@@ -379,7 +383,18 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Eval { input, reference } => cmd_eval(&input, &reference),
         Command::Demo { out, train, profile } => cmd_demo(&out, &train, &profile),
-        Command::Walk { inputs, size, frames, threads, tiles, direct_every, mips, csv, image } => {
+        Command::Walk {
+            inputs,
+            size,
+            frames,
+            threads,
+            tiles,
+            direct_every,
+            mips,
+            csv,
+            image,
+            gpu,
+        } => {
             if frames == 0 || tiles == 0 || threads.contains(&0) || inputs.len() > 4 {
                 return Err(
                     "--frames, --tiles and --threads must be at least 1, and at most 4 inputs"
@@ -397,6 +412,7 @@ fn run(cli: Cli) -> Result<()> {
                 mips: mips.map_or(vec![true, false], |m| vec![m]),
                 csv,
                 image,
+                gpu,
             })
         }
         Command::BenchTrain { inputs, profile, steps, threads, kernel, runs, phases } => {

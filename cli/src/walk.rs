@@ -8,6 +8,10 @@
 //! with a 60° vertical field of view. Every pixel is one filtered lookup: trilinear with the mip its
 //! screen footprint asks for, or bilinear at mip 0 (`--no-mips`).
 
+#[cfg(feature = "gpu")]
+#[path = "walk_gpu.rs"]
+mod gpu;
+
 use crate::Result;
 use nmat_core::{
     ChannelMask, Decoder, Filter, FrameStats, Material, Precision, SampleRequest, TileCache,
@@ -33,6 +37,8 @@ pub struct Options {
     pub csv: Option<PathBuf>,
     /// Where to write the last frame (channels 0–2) as a PNG.
     pub image: Option<PathBuf>,
+    /// Also walk with the GPU's tile cache (`nmat_wgpu::GpuTileCache`; the `gpu` feature).
+    pub gpu: bool,
 }
 
 /// The corridor: x ∈ [−1, 1], y ∈ [0, 2.5], z ∈ [0, 40].
@@ -146,9 +152,10 @@ fn request(l: &Lookup, mips: bool) -> SampleRequest {
 /// One frame's measurements.
 struct Row {
     stats: FrameStats,
-    mark_ms: f64,
-    decode_ms: f64,
-    resolve_ms: f64,
+    /// Marking, decoding, resolving (the CPU's stages; the GPU times the frame as a whole).
+    stages: Option<[f64; 3]>,
+    /// The frame with the cache: the stages' sum.
+    cached_ms: f64,
     direct_ms: Option<f64>,
     identical: Option<bool>,
 }
@@ -204,43 +211,12 @@ pub fn run(opts: &Options) -> Result<()> {
                 walk(opts, &materials, &refs, &decoders, mips).map_err(|e| e.to_string())
             })?;
             if let (Some(path), true) = (&opts.image, mips) {
-                let bytes: Vec<u8> = last
-                    .iter()
-                    .flatten()
-                    .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
-                    .collect();
-                let mut png = Vec::new();
-                image::RgbImage::from_raw(opts.width, opts.height, bytes)
-                    .ok_or("image size")?
-                    .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)?;
-                nmat_cli::output::write_atomic(path, &png)
-                    .map_err(|e| format!("{}: {e}", path.display()))?;
+                write_png(path, opts, &last)?;
             }
-            for (f, r) in rows.iter().enumerate() {
-                let s = &r.stats;
-                csv.push_str(&format!(
-                    "{mips},{threads},{f},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{}\n",
-                    s.marked,
-                    s.hits,
-                    s.decoded,
-                    s.decoded_texels,
-                    s.evicted,
-                    s.overflowed,
-                    s.resolve_misses,
-                    r.mark_ms,
-                    r.decode_ms,
-                    r.resolve_ms,
-                    r.mark_ms + r.decode_ms + r.resolve_ms,
-                    r.direct_ms.map_or(String::new(), |v| format!("{v:.3}")),
-                    r.identical.map_or(String::new(), |v| v.to_string()),
-                ));
-            }
-            summary(&rows, mips, threads, whole);
-            if rows.iter().any(|r| r.identical == Some(false)) {
-                return Err(
-                    "the cached frame differs from direct decoding (a bug: please report)".into()
-                );
-            }
+            report(&mut csv, &rows, mips, &threads.to_string(), whole)?;
+        }
+        if opts.gpu {
+            gpu_walk(opts, &materials, mips, &mut csv, whole)?;
         }
     }
     if let Some(path) = &opts.csv {
@@ -251,25 +227,90 @@ pub fn run(opts: &Options) -> Result<()> {
     Ok(())
 }
 
+/// The walk on the GPU, reported like the CPU's (threads "GPU").
+#[cfg(feature = "gpu")]
+fn gpu_walk(
+    opts: &Options,
+    materials: &[Material<'_>],
+    mips: bool,
+    csv: &mut String,
+    whole: u64,
+) -> Result<()> {
+    let walk = gpu::walk(opts, materials, mips)?;
+    println!(
+        "| | GPU: {}{}, {} | | | | | | | | | | | | |",
+        walk.adapter,
+        if walk.software { ", a software rasterizer on the CPU: not a GPU's numbers" } else { "" },
+        walk.clock.name()
+    );
+    report(csv, &walk.rows, mips, "GPU", whole)
+}
+
+#[cfg(not(feature = "gpu"))]
+fn gpu_walk(_: &Options, _: &[Material<'_>], _: bool, _: &mut String, _: u64) -> Result<()> {
+    Err(crate::NO_GPU_BUILD.into())
+}
+
+/// One walk's rows into the CSV, its summary row into the table; an error if a checked frame
+/// differed from direct decoding.
+fn report(csv: &mut String, rows: &[Row], mips: bool, threads: &str, whole: u64) -> Result<()> {
+    for (f, r) in rows.iter().enumerate() {
+        let s = &r.stats;
+        let stage = |k: usize| r.stages.map_or(String::new(), |st| format!("{:.3}", st[k]));
+        csv.push_str(&format!(
+            "{mips},{threads},{f},{},{},{},{},{},{},{},{},{},{},{:.3},{},{}\n",
+            s.marked,
+            s.hits,
+            s.decoded,
+            s.decoded_texels,
+            s.evicted,
+            s.overflowed,
+            s.resolve_misses,
+            stage(0),
+            stage(1),
+            stage(2),
+            r.cached_ms,
+            r.direct_ms.map_or(String::new(), |v| format!("{v:.3}")),
+            r.identical.map_or(String::new(), |v| v.to_string()),
+        ));
+    }
+    summary(rows, mips, threads, whole);
+    if rows.iter().any(|r| r.identical == Some(false)) {
+        return Err("the cached frame differs from direct decoding (a bug: please report)".into());
+    }
+    Ok(())
+}
+
+/// Channels 0–2 of a frame as a PNG.
+fn write_png(path: &std::path::Path, opts: &Options, frame: &[[f32; 3]]) -> Result<()> {
+    let bytes: Vec<u8> =
+        frame.iter().flatten().map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8).collect();
+    let mut png = Vec::new();
+    image::RgbImage::from_raw(opts.width, opts.height, bytes)
+        .ok_or("image size")?
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)?;
+    nmat_cli::output::write_atomic(path, &png).map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(())
+}
+
 fn median(v: impl Iterator<Item = f64>) -> f64 {
     crate::bench::median(v.collect())
 }
 
-fn summary(rows: &[Row], mips: bool, threads: usize, whole: u64) {
+fn summary(rows: &[Row], mips: bool, threads: &str, whole: u64) {
     let marked = median(rows.iter().map(|r| f64::from(r.stats.marked)));
     let decoded = median(rows.iter().map(|r| f64::from(r.stats.decoded)));
     let (hits, all) = rows.iter().skip(1).fold((0u64, 0u64), |(h, a), r| {
         (h + u64::from(r.stats.hits), a + u64::from(r.stats.marked))
     });
     let texels = median(rows.iter().map(|r| f64::from(r.stats.decoded_texels)));
-    let mark = median(rows.iter().map(|r| r.mark_ms));
-    let decode = median(rows.iter().map(|r| r.decode_ms));
-    let resolve = median(rows.iter().map(|r| r.resolve_ms));
-    let cached = median(rows.iter().map(|r| r.mark_ms + r.decode_ms + r.resolve_ms));
-    let direct: Vec<_> = rows
-        .iter()
-        .filter_map(|r| Some((r.direct_ms?, r.mark_ms + r.decode_ms + r.resolve_ms)))
-        .collect();
+    let stage = |k: usize| {
+        let v: Vec<f64> = rows.iter().filter_map(|r| Some(r.stages?[k])).collect();
+        if v.is_empty() { "—".to_string() } else { format!("{:.1}", median(v.into_iter())) }
+    };
+    let (mark, decode, resolve) = (stage(0), stage(1), stage(2));
+    let cached = median(rows.iter().map(|r| r.cached_ms));
+    let direct: Vec<_> = rows.iter().filter_map(|r| Some((r.direct_ms?, r.cached_ms))).collect();
     let (direct_ms, ratio) = if direct.is_empty() {
         ("—".to_string(), "—".to_string())
     } else {
@@ -279,7 +320,7 @@ fn summary(rows: &[Row], mips: bool, threads: usize, whole: u64) {
         )
     };
     println!(
-        "| {} | {threads} | {} | {marked:.0} | {decoded:.0} | {:.1} % | {texels:.0} | {:.4} | {mark:.1} | {decode:.1} | {resolve:.1} | {cached:.1} | {direct_ms} | {ratio} |",
+        "| {} | {threads} | {} | {marked:.0} | {decoded:.0} | {:.1} % | {texels:.0} | {:.4} | {mark} | {decode} | {resolve} | {cached:.1} | {direct_ms} | {ratio} |",
         if mips { "yes" } else { "no" },
         rows.len(),
         100.0 * hits as f64 / all.max(1) as f64,
@@ -355,7 +396,9 @@ fn walk(
             direct_ms = Some(ms(start));
             identical = Some(direct == image);
         }
-        rows.push(Row { stats, mark_ms, decode_ms, resolve_ms, direct_ms, identical });
+        let stages = Some([mark_ms, decode_ms, resolve_ms]);
+        let cached_ms = mark_ms + decode_ms + resolve_ms;
+        rows.push(Row { stats, stages, cached_ms, direct_ms, identical });
         last = image;
     }
     Ok((rows, last))

@@ -642,6 +642,49 @@ fn bench_gpu_prints_the_gpu_table_or_says_how_to_build_it() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `nmat walk --gpu` walks through the GPU's tile cache too, frame for frame with the same tiles
+/// as the CPU's, where the binary has the `gpu` feature; says how to get it where it has not.
+#[test]
+fn walk_gpu_counts_the_tiles_the_cpu_counts_or_says_how_to_build_it() {
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures");
+    let (neural, jpeg) =
+        (fixtures.join("ntc_pbr10_96x80_clamp.nmat"), fixtures.join("jpeg/pattern_420_37x21.nmat"));
+    let dir = temp_dir("walk-gpu");
+    let csv = dir.join("walk.csv");
+    let o = nmat(&[
+        "walk",
+        neural.to_str().unwrap(),
+        jpeg.to_str().unwrap(),
+        "--size",
+        "96x54",
+        "--frames",
+        "4",
+        "--threads",
+        "1",
+        "--csv",
+        csv.to_str().unwrap(),
+        "--gpu",
+    ]);
+    let out = text(&o);
+    if out.contains("built without GPU support") {
+        assert!(!o.status.success() && out.contains("--features gpu"), "{out}");
+        return;
+    }
+    assert!(o.status.success(), "{out}");
+    assert!(out.contains("| yes | GPU | 4 |") && out.contains("| no | GPU | 4 |"), "{out}");
+    let rows = std::fs::read_to_string(&csv).unwrap();
+    let rows: Vec<Vec<&str>> = rows.lines().skip(1).map(|r| r.split(',').collect()).collect();
+    assert_eq!(rows.len(), 16, "4 frames × (CPU, GPU) × (mips, no mips)");
+    // Per frame and setting: marked, hits, decoded, decoded texels, evicted, overflowed and
+    // resolve misses of the GPU equal the CPU's (this walk's coordinates pick the same texels).
+    for cpu in rows.iter().filter(|r| r[1] == "1") {
+        let gpu = rows.iter().find(|r| r[1] == "GPU" && r[0] == cpu[0] && r[2] == cpu[2]).unwrap();
+        assert_eq!(gpu[3..10], cpu[3..10], "frame {} (mips {})", cpu[2], cpu[0]);
+        assert!(gpu[13].parse::<f64>().unwrap() > 0.0);
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn fuzz_regression_inputs_of_the_cli_target_never_panic() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/regressions/cli");

@@ -40,13 +40,30 @@ pub fn time_recorded(
     mut record: impl FnMut(&mut wgpu::CommandEncoder) -> Result<(), GpuError>,
 ) -> Result<(f64, Clock), GpuError> {
     let repeats = repeats.max(1);
-    let wait = |device: &wgpu::Device| {
-        device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Map(e.to_string()))
-    };
     let mut warm = device.create_command_encoder(&Default::default());
     record(&mut warm)?;
     queue.submit([warm.finish()]);
-    wait(device)?;
+    device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Map(e.to_string()))?;
+    let (seconds, clock) = time_once(device, queue, |encoder| {
+        for _ in 0..repeats {
+            record(encoder)?;
+        }
+        Ok(())
+    })?;
+    Ok((seconds / f64::from(repeats), clock))
+}
+
+/// Seconds of the work `record` adds to one command encoder, submitted once (no warm-up: for
+/// work that changes state, such as a tile cache's frame): between GPU timestamps where the
+/// device has them ([`TIMESTAMP_FEATURES`]), else from submit to completion.
+pub fn time_once(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    record: impl FnOnce(&mut wgpu::CommandEncoder) -> Result<(), GpuError>,
+) -> Result<(f64, Clock), GpuError> {
+    let wait = |device: &wgpu::Device| {
+        device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Map(e.to_string()))
+    };
     let timestamps = device.features().contains(TIMESTAMP_FEATURES);
     let mut encoder = device.create_command_encoder(&Default::default());
     let queries = timestamps.then(|| {
@@ -59,14 +76,12 @@ pub fn time_recorded(
     if let Some(q) = &queries {
         encoder.write_timestamp(q, 0);
     }
-    for _ in 0..repeats {
-        record(&mut encoder)?;
-    }
+    record(&mut encoder)?;
     let Some(q) = &queries else {
         let start = Instant::now();
         queue.submit([encoder.finish()]);
         wait(device)?;
-        return Ok((start.elapsed().as_secs_f64() / f64::from(repeats), Clock::WallClock));
+        return Ok((start.elapsed().as_secs_f64(), Clock::WallClock));
     };
     encoder.write_timestamp(q, 1);
     let resolve = device.create_buffer(&wgpu::BufferDescriptor {
@@ -91,7 +106,7 @@ pub fn time_recorded(
         u64::from_le_bytes(word)
     };
     let ns = tick(1).saturating_sub(tick(0)) as f64 * f64::from(queue.get_timestamp_period());
-    Ok((ns * 1e-9 / f64::from(repeats), Clock::Timestamps))
+    Ok((ns * 1e-9, Clock::Timestamps))
 }
 
 /// The adapter's peak rates, measured by [`probe_peak`].

@@ -1,0 +1,174 @@
+//! `nmat walk --gpu`: the same walk through nmat-wgpu's tile cache (`GpuTileCache`): per frame
+//! the G-buffer of lookups is uploaded (untimed: a renderer writes it on the GPU), then one
+//! submission records begin → mark → decode missing → resolve → end, timed between GPU
+//! timestamps where the adapter has them (else submit to completion). Every Nth frame also
+//! resolves every lookup with `nmat_sample` (decoding its texels, no cache; neural materials
+//! only) and checks the two images are bit-identical.
+
+use super::{Lookup, Options, Row, request};
+use crate::Result;
+use nmat_core::{ChannelMask, Material};
+use nmat_wgpu::measure::{self, Clock};
+use nmat_wgpu::wgpu;
+use nmat_wgpu::{CacheLookup, Context, SampleBindings};
+
+/// The adapter, and the walk's rows with the clock that timed them.
+pub struct GpuWalk {
+    pub adapter: String,
+    pub software: bool,
+    pub clock: Clock,
+    pub rows: Vec<Row>,
+}
+
+/// A compute shader writing channels 0–2 of `nmat_sample` for the lookups of one material.
+fn direct_source(material: usize) -> String {
+    format!(
+        "{}\n\
+         @group(0) @binding(2) var<storage, read> lookups: array<u32>;\n\
+         @group(0) @binding(3) var<storage, read_write> out: array<f32>;\n\
+         @compute @workgroup_size(64)\n\
+         fn main(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) n: vec3<u32>) {{\n\
+             let i = id.x + id.y * n.x * 64u;\n\
+             if (i >= arrayLength(&lookups) / 8u || lookups[8u * i + 3u] != {material}u) {{ return; }}\n\
+             let uv = vec2<f32>(bitcast<f32>(lookups[8u * i]), bitcast<f32>(lookups[8u * i + 1u]));\n\
+             let v = nmat_sample(uv, bitcast<f32>(lookups[8u * i + 2u]), vec3<f32>(0.0), lookups[8u * i + 4u], 7u);\n\
+             out[3u * i] = v[0];\n\
+             out[3u * i + 1u] = v[1];\n\
+             out[3u * i + 2u] = v[2];\n\
+         }}\n",
+        SampleBindings { group: 0, first_binding: 0 }.module()
+    )
+}
+
+pub fn walk(opts: &Options, materials: &[Material<'_>], mips: bool) -> Result<GpuWalk> {
+    let (device, queue, info) =
+        pollster::block_on(nmat_wgpu::default_device()).ok_or(crate::NO_ADAPTER)?;
+    let ctx = Context::new(&device);
+    let gpus: Vec<_> =
+        materials.iter().map(|m| ctx.upload(&device, m)).collect::<std::result::Result<_, _>>()?;
+    let refs: Vec<_> = gpus.iter().collect();
+    let tiles = u32::try_from(opts.tiles).map_err(|_| "--tiles: at most 2^32 − 1 on the GPU")?;
+    let cache = ctx.create_tile_cache(&device, &refs, tiles)?;
+    let pixels = u64::from(opts.width) * u64::from(opts.height);
+    let count = u32::try_from(pixels).map_err(|_| "--size: too many pixels")?;
+    use wgpu::BufferUsages as U;
+    let buffer = |label, size, usage| {
+        device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size,
+            usage,
+            mapped_at_creation: false,
+        })
+    };
+    let lookups = buffer("walk lookups", CacheLookup::BYTES * pixels, U::STORAGE | U::COPY_DST);
+    let cached_out = buffer("walk cached", 12 * pixels, U::STORAGE | U::COPY_SRC);
+    let direct_out = buffer("walk direct", 12 * pixels, U::STORAGE | U::COPY_SRC);
+    // Direct sampling: one pass per material (the sampling module binds one material).
+    let neural = gpus.iter().all(|g| g.codec() == nmat_core::Codec::Neural);
+    let mut direct = Vec::new();
+    if neural {
+        for (k, g) in gpus.iter().enumerate() {
+            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some("walk direct"),
+                source: wgpu::ShaderSource::Wgsl(direct_source(k).into()),
+            });
+            let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some("walk direct"),
+                layout: None,
+                module: &module,
+                entry_point: Some("main"),
+                compilation_options: Default::default(),
+                cache: None,
+            });
+            let [a, b] = g.sample_entries(SampleBindings { group: 0, first_binding: 0 })?;
+            let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("walk direct"),
+                layout: &pipeline.get_bind_group_layout(0),
+                entries: &[
+                    a,
+                    b,
+                    wgpu::BindGroupEntry { binding: 2, resource: lookups.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 3, resource: direct_out.as_entire_binding() },
+                ],
+            });
+            direct.push((pipeline, group));
+        }
+    }
+    let wait = || device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| e.to_string());
+    let mut rows = Vec::new();
+    let mut clock = Clock::WallClock;
+    for f in 0..opts.frames {
+        let items: Vec<CacheLookup> = super::gbuffer(opts, materials, f, mips)
+            .iter()
+            .map(|l: &Lookup| CacheLookup::new(u32::from(l.material), &request(l, mips)))
+            .collect();
+        queue.write_buffer(&lookups, 0, &CacheLookup::bytes(&items));
+        queue.submit([]);
+        wait()?;
+        let (seconds, c) = measure::time_once(&device, &queue, |encoder| {
+            cache.record_begin_frame(encoder);
+            cache.record_mark(&device, encoder, (&lookups, 0, count))?;
+            cache.record_decode_missing(encoder);
+            let channels = ChannelMask(0b111);
+            cache.record_resolve(
+                &device,
+                encoder,
+                (&lookups, 0, count),
+                channels,
+                (&cached_out, 0),
+            )?;
+            cache.record_end_frame(encoder);
+            Ok(())
+        })?;
+        clock = c;
+        let stats = cache.read_stats(&device)?;
+        let (mut direct_ms, mut identical) = (None, None);
+        if !direct.is_empty() && opts.direct_every > 0 && f % opts.direct_every == 0 {
+            let (seconds, _) = measure::time_once(&device, &queue, |encoder| {
+                let mut pass = encoder.begin_compute_pass(&Default::default());
+                let groups = pixels.div_ceil(64);
+                for (pipeline, group) in &direct {
+                    pass.set_pipeline(pipeline);
+                    pass.set_bind_group(0, group, &[]);
+                    pass.dispatch_workgroups(
+                        groups.min(65535) as u32,
+                        groups.div_ceil(65535) as u32,
+                        1,
+                    );
+                }
+                Ok(())
+            })?;
+            direct_ms = Some(seconds * 1e3);
+            identical =
+                Some(read(&device, &queue, &cached_out)? == read(&device, &queue, &direct_out)?);
+        }
+        rows.push(Row { stats, stages: None, cached_ms: seconds * 1e3, direct_ms, identical });
+    }
+    Ok(GpuWalk {
+        adapter: format!("{} ({:?})", info.name, info.backend),
+        software: info.device_type == nmat_wgpu::DeviceType::Cpu,
+        clock,
+        rows,
+    })
+}
+
+/// The bytes of `source` (blocks on the device).
+fn read(device: &wgpu::Device, queue: &wgpu::Queue, source: &wgpu::Buffer) -> Result<Vec<u8>> {
+    let back = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("walk readback"),
+        size: source.size(),
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut encoder = device.create_command_encoder(&Default::default());
+    encoder.copy_buffer_to_buffer(source, 0, &back, 0, source.size());
+    queue.submit([encoder.finish()]);
+    let (tx, rx) = std::sync::mpsc::channel();
+    back.map_async(wgpu::MapMode::Read, .., move |r| {
+        let _ = tx.send(r);
+    });
+    device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| e.to_string())?;
+    rx.recv()?.map_err(|e| e.to_string())?;
+    let bytes = back.get_mapped_range(..).map_err(|e| e.to_string())?.to_vec();
+    Ok(bytes)
+}
