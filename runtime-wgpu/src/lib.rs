@@ -42,6 +42,9 @@
 //! embedded in `nmat_core::spec`); how the kernel maps it onto 32-bit integers and what it costs
 //! is in `docs/GPU.md`, embedded here as [`design`]. JPEG materials (§11) upload and decode
 //! through the same region and request calls, one workgroup per MCU ([`GpuMaterial::codec`]).
+//! A renderer that decodes only what its frames touch keeps a [`GpuTileCache`]
+//! ([`Context::create_tile_cache`]): mark, decode the missing tiles and resolve, as passes
+//! recorded into its own encoder, for neural and JPEG materials alike.
 
 mod cache;
 mod jpeg;
