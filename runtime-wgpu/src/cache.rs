@@ -294,7 +294,8 @@ impl Context {
                 let words = [queue_at, slot_words as u32, 0, 0];
                 let params = uniform(&crate::words_to_bytes(&words));
                 let bind = self.bind_with(device, Some(m), Some(&state), &codes, &params);
-                decodes.push(Decode { pipeline: neural.clone(), bind, args: args(1) });
+                // Four workgroups per tile (cache_decode.wgsl).
+                decodes.push(Decode { pipeline: neural.clone(), bind, args: args(4) });
                 continue;
             };
             let jpeg = self.jpeg_pipelines(device)?;

@@ -1,6 +1,7 @@
 // The tile cache's decode of a neural material's new tiles (cache.rs; the queue is cache.wgsl's):
-// one workgroup per tile of the material's decode queue, every texel of the tile in its mip
-// decoded by `nmat_decode` (texel.wgsl) and its codes ORed into the tile's cleared slot.
+// four workgroups per tile of the material's decode queue, one texel of the tile per invocation
+// decoded by `nmat_decode` (texel.wgsl; one decode per invocation keeps lavapipe's loop cap far
+// away, docs/GPU.md) and its codes ORed into the tile's cleared slot.
 
 struct NmatCacheDecode {
     // The material's decode queue in the state, and the words of a slot.
@@ -20,7 +21,8 @@ fn nmat_cache_decode(
     @builtin(workgroup_id) wg: vec3<u32>,
     @builtin(num_workgroups) groups: vec3<u32>,
 ) {
-    let g = wg.x + wg.y * groups.x;
+    let g = (wg.x + wg.y * groups.x) / 4u;
+    let t = 64u * ((wg.x + wg.y * groups.x) % 4u) + lid;
     let q = nmat_cd.queue_at;
     if (g >= nmat_cd_queue[q]) {
         return;
@@ -32,15 +34,13 @@ fn nmat_cache_decode(
     let y0 = 16u * ((tile >> 13u) & 0x1FFFu);
     let size = nmat_mip_size(mip);
     let n = nmat_channel_count();
-    for (var t = lid; t < 256u; t += 64u) {
-        let x = x0 + t % 16u;
-        let y = y0 + t / 16u;
-        if (x < size.x && y < size.y) {
-            nmat_decode(i32(x), i32(y), mip, NMAT_ALL_CHANNELS);
-            for (var c = 0u; c < n; c++) {
-                let byte = slot * nmat_cd.slot_words * 4u + t * n + c;
-                atomicOr(&nmat_cd_codes[byte / 4u], nmat_codes[c] << (8u * (byte % 4u)));
-            }
+    let x = x0 + t % 16u;
+    let y = y0 + t / 16u;
+    if (x < size.x && y < size.y) {
+        nmat_decode(i32(x), i32(y), mip, NMAT_ALL_CHANNELS);
+        for (var c = 0u; c < n; c++) {
+            let byte = slot * nmat_cd.slot_words * 4u + t * n + c;
+            atomicOr(&nmat_cd_codes[byte / 4u], nmat_codes[c] << (8u * (byte % 4u)));
         }
     }
 }

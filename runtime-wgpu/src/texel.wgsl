@@ -265,8 +265,19 @@ fn nmat_decode(xi: i32, yi: i32, mip_in: u32, mask: u32) {
                 continue;
             }
             var acc = nmat_weight(ra + 3u * o);
-            for (var i = 0u; i < inputs; i++) {
-                acc += nmat_weight(wa + o * inputs + i) * nmat_act_a[i];
+            // Four inputs per iteration (i32 sums wrap, so the order does not change them):
+            // lavapipe caps the loop iterations of a shader invocation, all loops together, at
+            // 65 535 (docs/GPU.md, "Known problems"); this keeps a decode far below it.
+            let row = wa + o * inputs;
+            var i = 0u;
+            for (; i + 4u <= inputs; i += 4u) {
+                acc += nmat_weight(row + i) * nmat_act_a[i]
+                    + nmat_weight(row + i + 1u) * nmat_act_a[i + 1u]
+                    + nmat_weight(row + i + 2u) * nmat_act_a[i + 2u]
+                    + nmat_weight(row + i + 3u) * nmat_act_a[i + 3u];
+            }
+            for (; i < inputs; i++) {
+                acc += nmat_weight(row + i) * nmat_act_a[i];
             }
             var v = nmat_requantize(acc, nmat_desc[ra + 3u * o + 1u], nmat_desc[ra + 3u * o + 2u]);
             if (gelu) {
