@@ -10,7 +10,7 @@ use crate::Result;
 use nmat_core::{ChannelMask, Material};
 use nmat_wgpu::measure::{self, Clock};
 use nmat_wgpu::wgpu;
-use nmat_wgpu::{CacheLookup, Context, SampleBindings};
+use nmat_wgpu::{CacheLookup, Context, SampleBindings, read_buffer};
 
 /// The adapter, and the walk's rows with the clock that timed them.
 pub struct GpuWalk {
@@ -139,8 +139,10 @@ pub fn walk(opts: &Options, materials: &[Material<'_>], mips: bool) -> Result<Gp
                 Ok(())
             })?;
             direct_ms = Some(seconds * 1e3);
-            identical =
-                Some(read(&device, &queue, &cached_out)? == read(&device, &queue, &direct_out)?);
+            identical = Some(
+                read_buffer(&device, &queue, &cached_out)?
+                    == read_buffer(&device, &queue, &direct_out)?,
+            );
         }
         rows.push(Row { stats, stages: None, cached_ms: seconds * 1e3, direct_ms, identical });
     }
@@ -150,25 +152,4 @@ pub fn walk(opts: &Options, materials: &[Material<'_>], mips: bool) -> Result<Gp
         clock,
         rows,
     })
-}
-
-/// The bytes of `source` (blocks on the device).
-fn read(device: &wgpu::Device, queue: &wgpu::Queue, source: &wgpu::Buffer) -> Result<Vec<u8>> {
-    let back = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("walk readback"),
-        size: source.size(),
-        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
-    let mut encoder = device.create_command_encoder(&Default::default());
-    encoder.copy_buffer_to_buffer(source, 0, &back, 0, source.size());
-    queue.submit([encoder.finish()]);
-    let (tx, rx) = std::sync::mpsc::channel();
-    back.map_async(wgpu::MapMode::Read, .., move |r| {
-        let _ = tx.send(r);
-    });
-    device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| e.to_string())?;
-    rx.recv()?.map_err(|e| e.to_string())?;
-    let bytes = back.get_mapped_range(..).map_err(|e| e.to_string())?.to_vec();
-    Ok(bytes)
 }

@@ -11,7 +11,10 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use nmat_core::{ChannelMask, Filter, FrameStats, TILE_SIZE, TileKey};
 use wgpu::util::DeviceExt;
 
-use crate::{Context, GpuError, GpuMaterial, MAX_GROUPS, Params, SampleBindings, read_back};
+use crate::{
+    Context, GpuError, GpuMaterial, MAX_GROUPS, Params, SampleBindings, read_back, read_buffer,
+    storage_entry, uniform_entry,
+};
 
 /// Materials one GPU tile cache serves (as `nmat_core::TileCache`).
 pub const MAX_CACHE_MATERIALS: usize = nmat_core::cache::MAX_CACHE_MATERIALS;
@@ -236,19 +239,18 @@ impl Context {
             slots,
         ]);
         table.resize(table.len() + pages as usize, 0);
-        // The state: every slot free.
+        // The state: every slot free. Both tables are checked before the state is allocated.
         let queue_words = 4 + 2 * slots as usize;
-        let mut state = vec![0u32; FREE_AT + 2 * slots as usize + materials.len() * queue_words];
+        let state_words = FREE_AT + 2 * slots as usize + materials.len() * queue_words;
+        if 4 * table.len().max(state_words) as u64 > max_binding {
+            return Err(GpuError::Cache {
+                reason: "its tables are larger than one storage binding of the device",
+            });
+        }
+        let mut state = vec![0u32; state_words];
         state[0] = slots;
         for (i, s) in state[FREE_AT..FREE_AT + slots as usize].iter_mut().enumerate() {
             *s = slots - 1 - i as u32;
-        }
-        for words in [&table, &state] {
-            if 4 * words.len() as u64 > max_binding {
-                return Err(GpuError::Cache {
-                    reason: "its tables are larger than one storage binding of the device",
-                });
-            }
         }
         use wgpu::BufferUsages as U;
         let args_bytes = 4 * (8 + 12 * materials.len() as u64);
@@ -347,34 +349,14 @@ impl Context {
         &self,
         device: &wgpu::Device,
     ) -> Result<(wgpu::BindGroupLayout, Passes), GpuError> {
-        let storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
-        let uniform = wgpu::BindGroupLayoutEntry {
-            binding: 4,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Uniform,
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("nmat cache"),
             entries: &[
-                storage(0, false),
-                storage(1, false),
-                storage(2, true),
-                storage(3, false),
-                uniform,
+                storage_entry(0, false),
+                storage_entry(1, false),
+                storage_entry(2, true),
+                storage_entry(3, false),
+                uniform_entry(4),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -588,20 +570,8 @@ impl GpuTileCache {
         device: &wgpu::Device,
         queue: &wgpu::Queue,
     ) -> Result<Vec<(TileKey, Vec<u8>)>, GpuError> {
-        let copy = |source: &wgpu::Buffer| -> Result<Vec<u8>, GpuError> {
-            let back = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("nmat cache readback"),
-                size: source.size(),
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            let mut encoder = device.create_command_encoder(&Default::default());
-            encoder.copy_buffer_to_buffer(source, 0, &back, 0, source.size());
-            queue.submit([encoder.finish()]);
-            read_back(device, &back, source.size())
-        };
-        let table = copy(&self.table)?;
-        let codes = copy(&self.codes)?;
+        let table = read_buffer(device, queue, &self.table)?;
+        let codes = read_buffer(device, queue, &self.codes)?;
         let word = |i: u32| {
             let at = 4 * i as usize;
             table.get(at..at + 4).map_or(0, |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
