@@ -12,8 +12,8 @@ use nmat_core::{ChannelMask, Filter, FrameStats, TILE_SIZE, TileKey};
 use wgpu::util::DeviceExt;
 
 use crate::{
-    Context, GpuError, GpuMaterial, MAX_GROUPS, Params, SampleBindings, read_back, read_buffer,
-    storage_entry, uniform_entry,
+    Context, GpuError, GpuMaterial, Params, SampleBindings, dispatch, read_back, read_buffer,
+    spread, storage_entry, uniform_buffer, uniform_entry,
 };
 
 /// Materials one GPU tile cache serves (as `nmat_core::TileCache`).
@@ -276,13 +276,7 @@ impl Context {
         let args = buffer("nmat cache dispatches", args_bytes, U::STORAGE | U::INDIRECT);
         let empty = buffer("nmat cache no lookups", 32, U::STORAGE);
         let (layout, passes) = self.cache_passes(device)?;
-        let uniform = |bytes: &[u8]| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("nmat cache params"),
-                contents: bytes,
-                usage: U::UNIFORM,
-            })
-        };
+        let uniform = |bytes: &[u8]| uniform_buffer(device, bytes);
         let params = uniform(&[0; 32]);
         let frame_bind = bind(device, &layout, [&table, &state, &empty, &codes], &params);
         let plan_bind = bind(device, &layout, [&table, &state, &empty, &args], &params);
@@ -464,10 +458,10 @@ impl GpuTileCache {
         let bytes = CacheLookup::BYTES * u64::from(count);
         let in_offset = Context::check_requests(device, lookups, offset, bytes)?;
         let params = cache_params(count, in_offset, 0xFFFF, 0);
-        let uniform = self.uniform(device, &params);
+        let uniform = uniform_buffer(device, &params);
         let group =
             bind(device, &self.layout, [&self.table, &self.state, lookups, &self.codes], &uniform);
-        self.dispatch(encoder, &self.passes.mark, &group, groups_of_64(count));
+        dispatch(encoder, &self.passes.mark, &group, groups_of_64(count));
         Ok(())
     }
 
@@ -482,13 +476,9 @@ impl GpuTileCache {
             timestamp_writes: None,
         });
         pass.set_bind_group(0, &self.frame_bind, &[]);
-        let pages = groups_of_64(self.pages);
+        let (gx, gy) = spread(groups_of_64(self.pages));
         pass.set_pipeline(&self.passes.compact);
-        pass.dispatch_workgroups(
-            pages.min(u64::from(MAX_GROUPS)).max(1) as u32,
-            pages.div_ceil(u64::from(MAX_GROUPS)).max(1) as u32,
-            1,
-        );
+        pass.dispatch_workgroups(gx, gy, 1);
         pass.set_bind_group(0, &self.plan_bind, &[]);
         pass.set_pipeline(&self.passes.plan);
         pass.dispatch_workgroups(1, 1, 1);
@@ -530,9 +520,9 @@ impl GpuTileCache {
         let values = u64::from(count) * u64::from(channels.0.count_ones());
         let out_word = Context::check_output(device, out, out_offset, 4 * values)?;
         let params = cache_params(count, in_offset, u32::from(channels.0), out_word);
-        let uniform = self.uniform(device, &params);
+        let uniform = uniform_buffer(device, &params);
         let group = bind(device, &self.layout, [&self.table, out, lookups, &self.codes], &uniform);
-        self.dispatch(encoder, &self.passes.resolve, &group, groups_of_64(count));
+        dispatch(encoder, &self.passes.resolve, &group, groups_of_64(count));
         Ok(values)
     }
 
@@ -634,23 +624,5 @@ impl GpuTileCache {
                 resource: self.codes.as_entire_binding(),
             },
         ]
-    }
-
-    fn uniform(&self, device: &wgpu::Device, bytes: &[u8]) -> wgpu::Buffer {
-        device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("nmat cache params"),
-            contents: bytes,
-            usage: wgpu::BufferUsages::UNIFORM,
-        })
-    }
-
-    fn dispatch(
-        &self,
-        encoder: &mut wgpu::CommandEncoder,
-        pipeline: &wgpu::ComputePipeline,
-        group: &wgpu::BindGroup,
-        groups: u64,
-    ) {
-        crate::dispatch(encoder, pipeline, group, groups);
     }
 }

@@ -406,11 +406,7 @@ impl Context {
         out: &wgpu::Buffer,
         params: &Params,
     ) -> wgpu::BindGroup {
-        let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("nmat params"),
-            contents: &params.bytes(),
-            usage: wgpu::BufferUsages::UNIFORM,
-        });
+        let uniform = uniform_buffer(device, &params.bytes());
         self.bind_with(device, material, requests, out, &uniform)
     }
 
@@ -1226,11 +1222,27 @@ fn dispatch(
     });
     pass.set_pipeline(pipeline);
     pass.set_bind_group(0, bind, &[]);
+    if groups > 0 {
+        let (gx, gy) = spread(groups);
+        pass.dispatch_workgroups(gx, gy, 1);
+    }
+}
+
+/// `groups` workgroups as a dispatch's x and y (at least 1 each): x up to the per-dimension
+/// limit, y rows of it; shaders index workgroup x + y · (x count).
+pub(crate) fn spread(groups: u64) -> (u32, u32) {
     let gx = groups.min(u64::from(MAX_GROUPS)) as u32;
     let gy = groups.div_ceil(u64::from(MAX_GROUPS)) as u32;
-    if groups > 0 {
-        pass.dispatch_workgroups(gx.max(1), gy.max(1), 1);
-    }
+    (gx.max(1), gy.max(1))
+}
+
+/// A uniform buffer holding `bytes` (a dispatch's parameters).
+pub(crate) fn uniform_buffer(device: &wgpu::Device, bytes: &[u8]) -> wgpu::Buffer {
+    device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("nmat params"),
+        contents: bytes,
+        usage: wgpu::BufferUsages::UNIFORM,
+    })
 }
 
 /// Creates a device on the first adapter wgpu finds (any backend, software adapters included),
