@@ -22,6 +22,10 @@ pub struct Options {
     pub runs: usize,
     /// The GPU decoder's table (`--gpu`) instead of the CPU's.
     pub gpu: bool,
+    /// Measure against reference maps that do not match the material's channels by role.
+    pub force: bool,
+    /// Bytes a material's measurement may hold (`--max-memory`).
+    pub max_memory: u64,
 }
 
 /// One probe of a kernel's peak multiply-add rate (MACs per second), over `macs` multiply-adds.
@@ -202,6 +206,8 @@ fn bench_one(input: &Path, opts: &Options) -> Result<()> {
     let bytes = crate::read_nmat(input)?;
     let m = crate::parse(&bytes, input)?;
     let (w, h) = m.mip_size(0);
+    let side = (opts.region.min(w).max(1), opts.region.min(h).max(1));
+    check_memory(input, &m, side, opts.max_memory)?;
     if opts.gpu {
         println!(
             "{}: {w}×{h}, {} channels, {} mips, {} bytes, {} MACs/texel",
@@ -213,13 +219,12 @@ fn bench_one(input: &Path, opts: &Options) -> Result<()> {
         );
         return crate::bench_gpu_table(&m, opts);
     }
-    let side = (opts.region.min(w).max(1), opts.region.min(h).max(1));
     let c = m.channel_count();
     let best = Decoder::new(&m);
     let float_units = region_float_units(&m, &best, side);
     let (source, chain_psnr, png) = match &opts.reference {
         Some(dir) => {
-            let set = crate::load_reference(&m, dir)?;
+            let set = crate::load_reference(&m, dir, opts.force, opts.max_memory)?;
             let src = &set.mips[0];
             let mut region = Vec::with_capacity((side.0 * side.1) as usize * c);
             for y in 0..side.1 {
@@ -252,15 +257,41 @@ fn bench_one(input: &Path, opts: &Options) -> Result<()> {
         println!("  {note}");
     }
     reference_rows(&setup, &float_units_to_codes(&setup.float_units), opts.runs, png);
-    crate::bench_gpu(&m, &|name, secs| {
-        let texels = f64::from(w) * f64::from(h);
+    crate::bench_gpu(&m, side, &|name, secs, texels, scope| {
+        let texels = texels as f64;
         println!(
-            "  {name:52} {:9.1} ns/texel {:12.0} texels/s (whole mip 0)",
+            "  {name:52} {:9.1} ns/texel {:12.0} texels/s ({scope})",
             secs * 1e9 / texels,
             texels / secs
         );
     })?;
     println!();
+    Ok(())
+}
+
+/// Refuses a measurement of `m` whose buffers would exceed `--max-memory`, before any is
+/// allocated: per texel-channel of the region the float decode, the source, the codes of a mode
+/// and its float output; with the `gpu` feature the codes of the whole chain (the GPU row reads
+/// mip 0 back, `--gpu` the chain).
+fn check_memory(input: &Path, m: &Material<'_>, side: (u32, u32), max_memory: u64) -> Result<()> {
+    let c = m.channel_count() as u64;
+    let region = u64::from(side.0) * u64::from(side.1) * c * 16;
+    let chain: u64 = (0..m.mip_count()).map(|i| m.decode_cost(i).texels).sum();
+    let gpu = if cfg!(feature = "gpu") { chain * c } else { 0 };
+    let need = region + gpu;
+    if need > max_memory {
+        let mib = |b: u64| b as f64 / (1u64 << 20) as f64;
+        return Err(format!(
+            "{}: measuring a {}×{} region (--region) needs about {:.1} MiB, more than the {:.1} \
+             MiB allowed; nothing was measured. Lower --region or raise --max-memory",
+            input.display(),
+            side.0,
+            side.1,
+            mib(need),
+            mib(max_memory)
+        )
+        .into());
+    }
     Ok(())
 }
 

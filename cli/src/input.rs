@@ -2,26 +2,17 @@
 
 use std::path::Path;
 
-/// Reads a .nmat file without trusting it: only a regular file, whose first bytes carry the
-/// magic, read no further than the length its header declares (≤ 4 GiB by the format), so a
-/// huge or endless input is refused before it is read.
+/// Reads a .nmat file without trusting it: only a regular file (opened as every input is, by
+/// [`nmat_encode::input::open_regular`]), whose first bytes carry the magic, read no further than
+/// the length its header declares (≤ 4 GiB by the format), so a huge or endless input is refused
+/// before it is read.
 pub fn read_nmat(path: &Path) -> Result<Vec<u8>, String> {
     use std::io::Read as _;
     let shown = path.display();
-    let meta = std::fs::metadata(path).map_err(|e| format!("{shown}: {e}"))?;
-    if meta.is_dir() {
-        return Err(format!("{shown}: is a folder, not a .nmat file"));
-    }
-    if !meta.is_file() {
-        return Err(format!(
-            "{shown}: not a regular file (a device, pipe or socket); .nmat files are read from \
-             regular files only"
-        ));
-    }
-    let mut file = std::fs::File::open(path).map_err(|e| format!("{shown}: {e}"))?;
+    let (mut file, len) = nmat_encode::input::open_regular(path).map_err(|e| e.to_string())?;
     let mut head = Vec::with_capacity(HEAD);
     file.by_ref().take(HEAD as u64).read_to_end(&mut head).map_err(|e| format!("{shown}: {e}"))?;
-    let declared = check_head(&head, meta.len()).map_err(|e| format!("{shown}: {e}"))?;
+    let declared = check_head(&head, len).map_err(|e| format!("{shown}: {e}"))?;
     // The rest, from the same handle: never more than the header declares.
     let mut bytes = head;
     let rest = declared.saturating_sub(bytes.len() as u64);

@@ -13,6 +13,7 @@ use nmat_cli::output;
 use nmat_cli::progress::Progress;
 use nmat_core::{AddressMode, Container, Material};
 use nmat_encode::metrics::ChainQuality;
+use nmat_encode::names;
 use nmat_encode::texset::{self, LoadOptions, Role};
 use nmat_encode::{
     Effort, EncodeError, EncodeOptions, Encoded, PROFILES, Profile, TextureSet, TrainKernel,
@@ -51,6 +52,8 @@ enum Command {
         /// The .nmat file to write.
         #[arg(short, long)]
         output: PathBuf,
+        #[command(flatten)]
+        memory: MemoryArg,
     },
     /// Print what a .nmat file holds.
     Info { input: PathBuf },
@@ -60,6 +63,12 @@ enum Command {
         /// Folder with the reference maps.
         #[arg(long = "ref")]
         reference: PathBuf,
+        /// Compare even when the reference maps do not match the material's channels by role
+        /// (by default that is refused: the numbers would compare different maps).
+        #[arg(long)]
+        force: bool,
+        #[command(flatten)]
+        memory: MemoryArg,
     },
     /// The speed–accuracy table of docs/PERFORMANCE.md for one or more .nmat files: every decode
     /// mode (kernels, float, channel subsets, filters, random access, threads) over one region of
@@ -82,31 +91,16 @@ enum Command {
         /// requests and channel subsets. Needs the `gpu` feature.
         #[arg(long)]
         gpu: bool,
+        /// With --ref: measure even when the reference maps do not match the material's
+        /// channels by role.
+        #[arg(long)]
+        force: bool,
+        #[command(flatten)]
+        memory: MemoryArg,
     },
     /// The trainer's throughput (docs/PERFORMANCE.md): steps/s, samples/s, GFLOP/s and share of
     /// the CPU's f32 FMA peak for every matrix-product kernel and thread count, on one material.
-    BenchTrain {
-        /// Folders and/or map files (default: the bundled procedural material at 1024²).
-        inputs: Vec<PathBuf>,
-        #[arg(long, default_value = nmat_encode::DEFAULT_PROFILE)]
-        profile: String,
-        /// Optimizer steps per timed run.
-        #[arg(long, default_value_t = 100)]
-        steps: usize,
-        /// Thread counts to measure, comma-separated.
-        #[arg(long, value_delimiter = ',', default_values_t = [1, 2])]
-        threads: Vec<usize>,
-        /// Kernels to measure, comma-separated (scalar, avx2, avx512), or `all` this CPU runs.
-        #[arg(long, value_delimiter = ',', default_values_t = ["all".to_string()])]
-        kernel: Vec<String>,
-        /// Timed runs per row (the median is reported).
-        #[arg(long, default_value_t = 3)]
-        runs: usize,
-        /// Percent of the steps in the joint and the quantization-aware phase, as `JOINT,QAT`
-        /// (default: the encoder's; `80,5` is the phase mix of the trainer before the SIMD work).
-        #[arg(long, value_delimiter = ',', value_name = "JOINT,QAT")]
-        phases: Option<Vec<u32>>,
-    },
+    BenchTrain(BenchTrainArgs),
     /// A headless walk down a textured corridor at 1920×1080 with the tile cache: per frame the
     /// tiles marked, decoded and kept, the texels decoded, and the milliseconds of marking,
     /// decoding and resolving, against decoding every lookup directly (docs/PERFORMANCE.md,
@@ -144,6 +138,8 @@ enum Command {
         /// materials). Needs the `gpu` feature: cargo build --release -p nmat --features gpu
         #[arg(long)]
         gpu: bool,
+        #[command(flatten)]
+        memory: MemoryArg,
     },
     /// Encode, decode and evaluate a bundled procedural material, and print a report.
     Demo {
@@ -155,6 +151,48 @@ enum Command {
         #[arg(long, default_value = nmat_encode::DEFAULT_PROFILE)]
         profile: String,
     },
+}
+
+#[derive(Args)]
+struct BenchTrainArgs {
+    /// Folders and/or map files (default: the bundled procedural material at 1024²).
+    inputs: Vec<PathBuf>,
+    #[arg(long, default_value = nmat_encode::DEFAULT_PROFILE)]
+    profile: String,
+    /// Optimizer steps per timed run.
+    #[arg(long, default_value_t = 100)]
+    steps: usize,
+    /// Thread counts to measure, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [1, 2])]
+    threads: Vec<usize>,
+    /// Kernels to measure, comma-separated (scalar, avx2, avx512), or `all` this CPU runs.
+    #[arg(long, value_delimiter = ',', default_values_t = ["all".to_string()])]
+    kernel: Vec<String>,
+    /// Timed runs per row (the median is reported).
+    #[arg(long, default_value_t = 3)]
+    runs: usize,
+    /// Percent of the steps in the joint and the quantization-aware phase, as `JOINT,QAT`
+    /// (default: the encoder's; `80,5` is the phase mix of the trainer before the SIMD work).
+    #[arg(long, value_delimiter = ',', value_name = "JOINT,QAT")]
+    phases: Option<Vec<u32>>,
+    #[command(flatten)]
+    memory: MemoryArg,
+}
+
+/// `--max-memory` of the commands whose memory grows with a number given to them or read from a
+/// file's header.
+#[derive(Args)]
+struct MemoryArg {
+    /// Memory this command may use, e.g. 8G or 512M (MiB without a unit); work that would need
+    /// more is refused before it starts [default: 8G].
+    #[arg(long, value_parser = parse_memory)]
+    max_memory: Option<u64>,
+}
+
+impl MemoryArg {
+    fn bytes(&self) -> u64 {
+        self.max_memory.unwrap_or(texset::DEFAULT_MAX_MEMORY)
+    }
 }
 
 #[derive(Args)]
@@ -326,6 +364,8 @@ struct TranscodeArgs {
     /// Replace files that already exist in the output folder.
     #[arg(long)]
     force: bool,
+    #[command(flatten)]
+    memory: MemoryArg,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -358,6 +398,7 @@ enum ContainerArg {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    output::clean_up_on_signal();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -374,14 +415,16 @@ fn run(cli: Cli) -> Result<()> {
         Command::Encode(args) => cmd_encode(args),
         Command::Decode(args) => cmd_decode(args),
         Command::Transcode(args) => cmd_transcode(args),
-        Command::Index { input, output } => cmd_index(&input, &output),
+        Command::Index { input, output, memory } => cmd_index(&input, &output, memory.bytes()),
         Command::Info { input } => {
             let bytes = read_nmat(&input)?;
             let m = parse(&bytes, &input)?;
             print!("{}", output::describe(&input, &m));
             Ok(())
         }
-        Command::Eval { input, reference } => cmd_eval(&input, &reference),
+        Command::Eval { input, reference, force, memory } => {
+            cmd_eval(&input, &reference, force, memory.bytes())
+        }
         Command::Demo { out, train, profile } => cmd_demo(&out, &train, &profile),
         Command::Walk {
             inputs,
@@ -394,12 +437,25 @@ fn run(cli: Cli) -> Result<()> {
             csv,
             image,
             gpu,
+            memory,
         } => {
-            if frames == 0 || tiles == 0 || threads.contains(&0) || inputs.len() > 4 {
-                return Err(
-                    "--frames, --tiles and --threads must be at least 1, and at most 4 inputs"
-                        .into(),
-                );
+            if frames == 0 || tiles == 0 || inputs.len() > 4 {
+                return Err("--frames and --tiles must be at least 1, and at most 4 inputs".into());
+            }
+            for &n in &threads {
+                check_threads(n)?;
+            }
+            // The outputs are checked before the walk (minutes at the defaults) starts.
+            let outputs = [("--csv", &csv), ("--image", &image)];
+            for (option, path) in outputs {
+                if let Some(path) = path {
+                    output::check_output_file(option, path, &inputs)?;
+                }
+            }
+            if let (Some(c), Some(i)) = (&csv, &image)
+                && c == i
+            {
+                return Err(format!("--csv and --image both name {}", c.display()).into());
             }
             walk::run(&walk::Options {
                 inputs,
@@ -413,23 +469,25 @@ fn run(cli: Cli) -> Result<()> {
                 csv,
                 image,
                 gpu,
+                max_memory: memory.bytes(),
             })
         }
-        Command::BenchTrain { inputs, profile, steps, threads, kernel, runs, phases } => {
-            cmd_bench_train(inputs, &profile, steps, threads, &kernel, runs, phases)
-        }
-        Command::Bench { inputs, reference, region, runs, gpu } => {
+        Command::BenchTrain(args) => cmd_bench_train(args),
+        Command::Bench { inputs, reference, region, runs, gpu, force, memory } => {
             if region == 0 || runs == 0 {
                 return Err("--region and --runs must be at least 1".into());
             }
-            bench::run(&bench::Options { inputs, reference, region, runs, gpu })
+            let max_memory = memory.bytes();
+            bench::run(&bench::Options { inputs, reference, region, runs, gpu, force, max_memory })
         }
     }
 }
 
-fn cmd_index(input: &Path, out: &Path) -> Result<()> {
+fn cmd_index(input: &Path, out: &Path, max_memory: u64) -> Result<()> {
     output::check_output(out, &[input.to_path_buf()])?;
-    let file = std::fs::read(input).map_err(|e| format!("{}: {e}", input.display()))?;
+    // A .nmat file holds at most 4 GiB (docs/FORMAT.md §2), so a larger JPEG cannot be indexed.
+    let limit = max_memory.min(u64::from(u32::MAX));
+    let file = nmat_encode::input::read_regular(input, limit)?;
     let indexed =
         nmat_encode::jpeg::index_jpeg(&file).map_err(|e| format!("{}: {e}", input.display()))?;
     // `nmat decode` writes the map back as STEM.png.
@@ -768,8 +826,14 @@ fn search_target(
     last.ok_or_else(|| "no profile".into())
 }
 
+/// Parses the file at `path`, and says (on stderr, once) which of its optional sections are
+/// damaged and so ignored by every command.
 fn parse<'a>(bytes: &'a [u8], path: &Path) -> Result<Material<'a>> {
-    Container::parse(bytes).map_err(|e| format!("{}: {e}", path.display()).into())
+    let m = Container::parse(bytes).map_err(|e| format!("{}: {e}", path.display()))?;
+    for warning in output::damaged_sections(path, &m) {
+        eprintln!("{warning}");
+    }
+    Ok(m)
 }
 
 fn cmd_decode(args: DecodeArgs) -> Result<()> {
@@ -861,7 +925,19 @@ fn cmd_transcode(args: TranscodeArgs) -> Result<()> {
             .ok()
             .and_then(FormatArg::format)
             .ok_or_else(|| format!("--as {text}: the format must be bc1, bc4, bc5 or bc7"))?;
-        choice.by_semantic.push((role.semantic(), format));
+        match choice.by_semantic.iter().find(|(s, _)| *s == role.semantic()) {
+            Some(&(_, earlier)) if earlier != format => {
+                return Err(format!(
+                    "--as {text}: {} maps were already given {} by an earlier --as; give one \
+                     format per role",
+                    role.name(),
+                    earlier.name()
+                )
+                .into());
+            }
+            Some(_) => {}
+            None => choice.by_semantic.push((role.semantic(), format)),
+        }
     }
     let container = match args.container {
         ContainerArg::Ktx2 => Container::Ktx2,
@@ -873,6 +949,18 @@ fn cmd_transcode(args: TranscodeArgs) -> Result<()> {
     let names: Vec<String> = plan.iter().map(|n| transcode::file_name(n, container)).collect();
     if !args.force {
         refuse_existing(&args.output, &names)?;
+    }
+    let textures: Vec<_> = plan.iter().map(|n| n.texture).collect();
+    let (need, allowed) = (transcode::memory(&m, &textures), args.memory.bytes());
+    if need > allowed {
+        return Err(format!(
+            "{}: transcoding needs about {:.1} MiB, more than the {:.1} MiB allowed; nothing \
+             was written. Raise the limit with --max-memory",
+            args.input.display(),
+            need as f64 / MIB,
+            allowed as f64 / MIB
+        )
+        .into());
     }
     let start = Instant::now();
     let decoder = nmat_core::Decoder::new(&m);
@@ -915,10 +1003,14 @@ fn cmd_transcode(args: TranscodeArgs) -> Result<()> {
     })?;
     for ((named, path), name) in plan.iter().zip(&written).zip(&names) {
         let t = &named.texture;
-        let channels: Vec<&str> = t
+        let channels: Vec<std::borrow::Cow<str>> = t
             .channel_list()
             .iter()
-            .map(|&c| m.channels().get(usize::from(c)).map_or("?", |ch| ch.name))
+            .map(|&c| {
+                m.channels()
+                    .get(usize::from(c))
+                    .map_or("?".into(), |ch| names::for_terminal(ch.name))
+            })
             .collect();
         let size = std::fs::metadata(path).map_or(0, |md| md.len());
         println!(
@@ -1066,28 +1158,41 @@ fn median_seconds(mut f: impl FnMut() -> Result<()>) -> Result<f64> {
     Ok(runs[2])
 }
 
+/// The GPU row of `nmat bench`'s CPU table: `row(adapter, seconds, texels, what was decoded)`.
+/// A real GPU decodes the whole mip 0; a software adapter (lavapipe, on a machine without a GPU)
+/// only the bench's region `side` of it — the whole mip of a 1024² material takes it minutes.
 #[cfg(feature = "gpu")]
-fn bench_gpu(m: &Material<'_>, row: &dyn Fn(&str, f64)) -> Result<()> {
+fn bench_gpu(m: &Material<'_>, side: (u32, u32), row: &GpuRow<'_>) -> Result<()> {
     let Some((device, queue, info)) = pollster::block_on(nmat_wgpu::default_device()) else {
         println!("  GPU: no adapter found");
         return Ok(());
     };
     let ctx = nmat_wgpu::Context::new(&device);
     let gm = ctx.upload(&device, m)?;
-    let what = if info.device_type == wgpu_device_type_cpu() {
-        format!("GPU {} (a software rasterizer on the CPU)", info.name)
-    } else {
-        format!("GPU {}", info.name)
-    };
-    row(
-        &what,
-        median_seconds(|| {
-            ctx.decode_mip(&device, &queue, &gm, 0, nmat_core::ChannelMask::ALL)?;
+    let all = nmat_core::ChannelMask::ALL;
+    if info.device_type == wgpu_device_type_cpu() {
+        let what = format!("GPU {} (a software rasterizer on the CPU)", info.name);
+        let secs = median_seconds(|| {
+            ctx.submit_region(&device, &queue, &gm, 0, (0, 0, side.0, side.1), all)?
+                .wait(&device)?;
             Ok(())
-        })?,
-    );
+        })?;
+        let scope = format!("region {}×{} only: software adapter", side.0, side.1);
+        row(&what, secs, u64::from(side.0) * u64::from(side.1), &scope);
+    } else {
+        let what = format!("GPU {}", info.name);
+        let secs = median_seconds(|| {
+            ctx.decode_mip(&device, &queue, &gm, 0, all)?;
+            Ok(())
+        })?;
+        let (w, h) = m.mip_size(0);
+        row(&what, secs, u64::from(w) * u64::from(h), "whole mip 0");
+    }
     Ok(())
 }
+
+/// What [`bench_gpu`] reports a measurement to: adapter, seconds, texels, what was decoded.
+type GpuRow<'a> = dyn Fn(&str, f64, u64, &str) + 'a;
 
 #[cfg(feature = "gpu")]
 fn wgpu_device_type_cpu() -> nmat_wgpu::DeviceType {
@@ -1106,21 +1211,57 @@ fn bench_gpu_table(_: &Material<'_>, _: &bench::Options) -> Result<()> {
 }
 
 #[cfg(not(feature = "gpu"))]
-fn bench_gpu(_: &Material<'_>, _: &dyn Fn(&str, f64)) -> Result<()> {
+fn bench_gpu(_: &Material<'_>, _: (u32, u32), _: &GpuRow<'_>) -> Result<()> {
     println!("  GPU: not measured (build with --features gpu)");
     Ok(())
 }
 
-/// Loads reference maps for `m`: the files named in its SOURCE_MAPS section if present in `dir`,
-/// else every image in `dir` by role.
-fn load_reference(m: &Material<'_>, dir: &Path) -> Result<TextureSet> {
+/// Loads the reference maps of `m` from `dir`: the files its SOURCE_MAPS section names if all are
+/// there, else the images of `dir` whose role (told from the file name) is one of the material's.
+/// The maps' channels must then match the material's by role and component, in order — else the
+/// PSNR would compare, say, a roughness channel with a metallic map: refused, or with `force`
+/// compared all the same after a warning.
+fn load_reference(
+    m: &Material<'_>,
+    dir: &Path,
+    force: bool,
+    max_memory: u64,
+) -> Result<TextureSet> {
     let roles: Vec<(Role, PathBuf)> = match output::source_maps(m) {
         Some(maps) if maps.iter().all(|s| dir.join(&s.file_name).is_file()) => {
             maps.iter().map(|s| (s.role, dir.join(&s.file_name))).collect()
         }
-        _ => texset::assign_roles(&texset::collect_inputs(&[dir.to_path_buf()])?, &[])?,
+        _ => {
+            let found = texset::assign_roles(&texset::collect_inputs(&[dir.to_path_buf()])?, &[])?;
+            let mut ours: Vec<Role> =
+                m.channels().iter().filter_map(|c| Role::from_semantic(c.semantic)).collect();
+            ours.dedup();
+            let missing: Vec<&str> = ours
+                .iter()
+                .filter(|r| !found.iter().any(|(f, _)| f == *r))
+                .map(|r| r.name())
+                .collect();
+            if !missing.is_empty() && !force {
+                let there: Vec<String> =
+                    found.iter().map(|(r, p)| format!("{} {}", r.name(), p.display())).collect();
+                return Err(format!(
+                    "{}: no {} map among the reference maps ({}), so the material's channels \
+                     would be compared with other maps. Point --ref at the maps this material \
+                     was encoded from, or pass --force to compare anyway",
+                    dir.display(),
+                    missing.join(", no "),
+                    there.join(", ")
+                )
+                .into());
+            }
+            if force {
+                found
+            } else {
+                found.into_iter().filter(|(r, _)| ours.contains(r)).collect()
+            }
+        }
     };
-    let set = texset::load(&roles, &LoadOptions::default())?;
+    let set = texset::load(&roles, &LoadOptions { max_memory, ..LoadOptions::default() })?;
     if set.channel_count() != m.channel_count()
         || (set.width, set.height) != (m.width(), m.height())
     {
@@ -1136,18 +1277,51 @@ fn load_reference(m: &Material<'_>, dir: &Path) -> Result<TextureSet> {
         )
         .into());
     }
+    let mismatches: Vec<String> = m
+        .channels()
+        .iter()
+        .zip(&set.channels)
+        .enumerate()
+        .filter(|(_, (ours, theirs))| {
+            (ours.semantic, ours.component) != (theirs.role.semantic(), theirs.component)
+        })
+        .map(|(i, (ours, theirs))| {
+            let map = set
+                .maps
+                .iter()
+                .find(|s| (s.first_channel..s.first_channel + s.channel_count).contains(&i));
+            format!(
+                "channel {i} is {} in the material but {} ({}) in the reference maps",
+                nmat_encode::names::for_terminal(ours.name),
+                theirs.name,
+                map.map_or("?", |s| s.file_name.as_str())
+            )
+        })
+        .collect();
+    if let Some(first) = mismatches.first() {
+        let what = format!(
+            "{}: the reference maps do not match the material's channels: {first}{}",
+            dir.display(),
+            if mismatches.len() > 1 {
+                format!(" (and {} more)", mismatches.len() - 1)
+            } else {
+                String::new()
+            }
+        );
+        if !force {
+            return Err(format!(
+                "{what}; the numbers would compare different maps. Point --ref at the maps this \
+                 material was encoded from, or pass --force to compare anyway"
+            )
+            .into());
+        }
+        eprintln!("warning: {what}; compared anyway (--force): the numbers below mix maps");
+    }
     Ok(set)
 }
 
-fn cmd_bench_train(
-    inputs: Vec<PathBuf>,
-    profile: &str,
-    steps: usize,
-    threads: Vec<usize>,
-    kernel: &[String],
-    runs: usize,
-    phases: Option<Vec<u32>>,
-) -> Result<()> {
+fn cmd_bench_train(args: BenchTrainArgs) -> Result<()> {
+    let BenchTrainArgs { inputs, profile, steps, threads, kernel, runs, phases, memory } = args;
     if steps == 0 || runs == 0 {
         return Err("--steps and --runs must be at least 1".into());
     }
@@ -1188,12 +1362,13 @@ fn cmd_bench_train(
         let files = texset::collect_inputs(&inputs)?;
         let roles = texset::assign_roles(&files, &[])?;
         let label = inputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" ");
-        (texset::load(&roles, &LoadOptions::default())?, label)
+        let options = LoadOptions { max_memory: memory.bytes(), ..LoadOptions::default() };
+        (texset::load(&roles, &options)?, label)
     };
     bench_train::run(&bench_train::Options {
         set,
         label,
-        profile: profile_named(profile)?,
+        profile: profile_named(&profile)?,
         steps,
         threads,
         kernels,
@@ -1203,11 +1378,11 @@ fn cmd_bench_train(
     })
 }
 
-fn cmd_eval(input: &Path, reference: &Path) -> Result<()> {
+fn cmd_eval(input: &Path, reference: &Path, force: bool, max_memory: u64) -> Result<()> {
     let start = Instant::now();
     let bytes = read_nmat(input)?;
     let m = parse(&bytes, input)?;
-    let set = load_reference(&m, reference)?;
+    let set = load_reference(&m, reference, force, max_memory)?;
     let q = chain_quality_shown(&m, &set);
     warn_if_decoded(&q, reference);
     print!("{}", output::quality_table(&set, &q, None));

@@ -32,28 +32,39 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     result.map_err(context)
 }
 
-/// Checks, before any long work, that [`write_atomic`] can write `path`: it is not a directory,
-/// it is none of `inputs` (a source is never replaced), and its folder exists and accepts a new
-/// file.
+/// Checks, before any long work, that [`write_atomic`] can write `path` (given as `-o`): it is
+/// not a directory, it is none of `inputs` (a source is never replaced), and its folder exists
+/// and accepts a new file.
 pub fn check_output(path: &Path, inputs: &[PathBuf]) -> Result<(), String> {
+    check_output_file("-o", path, inputs)
+}
+
+/// [`check_output`] for the output file given as `option` (`-o`, `--csv`, `--image`, …), whose
+/// name every message starts with.
+pub fn check_output_file(option: &str, path: &Path, inputs: &[PathBuf]) -> Result<(), String> {
     let shown = path.display();
     if path.is_dir() {
         return Err(format!(
-            "-o {shown}: is a directory; give a file name such as {shown}/material.nmat"
+            "{option} {shown}: is a directory; give a file name such as {shown}/{}",
+            match option {
+                "--csv" => "walk.csv",
+                "--image" => "frame.png",
+                _ => "material.nmat",
+            }
         ));
     }
     if let Ok(out) = path.canonicalize()
         && inputs.iter().any(|i| i.canonicalize().is_ok_and(|i| i == out))
     {
-        return Err(format!("-o {shown}: is one of the input maps; choose another output name"));
+        return Err(format!("{option} {shown}: is one of the inputs; choose another output name"));
     }
     let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     if !dir.is_dir() {
-        return Err(format!("-o {shown}: folder {} does not exist", dir.display()));
+        return Err(format!("{option} {shown}: folder {} does not exist", dir.display()));
     }
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let (tmp, f) = create_exclusive(dir, &name)
-        .map_err(|e| format!("-o {shown}: cannot create a file in {}: {e}", dir.display()))?;
+        .map_err(|e| format!("{option} {shown}: cannot create a file in {}: {e}", dir.display()))?;
     drop(f);
     let _ = std::fs::remove_file(tmp);
     Ok(())
@@ -91,17 +102,33 @@ fn new_entry<T>(
 }
 
 /// Runs `write` on a new hidden folder inside `dir` (which is created if missing), then moves the
-/// files it wrote into `dir`. A `write` that fails half-way leaves nothing behind: its files are
-/// removed, and so is `dir` if this call created it.
+/// files it wrote into `dir` — all of them or none. A `write` that fails half-way leaves nothing
+/// behind: its files are removed, and so is `dir` if this call created it. Before any file is
+/// moved, every name is checked (an existing folder or device there is an error); a file that
+/// is replaced is first put aside in the staging folder and put back if a later move fails. The
+/// staging folder is removed on Ctrl-C, `kill` or a closed terminal too once the binary called
+/// [`clean_up_on_signal`], and a staging folder left by a process that no longer runs (killed
+/// with SIGKILL, or a crash) is removed by the next write into `dir` (Linux, where `/proc` tells).
 pub fn write_all_or_nothing(
     dir: &Path,
     write: impl FnOnce(&Path) -> Result<Vec<PathBuf>, Box<dyn std::error::Error>>,
 ) -> Result<Vec<PathBuf>, Box<dyn std::error::Error>> {
     let shown = dir.display();
-    let existed = dir.exists();
+    let existed = match std::fs::metadata(dir) {
+        Ok(meta) if meta.is_dir() => true,
+        Ok(_) => {
+            return Err(format!(
+                "-o {shown}: is a file, not a folder; the output is one file per map or texture, \
+                 written into a folder: give a folder name"
+            )
+            .into());
+        }
+        Err(_) => false,
+    };
     std::fs::create_dir_all(dir).map_err(|e| format!("-o {shown}: {e}"))?;
-    let staged = new_entry(dir, ".nmat-decode", |p| std::fs::create_dir(p));
-    let staging = match staged {
+    remove_abandoned_staging(dir);
+    let prefix = format!("{STAGING_PREFIX}{}", std::process::id());
+    let staging = match new_entry(dir, &prefix, |p| std::fs::create_dir(p)) {
         Ok((path, ())) => path,
         Err(e) => {
             if !existed {
@@ -110,52 +137,207 @@ pub fn write_all_or_nothing(
             return Err(format!("-o {shown}: cannot create a folder in it: {e}").into());
         }
     };
-    let moved = write(&staging).and_then(|files| {
-        let mut moved = Vec::with_capacity(files.len());
-        for file in files {
-            let to = dir.join(file.file_name().unwrap_or_default());
-            std::fs::rename(&file, &to).map_err(|e| format!("{}: {e}", to.display()))?;
-            moved.push(to);
-        }
-        Ok(moved)
-    });
+    let removed_on_signal = (staging.clone(), (!existed).then(|| dir.to_path_buf()));
+    lock_staging().push(removed_on_signal.clone());
+    let moved = write(&staging).and_then(|files| move_all(dir, &staging, &files));
     let _ = std::fs::remove_dir_all(&staging);
     if moved.is_err() && !existed {
         let _ = std::fs::remove_dir(dir);
     }
+    lock_staging().retain(|s| *s != removed_on_signal);
     moved
 }
 
-/// The SOURCE_MAPS section, if the file has a valid one.
-pub fn source_maps(m: &Material<'_>) -> Option<Vec<SourceMap>> {
-    let maps = source_maps::decode(
-        m.optional_section(nmat_core::SectionKind(source_maps::SECTION_KIND))?,
-    )?;
-    let fits = maps
-        .iter()
-        .all(|s| s.channel_count >= 1 && s.first_channel + s.channel_count <= m.channel_count());
-    fits.then_some(maps)
+/// Moves `files` (in `staging`) into `dir`: every destination is checked first, a file replaced
+/// is put aside in `staging`, and a failed move puts everything back as it was.
+fn move_all(
+    dir: &Path,
+    staging: &Path,
+    files: &[PathBuf],
+) -> Result<Vec<PathBuf>, Box<dyn std::error::Error>> {
+    let targets: Vec<PathBuf> =
+        files.iter().map(|f| dir.join(f.file_name().unwrap_or_default())).collect();
+    for to in &targets {
+        if let Ok(meta) = to.symlink_metadata()
+            && !meta.is_file()
+            && !meta.is_symlink()
+        {
+            return Err(format!(
+                "{}: is a folder or a device, not a file nmat can replace; nothing was written",
+                to.display()
+            )
+            .into());
+        }
+    }
+    // (new file, destination, the file it replaced put aside)
+    let mut done: Vec<(&PathBuf, &PathBuf, Option<PathBuf>)> = Vec::new();
+    let mut result = Ok(());
+    for (i, (file, to)) in files.iter().zip(&targets).enumerate() {
+        let aside = staging.join(format!(".replaced-{i}"));
+        let had = to.symlink_metadata().is_ok();
+        if had && let Err(e) = std::fs::rename(to, &aside) {
+            result = Err(format!("{}: {e}", to.display()));
+            break;
+        }
+        if let Err(e) = std::fs::rename(file, to) {
+            if had {
+                let _ = std::fs::rename(&aside, to);
+            }
+            result = Err(format!("{}: {e}; nothing was written", to.display()));
+            break;
+        }
+        done.push((file, to, had.then_some(aside)));
+    }
+    if let Err(e) = result {
+        for (file, to, aside) in done.into_iter().rev() {
+            let _ = std::fs::rename(to, file);
+            if let Some(aside) = aside {
+                let _ = std::fs::rename(aside, to);
+            }
+        }
+        return Err(e.into());
+    }
+    Ok(targets)
 }
 
-/// Maps by channel-name stem (`albedo.r/g/b` → one RGB map) for files without SOURCE_MAPS.
+/// Names of staging folders: `.nmat-decode-PID-RANDOM`.
+const STAGING_PREFIX: &str = ".nmat-decode-";
+
+/// Staging folders in use by this process, each with the output folder it created (if any): what
+/// a signal removes.
+type Staging = (PathBuf, Option<PathBuf>);
+
+static STAGING: std::sync::Mutex<Vec<Staging>> = std::sync::Mutex::new(Vec::new());
+
+fn lock_staging() -> std::sync::MutexGuard<'static, Vec<Staging>> {
+    STAGING.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Makes Ctrl-C (SIGINT), `kill` (SIGTERM) and a closed terminal (SIGHUP) remove the staging
+/// folders of the writes in progress (and the output folders they created) before the process
+/// exits with status 130, so an interrupted decode or transcode leaves nothing behind. For the
+/// `nmat` binary; a library user keeps its own signal handling.
+pub fn clean_up_on_signal() {
+    // The handler runs on a thread of its own, not in signal context: it may lock and remove.
+    let _ = ctrlc::set_handler(|| {
+        // Workers may still be writing: two passes catch a file created during the first.
+        for _ in 0..2 {
+            for (staging, created) in lock_staging().iter() {
+                let _ = std::fs::remove_dir_all(staging);
+                if let Some(dir) = created {
+                    let _ = std::fs::remove_dir(dir);
+                }
+            }
+        }
+        eprintln!("nmat: interrupted; nothing was written");
+        std::process::exit(130);
+    });
+}
+
+/// Removes the staging folders in `dir` whose process no longer runs (Linux: no `/proc/PID`).
+fn remove_abandoned_staging(dir: &Path) {
+    if !Path::new("/proc/self").exists() {
+        return;
+    }
+    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(rest) = name.to_str().and_then(|n| n.strip_prefix(STAGING_PREFIX)) else {
+            continue;
+        };
+        let Some(pid) = rest.split('-').next().and_then(|p| p.parse::<u32>().ok()) else {
+            continue;
+        };
+        if pid != std::process::id() && !Path::new("/proc").join(pid.to_string()).exists() {
+            let _ = std::fs::remove_dir_all(entry.path());
+        }
+    }
+}
+
+/// The SOURCE_MAPS section of `m`: `Ok(None)` when the file has none, `Err(why)` when it is
+/// damaged — unreadable, listing no maps, pointing outside the material's channels, or naming one
+/// file twice. The section is optional: every command ignores a damaged one the same way
+/// ([`source_maps`] gives `None`, maps are named after the channels) and says so once
+/// ([`damaged_sections`]).
+pub fn source_maps_checked(m: &Material<'_>) -> Result<Option<Vec<SourceMap>>, String> {
+    let Some(bytes) = m.optional_section(SectionKind(source_maps::SECTION_KIND)) else {
+        return Ok(None);
+    };
+    let maps = source_maps::decode(bytes)
+        .ok_or("it cannot be read (an unknown version, a bad name or a record past its end)")?;
+    if maps.is_empty() {
+        return Err("it lists no maps".into());
+    }
+    let mut names: Vec<String> = Vec::new();
+    for map in &maps {
+        let end = map.first_channel + map.channel_count;
+        if map.channel_count == 0 || end > m.channel_count() {
+            return Err(format!(
+                "map {}: channels {}..{end} are not within the material's {} channels",
+                map.file_name,
+                map.first_channel,
+                m.channel_count()
+            ));
+        }
+        // Case-insensitive file systems (Windows, macOS) hold one of `A.png` and `a.png`.
+        let name = map.file_name.to_lowercase();
+        if names.contains(&name) {
+            return Err(format!("it names {} twice", map.file_name));
+        }
+        names.push(name);
+    }
+    Ok(Some(maps))
+}
+
+/// The SOURCE_MAPS section of `m` if it has a valid one.
+pub fn source_maps(m: &Material<'_>) -> Option<Vec<SourceMap>> {
+    source_maps_checked(m).ok().flatten()
+}
+
+/// What every command says about the optional sections of the file at `path` that are damaged
+/// and so ignored (one line each; none for a sound file).
+pub fn damaged_sections(path: &Path, m: &Material<'_>) -> Vec<String> {
+    match source_maps_checked(m) {
+        Err(why) => vec![format!(
+            "warning: {}: its SOURCE_MAPS section (optional: the names and layouts of the source \
+             maps) is damaged: {why}; ignored, maps are named after the channels",
+            path.display()
+        )],
+        Ok(_) => Vec::new(),
+    }
+}
+
+/// Maps by channel-name stem (`albedo.r/g/b` → one RGB map) for files without SOURCE_MAPS; the
+/// stems made safe file names ([`nmat_encode::names::file_name`]), a number added to a stem
+/// already taken.
 fn maps_from_names(m: &Material<'_>) -> Vec<SourceMap> {
     let mut maps: Vec<SourceMap> = Vec::new();
+    let mut stems: Vec<String> = Vec::new();
     for (c, ch) in m.channels().iter().enumerate() {
         let stem = ch.name.split('.').next().unwrap_or(ch.name);
-        match maps.last_mut() {
-            Some(last) if last.file_name == format!("{stem}.png") && last.channel_count < 4 => {
-                last.channel_count += 1
+        match (maps.last_mut(), stems.last()) {
+            (Some(last), Some(s)) if s == stem && last.channel_count < 4 => last.channel_count += 1,
+            _ => {
+                let safe = nmat_encode::names::file_name(stem);
+                let taken = |n: &str| maps.iter().any(|m| m.file_name.eq_ignore_ascii_case(n));
+                let mut file_name = format!("{safe}.png");
+                let mut k = 2;
+                while taken(&file_name) {
+                    file_name = format!("{safe}-{k}.png");
+                    k += 1;
+                }
+                stems.push(stem.to_string());
+                maps.push(SourceMap {
+                    role: Role::from_semantic(ch.semantic).unwrap_or(Role::Albedo),
+                    file_name,
+                    layout: FileLayout::Gray,
+                    first_channel: c,
+                    channel_count: 1,
+                    gray_rgb: false,
+                    alpha_value: None,
+                    sixteen_bit: false,
+                })
             }
-            _ => maps.push(SourceMap {
-                role: Role::from_semantic(ch.semantic).unwrap_or(Role::Albedo),
-                file_name: format!("{stem}.png"),
-                layout: FileLayout::Gray,
-                first_channel: c,
-                channel_count: 1,
-                gray_rgb: false,
-                alpha_value: None,
-                sixteen_bit: false,
-            }),
         }
     }
     for map in &mut maps {
@@ -235,34 +417,15 @@ pub struct DecodePlan {
 }
 
 impl DecodePlan {
-    /// The maps of the file's SOURCE_MAPS section (which must be readable, list at least one map,
-    /// fit the material's channels and name each output file once in a format that holds its
-    /// layout), or maps by channel-name stem for a file without one.
+    /// The maps of the file's SOURCE_MAPS section, or maps by channel-name stem for a file
+    /// without a valid one ([`source_maps`]); each output file must be named once, in a format
+    /// that holds its layout.
     pub fn new(m: &Material<'_>, mips: &[u32], png: bool) -> Result<DecodePlan, String> {
-        let section = m.optional_section(SectionKind(source_maps::SECTION_KIND));
-        let maps = match section {
-            None => maps_from_names(m),
-            Some(bytes) => source_maps::decode(bytes).ok_or(
-                "the file's SOURCE_MAPS section cannot be read (an unknown version, a bad name \
-                 or a record past its end); nothing was written",
-            )?,
-        };
-        if maps.is_empty() {
-            return Err("the file's SOURCE_MAPS section lists no maps; nothing was written".into());
-        }
+        let maps = source_maps(m).unwrap_or_else(|| maps_from_names(m));
         let plan = DecodePlan { maps, mips: mips.to_vec(), png };
         let mut names: Vec<String> = Vec::new();
         for map in &plan.maps {
             let name = &map.file_name;
-            let end = map.first_channel + map.channel_count;
-            if map.channel_count == 0 || end > m.channel_count() {
-                return Err(format!(
-                    "source map {name}: channels {}..{end} are not within the material's {} \
-                     channels; nothing was written",
-                    map.first_channel,
-                    m.channel_count()
-                ));
-            }
             for (file, format) in plan.files_of(map) {
                 if !format_holds(format, map.layout) {
                     return Err(format!(
@@ -499,7 +662,10 @@ pub fn describe(path: &Path, m: &Material<'_>) -> String {
         let _ = writeln!(
             s,
             "  {i:2} {:12} {role:10} {:?} [{}, {}]{constant}",
-            c.name, c.color_space, c.range_min, c.range_max
+            nmat_encode::names::for_terminal(c.name),
+            c.color_space,
+            c.range_min,
+            c.range_max
         );
     }
     if let Some(maps) = source_maps(m) {

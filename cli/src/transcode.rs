@@ -3,6 +3,7 @@
 use crate::gpu_files::{self, BcImage};
 use nmat_core::bc::{self, BcFormat, BcTexture, MapChannels};
 use nmat_core::{BcTarget, BlockRegion, Decoder, Material, Semantic};
+use nmat_encode::names;
 use rayon::prelude::*;
 
 /// Which formats the maps get: one for every map (`None`: from each map's meaning), and the
@@ -39,17 +40,21 @@ pub fn plan(m: &Material<'_>, choice: &Choice) -> Vec<Named> {
             let first = texture.channels[0];
             let name = channel_name(first);
             let base = name.split('.').next().filter(|b| !b.is_empty()).unwrap_or("channel");
-            let mut stem = sanitize(base);
+            let mut stem = names::file_name(base);
             let component = m.channels().get(usize::from(first)).map_or(0, |c| c.component);
             if first != map.first || component != 0 {
-                let part = name.split_once('.').map_or(String::new(), |(_, p)| sanitize(p));
+                let part = name
+                    .split_once('.')
+                    .filter(|(_, p)| !p.is_empty())
+                    .map_or(String::new(), |(_, p)| names::file_name(p));
                 stem = if part.is_empty() {
                     format!("{stem}-{first}")
                 } else {
                     format!("{stem}-{part}")
                 };
             }
-            let taken = |s: &str| out.iter().any(|n| n.stem == s);
+            // Case-insensitive file systems (Windows, macOS) hold one of `A` and `a`.
+            let taken = |s: &str| out.iter().any(|n| n.stem.eq_ignore_ascii_case(s));
             if taken(&stem) {
                 let mut k = 2;
                 while taken(&format!("{stem}-{k}")) {
@@ -61,15 +66,6 @@ pub fn plan(m: &Material<'_>, choice: &Choice) -> Vec<Named> {
         }
     }
     out
-}
-
-/// A file-name-safe form of a channel name (which the file may set to anything): ASCII letters,
-/// digits, '-' and '_' kept, the rest '_', at most 64 bytes.
-fn sanitize(name: &str) -> String {
-    name.chars()
-        .take(64)
-        .map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' })
-        .collect()
 }
 
 /// Block rows transcoded between two progress reports.
@@ -158,6 +154,22 @@ impl Container {
             Container::Dds => gpu_files::dds(image),
         }
     }
+}
+
+/// Bytes a transcode of `textures` holds at most, about: every texture's blocks for the whole
+/// chain (they are written when all are done), a file's bytes for the largest, and a pointer per
+/// block row and texture of a mip.
+pub fn memory(m: &Material<'_>, textures: &[BcTexture]) -> u64 {
+    let chain_blocks: u64 = (0..m.mip_count())
+        .map(|mip| {
+            let (w, h) = m.mip_size(mip);
+            u64::from(w.div_ceil(4)) * u64::from(h.div_ceil(4))
+        })
+        .sum();
+    let per_texture: Vec<u64> =
+        textures.iter().map(|t| chain_blocks * t.format.block_bytes() as u64).collect();
+    let rows = u64::from(m.mip_size(0).1.div_ceil(4)) * 16 * textures.len() as u64;
+    per_texture.iter().sum::<u64>() + per_texture.iter().max().unwrap_or(&0) + rows
 }
 
 /// The file name of a texture: `STEM.FORMAT.EXT` (`albedo.bc1.ktx2`).

@@ -14,7 +14,7 @@ mod gpu;
 
 use crate::Result;
 use nmat_core::{
-    ChannelMask, Decoder, Filter, FrameStats, Material, Precision, SampleRequest, TileCache,
+    ChannelMask, Decoder, Filter, FrameStats, Material, Precision, SampleRequest, Slot, TileCache,
     TileKey,
 };
 use rayon::prelude::*;
@@ -39,6 +39,8 @@ pub struct Options {
     pub image: Option<PathBuf>,
     /// Also walk with the GPU's tile cache (`nmat_wgpu::GpuTileCache`; the `gpu` feature).
     pub gpu: bool,
+    /// Bytes the walk may hold (`--max-memory`): a larger cache or frame is refused first.
+    pub max_memory: u64,
 }
 
 /// The corridor: x ∈ [−1, 1], y ∈ [0, 2.5], z ∈ [0, 40].
@@ -179,6 +181,7 @@ pub fn run(opts: &Options) -> Result<()> {
         }
     }
     let refs: Vec<&Material> = materials.iter().collect();
+    check_memory(opts, &refs, files.iter().map(|f| f.len() as u64).sum())?;
     let decoders: Vec<Decoder> = materials.iter().map(Decoder::new).collect();
     let decoders: Vec<&Decoder> = decoders.iter().collect();
     // What decoding every texture whole would cost: every texel of every mip of every material.
@@ -223,6 +226,40 @@ pub fn run(opts: &Options) -> Result<()> {
         nmat_cli::output::write_atomic(path, csv.as_bytes())
             .map_err(|e| format!("{}: {e}", path.display()))?;
         println!("\nper-frame rows: {}", path.display());
+    }
+    Ok(())
+}
+
+/// Refuses a walk whose cache and frames would need more than `--max-memory`, before anything
+/// is allocated: the files (`file_bytes`), the cache's slots and tiles, and per pixel the
+/// G-buffer, the cached, direct and last frames, a found tile key, the PNG's bytes, and with
+/// `--gpu` the GPU's lookup and result.
+fn check_memory(opts: &Options, refs: &[&Material<'_>], file_bytes: u64) -> Result<()> {
+    use std::mem::size_of;
+    let slot_bytes = TileCache::<Vec<Slot>, Vec<u8>>::slot_bytes(refs) + size_of::<Slot>();
+    let cache = (opts.tiles as u64).saturating_mul(slot_bytes as u64);
+    let per_pixel = size_of::<Lookup>()
+        + 3 * size_of::<[f32; 3]>()
+        + size_of::<TileKey>()
+        + 3
+        + if opts.gpu { 2 * size_of::<[f32; 4]>() + size_of::<Lookup>() } else { 0 };
+    let frames = u64::from(opts.width) * u64::from(opts.height) * per_pixel as u64;
+    let need = file_bytes.saturating_add(cache).saturating_add(frames);
+    if need > opts.max_memory {
+        let mib = |b: u64| b as f64 / (1u64 << 20) as f64;
+        return Err(format!(
+            "nmat walk needs about {:.1} MiB ({:.1} MiB for the cache's {} tiles of {slot_bytes} \
+             bytes, --tiles; {:.1} MiB for {}×{} frames, --size), more than the {:.1} MiB \
+             allowed; nothing was run. Lower --tiles or --size, or raise --max-memory",
+            mib(need),
+            mib(cache),
+            opts.tiles,
+            mib(frames),
+            opts.width,
+            opts.height,
+            mib(opts.max_memory)
+        )
+        .into());
     }
     Ok(())
 }

@@ -119,7 +119,8 @@ fn encode_info_decode_eval_round_trip() {
     assert!(std::fs::read(src.join("bricks_albedo.png")).unwrap() == source, "source replaced");
     let o = nmat(&["decode", file.to_str().unwrap(), "-o", out0.to_str().unwrap(), "--force"]);
     assert!(o.status.success(), "{}", text(&o));
-    // A file whose source maps name one file twice (checksum refreshed): refused, nothing written.
+    // A file whose source maps name one file twice (checksum refreshed): the optional section is
+    // damaged, so it is ignored with a warning and the maps are named after the channels.
     let mut dup = std::fs::read(&file).unwrap();
     let (from, to) = (b"bricks_height.png", b"bricks_albedo.png");
     let at = dup.windows(from.len()).position(|w| w == from).expect("map name in the file");
@@ -130,9 +131,9 @@ fn encode_info_decode_eval_round_trip() {
     std::fs::write(&dup_file, &dup).unwrap();
     let dup_out = dir.join("dup");
     let o = nmat(&["decode", dup_file.to_str().unwrap(), "-o", dup_out.to_str().unwrap()]);
-    assert!(!o.status.success(), "decode with duplicate names succeeded");
-    assert!(text(&o).contains("bricks_albedo.png twice"), "{}", text(&o));
-    assert!(!dup_out.exists(), "a folder was created for a refused decode");
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("names bricks_albedo.png twice; ignored"), "{}", text(&o));
+    assert!(files_in(&dup_out).contains(&"albedo.png".to_string()), "{:?}", files_in(&dup_out));
 
     let o = nmat(&["eval", file.to_str().unwrap(), "--ref", src.to_str().unwrap()]);
     let report = text(&o);
@@ -263,7 +264,7 @@ fn an_output_that_cannot_be_written_or_absurd_threads_are_refused_before_trainin
     let before = std::fs::read(&albedo).unwrap();
     let m = maps.to_str().unwrap();
     for (out, expect) in [
-        (albedo.to_str().unwrap().to_string(), "is one of the input maps"),
+        (albedo.to_str().unwrap().to_string(), "is one of the inputs"),
         (dir.to_str().unwrap().to_string(), "is a directory"),
         (dir.join("nope").join("x.nmat").to_str().unwrap().to_string(), "does not exist"),
     ] {
@@ -315,7 +316,7 @@ fn with_source_maps(bytes: &[u8], patch: impl FnOnce(&mut [u8])) -> Vec<u8> {
 }
 
 #[test]
-fn hostile_source_maps_and_oversized_decodes_are_refused_before_anything_is_written() {
+fn unwritable_source_maps_and_oversized_decodes_are_refused_before_anything_is_written() {
     let dir = temp_dir("hostile-maps");
     let src = dir.join("src");
     std::fs::create_dir_all(&src).unwrap();
@@ -327,24 +328,18 @@ fn hostile_source_maps_and_oversized_decodes_are_refused_before_anything_is_writ
     // The record of bricks_albedo.png: 8 header bytes (semantic, layout, first channel, channel
     // count, flags, alpha, 0, name length), then the name.
     let record = |s: &[u8]| s.windows(17).position(|w| w == b"bricks_albedo.png").unwrap() - 8;
-    let cases: [(&str, Vec<u8>, &str); 3] = [
-        ("zero", with_source_maps(&bytes, |s| s[2..4].fill(0)), "lists no maps"),
-        (
-            "tiff",
-            with_source_maps(&bytes, |s| {
-                let r = record(s);
-                s[r + 1] = 2; // gray+alpha
-                s[r + 3] = 2;
-                s[r + 8 + 14..r + 8 + 17].copy_from_slice(b"tif");
-            }),
-            "bricks_albedo.tif: Tiff cannot hold a gray+alpha map",
-        ),
-        (
-            "beyond",
-            with_source_maps(&bytes, |s| s[record(s) + 2] = 200),
-            "channels 200..203 are not within the material's 8 channels",
-        ),
-    ];
+    // A SOURCE_MAPS section that is damaged is ignored (names_from_files_are_made_safe_…); one
+    // that asks for a layout its format cannot hold is a refusal with the way out.
+    let cases: [(&str, Vec<u8>, &str); 1] = [(
+        "tiff",
+        with_source_maps(&bytes, |s| {
+            let r = record(s);
+            s[r + 1] = 2; // gray+alpha
+            s[r + 3] = 2;
+            s[r + 8 + 14..r + 8 + 17].copy_from_slice(b"tif");
+        }),
+        "bricks_albedo.tif: Tiff cannot hold a gray+alpha map",
+    )];
     for (name, patched, expected) in cases {
         let path = dir.join(format!("{name}.nmat"));
         std::fs::write(&path, patched).unwrap();
@@ -393,7 +388,7 @@ fn info_says_what_a_file_is_instead_of_reading_it_whole() {
     let mut cases = vec![
         (dir.join("bricks_albedo.png"), "not a .nmat file (PNG signature)"),
         (dir.join("empty.nmat"), "not a .nmat file (the file is empty)"),
-        (dir.clone(), "is a folder, not a .nmat file"),
+        (dir.clone(), "is a folder, not a regular file"),
         (dir.join("trailing.nmat"), "4 trailing bytes after the"),
         (dir.join("missing.nmat"), "missing.nmat"),
     ];
@@ -1059,4 +1054,321 @@ fn walk_resolves_every_frame_like_direct_decoding_and_writes_its_rows() {
     let o = nmat(&["walk", fixtures.join("strip_1x37.nmat").to_str().unwrap(), "--size", "8x8"]);
     assert!(!o.status.success(), "{}", text(&o));
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Runs `nmat args` and kills it if it runs past `seconds` (the old `nmat index FIFO` waited
+/// forever): `None` then.
+fn nmat_within(args: &[&str], seconds: u64) -> Option<Output> {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_nmat"))
+        .args(args)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run nmat");
+    let start = std::time::Instant::now();
+    while start.elapsed().as_secs() < seconds {
+        if child.try_wait().unwrap().is_some() {
+            return Some(child.wait_with_output().unwrap());
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    None
+}
+
+/// Every output of `nmat walk` is checked before the walk, every size against `--max-memory`
+/// before anything is allocated, and `--threads` is capped like the other commands'.
+#[test]
+fn walk_checks_its_outputs_sizes_and_threads_before_it_starts() {
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures");
+    let dir = temp_dir("walk-hostile");
+    let input = dir.join("v.nmat");
+    std::fs::copy(fixtures.join("ntc_pbr10_96x80_clamp.nmat"), &input).unwrap();
+    let original = std::fs::read(&input).unwrap();
+    let v = input.to_str().unwrap();
+    let missing = dir.join("nodir/x.csv");
+    let small = ["--size", "16x8", "--frames", "1", "--threads", "1"];
+    let cases: [(Vec<&str>, &str); 8] = [
+        (vec!["--image", v], "--image"),
+        (vec!["--csv", v], "--csv"),
+        (vec!["--csv", missing.to_str().unwrap()], "folder"),
+        (vec!["--csv", dir.to_str().unwrap()], "is a directory"),
+        (vec!["--tiles", "20000000"], "--tiles"),
+        (vec!["--tiles", "1000000000000"], "--tiles"),
+        (vec!["--size", "16384x16384"], "--size"),
+        (vec!["--threads", "3000"], "--threads 3000: must be between 1 and"),
+    ];
+    for (extra, needle) in cases {
+        // The small walk, but for the option under test.
+        let mut args = vec!["walk", v];
+        for pair in small.chunks(2) {
+            if !extra.contains(&pair[0]) {
+                args.extend(pair);
+            }
+        }
+        args.extend(&extra);
+        let o = nmat_within(&args, 20).unwrap_or_else(|| panic!("{args:?} ran past 20 s"));
+        assert!(!o.status.success(), "{args:?} succeeded: {}", text(&o));
+        assert!(text(&o).contains(needle), "{args:?}: {}", text(&o));
+        assert!(!text(&o).contains("memory allocation"), "{args:?}: {}", text(&o));
+        // Refused before the walk: no table row was printed.
+        assert!(!text(&o).contains("| yes |"), "{args:?} walked: {}", text(&o));
+    }
+    assert_eq!(std::fs::read(&input).unwrap(), original, "the input material was replaced");
+    assert!(!missing.parent().unwrap().exists());
+    // The budget names the option and the limit; a larger budget lets the same walk run.
+    let o = nmat(&["walk", v, "--size", "64x32", "--frames", "1", "--max-memory", "1M"]);
+    assert!(text(&o).contains("more than the 1.0 MiB allowed"), "{}", text(&o));
+    let o = nmat(&["walk", v, "--size", "64x32", "--frames", "1", "--tiles", "64"]);
+    assert!(o.status.success(), "{}", text(&o));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `nmat index` reads its JPEG through the one bounded, regular-file-only reader.
+#[test]
+fn index_reads_only_regular_files_within_the_memory_budget() {
+    let dir = temp_dir("index-hostile");
+    let out = dir.join("y.nmat");
+    let o = out.to_str().unwrap();
+    if cfg!(unix) {
+        let r = nmat_within(&["index", "/dev/zero", "-o", o], 20).expect("index /dev/zero ran on");
+        assert!(!r.status.success() && text(&r).contains("not a regular file"), "{}", text(&r));
+        let fifo = dir.join("pipe.jpg");
+        if Command::new("mkfifo").arg(&fifo).status().is_ok_and(|s| s.success()) {
+            let r = nmat_within(&["index", fifo.to_str().unwrap(), "-o", o], 20)
+                .expect("index of a FIFO waited for a writer");
+            assert!(!r.status.success() && text(&r).contains("not a regular file"), "{}", text(&r));
+        }
+    }
+    let jpeg = dir.join("photo.jpg");
+    // Noise: a JPEG of several KiB.
+    let pixels: Vec<u8> =
+        (0u32..64 * 64 * 3).map(|i| (i.wrapping_mul(2654435761) >> 24) as u8).collect();
+    let mut bytes = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, 90)
+        .encode(&pixels, 64, 64, image::ExtendedColorType::Rgb8)
+        .unwrap();
+    std::fs::write(&jpeg, &bytes).unwrap();
+    let r = nmat(&["index", jpeg.to_str().unwrap(), "-o", o, "--max-memory", "0K"]);
+    assert!(text(&r).contains("must be above 0"), "{}", text(&r));
+    let r = nmat(&["index", jpeg.to_str().unwrap(), "-o", o, "--max-memory", "1K"]);
+    assert!(!r.status.success(), "{}", text(&r));
+    assert!(bytes.len() > 1024 && text(&r).contains("bytes, more than the 1024 bytes allowed"));
+    assert!(text(&r).contains("--max-memory") && !out.exists(), "{}", text(&r));
+    let r = nmat(&["index", jpeg.to_str().unwrap(), "-o", o]);
+    assert!(r.status.success(), "{}", text(&r));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `eval` and `bench` compare channels with the reference maps of the same role only: other maps
+/// of the same size and channel count are refused (or, with --force, compared after a warning).
+#[test]
+fn reference_maps_of_other_roles_are_refused_unless_forced() {
+    let dir = temp_dir("ref-roles");
+    let src = dir.join("src");
+    std::fs::create_dir_all(&src).unwrap();
+    write_maps(&src, 16);
+    let file = dir.join("m.nmat");
+    let f = file.to_str().unwrap();
+    let o = nmat(&["encode", src.to_str().unwrap(), "-o", f, "--steps", "2"]);
+    assert!(o.status.success(), "{}", text(&o));
+    // The same four files, but the roughness map now named as a metallic map: 8 channels of the
+    // same size as the material's, one of them another map.
+    let other = dir.join("other");
+    std::fs::create_dir_all(&other).unwrap();
+    for name in ["bricks_albedo.png", "bricks_normal.png", "bricks_height.png"] {
+        std::fs::copy(src.join(name), other.join(name)).unwrap();
+    }
+    std::fs::copy(src.join("bricks_roughness.png"), other.join("bricks_metallic.png")).unwrap();
+    let r = other.to_str().unwrap();
+    let o = nmat(&["eval", f, "--ref", r]);
+    assert!(!o.status.success(), "eval compared other maps: {}", text(&o));
+    assert!(text(&o).contains("no roughness map") && text(&o).contains("--force"), "{}", text(&o));
+    let o = nmat(&["bench", f, "--ref", r, "--region", "8", "--runs", "1"]);
+    assert!(!o.status.success() && text(&o).contains("no roughness map"), "{}", text(&o));
+    let o = nmat(&["eval", f, "--ref", r, "--force"]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(
+        text(&o).contains("warning") && text(&o).contains("channel 6 is roughness"),
+        "{}",
+        text(&o)
+    );
+    // The source maps themselves, and a folder with more maps than the material's, are fine.
+    std::fs::copy(src.join("bricks_roughness.png"), src.join("bricks_metallic.png")).unwrap();
+    let o = nmat(&["eval", f, "--ref", src.to_str().unwrap()]);
+    assert!(o.status.success() && !text(&o).contains("warning"), "{}", text(&o));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Names a file carries are printed and used as file names only once made safe, and a damaged
+/// optional section is ignored with the same warning by every command.
+#[test]
+fn names_from_files_are_made_safe_and_damaged_optional_sections_are_ignored() {
+    let dir = temp_dir("names");
+    let src = dir.join("src");
+    std::fs::create_dir_all(&src).unwrap();
+    write_maps(&src, 16);
+    let file = dir.join("m.nmat");
+    let o = nmat(&["encode", src.to_str().unwrap(), "-o", file.to_str().unwrap(), "--steps", "2"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let bytes = std::fs::read(&file).unwrap();
+    let at = |s: &[u8]| s.windows(17).position(|w| w == b"bricks_albedo.png").unwrap();
+    // A terminal escape, a NUL and a path out of the folder, in the 17 bytes of the name.
+    let hostile = with_source_maps(&bytes, |s| {
+        let n = at(s);
+        s[n..n + 17].copy_from_slice(b"\x1b[31m\0..\\evil.png");
+    });
+    let path = dir.join("hostile.nmat");
+    std::fs::write(&path, hostile).unwrap();
+    let p = path.to_str().unwrap();
+    let o = nmat(&["info", p]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(!text(&o).contains('\x1b') && !text(&o).contains('\0'), "{:?}", text(&o));
+    assert!(text(&o).contains("_[31m_.._evil.png"), "{}", text(&o));
+    let out = dir.join("out");
+    let o = nmat(&["decode", p, "-o", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(!text(&o).contains('\x1b'), "{:?}", text(&o));
+    assert!(files_in(&out).contains(&"_[31m_.._evil.png".to_string()), "{:?}", files_in(&out));
+    assert_eq!(files_in(&dir), ["hostile.nmat", "m.nmat", "out", "src"]);
+
+    // Damaged sections: no maps listed; a map beyond the channels.
+    let record = |s: &[u8]| at(s) - 8;
+    let damaged = [
+        ("zero", with_source_maps(&bytes, |s| s[2..4].fill(0)), "lists no maps"),
+        (
+            "beyond",
+            with_source_maps(&bytes, |s| s[record(s) + 2] = 200),
+            "channels 200..203 are not within",
+        ),
+    ];
+    for (name, patched, why) in damaged {
+        let path = dir.join(format!("{name}.nmat"));
+        std::fs::write(&path, patched).unwrap();
+        let p = path.to_str().unwrap();
+        let out = dir.join(format!("{name}-out"));
+        let tc = dir.join(format!("{name}-tc"));
+        let runs = [
+            vec!["info", p],
+            vec!["decode", p, "-o", out.to_str().unwrap()],
+            vec!["transcode", p, "-o", tc.to_str().unwrap()],
+            vec!["eval", p, "--ref", src.to_str().unwrap()],
+        ];
+        for args in runs {
+            let o = nmat(&args);
+            assert!(o.status.success(), "{args:?}: {}", text(&o));
+            let warning = "SOURCE_MAPS section (optional";
+            assert_eq!(text(&o).matches(warning).count(), 1, "{args:?}: {}", text(&o));
+            assert!(text(&o).contains(why) && text(&o).contains("ignored"), "{}", text(&o));
+        }
+        // Maps named after the channels.
+        assert!(files_in(&out).contains(&"albedo.png".to_string()), "{:?}", files_in(&out));
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `nmat transcode` is all-or-nothing like `decode`, refuses conflicting `--as`, says what is
+/// wrong with `-o`, keeps to `--max-memory`, and leaves no staging folder when killed.
+#[test]
+fn transcode_is_all_or_nothing_and_checks_its_arguments() {
+    let fixture =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/ntc_pbr10_96x80_clamp.nmat");
+    let f = fixture.to_str().unwrap();
+    let dir = temp_dir("transcode-aon");
+    let out = dir.join("out");
+    let o_dir = out.to_str().unwrap();
+    let o = nmat(&["transcode", f, "-o", o_dir, "--as", "albedo=bc1", "--as", "albedo=bc7"]);
+    assert!(!o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("--as albedo=bc7: albedo maps were already given bc1"));
+    let o = nmat(&["transcode", f, "-o", o_dir, "--as", "albedo=bc7", "--as", "albedo=bc7"]);
+    assert!(o.status.success(), "the same format twice: {}", text(&o));
+    let names = files_in(&out);
+    assert!(names.len() >= 3, "{names:?}");
+    // A regular file as -o.
+    let plain = dir.join("plain");
+    std::fs::write(&plain, b"x").unwrap();
+    let o = nmat(&["transcode", f, "-o", plain.to_str().unwrap()]);
+    assert!(text(&o).contains("is a file, not a folder"), "{}", text(&o));
+    // --force with a folder planted at one output name: nothing is replaced, not even the files
+    // moved in before the folder was met.
+    let (first, last) = (&names[0], &names[names.len() - 1]);
+    std::fs::write(out.join(first), b"mine").unwrap();
+    std::fs::remove_file(out.join(last)).unwrap();
+    std::fs::create_dir(out.join(last)).unwrap();
+    let o = nmat(&["transcode", f, "-o", o_dir, "--as", "albedo=bc7", "--force"]);
+    assert!(!o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("is a folder") && text(&o).contains("nothing was written"));
+    assert_eq!(std::fs::read(out.join(first)).unwrap(), b"mine");
+    assert!(!files_in(&out).iter().any(|n| n.starts_with(".nmat")), "{:?}", files_in(&out));
+    // The budget.
+    let small = dir.join("small");
+    let o = nmat(&["transcode", f, "-o", small.to_str().unwrap(), "--max-memory", "1K"]);
+    assert!(text(&o).contains("--max-memory") && !small.exists(), "{}", text(&o));
+    // A staging folder of a process that no longer runs (killed with SIGKILL) is removed by the
+    // next write into the folder.
+    if Path::new("/proc/self").exists() {
+        let stale = out.join(".nmat-decode-999999999-0123456789abcdef");
+        std::fs::create_dir(&stale).unwrap();
+        std::fs::write(stale.join("half.ktx2"), b"half").unwrap();
+        std::fs::remove_dir(out.join(last)).unwrap();
+        let o = nmat(&["transcode", f, "-o", o_dir, "--force"]);
+        assert!(o.status.success(), "{}", text(&o));
+        assert!(!stale.exists(), "an abandoned staging folder was kept");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// SIGTERM during a long transcode removes its staging folder and the output folder it made.
+#[cfg(unix)]
+#[test]
+fn a_killed_transcode_leaves_nothing_behind() {
+    let dir = temp_dir("transcode-kill");
+    // A generated material of 2048², whose BC7 chain takes seconds.
+    let cfg = nmat_tests::generate::FixtureConfig::ntc("kill", 7, 2048, 2048, 3);
+    let file = dir.join("m.nmat");
+    std::fs::write(&file, nmat_tests::generate::generate(&cfg).to_bytes().unwrap()).unwrap();
+    let f = file.to_str().unwrap();
+    let out = dir.join("out");
+    let child = Command::new(env!("CARGO_BIN_EXE_nmat"))
+        .args(["transcode", f, "-o", out.to_str().unwrap(), "--format", "bc7", "--threads", "1"])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Wait for the staging folder, then kill.
+    let start = std::time::Instant::now();
+    let staging = || {
+        std::fs::read_dir(&out)
+            .map(|d| d.flatten().any(|e| e.file_name().to_string_lossy().starts_with(".nmat")))
+            .unwrap_or(false)
+    };
+    while !staging() && start.elapsed().as_secs() < 60 {
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    assert!(staging(), "no staging folder appeared");
+    let killed = Command::new("kill").args(["-TERM", &child.id().to_string()]).status().unwrap();
+    assert!(killed.success());
+    let o = child.wait_with_output().unwrap();
+    assert_eq!(o.status.code(), Some(130), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!out.exists(), "left behind: {:?}", std::fs::read_dir(&out).map(|d| d.count()));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Without a GPU (lavapipe), `nmat bench`'s GPU row decodes the bench's region only and says so,
+/// instead of the whole mip 0 (minutes on a software rasterizer).
+#[test]
+fn bench_gpu_row_on_a_software_adapter_decodes_the_region_only() {
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/ntc_rgb_64.nmat");
+    let o = nmat(&["bench", fixture.to_str().unwrap(), "--region", "8", "--runs", "1"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let out = text(&o);
+    let gpu_row = out.lines().find(|l| l.trim_start().starts_with("GPU")).expect("a GPU line");
+    if gpu_row.contains("not measured") || gpu_row.contains("no adapter") {
+        return; // a build without the `gpu` feature, or no adapter at all
+    }
+    if gpu_row.contains("software rasterizer") {
+        assert!(gpu_row.contains("region 8×8 only"), "{gpu_row}");
+    } else {
+        assert!(gpu_row.contains("whole mip 0"), "{gpu_row}");
+    }
 }

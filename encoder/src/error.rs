@@ -8,6 +8,10 @@ use std::path::PathBuf;
 pub enum EncodeError {
     /// A file or folder could not be read or written.
     Io { path: PathBuf, source: std::io::Error },
+    /// An input path that is not a regular file (a folder, device, pipe or socket).
+    NotAFile { path: PathBuf, kind: &'static str },
+    /// An input file longer than the memory allowed for it (`--max-memory`).
+    FileTooLarge { path: PathBuf, size: u64, limit: u64 },
     /// A file is not an image this encoder can read.
     Image { path: PathBuf, detail: String },
     /// No role could be told from a file name.
@@ -38,6 +42,16 @@ impl fmt::Display for EncodeError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             EncodeError::Io { path, source } => write!(f, "{}: {source}", path.display()),
+            EncodeError::NotAFile { path, kind } => write!(
+                f,
+                "{}: is {kind}, not a regular file; nmat reads its inputs from regular files only",
+                path.display()
+            ),
+            EncodeError::FileTooLarge { path, size, limit } => write!(
+                f,
+                "{}: {size} bytes, more than the {limit} bytes allowed; raise the limit with --max-memory",
+                path.display()
+            ),
             EncodeError::Image { path, detail } => {
                 write!(f, "{}: not a readable image: {detail}", path.display())
             }

@@ -14,9 +14,11 @@
 pub mod demo;
 pub mod error;
 mod gemm;
+pub mod input;
 pub mod jpeg;
 mod memhint;
 pub mod metrics;
+pub mod names;
 pub mod profile;
 pub mod source_maps;
 pub mod texset;

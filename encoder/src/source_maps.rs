@@ -18,8 +18,12 @@ pub fn encode(maps: &[SourceMap]) -> Vec<u8> {
     out.extend_from_slice(&VERSION.to_le_bytes());
     out.extend_from_slice(&(maps.len() as u16).to_le_bytes());
     for m in maps {
-        let name = m.file_name.as_bytes();
-        let name = &name[..name.len().min(255)];
+        // At most 255 bytes (the length is one byte), cut at a character boundary.
+        let mut end = m.file_name.len().min(255);
+        while !m.file_name.is_char_boundary(end) {
+            end -= 1;
+        }
+        let name = &m.file_name.as_bytes()[..end];
         let flags = (u8::from(m.gray_rgb) * GRAY_RGB)
             | (u8::from(m.alpha_value.is_some()) * CONSTANT_ALPHA)
             | (u8::from(m.sixteen_bit) * SIXTEEN_BIT);
@@ -52,13 +56,11 @@ pub fn decode(bytes: &[u8]) -> Option<Vec<SourceMap>> {
         let h = bytes.get(pos..pos + 8)?;
         let name_len = usize::from(h[7]);
         let name = std::str::from_utf8(bytes.get(pos + 8..pos + 8 + name_len)?).ok()?;
-        // A name is a bare file name: never a path that could write outside the output folder.
-        if name.is_empty() || name.contains(['/', '\\']) || name == "." || name == ".." {
-            return None;
-        }
         maps.push(SourceMap {
             role: Role::from_semantic(Semantic(h[0]))?,
-            file_name: name.to_string(),
+            // A bare, printable file name: never a path out of the output folder, a hidden
+            // file, a device or a terminal escape (the file may say anything).
+            file_name: crate::names::file_name(name),
             layout: FileLayout::from_code(h[1])?,
             first_channel: usize::from(h[2]),
             channel_count: usize::from(h[3]),

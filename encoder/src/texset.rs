@@ -294,7 +294,13 @@ pub fn assign_roles(
 }
 
 fn open_image(path: &Path, max_memory: u64) -> Result<DynamicImage, EncodeError> {
-    let open = || std::fs::File::open(path).map(std::io::BufReader::new);
+    // Checked once here (a folder, device or FIFO is refused by name); opened twice below.
+    crate::input::open_regular(path)?;
+    let open = || {
+        let (file, _) = crate::input::open_regular(path)
+            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e.to_string()))?;
+        Ok(std::io::BufReader::new(file))
+    };
     decode_image_with(open, path, max_memory)
 }
 
