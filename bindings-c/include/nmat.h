@@ -35,6 +35,15 @@ typedef enum {
   NMAT_BUFFER_TOO_SMALL = 3,
   // A size computation would overflow `size_t`.
   NMAT_SIZE_OVERFLOW = 4,
+  // A pointer argument is not aligned for its type: its address is not a multiple of the
+  // type's alignment (4 bytes for `float`, 2 for `nmat_tile_key`, 8 for `size_t` on 64-bit
+  // targets, …). Nothing was read or written.
+  NMAT_MISALIGNED_ARGUMENT = 5,
+  // Another call was using the tile cache: a call that changes a cache (`nmat_cache_begin_frame`,
+  // `_mark`, `_mark_texel`, `_mark_tiles`, `_decode_missing`, `_end_frame`) overlapped with
+  // another call on the same cache, from another thread. This call did nothing; the caller must
+  // order its calls (see `nmat_cache_create`).
+  NMAT_CACHE_BUSY = 6,
   // The file contradicts the format (see `nmat_last_error` for the field).
   NMAT_MALFORMED = 10,
   // The file is shorter than its contents need.
@@ -319,7 +328,15 @@ size_t nmat_last_error(uint8_t *buf, size_t len);
 // Creates a cache of `tiles` tiles (16 × 16 texels each, every channel, 8-bit codes) over the
 // `material_count` materials at `materials` (then named by their index, 0 …). Its memory is
 // allocated here, once: `tiles` × (256 × the largest channel count + 24) bytes. The materials
-// must stay open until `nmat_cache_free`. At most 64 materials; `tiles` ≥ 1.
+// must stay open until `nmat_cache_free`. At most 64 materials; `tiles` from 1 to 2^32 − 2
+// (`NMAT_BAD_ARGUMENT` otherwise, naming the limit, before anything is allocated);
+// `NMAT_OUT_OF_MEMORY` when the memory cannot be allocated.
+//
+// Threads: the calls that change the cache (`nmat_cache_begin_frame`, `_mark`, `_mark_texel`,
+// `_mark_tiles`, `_decode_missing`, `_end_frame`) need it to themselves; `nmat_cache_footprint`,
+// `_resolve` and `_stats` may run on any number of threads at once, but not during one of those.
+// A call that breaks this rule is detected and returns `NMAT_CACHE_BUSY` without doing anything
+// (the other call goes on unharmed). `nmat_cache_free` must not overlap with any call.
 nmat_status nmat_cache_create(const nmat_material *const *materials,
                               size_t material_count,
                               size_t tiles,
@@ -328,13 +345,14 @@ nmat_status nmat_cache_create(const nmat_material *const *materials,
 // Destroys a cache (before its materials). NULL is accepted and ignored.
 void nmat_cache_free(nmat_cache *cache);
 
-// Starts a frame: its counters start at zero.
+// Starts a frame: its counters start at zero. `NMAT_CACHE_BUSY` if another call uses the cache.
 nmat_status nmat_cache_begin_frame(nmat_cache *cache);
 
 // Marks the tiles that the lookup `nmat_cache_resolve(cache, material, u, v, lod, filter,
 // random, …)` will read: every texel of the filter's footprint (a bilinear lookup marks the
 // neighbour tiles it straddles, a trilinear one those of both mips). `random` as in
-// `nmat_sample`.
+// `nmat_sample` (aligned to 4 bytes, else `NMAT_MISALIGNED_ARGUMENT`). Changes the cache: one
+// call at a time, `NMAT_CACHE_BUSY` if another call uses the cache.
 nmat_status nmat_cache_mark(nmat_cache *cache,
                             uint32_t material,
                             float u,
@@ -344,7 +362,8 @@ nmat_status nmat_cache_mark(nmat_cache *cache,
                             const float *random);
 
 // Marks the tile of texel (x, y) of `mip` (coordinates wrap or clamp by the material's address
-// mode; a mip beyond the chain is `NMAT_BAD_ARGUMENT`).
+// mode; a mip beyond the chain is `NMAT_BAD_ARGUMENT`). `NMAT_CACHE_BUSY` if another call uses
+// the cache.
 nmat_status nmat_cache_mark_texel(nmat_cache *cache,
                                   uint32_t material,
                                   int64_t x,
@@ -355,7 +374,9 @@ nmat_status nmat_cache_mark_texel(nmat_cache *cache,
 // `nmat_cache_resolve(cache, material, u, v, lod, filter, random, …)` reads, and their number in
 // `*count`; marks nothing. Any number of threads may call it at once (like
 // `nmat_cache_resolve`), so a frame's footprints can be found in parallel and marked with one
-// `nmat_cache_mark_tiles`.
+// `nmat_cache_mark_tiles`; but not while a call changes the cache (`NMAT_CACHE_BUSY`). `out`
+// (and `random`) must be aligned for their types (`NMAT_MISALIGNED_ARGUMENT`): 2 bytes for
+// `nmat_tile_key`, 4 for `float`.
 nmat_status nmat_cache_footprint(const nmat_cache *cache,
                                  uint32_t material,
                                  float u,
@@ -370,17 +391,21 @@ nmat_status nmat_cache_footprint(const nmat_cache *cache,
 // Marks `count` tiles listed by `nmat_cache_footprint` (repeats count once per frame). The
 // tiles already cached are marked first, so a full cache gives up only tiles none of `keys`
 // needs. A key the cache's materials do not have is `NMAT_BAD_ARGUMENT`, and then nothing is
-// marked.
+// marked. `keys` must be aligned to 2 bytes (`NMAT_MISALIGNED_ARGUMENT`). `NMAT_CACHE_BUSY` if
+// another call uses the cache.
 nmat_status nmat_cache_mark_tiles(nmat_cache *cache, const nmat_tile_key *keys, size_t count);
 
 // Decodes every marked tile not decoded yet, on `threads` threads (0: one per CPU); writes how
 // many to `*decoded` (may be NULL). On an error the other tiles are still decoded; a tile that
-// failed stays undecoded and its lookups decode directly.
+// failed stays undecoded and its lookups decode directly. `NMAT_CACHE_BUSY` if another call
+// uses the cache (the threads here are its own).
 nmat_status nmat_cache_decode_missing(nmat_cache *cache, uint32_t threads, uint32_t *decoded);
 
 // The filtered lookup of `nmat_sample` in integer mode (`NMAT_MODE_INTEGER`), from the cache:
 // the same values to the bit. Texels whose tile is missing are decoded directly. Any number of
-// threads may resolve from one cache at once (but not while it is marked, decoded or ended).
+// threads may resolve from one cache at once, but not while a call changes it (marks, decodes,
+// begins or ends a frame): then `NMAT_CACHE_BUSY`. `out` (and `random`) are `float`s, aligned to
+// 4 bytes (`NMAT_MISALIGNED_ARGUMENT` otherwise).
 nmat_status nmat_cache_resolve(const nmat_cache *cache,
                                uint32_t material,
                                float u,
@@ -392,11 +417,12 @@ nmat_status nmat_cache_resolve(const nmat_cache *cache,
                                float *out,
                                size_t out_len);
 
-// This frame's counters so far.
+// This frame's counters so far. May run beside `nmat_cache_resolve` and `_footprint`;
+// `NMAT_CACHE_BUSY` while a call changes the cache.
 nmat_status nmat_cache_stats(const nmat_cache *cache, nmat_frame_stats *out);
 
 // Ends the frame: every tile it did not mark is evicted. Writes the frame's counters to `*out`
-// (may be NULL).
+// (may be NULL). `NMAT_CACHE_BUSY` if another call uses the cache.
 nmat_status nmat_cache_end_frame(nmat_cache *cache, nmat_frame_stats *out);
 
 #ifdef __cplusplus

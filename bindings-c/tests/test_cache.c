@@ -1,11 +1,13 @@
 /* The tile cache through the C API: a neural and an indexed-JPEG material in one cache; every
  * resolved value equals nmat_sample in integer mode (an independent path: direct decoding);
  * frame counters, a second frame from the cache, eviction, a cache too small, decoding on
- * threads, footprints marked in one batch, refusals. Compiled as C99 and as C++17 under ASan+UBSan (see ../Makefile).
+ * threads, footprints marked in one batch, refusals, calls that overlap where they must not
+ * (NMAT_CACHE_BUSY). Compiled as C99 and as C++17 under ASan+UBSan (see ../Makefile).
  * Usage: test_cache NEURAL.nmat JPEG.nmat */
 #include "nmat.h"
 #include "check.h"
 
+#include <pthread.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -168,7 +170,9 @@ static void test_refusals(const nmat_material *const *m) {
     CHECK(nmat_cache_create(m, 0, 8, &cache) == NMAT_BAD_ARGUMENT && cache == NULL);
     CHECK(nmat_cache_create(NULL, 2, 8, &cache) == NMAT_NULL_ARGUMENT);
     CHECK(nmat_cache_create(m, 2, 8, NULL) == NMAT_NULL_ARGUMENT);
-    CHECK(nmat_cache_create(m, 2, SIZE_MAX / 2, &cache) == NMAT_SIZE_OVERFLOW && cache == NULL);
+    /* Beyond the limit of 2^32 - 2 tiles: refused before anything is allocated. */
+    CHECK(nmat_cache_create(m, 2, SIZE_MAX / 2, &cache) == NMAT_BAD_ARGUMENT && cache == NULL);
+    CHECK(nmat_last_error(detail, sizeof detail) > 1 && strstr((const char *)detail, "limit 4294967294") != NULL);
     CHECK(nmat_cache_create(m, 2, 8, &cache) == NMAT_OK);
     if (!cache) return;
     CHECK(nmat_cache_begin_frame(NULL) == NMAT_NULL_ARGUMENT);
@@ -185,6 +189,115 @@ static void test_refusals(const nmat_material *const *m) {
     CHECK(nmat_cache_end_frame(cache, NULL) == NMAT_OK);
     nmat_cache_free(cache);
     nmat_cache_free(NULL);
+}
+
+/* Calls that overlap where they must not: 8 threads marking, one decoding, one resolving and
+ * one listing footprints, all on one cache at once. The calls that change the cache (mark,
+ * decode_missing) must not overlap with any other, so some are refused with NMAT_CACHE_BUSY; no
+ * call may fail otherwise, and nothing may race (ASan and UBSan watch the library). Afterwards
+ * the cache works as before. */
+enum { MARKERS = 8, WORKERS = MARKERS + 3, MAX_ROUNDS = 200000, ENOUGH_BUSY = 200 };
+
+typedef struct {
+    nmat_cache *cache;
+    const lookup *l;
+    int role; /* 0 marks, 1 decodes, 2 resolves, 3 lists footprints */
+    long ok, busy, other;
+    int busy_detail_ok;
+} worker;
+
+static pthread_mutex_t busy_lock = PTHREAD_MUTEX_INITIALIZER;
+static long busy_seen = 0;
+
+static int busy_count(long add) {
+    long n;
+    pthread_mutex_lock(&busy_lock);
+    busy_seen += add;
+    n = busy_seen;
+    pthread_mutex_unlock(&busy_lock);
+    return n >= ENOUGH_BUSY;
+}
+
+static void *work(void *arg) {
+    worker *w = (worker *)arg;
+    long i;
+    /* Until every role has seen enough refusals in all, or a generous bound. */
+    for (i = 0; i < MAX_ROUNDS && !busy_count(0); i++) {
+        const lookup *p = &w->l[(size_t)(i * 7 + w->role) % LOOKUPS];
+        float out[16];
+        nmat_tile_key keys[8];
+        size_t count = 0;
+        nmat_status s;
+        switch (w->role) {
+        case 0:
+            s = nmat_cache_mark(w->cache, p->material, p->u, p->v, p->lod, p->filter, p->random);
+            break;
+        case 1:
+            s = nmat_cache_decode_missing(w->cache, 1, NULL);
+            break;
+        case 2:
+            s = nmat_cache_resolve(w->cache, p->material, p->u, p->v, p->lod, p->filter, p->random,
+                                   p->mask, out, 16);
+            break;
+        default:
+            s = nmat_cache_footprint(w->cache, p->material, p->u, p->v, p->lod, p->filter,
+                                     p->random, keys, 8, &count);
+            break;
+        }
+        if (s == NMAT_OK) {
+            w->ok++;
+        } else if (s == NMAT_CACHE_BUSY) {
+            uint8_t detail[300];
+            if (w->busy++ == 0) {
+                nmat_last_error(detail, sizeof detail);
+                w->busy_detail_ok = strstr((const char *)detail, "another thread is using this cache") != NULL;
+            }
+            busy_count(1);
+        } else {
+            w->other++;
+        }
+    }
+    return NULL;
+}
+
+static void test_overlapping_calls(const nmat_material *const *m, const nmat_info *info) {
+    static lookup l[LOOKUPS];
+    pthread_t threads[WORKERS];
+    worker workers[WORKERS];
+    nmat_cache *cache = NULL;
+    nmat_frame_stats stats, after;
+    long busy = 0, ok = 0;
+    int i;
+    make_lookups(l, LOOKUPS, info);
+    CHECK(nmat_cache_create(m, 2, 1024, &cache) == NMAT_OK && cache != NULL);
+    if (!cache) return;
+    CHECK(nmat_cache_begin_frame(cache) == NMAT_OK);
+    for (i = 0; i < WORKERS; i++) {
+        workers[i].cache = cache;
+        workers[i].l = l;
+        workers[i].role = i < MARKERS ? 0 : i - MARKERS + 1;
+        workers[i].ok = workers[i].busy = workers[i].other = 0;
+        workers[i].busy_detail_ok = 1;
+        CHECK(pthread_create(&threads[i], NULL, work, &workers[i]) == 0);
+    }
+    for (i = 0; i < WORKERS; i++) {
+        CHECK(pthread_join(threads[i], NULL) == 0);
+        CHECK(workers[i].other == 0);
+        CHECK(workers[i].busy_detail_ok);
+        busy += workers[i].busy;
+        ok += workers[i].ok;
+    }
+    printf("test_cache: overlapping calls: %ld refused with NMAT_CACHE_BUSY, %ld done\n", busy, ok);
+    CHECK(busy > 0 && ok > 0);
+    /* The frame those threads marked ends with sane books, and the next frame is exact. */
+    CHECK(nmat_cache_decode_missing(cache, 2, NULL) == NMAT_OK);
+    CHECK(nmat_cache_end_frame(cache, &stats) == NMAT_OK);
+    CHECK(stats.frame == 1 && stats.marked <= 1024 && stats.overflowed == 0);
+    CHECK(stats.decoded <= stats.marked && stats.hits == 0);
+    CHECK(run_frame(cache, m, l, LOOKUPS, 2, &after) == 0);
+    CHECK(after.frame == 2 && after.marked > 0 && after.overflowed == 0);
+    CHECK(after.hits + after.decoded == after.marked && after.resolve_misses == 0);
+    nmat_cache_free(cache);
 }
 
 int main(int argc, char **argv) {
@@ -210,6 +323,7 @@ int main(int argc, char **argv) {
     test_frames((const nmat_material *const *)m, info);
     test_batch_marking((const nmat_material *const *)m, info);
     test_refusals((const nmat_material *const *)m);
+    test_overlapping_calls((const nmat_material *const *)m, info);
     for (i = 0; i < 2; i++) nmat_material_free(m[i]);
     if (failures) {
         fprintf(stderr, "%d check(s) failed\n", failures);

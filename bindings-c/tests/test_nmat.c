@@ -33,6 +33,11 @@ static int detail_is_fresh(void) {
         if (fails_ && (expected) != NMAT_TRUNCATED) CHECK(detail_is_fresh());    \
     } while (0)
 
+/* A pointer one byte past the start of `buf` (an array of 4-byte words), so misaligned for every
+ * type wider than a byte. Made from an integer (implementation-defined), not by converting a
+ * misaligned char pointer (undefined); it is only passed to nmat, never dereferenced here. */
+#define MISALIGNED(type, buf) ((type *)(uintptr_t)((uintptr_t)(buf) + 1))
+
 /* Decodes every texel of every mip (all channels) and compares with the expected codes. */
 static int matches_expected(const nmat_material *m, const uint8_t *expected, size_t expected_len) {
     nmat_info info;
@@ -84,6 +89,15 @@ static void test_messages(void) {
     CHECK(strcmp(buf, "suc") == 0); /* truncated, still NUL-terminated */
     CHECK(nmat_status_message(12345, (uint8_t *)buf, sizeof buf) > 1);
     CHECK(strcmp(buf, "unknown nmat_status") == 0);
+    /* The statuses added later keep their numbers, and have messages of their own. */
+    CHECK(NMAT_MISALIGNED_ARGUMENT == 5 && NMAT_CACHE_BUSY == 6);
+    {
+        char longer[256];
+        CHECK(nmat_status_message(NMAT_MISALIGNED_ARGUMENT, (uint8_t *)longer, sizeof longer) > 1);
+        CHECK(strstr(longer, "not aligned") != NULL && strstr(longer, "multiple of 4 bytes") != NULL);
+        CHECK(nmat_status_message(NMAT_CACHE_BUSY, (uint8_t *)longer, sizeof longer) > 1);
+        CHECK(strstr(longer, "another thread is using this cache") != NULL);
+    }
 }
 
 static void test_bad_files(const uint8_t *good, size_t len) {
@@ -149,6 +163,77 @@ static void test_arguments(const nmat_material *m) {
     CHECK_STATUS(nmat_decode_region_u8(m, 0, 0, 0, 4, 2, 0x3, region, 7, sizeof region), NMAT_BUFFER_TOO_SMALL);
     CHECK_STATUS(nmat_decode_region_u8(m, 0, 0, 0, 4, 2, 0x3, NULL, 0, sizeof region), NMAT_NULL_ARGUMENT);
     CHECK_STATUS(nmat_decode_region_f32(m, 0, 0, 0, 2, 2, 0x3, NMAT_MODE_FLOAT, values, 6, sizeof values), NMAT_BAD_ARGUMENT);
+}
+
+static int detail_has(const char *text) {
+    char detail[512];
+    nmat_last_error((uint8_t *)detail, sizeof detail);
+    if (strstr(detail, text) == NULL) {
+        fprintf(stderr, "last error \"%s\" lacks \"%s\"\n", detail, text);
+        return 0;
+    }
+    return 1;
+}
+
+/* Typed buffers that do not start at a multiple of their type's alignment: a status, never a
+ * misaligned access (UBSan would report one inside the library). */
+static void test_alignment(const nmat_material *m) {
+    uint32_t words[64] = {0};
+    float values[16];
+    const float rnd[3] = {0.5f, 0.5f, 0.5f};
+    size_t row = 0, total = 0, count = 0;
+    uint32_t w = 0;
+    nmat_bc_texture layout[16];
+    uint8_t blocks[64];
+    CHECK_STATUS(nmat_decode_texel(m, 0, 0, 0, 0x7, NMAT_MODE_FLOAT, MISALIGNED(float, words), 3), NMAT_MISALIGNED_ARGUMENT);
+    CHECK(detail_has("float values must start at a multiple of 4 bytes"));
+    CHECK_STATUS(nmat_sample(m, 0.5f, 0.5f, 0.0f, NMAT_FILTER_BILINEAR, NMAT_MODE_INTEGER, NULL, 0x7, MISALIGNED(float, words), 3), NMAT_MISALIGNED_ARGUMENT);
+    CHECK_STATUS(nmat_sample(m, 0.5f, 0.5f, 0.0f, NMAT_FILTER_STOCHASTIC, NMAT_MODE_INTEGER, MISALIGNED(const float, words), 0x7, values, 3), NMAT_MISALIGNED_ARGUMENT);
+    CHECK_STATUS(nmat_decode_region_f32(m, 0, 0, 0, 2, 2, 0x1, NMAT_MODE_FLOAT, MISALIGNED(float, words), 0, 16), NMAT_MISALIGNED_ARGUMENT);
+    CHECK_STATUS(nmat_mip_size(m, 0, MISALIGNED(uint32_t, words), &w), NMAT_MISALIGNED_ARGUMENT);
+    CHECK(detail_has("uint32_t values must start at a multiple of 4 bytes"));
+    CHECK_STATUS(nmat_required_size(m, 4, 4, 0x1, 1, 0, MISALIGNED(size_t, words), &total), NMAT_MISALIGNED_ARGUMENT);
+    CHECK_STATUS(nmat_bc_layout(m, 0, MISALIGNED(nmat_bc_texture, words), 16, &count), NMAT_MISALIGNED_ARGUMENT);
+    CHECK_STATUS(nmat_bc_layout(m, 0, layout, 16, &count), NMAT_OK);
+    CHECK_STATUS(nmat_transcode_region(m, MISALIGNED(const nmat_bc_texture, words), 0, 0, 0, 1, 1, blocks, 0, sizeof blocks), NMAT_MISALIGNED_ARGUMENT);
+    CHECK(detail_has("nmat_bc_texture values must start at a multiple of 4 bytes"));
+    /* The same calls with aligned buffers succeed. */
+    CHECK_STATUS(nmat_sample(m, 0.5f, 0.5f, 0.0f, NMAT_FILTER_STOCHASTIC, NMAT_MODE_INTEGER, rnd, 0x7, values, 3), NMAT_OK);
+    CHECK_STATUS(nmat_required_size(m, 4, 4, 0x1, 1, 0, &row, &total), NMAT_OK);
+    CHECK_STATUS(nmat_transcode_region(m, &layout[0], 0, 0, 0, 1, 1, blocks, 0, sizeof blocks), NMAT_OK);
+}
+
+/* A tile cache of more tiles than its limit (2^32 - 2) is refused before anything is allocated,
+ * naming the limit; misaligned nmat_tile_key and float buffers are refused. */
+static void test_cache_arguments(const nmat_material *m) {
+    const nmat_material *list[1];
+    nmat_cache *cache = NULL;
+    uint32_t words[64] = {0};
+    nmat_tile_key keys[8];
+    size_t count = 0;
+    list[0] = m;
+    CHECK_STATUS(nmat_cache_create(list, 1, (size_t)0xFFFFFFFFu, &cache), NMAT_BAD_ARGUMENT);
+    CHECK(cache == NULL && detail_has("CacheMemory") && detail_has("limit 4294967294"));
+#if SIZE_MAX > 0xFFFFFFFFu
+    CHECK_STATUS(nmat_cache_create(list, 1, (size_t)0xFFFFFFFFu + 1, &cache), NMAT_BAD_ARGUMENT);
+    CHECK(cache == NULL && detail_has("value 4294967296, limit 4294967294"));
+#endif
+    CHECK_STATUS(nmat_cache_create(list, 1, SIZE_MAX, &cache), NMAT_BAD_ARGUMENT);
+    CHECK(cache == NULL && detail_has("limit "));
+    CHECK_STATUS(nmat_cache_create(list, 1, 8, &cache), NMAT_OK);
+    if (!cache) return;
+    CHECK_STATUS(nmat_cache_begin_frame(cache), NMAT_OK);
+    CHECK_STATUS(nmat_cache_footprint(cache, 0, 0.5f, 0.5f, 0.0f, NMAT_FILTER_BILINEAR, NULL, MISALIGNED(nmat_tile_key, words), 8, &count), NMAT_MISALIGNED_ARGUMENT);
+    CHECK(detail_has("nmat_tile_key values must start at a multiple of 2 bytes"));
+    CHECK_STATUS(nmat_cache_footprint(cache, 0, 0.5f, 0.5f, 0.0f, NMAT_FILTER_BILINEAR, NULL, keys, 8, &count), NMAT_OK);
+    CHECK(count >= 1 && count <= 4);
+    CHECK_STATUS(nmat_cache_mark_tiles(cache, MISALIGNED(const nmat_tile_key, words), 1), NMAT_MISALIGNED_ARGUMENT);
+    CHECK_STATUS(nmat_cache_mark_tiles(cache, keys, count), NMAT_OK);
+    CHECK_STATUS(nmat_cache_decode_missing(cache, 1, NULL), NMAT_OK);
+    CHECK_STATUS(nmat_cache_resolve(cache, 0, 0.5f, 0.5f, 0.0f, NMAT_FILTER_BILINEAR, NULL, 0x7, MISALIGNED(float, words), 3), NMAT_MISALIGNED_ARGUMENT);
+    CHECK_STATUS(nmat_cache_end_frame(cache, MISALIGNED(nmat_frame_stats, words)), NMAT_MISALIGNED_ARGUMENT);
+    CHECK_STATUS(nmat_cache_end_frame(cache, NULL), NMAT_OK);
+    nmat_cache_free(cache);
 }
 
 static void test_decoding(const nmat_material *m, const uint8_t *expected, size_t expected_len) {
@@ -382,6 +467,8 @@ int main(int argc, char **argv) {
     }
     if (copied && borrowed) {
         test_arguments(copied);
+        test_alignment(copied);
+        test_cache_arguments(copied);
         test_decoding(copied, expected, expected_len);
         test_transcode(copied);
         CHECK(matches_expected(borrowed, expected, expected_len));

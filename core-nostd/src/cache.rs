@@ -17,7 +17,9 @@
 //! [`FrameStats::resolve_misses`].
 //!
 //! Memory is the caller's, sized once: one [`Slot`] (bookkeeping, 24 bytes) and
-//! [`TileCache::slot_bytes`] texel bytes per tile; nothing is allocated per frame. When a new tile
+//! [`TileCache::slot_bytes`] texel bytes per tile, at most [`MAX_CACHE_TILES`] tiles
+//! ([`TileCache::memory_for`] checks a tile count and gives the bytes before anything is
+//! allocated); nothing is allocated per frame. When a new tile
 //! finds no free slot, `mark` takes the slot of a tile the current frame has not marked (every such
 //! tile was last used in the previous frame: the least recently used) — one this frame may still
 //! mark later, which is then decoded again ([`TileCache::mark_tiles`], given the frame's tiles at
@@ -44,6 +46,10 @@ const TILE_TEXELS: usize = (TILE_SIZE * TILE_SIZE) as usize;
 pub const MAX_CACHE_MATERIALS: usize = 64;
 /// No slot (end of a chain or of the free list).
 const NONE: u32 = u32::MAX;
+/// Tiles one cache holds at most, 2^32 − 2: slots are numbered by `u32`, and `u32::MAX` marks the
+/// end of a chain. (Where a tile's texel bytes times this would not fit in one allocation, on
+/// 32-bit targets, [`TileCache::memory_for`] allows fewer.)
+pub const MAX_CACHE_TILES: usize = NONE as usize - 1;
 
 /// Which tile: material (its index in the cache's list), mip, and tile column and row
 /// (texel x / [`TILE_SIZE`], y / [`TILE_SIZE`]).
@@ -124,6 +130,19 @@ pub struct FrameStats {
     pub resolve_misses: u32,
 }
 
+/// What a cache of `tiles` tiles needs ([`TileCache::memory_for`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CacheSize {
+    pub tiles: usize,
+    /// Texel bytes of one tile ([`TileCache::slot_bytes`]).
+    pub slot_bytes: usize,
+    /// Texel bytes of every tile: what `texels` of [`TileCache::new`] must hold at least.
+    pub texel_bytes: usize,
+    /// All of it: the texel bytes and the tiles' bookkeeping (`tiles` [`Slot`]s), to compare with
+    /// a memory budget.
+    pub total_bytes: usize,
+}
+
 /// The counters that `resolve` and decoding jobs update through a shared reference.
 #[derive(Debug, Default)]
 struct Shared {
@@ -177,11 +196,14 @@ where
         TILE_TEXELS * materials.iter().map(|m| m.channel_count()).max().unwrap_or(1).max(1)
     }
 
-    /// A cache over `materials` (indexed 0, 1, … in every later call) holding `slots.len()` tiles;
-    /// `texels` must hold `slots.len() ·` [`TileCache::slot_bytes`] bytes. Every slot is reset.
-    /// Errors: more than [`MAX_CACHE_MATERIALS`] materials or none (`Argument::Material`), no
-    /// slot, more than 2^32 − 1, or too few texel bytes (`Argument::CacheMemory`).
-    pub fn new(materials: &[&'m Material<'m>], mut slots: S, texels: T) -> Result<Self, Error> {
+    /// Checks a cache of `tiles` tiles over `materials` against the cache's limits and gives the
+    /// memory it needs, allocating nothing: the one check of [`TileCache::new`] and
+    /// [`TileCache::with_capacity`], for callers that size their memory (or compare it with a
+    /// budget) first. Errors: more than [`MAX_CACHE_MATERIALS`] materials or none
+    /// (`Argument::Material`); no tile, or more than the limit (`Argument::CacheMemory` with
+    /// `value` = `tiles`, `limit` = the most tiles allowed: [`MAX_CACHE_TILES`], or fewer where
+    /// their texel bytes would exceed `isize::MAX`, the most one allocation can hold).
+    pub fn memory_for(materials: &[&Material<'_>], tiles: usize) -> Result<CacheSize, Error> {
         if materials.is_empty() || materials.len() > MAX_CACHE_MATERIALS {
             return Err(Error::BadArgument {
                 argument: Argument::Material,
@@ -189,14 +211,30 @@ where
                 limit: MAX_CACHE_MATERIALS as u64,
             });
         }
-        let n = slots.as_ref().len();
-        if n == 0 || n >= NONE as usize {
-            return Err(memory_error(n, NONE as usize - 1));
-        }
         let slot_bytes = Self::slot_bytes(materials);
-        let needed = n.checked_mul(slot_bytes).ok_or(memory_error(n, usize::MAX / slot_bytes))?;
-        if texels.as_ref().len() < needed {
-            return Err(memory_error(texels.as_ref().len(), needed));
+        // A tile's texels outweigh its slot (256 bytes or more against 24), so within this limit
+        // both arrays are valid allocations and their sum fits in `usize`.
+        let limit = MAX_CACHE_TILES.min(isize::MAX as usize / slot_bytes.max(size_of::<Slot>()));
+        if tiles == 0 || tiles > limit {
+            return Err(memory_error(tiles, limit));
+        }
+        let texel_bytes = tiles.checked_mul(slot_bytes).ok_or(memory_error(tiles, limit))?;
+        let total_bytes = tiles
+            .checked_mul(size_of::<Slot>())
+            .and_then(|b| b.checked_add(texel_bytes))
+            .ok_or(memory_error(tiles, limit))?;
+        Ok(CacheSize { tiles, slot_bytes, texel_bytes, total_bytes })
+    }
+
+    /// A cache over `materials` (indexed 0, 1, … in every later call) holding `slots.len()` tiles;
+    /// `texels` must hold `slots.len() ·` [`TileCache::slot_bytes`] bytes. Every slot is reset.
+    /// Errors: those of [`TileCache::memory_for`] for `slots.len()` tiles, and too few texel bytes
+    /// (`Argument::CacheMemory` with `value` = the bytes given, `limit` = the bytes needed).
+    pub fn new(materials: &[&'m Material<'m>], mut slots: S, texels: T) -> Result<Self, Error> {
+        let n = slots.as_ref().len();
+        let CacheSize { slot_bytes, texel_bytes, .. } = Self::memory_for(materials, n)?;
+        if texels.as_ref().len() < texel_bytes {
+            return Err(memory_error(texels.as_ref().len(), texel_bytes));
         }
         for (i, s) in slots.as_mut().iter_mut().enumerate() {
             *s = Slot { next: if i + 1 < n { i as u32 + 1 } else { NONE }, ..Slot::EMPTY };
@@ -571,12 +609,21 @@ where
 
 #[cfg(feature = "alloc")]
 impl<'m> TileCache<'m, alloc::vec::Vec<Slot>, alloc::vec::Vec<u8>> {
-    /// A cache of `tiles` slots in memory of its own (allocated here, once).
+    /// A cache of `tiles` slots in memory of its own (allocated here, once:
+    /// [`CacheSize::total_bytes`] of [`TileCache::memory_for`]). Errors: those of `memory_for`,
+    /// checked before anything is allocated, and `Error::OutOfMemory` when the allocator refuses
+    /// the memory (instead of aborting the process).
     pub fn with_capacity(materials: &[&'m Material<'m>], tiles: usize) -> Result<Self, Error> {
-        let bytes = tiles
-            .checked_mul(Self::slot_bytes(materials))
-            .ok_or(memory_error(tiles, usize::MAX / Self::slot_bytes(materials)))?;
-        TileCache::new(materials, alloc::vec![Slot::EMPTY; tiles], alloc::vec![0u8; bytes])
+        let size = Self::memory_for(materials, tiles)?;
+        let out_of_memory = |_| Error::OutOfMemory { bytes: size.total_bytes as u64 };
+        let (mut slots, mut texels) = (alloc::vec::Vec::new(), alloc::vec::Vec::new());
+        slots.try_reserve_exact(tiles).map_err(out_of_memory)?;
+        texels.try_reserve_exact(size.texel_bytes).map_err(out_of_memory)?;
+        // The zeros are written here, once (`vec![0; n]` would take them lazily from the system,
+        // but aborts the process where the allocation is refused).
+        slots.resize(tiles, Slot::EMPTY);
+        texels.resize(size.texel_bytes, 0);
+        TileCache::new(materials, slots, texels)
     }
 }
 

@@ -137,6 +137,9 @@ pub enum Error {
     ChecksumMismatch { stored: u32, computed: u32 },
     /// The caller passed an argument that cannot be served.
     BadArgument { argument: Argument, value: u64, limit: u64 },
+    /// The allocator refused `bytes` bytes (only calls that allocate, with the `alloc` feature,
+    /// e.g. `TileCache::with_capacity`).
+    OutOfMemory { bytes: u64 },
 }
 
 impl fmt::Display for Field {
@@ -177,6 +180,9 @@ impl fmt::Display for Error {
             ),
             Error::BadArgument { argument, value, limit } => {
                 write!(f, "bad argument {argument:?}: value {value}, limit {limit}")
+            }
+            Error::OutOfMemory { bytes } => {
+                write!(f, "out of memory: {bytes} bytes could not be allocated")
             }
         }
     }

@@ -107,7 +107,7 @@ pub mod writer;
 pub mod spec {}
 
 #[doc(inline)]
-pub use cache::{FrameStats, PendingTile, Slot, TILE_SIZE, TileCache, TileKey};
+pub use cache::{CacheSize, FrameStats, PendingTile, Slot, TILE_SIZE, TileCache, TileKey};
 #[doc(inline)]
 pub use container::{
     Container, Header, LEGACY_VERSION_MAJOR, ParseOptions, SectionKind, VERSION_MAJOR,

@@ -14,10 +14,12 @@
 //! ```
 //!
 //! Boundary rules: every exported function runs inside one panic boundary (`guard`); pointers
-//! are checked through one set of helpers (`arg`, `arg_mut`, `slice_mut`) that answer
-//! `NMAT_NULL_ARGUMENT`; nothing here unwraps or asserts on caller input. A material handle is
-//! immutable after `nmat_material_open*`, so one handle may be used from any number of threads at
-//! once.
+//! are checked through one set of helpers (`arg`, `arg_mut`, `slice`, `slice_mut`) that answer
+//! `NMAT_NULL_ARGUMENT` for NULL and `NMAT_MISALIGNED_ARGUMENT` for an address that is not a
+//! multiple of its type's alignment, before any reference or slice is formed; nothing here
+//! unwraps or asserts on caller input. A material handle is immutable after `nmat_material_open*`,
+//! so one handle may be used from any number of threads at once; a tile cache detects calls that
+//! overlap where they must not (`NMAT_CACHE_BUSY`, see `cache`).
 
 // The C names are the API.
 #![allow(non_camel_case_types)]
@@ -58,6 +60,15 @@ pub enum nmat_status {
     NMAT_BUFFER_TOO_SMALL = 3,
     /// A size computation would overflow `size_t`.
     NMAT_SIZE_OVERFLOW = 4,
+    /// A pointer argument is not aligned for its type: its address is not a multiple of the
+    /// type's alignment (4 bytes for `float`, 2 for `nmat_tile_key`, 8 for `size_t` on 64-bit
+    /// targets, …). Nothing was read or written.
+    NMAT_MISALIGNED_ARGUMENT = 5,
+    /// Another call was using the tile cache: a call that changes a cache (`nmat_cache_begin_frame`,
+    /// `_mark`, `_mark_texel`, `_mark_tiles`, `_decode_missing`, `_end_frame`) overlapped with
+    /// another call on the same cache, from another thread. This call did nothing; the caller must
+    /// order its calls (see `nmat_cache_create`).
+    NMAT_CACHE_BUSY = 6,
     /// The file contradicts the format (see `nmat_last_error` for the field).
     NMAT_MALFORMED = 10,
     /// The file is shorter than its contents need.
@@ -78,12 +89,14 @@ use nmat_status::*;
 
 impl nmat_status {
     /// Every status, for turning a number back into one.
-    const ALL: [nmat_status; 12] = [
+    const ALL: [nmat_status; 14] = [
         NMAT_OK,
         NMAT_NULL_ARGUMENT,
         NMAT_BAD_ARGUMENT,
         NMAT_BUFFER_TOO_SMALL,
         NMAT_SIZE_OVERFLOW,
+        NMAT_MISALIGNED_ARGUMENT,
+        NMAT_CACHE_BUSY,
         NMAT_MALFORMED,
         NMAT_TRUNCATED,
         NMAT_UNSUPPORTED,
@@ -106,6 +119,14 @@ impl nmat_status {
             NMAT_BAD_ARGUMENT => "an argument is out of range",
             NMAT_BUFFER_TOO_SMALL => "the output buffer is too small",
             NMAT_SIZE_OVERFLOW => "a size computation overflows",
+            NMAT_MISALIGNED_ARGUMENT => {
+                "a pointer argument is not aligned for its type (a float buffer must start at a \
+                 multiple of 4 bytes, an nmat_tile_key buffer at a multiple of 2)"
+            }
+            NMAT_CACHE_BUSY => {
+                "another thread is using this cache: calls that change a cache must not overlap \
+                 with any other call on it"
+            }
             NMAT_MALFORMED => "the .nmat data is malformed",
             NMAT_TRUNCATED => "the .nmat data is truncated",
             NMAT_UNSUPPORTED => "the .nmat data uses an unsupported version or feature",
@@ -252,15 +273,11 @@ fn to_boxed_ptr<C: Castable>(value: C::RustType) -> *mut C {
     Box::into_raw(Box::new(value)).cast::<C>()
 }
 
-/// The value behind a pointer from [`to_boxed_ptr`]; NULL is `NMAT_NULL_ARGUMENT`.
+/// The value behind a pointer from [`to_boxed_ptr`]; NULL is `NMAT_NULL_ARGUMENT`. (No `try_mut`:
+/// a handle that calls change, the tile cache, keeps its state in an `UnsafeCell` reached through
+/// this shared reference and guarded by an atomic, so two threads never hold `&mut` to it.)
 fn try_ref<'a, C: Castable>(p: *const C) -> Result<&'a C::RustType, nmat_status> {
     arg(p.cast::<C::RustType>())
-}
-
-/// The value behind a pointer from [`to_boxed_ptr`], for a call that changes it; NULL is
-/// `NMAT_NULL_ARGUMENT`.
-fn try_mut<'a, C: Castable>(p: *mut C) -> Result<&'a mut C::RustType, nmat_status> {
-    arg_mut(p.cast::<C::RustType>())
 }
 
 /// Drops the value behind a pointer from [`to_boxed_ptr`]; NULL is ignored.
@@ -342,6 +359,7 @@ fn status_of(e: &Error) -> nmat_status {
         Error::Unsupported { .. } => NMAT_UNSUPPORTED,
         Error::LimitExceeded { .. } => NMAT_LIMIT_EXCEEDED,
         Error::ChecksumMismatch { .. } => NMAT_CHECKSUM_MISMATCH,
+        Error::OutOfMemory { .. } => NMAT_OUT_OF_MEMORY,
         Error::BadArgument {
             argument: nmat_core::Argument::Output | nmat_core::Argument::RowPitch,
             ..
@@ -375,26 +393,59 @@ fn guard(f: impl FnOnce() -> Result<(), nmat_status>) -> nmat_status {
     }
 }
 
-/// The one null check for inputs.
+/// The one null and alignment check of a pointer from C, before any reference or slice is made
+/// from it (both must be aligned, even for zero elements). `what` names the pointer in the
+/// message.
+fn check_ptr<T>(p: *const T, what: &str) -> Result<(), nmat_status> {
+    if p.is_null() {
+        set_last_error(format!("a required {what} is NULL"));
+        return Err(NMAT_NULL_ARGUMENT);
+    }
+    if !p.is_aligned() {
+        set_last_error(format!(
+            "the {what} {p:p} is not aligned for its type: {} values must start at a multiple \
+             of {} bytes",
+            c_type_name::<T>(),
+            align_of::<T>()
+        ));
+        return Err(NMAT_MISALIGNED_ARGUMENT);
+    }
+    Ok(())
+}
+
+/// The C name of `T`, for messages: `float`, `size_t`, `nmat_tile_key`, …
+fn c_type_name<T>() -> &'static str {
+    match std::any::type_name::<T>() {
+        "f32" => "float",
+        "f64" => "double",
+        "usize" => "size_t",
+        "u8" => "uint8_t",
+        "u16" => "uint16_t",
+        "u32" => "uint32_t",
+        "u64" => "uint64_t",
+        "i32" => "int32_t",
+        "i64" => "int64_t",
+        name if name.starts_with('*') => "pointer",
+        // Our own types: the C name is the last path segment (`nmat::cache::nmat_tile_key`).
+        name => name.rsplit("::").next().unwrap_or(name),
+    }
+}
+
+/// The one null and alignment check for inputs.
 fn arg<'a, T>(p: *const T) -> Result<&'a T, nmat_status> {
-    // SAFETY: the C contract of every function taking `p` is that a non-NULL pointer points to a
-    // valid, live `T` for the duration of the call.
-    unsafe { p.as_ref() }.ok_or_else(|| {
-        set_last_error("a required pointer argument is NULL".into());
-        NMAT_NULL_ARGUMENT
-    })
+    check_ptr(p, "pointer argument")?;
+    // SAFETY: `p` is non-NULL and aligned (checked above), and the C contract of every function
+    // taking `p` is that it points to a valid, live `T` for the duration of the call.
+    Ok(unsafe { &*p })
 }
 
-/// The one null check for outputs.
+/// The one null and alignment check for outputs.
 fn arg_mut<'a, T>(p: *mut T) -> Result<&'a mut T, nmat_status> {
+    check_ptr(p.cast_const(), "output pointer")?;
     // SAFETY: as for `arg`, and the caller does not alias the pointee during the call.
-    unsafe { p.as_mut() }.ok_or_else(|| {
-        set_last_error("a required output pointer is NULL".into());
-        NMAT_NULL_ARGUMENT
-    })
+    Ok(unsafe { &mut *p })
 }
 
-/// The one (pointer, length) → slice conversion.
 /// A length no object can have (more than `isize::MAX` bytes): an error, not a slice.
 fn check_len<T>(len: usize) -> Result<(), nmat_status> {
     if len.checked_mul(size_of::<T>()).is_none_or(|b| b > isize::MAX as usize) {
@@ -404,21 +455,22 @@ fn check_len<T>(len: usize) -> Result<(), nmat_status> {
     Ok(())
 }
 
+/// The one (pointer, length) → slice conversion (NULL, misaligned and impossible lengths are
+/// statuses).
 fn slice<'a, T>(p: *const T, len: usize) -> Result<&'a [T], nmat_status> {
-    if p.is_null() {
-        return Err(arg(p).err().unwrap_or(NMAT_NULL_ARGUMENT));
-    }
+    check_ptr(p, "pointer argument")?;
     check_len::<T>(len)?;
-    // SAFETY: the caller guarantees `len` readable elements at `p` (the documented contract).
+    // SAFETY: `p` is non-NULL and aligned and `len` elements fit in `isize::MAX` bytes (checked
+    // above); the caller guarantees `len` readable elements at `p` (the documented contract).
     Ok(unsafe { std::slice::from_raw_parts(p, len) })
 }
 
+/// [`slice`] for outputs.
 fn slice_mut<'a, T>(p: *mut T, len: usize) -> Result<&'a mut [T], nmat_status> {
-    if p.is_null() {
-        return Err(arg_mut(p).err().unwrap_or(NMAT_NULL_ARGUMENT));
-    }
+    check_ptr(p.cast_const(), "output pointer")?;
     check_len::<T>(len)?;
-    // SAFETY: the caller guarantees `len` writable elements at `p`, not aliased during the call.
+    // SAFETY: as for `slice`, and the caller guarantees `len` writable elements at `p`, not
+    // aliased during the call.
     Ok(unsafe { std::slice::from_raw_parts_mut(p, len) })
 }
 
@@ -717,7 +769,7 @@ fn request(
     };
     let random = if random.is_null() {
         if filter == Filter::Stochastic {
-            return Err(arg(random).err().unwrap_or(NMAT_NULL_ARGUMENT));
+            return Err(check_ptr(random, "pointer argument").err().unwrap_or(NMAT_NULL_ARGUMENT));
         }
         [0.0; 3]
     } else {

@@ -2,9 +2,10 @@
 //! neural and JPEG materials, every filter, wrap and clamp, in one cache; what a frame counts;
 //! eviction of unseen tiles; a cache too small for the frame; decoding on threads; refusals.
 
+use nmat_core::cache::{MAX_CACHE_MATERIALS, MAX_CACHE_TILES};
 use nmat_core::{
-    Argument, ChannelMask, Container, Decoder, Error, Filter, FrameStats, Material, Precision,
-    SampleRequest, Slot, TILE_SIZE, TileCache,
+    Argument, CacheSize, ChannelMask, Container, Decoder, Error, Filter, FrameStats, Material,
+    Precision, SampleRequest, Slot, TILE_SIZE, TileCache,
 };
 use nmat_tests::fixtures_dir;
 use nmat_tests::generate::Rng;
@@ -314,6 +315,51 @@ fn bad_arguments_are_typed_errors() {
     assert_eq!(cache.resolve(0, &req, &mut out).unwrap(), m.channel_count());
     assert_eq!(cache.stats().resolve_misses, 4);
     assert_eq!(cache.decode_missing().unwrap(), cache.stats().marked);
+}
+
+/// `memory_for` is the one check of `new` and `with_capacity`; the counts here would abort the
+/// process if anything were allocated for them (2^32 − 1 tiles are 96 GiB of slots alone).
+#[test]
+fn tile_counts_beyond_the_limit_are_refused_before_anything_is_allocated() {
+    type Owned<'m> = TileCache<'m, Vec<Slot>, Vec<u8>>;
+    let bytes = fixture_bytes();
+    let m = Container::parse(&bytes[1]).unwrap();
+    let one_tile = Owned::slot_bytes(&[&m]);
+    assert_eq!(MAX_CACHE_TILES as u64, (1 << 32) - 2);
+    // 32-bit targets allow fewer: what one allocation can hold.
+    let limit = MAX_CACHE_TILES.min(isize::MAX as usize / one_tile);
+    let bytes_overflow = usize::MAX / one_tile + 1;
+    let mut counts = vec![0, limit + 1, u32::MAX as usize, usize::MAX, bytes_overflow];
+    if cfg!(target_pointer_width = "64") {
+        assert_eq!(limit, MAX_CACHE_TILES);
+        counts.push((u32::MAX as usize).wrapping_add(1));
+    }
+    for tiles in counts {
+        let refused = Error::BadArgument {
+            argument: Argument::CacheMemory,
+            value: tiles as u64,
+            limit: limit as u64,
+        };
+        assert_eq!(Owned::memory_for(&[&m], tiles).err(), Some(refused), "{tiles} tiles");
+        assert_eq!(TileCache::with_capacity(&[&m], tiles).err(), Some(refused), "{tiles} tiles");
+        assert!(refused.to_string().contains(&format!("limit {limit}")), "{refused}");
+    }
+    // The largest cache allowed is sized, not allocated; a small one is allocated as sized.
+    let largest = Owned::memory_for(&[&m], limit).unwrap();
+    assert_eq!(largest.texel_bytes, limit * one_tile);
+    assert_eq!(largest.total_bytes, limit * (one_tile + size_of::<Slot>()));
+    let small = Owned::memory_for(&[&m], 5).unwrap();
+    let want = CacheSize {
+        tiles: 5,
+        slot_bytes: one_tile,
+        texel_bytes: 5 * one_tile,
+        total_bytes: 5 * (one_tile + size_of::<Slot>()),
+    };
+    assert_eq!(small, want);
+    assert_eq!(TileCache::with_capacity(&[&m], 5).unwrap().capacity(), 5);
+    let too_many = vec![&m; MAX_CACHE_MATERIALS + 1];
+    bad(Owned::memory_for(&too_many, 5), Argument::Material);
+    bad(TileCache::with_capacity(&too_many, 5), Argument::Material);
 }
 
 #[test]
