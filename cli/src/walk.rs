@@ -236,8 +236,9 @@ pub fn run(opts: &Options) -> Result<()> {
 /// `--gpu` the GPU's lookup and result.
 fn check_memory(opts: &Options, refs: &[&Material<'_>], file_bytes: u64) -> Result<()> {
     use std::mem::size_of;
-    let slot_bytes = TileCache::<Vec<Slot>, Vec<u8>>::slot_bytes(refs) + size_of::<Slot>();
-    let cache = (opts.tiles as u64).saturating_mul(slot_bytes as u64);
+    let size = TileCache::<Vec<Slot>, Vec<u8>>::memory_for(refs, opts.tiles)
+        .map_err(|e| format!("--tiles {}: {e}", opts.tiles))?;
+    let (cache, slot_bytes) = (size.total_bytes as u64, size.slot_bytes + size_of::<Slot>());
     let per_pixel = size_of::<Lookup>()
         + 3 * size_of::<[f32; 3]>()
         + size_of::<TileKey>()
