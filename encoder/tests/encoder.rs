@@ -298,8 +298,10 @@ fn a_constant_sixteen_bit_alpha_is_kept_exactly() {
 #[test]
 fn source_maps_never_name_a_path() {
     let mut maps = demo::bricks(32).maps;
+    // A name out of the folder comes back a bare file name (nmat_encode::names::file_name).
     maps[0].file_name = "../evil.png".into();
-    assert_eq!(source_maps::decode(&source_maps::encode(&maps)), None);
+    let read = source_maps::decode(&source_maps::encode(&maps)).unwrap();
+    assert_eq!(read[0].file_name, "_._evil.png");
     maps[0].file_name = "ok.png".into();
     assert_eq!(source_maps::decode(&source_maps::encode(&maps)).unwrap(), maps);
     assert_eq!(source_maps::decode(&[1, 0, 5, 0]), None, "count beyond the bytes");
