@@ -28,11 +28,8 @@ pub enum JpegError {
     Components { count: u8 },
     /// Colour files must have 1×1 chroma and 1 or 2 luma samples per chroma sample each way.
     Sampling { component: usize, h: u8, v: u8 },
-    /// Sampling factors outside 1..=4, which JPEG does not allow (libjpeg refuses them too).
-    BadSampling { component: usize, h: u8, v: u8 },
-    /// The three components are RGB, not YCbCr, by libjpeg's rules (`by` says which decided:
-    /// an Adobe marker, or component IDs 'R', 'G', 'B' without a JFIF or Adobe marker).
-    NotYCbCr { by: &'static str },
+    /// An Adobe marker says the three components are RGB (or CMYK), not YCbCr.
+    NotYCbCr,
     /// 16-bit quantization tables are not baseline.
     WideQuantTable { id: u8 },
     /// A component or scan names a table the file does not define.
@@ -79,15 +76,10 @@ impl fmt::Display for JpegError {
                 "component {component} has sampling factors {h}×{v}: supported are luma 1×1, 2×1, \
                  1×2 or 2×2 with chroma 1×1 (4:4:4, 4:2:2, 4:4:0, 4:2:0)"
             ),
-            JpegError::BadSampling { component, h, v } => write!(
+            JpegError::NotYCbCr => write!(
                 f,
-                "component {component} has sampling factors {h}×{v}: JPEG allows 1 to 4 each way"
-            ),
-            JpegError::NotYCbCr { by } => write!(
-                f,
-                "the JPEG stores RGB, not YCbCr ({by}; decoders such as libjpeg read it as RGB), \
-                 and indexed JPEG is YCbCr or gray: re-encode it as a normal YCbCr JPEG, e.g. \
-                 `djpeg IN.jpg | cjpeg -quality 95 > OUT.jpg`"
+                "the JPEG stores RGB or CMYK (Adobe marker), not YCbCr: re-encode it as a normal \
+                 YCbCr JPEG"
             ),
             JpegError::WideQuantTable { id } => {
                 write!(
@@ -212,7 +204,6 @@ pub fn index_jpeg(file: &[u8]) -> Result<IndexedJpeg, JpegError> {
     let mut frame: Option<(u32, u32, Vec<Component>)> = None;
     let mut restart = 0usize;
     let mut adobe_transform = None;
-    let mut jfif = false;
     let mut pos = 2;
     loop {
         // Fill bytes (FF) may precede a marker.
@@ -314,10 +305,6 @@ pub fn index_jpeg(file: &[u8]) -> Result<IndexedJpeg, JpegError> {
                 let mut comps = Vec::new();
                 for c in 0..usize::from(nf) {
                     let r = seg.get(6 + 3 * c..9 + 3 * c).ok_or(bad("frame header cut short"))?;
-                    let (h, v) = (r[1] >> 4, r[1] & 15);
-                    if !(1..=4).contains(&h) || !(1..=4).contains(&v) {
-                        return Err(JpegError::BadSampling { component: c, h, v });
-                    }
                     comps.push(Component {
                         id: r[0],
                         h: r[1] >> 4,
@@ -337,9 +324,6 @@ pub fn index_jpeg(file: &[u8]) -> Result<IndexedJpeg, JpegError> {
                 let [r1, r0, ..] = *seg else { return Err(bad("restart interval cut short")) };
                 restart = usize::from(u16::from_be_bytes([r1, r0]));
             }
-            // As libjpeg reads them (jdmarker.c): an APP0 of at least 14 bytes starting "JFIF\0",
-            // an APP14 of at least 12 starting "Adobe" (its transform flag is byte 11).
-            0xE0 if seg.len() >= 14 && seg.starts_with(b"JFIF\0") => jfif = true,
             0xEE if seg.starts_with(b"Adobe") => adobe_transform = seg.get(11).copied(),
             0xDC => return Err(JpegError::DefinedByDnl),
             0xDA => {
@@ -359,10 +343,8 @@ pub fn index_jpeg(file: &[u8]) -> Result<IndexedJpeg, JpegError> {
                 if seg.get(1 + 2 * ns..4 + 2 * ns) != Some(&[0, 63, 0]) {
                     return Err(bad("spectral selection or approximation of a non-baseline scan"));
                 }
-                if comps.len() == 3
-                    && let Some(by) = rgb_by(jfif, adobe_transform, [0, 1, 2].map(|k| comps[k].id))
-                {
-                    return Err(JpegError::NotYCbCr { by });
+                if comps.len() == 3 && adobe_transform == Some(0) {
+                    return Err(JpegError::NotYCbCr);
                 }
                 return index_scan(
                     file,
@@ -378,22 +360,6 @@ pub fn index_jpeg(file: &[u8]) -> Result<IndexedJpeg, JpegError> {
             _ => {}
         }
         pos += len;
-    }
-}
-
-/// Whether libjpeg takes a three-component file as RGB rather than YCbCr, and what decided it
-/// (libjpeg-turbo's `default_decompress_parms`): a JFIF marker means YCbCr; else an Adobe marker
-/// decides by its transform flag (0 RGB, anything else YCbCr); else component IDs 'R', 'G', 'B'
-/// mean RGB, and any other IDs (1, 2, 3 or not) YCbCr.
-fn rgb_by(jfif: bool, adobe_transform: Option<u8>, ids: [u8; 3]) -> Option<&'static str> {
-    match (jfif, adobe_transform) {
-        (true, _) => None,
-        (false, Some(0)) => Some("an Adobe marker with colour transform 0"),
-        (false, Some(_)) => None,
-        (false, None) if ids == *b"RGB" => {
-            Some("component IDs 'R', 'G', 'B' and no JFIF or Adobe marker")
-        }
-        (false, None) => None,
     }
 }
 
