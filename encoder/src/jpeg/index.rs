@@ -26,10 +26,15 @@ pub enum JpegError {
     Precision { bits: u8 },
     /// Only 1 (gray) or 3 (YCbCr) components are supported.
     Components { count: u8 },
+    /// A sampling factor outside 1 … 4, which ITU T.81 §B.2.2 does not allow (libjpeg:
+    /// `JERR_BAD_SAMPLING`). `component` counts from 0 in frame-header order; `id` is its
+    /// component identifier.
+    BadSampling { component: usize, id: u8, h: u8, v: u8 },
     /// Colour files must have 1×1 chroma and 1 or 2 luma samples per chroma sample each way.
     Sampling { component: usize, h: u8, v: u8 },
-    /// An Adobe marker says the three components are RGB (or CMYK), not YCbCr.
-    NotYCbCr,
+    /// The three components are RGB, not YCbCr, by libjpeg's rules (see [`RgbRule`]); the
+    /// material decodes YCbCr only.
+    NotYCbCr { rule: RgbRule },
     /// 16-bit quantization tables are not baseline.
     WideQuantTable { id: u8 },
     /// A component or scan names a table the file does not define.
@@ -42,6 +47,47 @@ pub enum JpegError {
     Corrupt { mcu: usize, reason: &'static str },
     /// A DC value outside the 12 bits an index stores.
     DcRange { mcu: usize, value: i32 },
+}
+
+/// Which of libjpeg's colour-space rules (libjpeg-turbo `jdapimin.c`,
+/// `default_decompress_parms`) found a 3-component file to be RGB. The rules, in order: a JFIF
+/// APP0 marker means YCbCr; else an Adobe APP14 marker's transform 0 means RGB (any other
+/// transform YCbCr); else component IDs 'R', 'G', 'B' mean RGB (any others YCbCr).
+#[non_exhaustive]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RgbRule {
+    /// An Adobe APP14 marker with transform 0, and no JFIF marker.
+    AdobeTransform0,
+    /// Neither a JFIF nor an Adobe marker, and the component IDs are 'R', 'G', 'B' (82, 71, 66).
+    ComponentIdsRgb,
+}
+
+impl fmt::Display for RgbRule {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            RgbRule::AdobeTransform0 => {
+                write!(f, "its Adobe APP14 marker says transform 0 and it has no JFIF marker")
+            }
+            RgbRule::ComponentIdsRgb => {
+                write!(f, "it has no JFIF or Adobe marker and its component IDs are 'R', 'G', 'B'")
+            }
+        }
+    }
+}
+
+/// The colour space libjpeg assumes for a 3-component file (see [`RgbRule`]), so that an indexed
+/// file decodes as `djpeg` decodes it: `Some` where that is RGB.
+fn rgb_rule(saw_jfif: bool, adobe_transform: Option<u8>, ids: [u8; 3]) -> Option<RgbRule> {
+    if saw_jfif {
+        return None;
+    }
+    match adobe_transform {
+        Some(0) => Some(RgbRule::AdobeTransform0),
+        // Transforms other than 0 and 1 are undefined; libjpeg warns and assumes YCbCr.
+        Some(_) => None,
+        None if ids == *b"RGB" => Some(RgbRule::ComponentIdsRgb),
+        None => None,
+    }
 }
 
 impl fmt::Display for JpegError {
@@ -71,15 +117,22 @@ impl fmt::Display for JpegError {
                 f,
                 "{count} colour components: only gray (1) or YCbCr (3) JPEG files can be indexed"
             ),
+            JpegError::BadSampling { component, id, h, v } => write!(
+                f,
+                "component {component} (ID {id}) has sampling factors {h}×{v}: JPEG allows 1 to 4 \
+                 each way"
+            ),
             JpegError::Sampling { component, h, v } => write!(
                 f,
                 "component {component} has sampling factors {h}×{v}: supported are luma 1×1, 2×1, \
                  1×2 or 2×2 with chroma 1×1 (4:4:4, 4:2:2, 4:4:0, 4:2:0)"
             ),
-            JpegError::NotYCbCr => write!(
+            JpegError::NotYCbCr { rule } => write!(
                 f,
-                "the JPEG stores RGB or CMYK (Adobe marker), not YCbCr: re-encode it as a normal \
-                 YCbCr JPEG"
+                "the JPEG stores RGB, not YCbCr ({rule}; libjpeg decodes it as RGB), and only \
+                 YCbCr or gray files can be indexed: convert it, e.g. `djpeg IN.jpg | cjpeg \
+                 -quality 95 -outfile OUT.jpg` (libjpeg-turbo; lossy) or re-save it as an \
+                 ordinary JPEG in an image editor, and index that"
             ),
             JpegError::WideQuantTable { id } => {
                 write!(
@@ -203,6 +256,8 @@ pub fn index_jpeg(file: &[u8]) -> Result<IndexedJpeg, JpegError> {
     let mut ac_tables: [Option<HuffmanTableSpec>; 4] = Default::default();
     let mut frame: Option<(u32, u32, Vec<Component>)> = None;
     let mut restart = 0usize;
+    // What libjpeg reads of the APP0 and APP14 markers to decide the colour space (`rgb_rule`).
+    let mut saw_jfif = false;
     let mut adobe_transform = None;
     let mut pos = 2;
     loop {
@@ -305,14 +360,13 @@ pub fn index_jpeg(file: &[u8]) -> Result<IndexedJpeg, JpegError> {
                 let mut comps = Vec::new();
                 for c in 0..usize::from(nf) {
                     let r = seg.get(6 + 3 * c..9 + 3 * c).ok_or(bad("frame header cut short"))?;
-                    comps.push(Component {
-                        id: r[0],
-                        h: r[1] >> 4,
-                        v: r[1] & 15,
-                        tq: r[2],
-                        td: 0,
-                        ta: 0,
-                    });
+                    let (id, h, v) = (r[0], r[1] >> 4, r[1] & 15);
+                    // Checked for gray files too, as libjpeg does, although their factors are
+                    // otherwise ignored (one component: an MCU is one block).
+                    if !(1..=4).contains(&h) || !(1..=4).contains(&v) {
+                        return Err(JpegError::BadSampling { component: c, id, h, v });
+                    }
+                    comps.push(Component { id, h, v, tq: r[2], td: 0, ta: 0 });
                 }
                 frame = Some((w, h, comps));
             }
@@ -324,7 +378,14 @@ pub fn index_jpeg(file: &[u8]) -> Result<IndexedJpeg, JpegError> {
                 let [r1, r0, ..] = *seg else { return Err(bad("restart interval cut short")) };
                 restart = usize::from(u16::from_be_bytes([r1, r0]));
             }
-            0xEE if seg.starts_with(b"Adobe") => adobe_transform = seg.get(11).copied(),
+            // libjpeg's lengths (jdmarker.c): 14 bytes of JFIF data, 12 of Adobe data; a shorter
+            // segment is not that marker. A later Adobe marker replaces an earlier one's transform.
+            0xE0 if seg.len() >= 14 && seg.starts_with(b"JFIF\0") => saw_jfif = true,
+            0xEE if seg.starts_with(b"Adobe") => {
+                if let Some(&transform) = seg.get(11) {
+                    adobe_transform = Some(transform);
+                }
+            }
             0xDC => return Err(JpegError::DefinedByDnl),
             0xDA => {
                 let (w, h, mut comps) = frame.ok_or(bad("scan before the frame header"))?;
@@ -343,8 +404,10 @@ pub fn index_jpeg(file: &[u8]) -> Result<IndexedJpeg, JpegError> {
                 if seg.get(1 + 2 * ns..4 + 2 * ns) != Some(&[0, 63, 0]) {
                     return Err(bad("spectral selection or approximation of a non-baseline scan"));
                 }
-                if comps.len() == 3 && adobe_transform == Some(0) {
-                    return Err(JpegError::NotYCbCr);
+                if let [a, b, c] = comps[..]
+                    && let Some(rule) = rgb_rule(saw_jfif, adobe_transform, [a.id, b.id, c.id])
+                {
+                    return Err(JpegError::NotYCbCr { rule });
                 }
                 return index_scan(
                     file,
@@ -375,6 +438,8 @@ fn index_scan(
     ac_tables: &[Option<HuffmanTableSpec>; 4],
 ) -> Result<IndexedJpeg, JpegError> {
     let colour = comps.len() == 3;
+    // A gray file's one scan is non-interleaved, where an MCU is one block whatever the (valid)
+    // factors say (T.81 §A.2.2); libjpeg decodes it so too.
     let (lh, lv) = if colour { (comps[0].h, comps[0].v) } else { (1, 1) };
     if colour {
         if !(1..=2).contains(&lh) || !(1..=2).contains(&lv) {

@@ -9,4 +9,4 @@ pub use encode::{
     DEFAULT_QUALITY, JpegEncoded, JpegOptions, Subsampling, encode_jpeg, encode_jpeg_to_rate,
     plan_maps,
 };
-pub use index::{IndexedJpeg, JpegError, index_jpeg, material_from_jpeg};
+pub use index::{IndexedJpeg, JpegError, RgbRule, index_jpeg, material_from_jpeg};
