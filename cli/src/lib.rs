@@ -10,13 +10,27 @@ pub mod transcode;
 
 use std::path::Path;
 
+/// Materials of at most this many texels (over the mips a plan decodes) also have their maps
+/// written and their textures transcoded to KTX2/DDS bytes by [`exercise_untrusted`]: each texel
+/// costs a network evaluation (and BC7's partition search) under the fuzzer's instrumentation,
+/// and the fuzzer reaches every path of both with materials this small (several block rows and
+/// columns, partial blocks, mip chains; an 8×8 material's mip 0).
+const SMALL_TEXELS: u64 = 64;
+
+/// The image budget of [`exercise_untrusted`]: 341 texels at 48 bytes each. An image that
+/// declares more is refused (the `--max-memory` path) once its header is read, before its pixels
+/// are decoded: the pixel decoders are other projects' code (fuzzed there), and decoding the
+/// 37×21 JPEG seed took half of the fuzzer's time. The 8×8 PNG seeds decode; a JPEG does once
+/// the fuzzer shrinks its declared size.
+const IMAGE_BUDGET: u64 = 16 << 10;
+
 /// The command's input paths that need no training, on any bytes (the body of the fuzz target
 /// `cli`, and of the test that replays `fuzz/regressions/cli/`): the header checks of `nmat
 /// info/decode/eval/bench`, the SOURCE_MAPS section, `nmat info`'s description and `nmat
-/// decode`'s plan (and, for a small material, its maps written to a temporary folder), `nmat
-/// transcode`'s textures and file names (and, for a small material, their KTX2 and DDS bytes), and a map
-/// image decoded as `nmat encode` loads it, with a 64 MiB budget. Each ends in a result or an
-/// error; a panic is a bug.
+/// decode`'s plan (and, for a material of at most [`SMALL_TEXELS`] texels, its maps written to a
+/// scratch folder), `nmat transcode`'s textures and file names (and, for such a small material,
+/// their KTX2 and DDS bytes), and a map image decoded as `nmat encode` loads it, with a 16 KiB
+/// budget. Each ends in a result or an error; a panic is a bug.
 #[doc(hidden)]
 pub fn exercise_untrusted(data: &[u8]) {
     use nmat_core::{Container, ParseOptions};
@@ -27,13 +41,13 @@ pub fn exercise_untrusted(data: &[u8]) {
         let all: Vec<u32> = (0..m.mip_count()).collect();
         for (mips, png) in [(&[0][..], false), (&all[..], true)] {
             let Ok(plan) = output::DecodePlan::new(&m, mips, png) else { continue };
+            let small = plan.cost(&m).texels <= SMALL_TEXELS;
             if png {
-                exercise_transcode(&m, plan.cost(&m).texels <= 1024);
+                exercise_transcode(&m, small);
             }
             let _ = (plan.file_names(), plan.memory(&m));
-            if plan.cost(&m).texels <= 1024 {
-                let name = format!("nmat-untrusted-{}", std::process::id());
-                let dir = std::env::temp_dir().join(name);
+            if small {
+                let dir = scratch_dir();
                 let with = output::DecodeWith::default();
                 let _ = output::write_all_or_nothing(&dir, |d| {
                     output::write_maps(&m, &plan, d, with, &mut |_| {})
@@ -42,7 +56,16 @@ pub fn exercise_untrusted(data: &[u8]) {
             }
         }
     }
-    let _ = nmat_encode::texset::decode_image(data, Path::new("map"), 64 << 20);
+    let _ = nmat_encode::texset::decode_image(data, Path::new("map"), IMAGE_BUDGET);
+}
+
+/// A folder of this process for [`exercise_untrusted`]'s maps, on tmpfs where there is one: the
+/// maps are written as `nmat decode` writes them, each file synced to its disk (`write_atomic`),
+/// which on a real disk takes milliseconds per file and on tmpfs nothing.
+fn scratch_dir() -> std::path::PathBuf {
+    let shm = Path::new("/dev/shm");
+    let base = if shm.is_dir() { shm.to_path_buf() } else { std::env::temp_dir() };
+    base.join(format!("nmat-untrusted-{}", std::process::id()))
 }
 
 /// `nmat transcode` on an untrusted material: the plan and file names always, the files' bytes
@@ -50,14 +73,17 @@ pub fn exercise_untrusted(data: &[u8]) {
 fn exercise_transcode(m: &nmat_core::Material<'_>, small: bool) {
     use transcode::{Choice, Container};
     let choice = Choice { all: Some(nmat_core::bc::BcFormat::Bc7Rgb), by_semantic: Vec::new() };
+    // Prepared once, and only when it is used: for a large material it is most of the cost.
+    let decoder = small.then(|| nmat_core::Decoder::new(m));
     for choice in [Choice::default(), choice] {
         let plan = transcode::plan(m, &choice);
-        let decoder = nmat_core::Decoder::new(m);
         for named in &plan {
             let _ = transcode::file_name(named, Container::Ktx2);
         }
         let textures: Vec<_> = plan.iter().map(|n| n.texture).collect();
-        if small && let Ok(images) = transcode::transcode(m, &decoder, &textures, &mut |_| {}) {
+        if let Some(decoder) = &decoder
+            && let Ok(images) = transcode::transcode(m, decoder, &textures, &mut |_| {})
+        {
             for image in &images {
                 let _ = (Container::Ktx2.bytes(image), Container::Dds.bytes(image));
             }
