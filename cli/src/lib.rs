@@ -26,7 +26,8 @@ const IMAGE_BUDGET: u64 = 16 << 10;
 
 /// The command's input paths that need no training, on any bytes (the body of the fuzz target
 /// `cli`, and of the test that replays `fuzz/regressions/cli/`): the header checks of `nmat
-/// info/decode/eval/bench`, the SOURCE_MAPS section, `nmat info`'s description and `nmat
+/// info/decode/eval/bench`, the SOURCE_MAPS section (and the warning for a damaged one), the
+/// channel names made safe, `nmat info`'s description and `nmat
 /// decode`'s plan (and, for a material of at most [`SMALL_TEXELS`] texels, its maps written to a
 /// scratch folder), `nmat transcode`'s textures and file names (and, for such a small material,
 /// their KTX2 and DDS bytes), and a map image decoded as `nmat encode` loads it, with a 16 KiB
@@ -38,6 +39,11 @@ pub fn exercise_untrusted(data: &[u8]) {
     let _ = nmat_encode::source_maps::decode(data);
     if let Ok(m) = Container::parse_with(data, ParseOptions { verify_checksum: false }) {
         let _ = output::describe(Path::new("fuzz.nmat"), &m);
+        let _ = output::damaged_sections(Path::new("fuzz.nmat"), &m);
+        for c in m.channels() {
+            let _ =
+                (nmat_encode::names::for_terminal(c.name), nmat_encode::names::file_name(c.name));
+        }
         let all: Vec<u32> = (0..m.mip_count()).collect();
         for (mips, png) in [(&[0][..], false), (&all[..], true)] {
             let Ok(plan) = output::DecodePlan::new(&m, mips, png) else { continue };
