@@ -12,9 +12,11 @@ use std::path::Path;
 
 /// Materials of at most this many texels (over the mips a plan decodes) also have their maps
 /// written and their textures transcoded to KTX2/DDS bytes by [`exercise_untrusted`]: each texel
-/// costs a network evaluation (and BC7's partition search) under the fuzzer's instrumentation,
-/// and the fuzzer reaches every path of both with materials this small (several block rows and
-/// columns, partial blocks, mip chains; an 8×8 material's mip 0).
+/// costs a network evaluation (and BC7's partition search) under the fuzzer's instrumentation.
+/// Materials this small reach the paths of both (several block rows and columns, partial blocks,
+/// mip chains; an 8×8 material's mip 0), except `transcode::transcode`'s second batch of 16 block
+/// rows, which `transcode_writes_ktx2_and_dds_that_independent_readers_accept` (cli/tests) covers
+/// with a 96×80 material.
 const SMALL_TEXELS: u64 = 64;
 
 /// The image budget of [`exercise_untrusted`]: 341 texels at 48 bytes each. An image that
