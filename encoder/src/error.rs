@@ -95,13 +95,13 @@ impl fmt::Display for EncodeError {
             ),
             EncodeError::OverMemory { path, size, need, max_memory } => write!(
                 f,
-                "{} declares {}×{} texels: loading it needs about {} MiB, more than the {} MiB \
-                 allowed; raise the limit with --max-memory or use a smaller map",
+                "{} declares {}×{} texels: loading it needs about {:.1} MiB, more than the {:.1} \
+                 MiB allowed; raise the limit with --max-memory or use a smaller map",
                 path.display(),
                 size.0,
                 size.1,
-                need.div_ceil(1 << 20),
-                max_memory >> 20
+                *need as f64 / MIB,
+                *max_memory as f64 / MIB
             ),
             EncodeError::TooManyChannels { channels, limit } => write!(
                 f,
@@ -139,6 +139,9 @@ impl From<nmat_core::Error> for EncodeError {
         EncodeError::Format(e)
     }
 }
+
+/// Bytes in a MiB, for messages.
+const MIB: f64 = (1u64 << 20) as f64;
 
 pub(crate) fn io(path: impl Into<PathBuf>) -> impl FnOnce(std::io::Error) -> EncodeError {
     let path = path.into();
