@@ -257,7 +257,7 @@ fn remove_abandoned_staging(dir: &Path) {
 /// The SOURCE_MAPS section of `m`: `Ok(None)` when the file has none, `Err(why)` when it is
 /// damaged — unreadable, listing no maps, pointing outside the material's channels, or naming one
 /// file twice. The section is optional: every command ignores a damaged one the same way
-/// ([`source_maps`] gives `None`, maps are named after the channels) and says so once
+/// ([`source_maps()`] gives `None`, maps are named after the channels) and says so once
 /// ([`damaged_sections`]).
 pub fn source_maps_checked(m: &Material<'_>) -> Result<Option<Vec<SourceMap>>, String> {
     let Some(bytes) = m.optional_section(SectionKind(source_maps::SECTION_KIND)) else {
@@ -418,7 +418,7 @@ pub struct DecodePlan {
 
 impl DecodePlan {
     /// The maps of the file's SOURCE_MAPS section, or maps by channel-name stem for a file
-    /// without a valid one ([`source_maps`]); each output file must be named once, in a format
+    /// without a valid one ([`source_maps()`]); each output file must be named once, in a format
     /// that holds its layout.
     pub fn new(m: &Material<'_>, mips: &[u32], png: bool) -> Result<DecodePlan, String> {
         let maps = source_maps(m).unwrap_or_else(|| maps_from_names(m));
