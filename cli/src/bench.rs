@@ -280,15 +280,14 @@ fn check_memory(input: &Path, m: &Material<'_>, side: (u32, u32), max_memory: u6
     let gpu = if cfg!(feature = "gpu") { chain * c } else { 0 };
     let need = region + gpu;
     if need > max_memory {
-        let mib = |b: u64| b as f64 / (1u64 << 20) as f64;
         return Err(format!(
             "{}: measuring a {}×{} region (--region) needs about {:.1} MiB, more than the {:.1} \
              MiB allowed; nothing was measured. Lower --region or raise --max-memory",
             input.display(),
             side.0,
             side.1,
-            mib(need),
-            mib(max_memory)
+            crate::mib(need),
+            crate::mib(max_memory)
         )
         .into());
     }

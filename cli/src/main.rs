@@ -866,8 +866,8 @@ fn cmd_decode(args: DecodeArgs) -> Result<()> {
              nothing was written. Raise the limit with --max-memory or decode one mip at a time \
              (--mip)",
             args.input.display(),
-            need as f64 / MIB,
-            allowed as f64 / MIB
+            mib(need),
+            mib(allowed)
         )
         .into());
     }
@@ -957,8 +957,8 @@ fn cmd_transcode(args: TranscodeArgs) -> Result<()> {
             "{}: transcoding needs about {:.1} MiB, more than the {:.1} MiB allowed; nothing \
              was written. Raise the limit with --max-memory",
             args.input.display(),
-            need as f64 / MIB,
-            allowed as f64 / MIB
+            mib(need),
+            mib(allowed)
         )
         .into());
     }
@@ -1061,6 +1061,11 @@ fn chain_quality_shown(m: &Material<'_>, set: &TextureSet) -> ChainQuality {
 }
 
 const MIB: f64 = (1u64 << 20) as f64;
+
+/// `bytes` in MiB, for messages (`walk` and `bench` share it).
+fn mib(bytes: u64) -> f64 {
+    bytes as f64 / MIB
+}
 
 /// Decodes of at least this many texels show a progress bar (one 2048² mip chain is 5.6 M).
 const LONG_DECODE_TEXELS: u64 = 4 << 20;

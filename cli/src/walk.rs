@@ -247,18 +247,17 @@ fn check_memory(opts: &Options, refs: &[&Material<'_>], file_bytes: u64) -> Resu
     let frames = u64::from(opts.width) * u64::from(opts.height) * per_pixel as u64;
     let need = file_bytes.saturating_add(cache).saturating_add(frames);
     if need > opts.max_memory {
-        let mib = |b: u64| b as f64 / (1u64 << 20) as f64;
         return Err(format!(
             "nmat walk needs about {:.1} MiB ({:.1} MiB for the cache's {} tiles of {slot_bytes} \
              bytes, --tiles; {:.1} MiB for {}×{} frames, --size), more than the {:.1} MiB \
              allowed; nothing was run. Lower --tiles or --size, or raise --max-memory",
-            mib(need),
-            mib(cache),
+            crate::mib(need),
+            crate::mib(cache),
             opts.tiles,
-            mib(frames),
+            crate::mib(frames),
             opts.width,
             opts.height,
-            mib(opts.max_memory)
+            crate::mib(opts.max_memory)
         )
         .into());
     }

@@ -294,12 +294,13 @@ pub fn assign_roles(
 }
 
 fn open_image(path: &Path, max_memory: u64) -> Result<DynamicImage, EncodeError> {
-    // Checked once here (a folder, device or FIFO is refused by name); opened twice below.
-    crate::input::open_regular(path)?;
+    // Opened once (a folder, device or FIFO is refused by name); read twice from the start.
+    let (file, _) = crate::input::open_regular(path)?;
     let open = || {
-        let (file, _) = crate::input::open_regular(path)
-            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e.to_string()))?;
-        Ok(std::io::BufReader::new(file))
+        use std::io::Seek as _;
+        let mut f = file.try_clone()?;
+        f.rewind()?;
+        Ok(std::io::BufReader::new(f))
     };
     decode_image_with(open, path, max_memory)
 }
