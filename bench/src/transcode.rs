@@ -13,6 +13,7 @@
 //! source maps, and of nmat's own decode, against the source; with the bytes each needs stored
 //! (the .nmat file for all textures; BC of the whole chain per texture).
 
+use nmat_cli::stats::median;
 use nmat_core::bc::{self, BcFormat, BcTexture};
 use nmat_core::{Container, Decoder, Material, SectionKind};
 use nmat_encode::texset::{self, LoadOptions, Role, TextureSet};
@@ -149,11 +150,6 @@ fn usual_path(png: &[u8], format: BcFormat) -> usize {
     }
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let (Some(file), Some(dir)) = (args.first(), args.get(1)) else {
@@ -231,26 +227,16 @@ fn main() {
         .collect();
     for threads in [1, 2] {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
-        let ours = median(
-            (0..runs)
-                .map(|_| {
-                    let start = Instant::now();
-                    pool.install(|| transcode_all(&m, &d, &layout));
-                    start.elapsed().as_secs_f64() * 1e3
-                })
-                .collect(),
-        );
-        let usual = median(
-            (0..runs)
-                .map(|_| {
-                    let start = Instant::now();
-                    pool.install(|| {
-                        pngs.par_iter().map(|(png, f)| usual_path(png, *f)).sum::<usize>()
-                    });
-                    start.elapsed().as_secs_f64() * 1e3
-                })
-                .collect(),
-        );
+        let ours = median((0..runs).map(|_| {
+            let start = Instant::now();
+            pool.install(|| transcode_all(&m, &d, &layout));
+            start.elapsed().as_secs_f64() * 1e3
+        }));
+        let usual = median((0..runs).map(|_| {
+            let start = Instant::now();
+            pool.install(|| pngs.par_iter().map(|(png, f)| usual_path(png, *f)).sum::<usize>());
+            start.elapsed().as_secs_f64() * 1e3
+        }));
         println!(
             "threads {threads}: nmat transcode {ours:.1} ms, PNG decode + mips + ISPC {usual:.1} ms"
         );

@@ -6,6 +6,7 @@ pub mod gpu_files;
 pub mod input;
 pub mod output;
 pub mod progress;
+pub mod stats;
 pub mod transcode;
 
 use std::path::Path;

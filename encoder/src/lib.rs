@@ -20,11 +20,12 @@ mod memhint;
 pub mod metrics;
 pub mod names;
 pub mod profile;
+mod role;
 pub mod source_maps;
 pub mod texset;
 pub mod train;
 
-pub use error::EncodeError;
+pub use error::{EncodeError, EncodeOption};
 pub use gemm::TrainKernel;
 pub use profile::{
     ByteBudget, DEFAULT_PROFILE, MaterialShape, ModelConfig, PROFILES, Profile, configure,

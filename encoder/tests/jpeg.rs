@@ -269,8 +269,8 @@ fn float_spans_equal_float_texels() {
 /// `nmat encode --codec jpeg`: the bundled brick material (albedo, normal, roughness, height).
 mod encode {
     use nmat_core::{Codec, Container, JpegMap};
-    use nmat_encode::EncodeError;
     use nmat_encode::jpeg::{JpegOptions, Subsampling, encode_jpeg, encode_jpeg_to_rate};
+    use nmat_encode::{EncodeError, EncodeOption};
 
     fn options(quality: u8) -> JpegOptions {
         JpegOptions { quality, ..JpegOptions::default() }
@@ -347,11 +347,17 @@ mod encode {
         assert!(e.quality.bppc > 0.01);
         for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
             let err = encode_jpeg_to_rate(&set, bad, &options(85)).err().unwrap();
-            assert!(matches!(err, EncodeError::BadOption { option: "--bppc", .. }), "{err}");
+            assert!(
+                matches!(err, EncodeError::BadOption { option: EncodeOption::Bppc, .. }),
+                "{err}"
+            );
         }
         for bad in [0, 101] {
             let err = encode_jpeg(&set, &options(bad)).err().unwrap();
-            assert!(matches!(err, EncodeError::BadOption { option: "--quality", .. }), "{err}");
+            assert!(
+                matches!(err, EncodeError::BadOption { option: EncodeOption::Quality, .. }),
+                "{err}"
+            );
         }
     }
 }

@@ -5,7 +5,11 @@
 //! measured in the same run: BC1/BC4 decoding (`bcdec_rs`), PNG decoding of the source maps
 //! (`image`), and the peak multiply-add rate of every kernel this CPU runs.
 
-use crate::Result;
+use crate::args::BenchArgs;
+use crate::common::{Result, chain_quality_shown, macs, mib, parse};
+use crate::reference::{load_reference, warn_if_decoded};
+use nmat_cli::input::read_nmat;
+use nmat_cli::stats::median;
 use nmat_core::{ChannelMask, Decoder, Filter, Kernel, Material, Precision, SampleRequest};
 use nmat_encode::metrics::{psnr, unit_of};
 use std::hint::black_box;
@@ -13,7 +17,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// What to measure.
-pub struct Options {
+struct Options {
     pub inputs: Vec<PathBuf>,
     pub reference: Option<PathBuf>,
     /// Side of the square region of mip 0 every mode decodes.
@@ -59,11 +63,6 @@ fn interleaved_ratio(runs: usize, a: &mut dyn FnMut(), b: &mut dyn FnMut()) -> f
     median(ratios)
 }
 
-pub(crate) fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
-}
-
 /// A timed mode: the median seconds of its runs, and the median over runs of (seconds × the
 /// peak rate measured just before that run): the product the share of the roofline divides.
 /// Measuring the peak next to each run keeps the share honest on a shared machine, whose speed
@@ -88,17 +87,6 @@ fn time(runs: usize, mut f: impl FnMut()) -> Timing {
         products.push(t * peak);
     }
     Timing { secs: median(secs), peak_macs: median(products) }
-}
-
-/// Multiply-adds of one texel decode with `outputs` rows in the last layer.
-pub(crate) fn macs(m: &Material<'_>, outputs: usize) -> usize {
-    let layers = m.mlp().layers();
-    let last = layers.len().saturating_sub(1);
-    layers
-        .iter()
-        .enumerate()
-        .map(|(i, l)| l.inputs() * if i == last { outputs } else { l.outputs() })
-        .sum()
 }
 
 /// One line of the table.
@@ -164,7 +152,17 @@ fn channels_of(mask: ChannelMask, count: usize) -> Vec<usize> {
     (0..count).filter(|c| bits & (1 << c) != 0).collect()
 }
 
-pub fn run(opts: &Options) -> Result<()> {
+pub fn run(args: BenchArgs) -> Result<()> {
+    let BenchArgs { inputs, reference, region, runs, gpu, force, memory } = args;
+    if region == 0 || runs == 0 {
+        return Err("--region and --runs must be at least 1".into());
+    }
+    let max_memory = memory.bytes();
+    bench_all(&Options { inputs, reference, region, runs, gpu, force, max_memory })
+}
+
+/// The tables of every material of `opts`.
+fn bench_all(opts: &Options) -> Result<()> {
     println!("machine: {}, {} logical CPUs", cpu_name(), std::thread::available_parallelism()?);
     // The GPU table (`--gpu`) has its own peak, measured on the adapter.
     if !opts.gpu {
@@ -203,8 +201,8 @@ fn cpu_name() -> String {
 }
 
 fn bench_one(input: &Path, opts: &Options) -> Result<()> {
-    let bytes = crate::read_nmat(input)?;
-    let m = crate::parse(&bytes, input)?;
+    let bytes = read_nmat(input)?;
+    let m = parse(&bytes, input)?;
     let (w, h) = m.mip_size(0);
     let side = (opts.region.min(w).max(1), opts.region.min(h).max(1));
     check_memory(input, &m, side, opts.max_memory)?;
@@ -217,22 +215,22 @@ fn bench_one(input: &Path, opts: &Options) -> Result<()> {
             bytes.len(),
             macs(&m, m.channel_count())
         );
-        return crate::bench_gpu_table(&m, opts);
+        return crate::gpu::bench_table(&m, opts.region, opts.runs);
     }
     let c = m.channel_count();
     let best = Decoder::new(&m);
     let float_units = region_float_units(&m, &best, side);
     let (source, chain_psnr, png) = match &opts.reference {
         Some(dir) => {
-            let set = crate::load_reference(&m, dir, opts.force, opts.max_memory)?;
+            let set = load_reference(&m, dir, opts.force, opts.max_memory)?;
             let src = &set.mips[0];
             let mut region = Vec::with_capacity((side.0 * side.1) as usize * c);
             for y in 0..side.1 {
                 let at = (y * src.width) as usize * c;
                 region.extend_from_slice(&src.data[at..at + side.0 as usize * c]);
             }
-            let quality = crate::chain_quality_shown(&m, &set);
-            crate::warn_if_decoded(&quality, dir);
+            let quality = chain_quality_shown(&m, &set);
+            warn_if_decoded(&quality, dir);
             (Some(region), Some(quality.psnr), png_seconds(&m, dir, opts.runs)?)
         }
         None => (None, None, None),
@@ -257,7 +255,7 @@ fn bench_one(input: &Path, opts: &Options) -> Result<()> {
         println!("  {note}");
     }
     reference_rows(&setup, &float_units_to_codes(&setup.float_units), opts.runs, png);
-    crate::bench_gpu(&m, side, &|name, secs, texels, scope| {
+    crate::gpu::bench_row(&m, side, &|name, secs, texels, scope| {
         let texels = texels as f64;
         println!(
             "  {name:52} {:9.1} ns/texel {:12.0} texels/s ({scope})",
@@ -277,7 +275,7 @@ fn check_memory(input: &Path, m: &Material<'_>, side: (u32, u32), max_memory: u6
     let c = m.channel_count() as u64;
     let region = u64::from(side.0) * u64::from(side.1) * c * 16;
     let chain: u64 = (0..m.mip_count()).map(|i| m.decode_cost(i).texels).sum();
-    let gpu = if cfg!(feature = "gpu") { chain * c } else { 0 };
+    let gpu = if crate::gpu::BUILT { chain * c } else { 0 };
     let need = region + gpu;
     if need > max_memory {
         return Err(format!(
@@ -286,8 +284,8 @@ fn check_memory(input: &Path, m: &Material<'_>, side: (u32, u32), max_memory: u6
             input.display(),
             side.0,
             side.1,
-            crate::mib(need),
-            crate::mib(max_memory)
+            mib(need),
+            mib(max_memory)
         )
         .into());
     }
@@ -792,7 +790,7 @@ fn encode_bc(
 
 /// Median seconds to decode every source map of `m` found in `dir`, and the texels of mip 0.
 fn png_seconds(m: &Material<'_>, dir: &Path, runs: usize) -> Result<Option<(f64, u64)>> {
-    let Some(maps) = crate::output::source_maps(m) else { return Ok(None) };
+    let Some(maps) = nmat_cli::output::source_maps(m) else { return Ok(None) };
     let files: Vec<PathBuf> =
         maps.iter().map(|s| dir.join(&s.file_name)).filter(|p| p.is_file()).collect();
     if files.is_empty() {

@@ -4,16 +4,76 @@
 //! GFLOP/s (`train::mlp_flops_per_sample`) and its share of the f32 FMA peak measured in the same
 //! run with the same number of threads.
 
-use crate::Result;
-use crate::bench::median;
+use crate::args::BenchTrainArgs;
+use crate::common::{Result, check_threads, profile_named};
+use nmat_cli::stats::median;
 use nmat_core::AddressMode;
+use nmat_encode::texset::{self, LoadOptions};
 use nmat_encode::train::{Model, mlp_flops_per_sample};
 use nmat_encode::{Profile, TextureSet, TrainKernel, TrainOptions, configure, shape_of};
 use std::hint::black_box;
 use std::time::Instant;
 
+pub fn run(args: BenchTrainArgs) -> Result<()> {
+    let BenchTrainArgs { inputs, profile, steps, threads, kernel, runs, phases, memory } = args;
+    if steps == 0 || runs == 0 {
+        return Err("--steps and --runs must be at least 1".into());
+    }
+    let defaults = TrainOptions::default();
+    let (joint_percent, qat_percent) = match phases.as_deref() {
+        None => (defaults.joint_percent, defaults.qat_percent),
+        Some(&[joint, qat]) if joint + qat <= 100 => (joint, qat),
+        Some(p) => {
+            return Err(format!(
+                "--phases {p:?}: give JOINT,QAT, two percents summing to at most 100"
+            )
+            .into());
+        }
+    };
+    for &t in &threads {
+        check_threads(t)?;
+    }
+    let kernels = if kernel.iter().any(|k| k == "all") {
+        TrainKernel::ALL.into_iter().filter(|k| k.is_available()).collect()
+    } else {
+        kernel
+            .iter()
+            .map(|name| {
+                let k = TrainKernel::by_name(name).ok_or_else(|| {
+                    let names: Vec<&str> = TrainKernel::ALL.iter().map(|k| k.name()).collect();
+                    format!("--kernel {name}: unknown; choose all or any of {}", names.join(", "))
+                })?;
+                if !k.is_available() {
+                    return Err(format!("--kernel {name}: this CPU cannot run it"));
+                }
+                Ok(k)
+            })
+            .collect::<std::result::Result<Vec<_>, _>>()?
+    };
+    let (set, label) = if inputs.is_empty() {
+        (nmat_encode::demo::bricks(1024), "the bundled procedural material".to_string())
+    } else {
+        let files = texset::collect_inputs(&inputs)?;
+        let roles = texset::assign_roles(&files, &[])?;
+        let label = inputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" ");
+        let options = LoadOptions { max_memory: memory.bytes(), ..LoadOptions::default() };
+        (texset::load(&roles, &options)?, label)
+    };
+    measure(&Options {
+        set,
+        label,
+        profile: profile_named(&profile)?,
+        steps,
+        threads,
+        kernels,
+        runs,
+        joint_percent,
+        qat_percent,
+    })
+}
+
 /// What to measure.
-pub struct Options {
+struct Options {
     pub set: TextureSet,
     /// Shown in the header: where the material came from.
     pub label: String,
@@ -32,22 +92,20 @@ pub struct Options {
 /// fused multiply-add; median of 5).
 fn fma_peak(kernel: TrainKernel, threads: usize) -> f64 {
     let rounds = 200_000_000 / kernel.probe_fmas_per_round().max(1);
-    let rates = (0..5)
-        .map(|_| {
-            let start = Instant::now();
-            std::thread::scope(|s| {
-                for _ in 0..threads {
-                    s.spawn(|| black_box(kernel.probe(black_box(rounds))));
-                }
-            });
-            (threads as u64 * rounds * kernel.probe_fmas_per_round() * 2) as f64
-                / start.elapsed().as_secs_f64()
-        })
-        .collect();
-    median(rates)
+    median((0..5).map(|_| {
+        let start = Instant::now();
+        std::thread::scope(|s| {
+            for _ in 0..threads {
+                s.spawn(|| black_box(kernel.probe(black_box(rounds))));
+            }
+        });
+        (threads as u64 * rounds * kernel.probe_fmas_per_round() * 2) as f64
+            / start.elapsed().as_secs_f64()
+    }))
 }
 
-pub fn run(o: &Options) -> Result<()> {
+/// The table of `o`.
+fn measure(o: &Options) -> Result<()> {
     let start = Instant::now();
     let cfg = configure(o.profile, &shape_of(&o.set));
     let base = TrainOptions {

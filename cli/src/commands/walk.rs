@@ -1,175 +1,73 @@
 //! `nmat walk`: a headless walk down a textured corridor (docs/PERFORMANCE.md, "Tile cache"),
-//! to measure what the tile cache saves a renderer. The scene and the camera path are fixed here,
-//! so the numbers reproduce: a box corridor 2 wide, 2.5 high and 40 long, floor, walls, ceiling
-//! and end wall each showing one of the materials (in that order, repeating), every texture
-//! repeating once per world unit (metre); a camera at eye height 1.6 walking from z = 0.5 to
-//! z = 3.5 over the frames — 60 frames (the default) are two seconds at 30 frames per second, a
-//! walk at 1.5 m/s — while it looks left and right once (yaw ±0.25 rad) and up and down a little,
-//! with a 60° vertical field of view. Every pixel is one filtered lookup: trilinear with the mip its
-//! screen footprint asks for, or bilinear at mip 0 (`--no-mips`).
+//! to measure what the tile cache saves a renderer: the scene is `corridor`'s; here the CPU walk
+//! with one cache per thread count, direct decoding to compare, and the reports.
 
-#[cfg(feature = "gpu")]
-#[path = "walk_gpu.rs"]
-mod gpu;
-
-use crate::Result;
-use nmat_core::{
-    ChannelMask, Decoder, Filter, FrameStats, Material, Precision, SampleRequest, Slot, TileCache,
-    TileKey,
-};
+use crate::args::WalkArgs;
+use crate::common::{Result, check_threads, mib, parse};
+use crate::corridor::{Lookup, Options, Row, gbuffer, request};
+use nmat_cli::output;
+use nmat_cli::stats::median;
+use nmat_core::{Decoder, Material, Slot, TileCache, TileKey};
 use rayon::prelude::*;
-use std::path::PathBuf;
 use std::time::Instant;
 
-/// What to run.
-pub struct Options {
-    pub inputs: Vec<PathBuf>,
-    pub width: u32,
-    pub height: u32,
-    pub frames: u32,
-    pub threads: Vec<usize>,
-    /// Tiles of the cache.
-    pub tiles: usize,
-    /// Every how many frames the walk also decodes without the cache (0: never).
-    pub direct_every: u32,
-    pub mips: Vec<bool>,
-    /// Where to write one row per frame and variant.
-    pub csv: Option<PathBuf>,
-    /// Where to write the last frame (channels 0–2) as a PNG.
-    pub image: Option<PathBuf>,
-    /// Also walk with the GPU's tile cache (`nmat_wgpu::GpuTileCache`; the `gpu` feature).
-    pub gpu: bool,
-    /// Bytes the walk may hold (`--max-memory`): a larger cache or frame is refused first.
-    pub max_memory: u64,
-}
-
-/// The corridor: x ∈ [−1, 1], y ∈ [0, 2.5], z ∈ [0, 40].
-const HALF_WIDTH: f32 = 1.0;
-const HEIGHT: f32 = 2.5;
-const LENGTH: f32 = 40.0;
-
-/// One pixel's lookup: material, (u, v) and the mip its footprint asks for.
-#[derive(Clone, Copy, Default)]
-struct Lookup {
-    material: u8,
-    u: f32,
-    v: f32,
-    lod: f32,
-}
-
-/// The camera of frame `f` of `frames`: position, and the forward, right and up axes.
-fn camera(f: u32, frames: u32) -> ([f32; 3], [[f32; 3]; 3]) {
-    let t = if frames > 1 { f as f32 / (frames - 1) as f32 } else { 0.0 };
-    let tau = std::f32::consts::TAU;
-    let yaw = 0.25 * (tau * t).sin();
-    let pitch = -0.1 + 0.05 * (2.0 * tau * t).sin();
-    let forward = [yaw.sin() * pitch.cos(), pitch.sin(), yaw.cos() * pitch.cos()];
-    let right = [yaw.cos(), 0.0, -yaw.sin()];
-    let up = cross(forward, right);
-    ([0.0, 1.6, 0.5 + 3.0 * t], [forward, right, up])
-}
-
-fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-
-/// The surface a ray from `o` along `d` leaves the corridor through: (surface, axis of its plane,
-/// plane coordinate). Surfaces: 0 floor, 1 walls, 2 ceiling, 3 the two end walls.
-fn exit(o: [f32; 3], d: [f32; 3]) -> (u8, usize, f32) {
-    let planes = [
-        (0u8, 1usize, 0.0f32),
-        (2, 1, HEIGHT),
-        (1, 0, -HALF_WIDTH),
-        (1, 0, HALF_WIDTH),
-        (3, 2, 0.0),
-        (3, 2, LENGTH),
-    ];
-    let mut best = (f32::INFINITY, planes[0]);
-    for p in planes {
-        let t = (p.2 - o[p.1]) / d[p.1];
-        if t > 0.0 && t < best.0 {
-            best = (t, p);
+pub fn run(args: WalkArgs) -> Result<()> {
+    let WalkArgs {
+        inputs,
+        size,
+        frames,
+        threads,
+        tiles,
+        direct_every,
+        mips,
+        csv,
+        image,
+        gpu,
+        memory,
+    } = args;
+    if frames == 0 || tiles == 0 || inputs.len() > 4 {
+        return Err("--frames and --tiles must be at least 1, and at most 4 inputs".into());
+    }
+    for &n in &threads {
+        check_threads(n)?;
+    }
+    // The outputs are checked before the walk (minutes at the defaults) starts.
+    let outputs = [("--csv", &csv), ("--image", &image)];
+    for (option, path) in outputs {
+        if let Some(path) = path {
+            output::check_output_file(option, path, &inputs)?;
         }
     }
-    best.1
-}
-
-/// Texture coordinates where the ray from `o` along `d` meets plane `axis = value`.
-fn uv_on(o: [f32; 3], d: [f32; 3], axis: usize, value: f32) -> [f32; 2] {
-    let t = (value - o[axis]) / d[axis];
-    let p = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
-    match axis {
-        1 => [p[0], p[2]],
-        0 => [p[2], p[1]],
-        _ => [p[0], p[1]],
+    if let (Some(c), Some(i)) = (&csv, &image)
+        && c == i
+    {
+        return Err(format!("--csv and --image both name {}", c.display()).into());
     }
+    walk_all(&Options {
+        inputs,
+        width: size.0,
+        height: size.1,
+        frames,
+        threads,
+        tiles,
+        direct_every,
+        mips: mips.map_or(vec![true, false], |m| vec![m]),
+        csv,
+        image,
+        gpu,
+        max_memory: memory.bytes(),
+    })
 }
 
-/// Every pixel's lookup for frame `f` (the G-buffer a renderer would have).
-fn gbuffer(opts: &Options, materials: &[Material<'_>], f: u32, mips: bool) -> Vec<Lookup> {
-    let (o, [fw, rt, up]) = camera(f, opts.frames);
-    let (w, h) = (opts.width as f32, opts.height as f32);
-    let tan = (30f32).to_radians().tan();
-    let ray = |px: f32, py: f32| {
-        let sx = (2.0 * px / w - 1.0) * tan * w / h;
-        let sy = (1.0 - 2.0 * py / h) * tan;
-        [0, 1, 2].map(|k| fw[k] + sx * rt[k] + sy * up[k])
-    };
-    (0..opts.height * opts.width)
-        .into_par_iter()
-        .map(|i| {
-            let (px, py) = ((i % opts.width) as f32 + 0.5, (i / opts.width) as f32 + 0.5);
-            let d = ray(px, py);
-            let (surface, axis, value) = exit(o, d);
-            let material = usize::from(surface) % materials.len();
-            let [u, v] = uv_on(o, d, axis, value);
-            let lod = if mips {
-                // The footprint of one pixel in texels, from the neighbours' rays on this plane.
-                let size = materials[material].width() as f32;
-                let [ux, vx] = uv_on(o, ray(px + 1.0, py), axis, value);
-                let [uy, vy] = uv_on(o, ray(px, py + 1.0), axis, value);
-                let dx = ((ux - u).powi(2) + (vx - v).powi(2)).sqrt() * size;
-                let dy = ((uy - u).powi(2) + (vy - v).powi(2)).sqrt() * size;
-                dx.max(dy).max(1e-6).log2()
-            } else {
-                0.0
-            };
-            Lookup { material: material as u8, u, v, lod }
-        })
-        .collect()
-}
-
-fn request(l: &Lookup, mips: bool) -> SampleRequest {
-    SampleRequest {
-        u: l.u,
-        v: l.v,
-        lod: l.lod,
-        filter: if mips { Filter::Trilinear } else { Filter::Bilinear },
-        precision: Precision::Integer,
-        random: [0.0; 3],
-        channels: ChannelMask(0b111),
-    }
-}
-
-/// One frame's measurements.
-struct Row {
-    stats: FrameStats,
-    /// Marking, decoding, resolving (the CPU's stages; the GPU times the frame as a whole).
-    stages: Option<[f64; 3]>,
-    /// The frame with the cache: the stages' sum.
-    cached_ms: f64,
-    direct_ms: Option<f64>,
-    identical: Option<bool>,
-}
-
-pub fn run(opts: &Options) -> Result<()> {
+/// Every walk `opts` asks for, reported as a table (and the CSV and PNG).
+fn walk_all(opts: &Options) -> Result<()> {
     let files: Vec<Vec<u8>> = opts
         .inputs
         .iter()
         .map(|p| nmat_cli::input::read_nmat(p).map_err(Into::into))
         .collect::<Result<_>>()?;
     let materials: Vec<Material> =
-        files.iter().zip(&opts.inputs).map(|(b, p)| crate::parse(b, p)).collect::<Result<_>>()?;
+        files.iter().zip(&opts.inputs).map(|(b, p)| parse(b, p)).collect::<Result<_>>()?;
     for (m, p) in materials.iter().zip(&opts.inputs) {
         if m.channel_count() < 3 {
             return Err(format!(
@@ -223,7 +121,7 @@ pub fn run(opts: &Options) -> Result<()> {
         }
     }
     if let Some(path) = &opts.csv {
-        nmat_cli::output::write_atomic(path, csv.as_bytes())
+        output::write_atomic(path, csv.as_bytes())
             .map_err(|e| format!("{}: {e}", path.display()))?;
         println!("\nper-frame rows: {}", path.display());
     }
@@ -251,13 +149,13 @@ fn check_memory(opts: &Options, refs: &[&Material<'_>], file_bytes: u64) -> Resu
             "nmat walk needs about {:.1} MiB ({:.1} MiB for the cache's {} tiles of {slot_bytes} \
              bytes, --tiles; {:.1} MiB for {}×{} frames, --size), more than the {:.1} MiB \
              allowed; nothing was run. Lower --tiles or --size, or raise --max-memory",
-            crate::mib(need),
-            crate::mib(cache),
+            mib(need),
+            mib(cache),
             opts.tiles,
-            crate::mib(frames),
+            mib(frames),
             opts.width,
             opts.height,
-            crate::mib(opts.max_memory)
+            mib(opts.max_memory)
         )
         .into());
     }
@@ -265,7 +163,6 @@ fn check_memory(opts: &Options, refs: &[&Material<'_>], file_bytes: u64) -> Resu
 }
 
 /// The walk on the GPU, reported like the CPU's (threads "GPU").
-#[cfg(feature = "gpu")]
 fn gpu_walk(
     opts: &Options,
     materials: &[Material<'_>],
@@ -273,19 +170,14 @@ fn gpu_walk(
     csv: &mut String,
     whole: u64,
 ) -> Result<()> {
-    let walk = gpu::walk(opts, materials, mips)?;
+    let walk = crate::gpu::walk(opts, materials, mips)?;
     println!(
         "| | GPU: {}{}, {} | | | | | | | | | | | | |",
         walk.adapter,
         if walk.software { ", a software rasterizer on the CPU: not a GPU's numbers" } else { "" },
-        walk.clock.name()
+        walk.clock
     );
     report(csv, &walk.rows, mips, "GPU", whole)
-}
-
-#[cfg(not(feature = "gpu"))]
-fn gpu_walk(_: &Options, _: &[Material<'_>], _: bool, _: &mut String, _: u64) -> Result<()> {
-    Err(crate::NO_GPU_BUILD.into())
 }
 
 /// One walk's rows into the CSV, its summary row into the table; an error if a checked frame
@@ -326,12 +218,8 @@ fn write_png(path: &std::path::Path, opts: &Options, frame: &[[f32; 3]]) -> Resu
     image::RgbImage::from_raw(opts.width, opts.height, bytes)
         .ok_or("image size")?
         .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)?;
-    nmat_cli::output::write_atomic(path, &png).map_err(|e| format!("{}: {e}", path.display()))?;
+    output::write_atomic(path, &png).map_err(|e| format!("{}: {e}", path.display()))?;
     Ok(())
-}
-
-fn median(v: impl Iterator<Item = f64>) -> f64 {
-    crate::bench::median(v.collect())
 }
 
 fn summary(rows: &[Row], mips: bool, threads: &str, whole: u64) {
@@ -343,7 +231,7 @@ fn summary(rows: &[Row], mips: bool, threads: &str, whole: u64) {
     let texels = median(rows.iter().map(|r| f64::from(r.stats.decoded_texels)));
     let stage = |k: usize| {
         let v: Vec<f64> = rows.iter().filter_map(|r| Some(r.stages?[k])).collect();
-        if v.is_empty() { "—".to_string() } else { format!("{:.1}", median(v.into_iter())) }
+        if v.is_empty() { "—".to_string() } else { format!("{:.1}", median(v)) }
     };
     let (mark, decode, resolve) = (stage(0), stage(1), stage(2));
     let cached = median(rows.iter().map(|r| r.cached_ms));

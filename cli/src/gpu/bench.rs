@@ -4,8 +4,9 @@
 //! `nmat_sample` (the shader module) with stochastic and trilinear filtering; upload and a
 //! region's round trip (submit, decode, read back) on their own rows.
 
-use crate::Result;
-use crate::bench::{Options, macs, median};
+use super::device;
+use crate::common::{Result, macs};
+use nmat_cli::stats::median;
 use nmat_core::{ChannelMask, Material};
 use nmat_wgpu::measure::{self, Clock};
 use nmat_wgpu::wgpu;
@@ -15,9 +16,9 @@ use std::time::Instant;
 /// Each timed submission runs at least this long (repeats of the work in one submission).
 const MIN_SECONDS: f64 = 0.05;
 
-pub fn table(m: &Material<'_>, opts: &Options) -> Result<()> {
-    let (device, queue, info) =
-        pollster::block_on(nmat_wgpu::default_device()).ok_or(crate::NO_ADAPTER)?;
+/// The table for `m`: a `region`² region of mip 0 (at most the mip), `runs` timed runs a row.
+pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
+    let (device, queue, info) = device::open()?;
     let software = info.device_type == nmat_wgpu::DeviceType::Cpu;
     println!(
         "  GPU {} ({:?}{})",
@@ -48,7 +49,7 @@ pub fn table(m: &Material<'_>, opts: &Options) -> Result<()> {
         .collect();
     let c = m.channel_count();
     let (w, h) = m.mip_size(0);
-    let side = (opts.region.min(w).max(1), opts.region.min(h).max(1));
+    let side = (region.min(w).max(1), region.min(h).max(1));
     let chain: u64 = (0..m.mip_count()).map(|k| texels(m.mip_size(k))).sum();
     let requests = random_requests(m, texels(side));
     let request_bytes: Vec<u8> = requests
@@ -72,7 +73,7 @@ pub fn table(m: &Material<'_>, opts: &Options) -> Result<()> {
     println!(
         "  median of {} runs; Mtexel/s and % of the i32 roofline (MACs per texel × texels/s ÷ peak \
          multiply-adds/s) from the kernels' time alone ({})",
-        opts.runs,
+        runs,
         peak.clock.name()
     );
     println!("  | what | texels | MACs/texel | µs per call | Mtexel/s | % of i32 roofline |");
@@ -152,7 +153,7 @@ pub fn table(m: &Material<'_>, opts: &Options) -> Result<()> {
             requests: (&request_buffer, requests.len() as u32),
             sampler: &sampler,
         };
-        let seconds = median_time(&device, &queue, opts.runs, &|e| gpu.record(e, work))?;
+        let seconds = median_time(&device, &queue, runs, &|e| gpu.record(e, work))?;
         let rate = *n as f64 / seconds;
         let macs_per_texel = macs(m, *outputs);
         println!(
@@ -171,7 +172,7 @@ pub fn table(m: &Material<'_>, opts: &Options) -> Result<()> {
              nmat_sample rows (neural materials only)"
         );
     }
-    let round_trips: Vec<f64> = (0..opts.runs)
+    let round_trips: Vec<f64> = (0..runs)
         .map(|_| {
             let start = Instant::now();
             ctx.submit_region(&device, &queue, &gm, 0, (0, 0, side.0, side.1), all)?

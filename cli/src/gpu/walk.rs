@@ -5,20 +5,14 @@
 //! resolves every lookup with `nmat_sample` (decoding its texels, no cache; neural materials
 //! only) and checks the two images are bit-identical.
 
-use super::{Lookup, Options, Row, request};
-use crate::Result;
+use super::Walk;
+use super::device;
+use crate::common::Result;
+use crate::corridor::{Lookup, Options, Row, gbuffer, request};
 use nmat_core::{ChannelMask, Material};
 use nmat_wgpu::measure::{self, Clock};
 use nmat_wgpu::wgpu;
 use nmat_wgpu::{CacheLookup, Context, SampleBindings, read_buffer};
-
-/// The adapter, and the walk's rows with the clock that timed them.
-pub struct GpuWalk {
-    pub adapter: String,
-    pub software: bool,
-    pub clock: Clock,
-    pub rows: Vec<Row>,
-}
 
 /// A compute shader writing channels 0–2 of `nmat_sample` for the lookups of one material.
 fn direct_source(material: usize) -> String {
@@ -40,9 +34,8 @@ fn direct_source(material: usize) -> String {
     )
 }
 
-pub fn walk(opts: &Options, materials: &[Material<'_>], mips: bool) -> Result<GpuWalk> {
-    let (device, queue, info) =
-        pollster::block_on(nmat_wgpu::default_device()).ok_or(crate::NO_ADAPTER)?;
+pub fn walk(opts: &Options, materials: &[Material<'_>], mips: bool) -> Result<Walk> {
+    let (device, queue, info) = device::open()?;
     let ctx = Context::new(&device);
     let gpus: Vec<_> =
         materials.iter().map(|m| ctx.upload(&device, m)).collect::<std::result::Result<_, _>>()?;
@@ -98,7 +91,7 @@ pub fn walk(opts: &Options, materials: &[Material<'_>], mips: bool) -> Result<Gp
     let mut rows = Vec::new();
     let mut clock = Clock::WallClock;
     for f in 0..opts.frames {
-        let items: Vec<CacheLookup> = super::gbuffer(opts, materials, f, mips)
+        let items: Vec<CacheLookup> = gbuffer(opts, materials, f, mips)
             .iter()
             .map(|l: &Lookup| CacheLookup::new(u32::from(l.material), &request(l, mips)))
             .collect();
@@ -146,10 +139,10 @@ pub fn walk(opts: &Options, materials: &[Material<'_>], mips: bool) -> Result<Gp
         }
         rows.push(Row { stats, stages: None, cached_ms: seconds * 1e3, direct_ms, identical });
     }
-    Ok(GpuWalk {
+    Ok(Walk {
         adapter: format!("{} ({:?})", info.name, info.backend),
         software: info.device_type == nmat_wgpu::DeviceType::Cpu,
-        clock,
+        clock: clock.name(),
         rows,
     })
 }

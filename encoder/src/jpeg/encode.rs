@@ -7,7 +7,7 @@ use jpeg_encoder::{ColorType, Encoder, QuantizationTableType, SamplingFactor};
 use nmat_core::{AddressMode, ColorSpace, Container, Error, Field, JpegMap, JpegMaterialSpec};
 
 use super::index::{IndexedJpeg, index_jpeg, position_or_push};
-use crate::error::EncodeError;
+use crate::error::{EncodeError, EncodeOption};
 use crate::metrics::{self, ChainQuality};
 use crate::{TextureSet, channel_specs, source_maps};
 
@@ -116,7 +116,7 @@ fn plan(set: &TextureSet, subsampling: Subsampling) -> Vec<PlannedMap> {
 pub fn encode_jpeg(set: &TextureSet, options: &JpegOptions) -> Result<JpegEncoded, EncodeError> {
     if !(1..=100).contains(&options.quality) {
         return Err(EncodeError::BadOption {
-            option: "--quality",
+            option: EncodeOption::Quality,
             value: options.quality.to_string(),
             reason: "must be between 1 and 100",
         });
@@ -136,7 +136,7 @@ pub fn encode_jpeg_to_rate(
 ) -> Result<JpegEncoded, EncodeError> {
     if !(bppc.is_finite() && bppc > 0.0) {
         return Err(EncodeError::BadOption {
-            option: "--bppc",
+            option: EncodeOption::Bppc,
             value: bppc.to_string(),
             reason: "must be a positive number",
         });
@@ -146,7 +146,7 @@ pub fn encode_jpeg_to_rate(
         match jpeg_bytes(set, &JpegOptions { quality, ..options.clone() }) {
             Ok(bytes) => Ok(bytes.len() as f64 * 8.0 / texel_channels <= bppc),
             // Too many bits between two indexed MCUs: a lower quality is needed anyway.
-            Err(EncodeError::BadOption { option: "--quality", .. }) => Ok(false),
+            Err(EncodeError::BadOption { option: EncodeOption::Quality, .. }) => Ok(false),
             Err(e) => Err(e),
         }
     };
@@ -216,7 +216,7 @@ fn jpeg_bytes(set: &TextureSet, options: &JpegOptions) -> Result<Vec<u8>, Encode
     };
     spec.to_bytes().map_err(|e| match e {
         Error::LimitExceeded { field: Field::JpegIndex, .. } => EncodeError::BadOption {
-            option: "--quality",
+            option: EncodeOption::Quality,
             value: options.quality.to_string(),
             reason: "too high for this material: eight MCUs after an indexed one take more \
                      than the index's 65535 bits; use a lower quality",

@@ -1,0 +1,429 @@
+//! The command line: every command's arguments as clap reads them, and the parsers of sizes.
+//! Only declarations here; what a command does is in `commands/`.
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use nmat_encode::texset;
+use nmat_encode::{Effort, TrainOptions};
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(
+    name = "nmat",
+    version,
+    about = "Neural material textures: encode, decode, inspect, evaluate"
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand)]
+pub enum Command {
+    /// Compress a folder (or list) of material maps into one .nmat file.
+    Encode(EncodeArgs),
+    /// Write the maps of a .nmat file back as images.
+    Decode(DecodeArgs),
+    /// Transcode a .nmat file to GPU block-compressed textures (BC1/BC4/BC5/BC7, whole mip
+    /// chain) in KTX2 or DDS files, for engines that sample BC textures with unchanged shaders.
+    Transcode(TranscodeArgs),
+    /// Turn a baseline JPEG file into a .nmat material (one map, mip 0 only) without re-encoding
+    /// it: an index of its MCUs and their DC values makes every texel decodable on its own
+    /// (docs/FORMAT.md §11). Progressive or arithmetic-coded files are refused.
+    Index(IndexArgs),
+    /// Print what a .nmat file holds.
+    Info(InfoArgs),
+    /// Compare a .nmat file with the source maps: PSNR per map and mip, SSIM, BPPC.
+    Eval(EvalArgs),
+    /// The speed–accuracy table of docs/PERFORMANCE.md for one or more .nmat files: every decode
+    /// mode (kernels, float, channel subsets, filters, random access, threads) over one region of
+    /// mip 0, with the CPU's roofline, BC1/BC4 and PNG decoding measured in the same run, and the
+    /// GPU when built with `--features gpu`.
+    Bench(BenchArgs),
+    /// The trainer's throughput (docs/PERFORMANCE.md): steps/s, samples/s, GFLOP/s and share of
+    /// the CPU's f32 FMA peak for every matrix-product kernel and thread count, on one material.
+    BenchTrain(BenchTrainArgs),
+    /// A headless walk down a textured corridor at 1920×1080 with the tile cache: per frame the
+    /// tiles marked, decoded and kept, the texels decoded, and the milliseconds of marking,
+    /// decoding and resolving, against decoding every lookup directly (docs/PERFORMANCE.md,
+    /// "Tile cache"). The materials cover floor, walls, ceiling and end wall in turn.
+    Walk(WalkArgs),
+    /// Encode, decode and evaluate a bundled procedural material, and print a report.
+    Demo(DemoArgs),
+}
+
+#[derive(Args)]
+pub struct IndexArgs {
+    /// The JPEG file (gray or YCbCr; 4:4:4, 4:2:2, 4:4:0 or 4:2:0).
+    pub input: PathBuf,
+    /// The .nmat file to write.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    #[command(flatten)]
+    pub memory: MemoryArg,
+}
+
+#[derive(Args)]
+pub struct InfoArgs {
+    pub input: PathBuf,
+}
+
+#[derive(Args)]
+pub struct EvalArgs {
+    pub input: PathBuf,
+    /// Folder with the reference maps.
+    #[arg(long = "ref")]
+    pub reference: PathBuf,
+    /// Compare even when the reference maps do not match the material's channels by role
+    /// (by default that is refused: the numbers would compare different maps).
+    #[arg(long)]
+    pub force: bool,
+    #[command(flatten)]
+    pub memory: MemoryArg,
+}
+
+#[derive(Args)]
+pub struct BenchArgs {
+    #[arg(required = true)]
+    pub inputs: Vec<PathBuf>,
+    /// Folder with the source maps: adds PSNR and PNG decode time.
+    #[arg(long = "ref")]
+    pub reference: Option<PathBuf>,
+    /// Side of the square region of mip 0 each mode decodes.
+    #[arg(long, default_value_t = 256)]
+    pub region: u32,
+    /// Timed runs per row (the median is reported).
+    #[arg(long, default_value_t = 5)]
+    pub runs: usize,
+    /// Measure the GPU decoder instead (docs/GPU.md): kernels timed with GPU timestamps
+    /// against the adapter's measured integer peak, for a region, the whole chain, random
+    /// requests and channel subsets. Needs the `gpu` feature.
+    #[arg(long)]
+    pub gpu: bool,
+    /// With --ref: measure even when the reference maps do not match the material's
+    /// channels by role.
+    #[arg(long)]
+    pub force: bool,
+    #[command(flatten)]
+    pub memory: MemoryArg,
+}
+
+#[derive(Args)]
+pub struct WalkArgs {
+    /// One to four .nmat files with at least 3 channels (channels 0–2 are shown).
+    #[arg(required = true)]
+    pub inputs: Vec<PathBuf>,
+    /// Frame size in pixels, WIDTHxHEIGHT.
+    #[arg(long, default_value = "1920x1080", value_parser = parse_size)]
+    pub size: (u32, u32),
+    /// Frames of the camera path (the same path, sampled more or less densely).
+    #[arg(long, default_value_t = 60)]
+    pub frames: u32,
+    /// Thread counts to measure, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [1, 2])]
+    pub threads: Vec<usize>,
+    /// Tiles the cache holds (16×16 texels each).
+    #[arg(long, default_value_t = 16384)]
+    pub tiles: usize,
+    /// Every how many frames to also decode every lookup directly, without the cache, and
+    /// compare (0: never).
+    #[arg(long, default_value_t = 10)]
+    pub direct_every: u32,
+    /// Only the walk with mips (trilinear) or without (bilinear at mip 0); default both.
+    #[arg(long)]
+    pub mips: Option<bool>,
+    /// Write one row per frame and setting to this CSV file.
+    #[arg(long)]
+    pub csv: Option<PathBuf>,
+    /// Write the last frame of the walk with mips (channels 0–2) to this PNG file.
+    #[arg(long)]
+    pub image: Option<PathBuf>,
+    /// Also walk with the GPU's tile cache (wgpu), against `nmat_sample` without it (neural
+    /// materials). Needs the `gpu` feature: cargo build --release -p nmat --features gpu
+    #[arg(long)]
+    pub gpu: bool,
+    #[command(flatten)]
+    pub memory: MemoryArg,
+}
+
+#[derive(Args)]
+pub struct DemoArgs {
+    /// Where to write demo.nmat and the decoded maps.
+    #[arg(short, long, default_value = "target/nmat-demo")]
+    pub out: PathBuf,
+    #[command(flatten)]
+    pub train: TrainArgs,
+    #[arg(long, default_value = nmat_encode::DEFAULT_PROFILE)]
+    pub profile: String,
+}
+
+#[derive(Args)]
+pub struct BenchTrainArgs {
+    /// Folders and/or map files (default: the bundled procedural material at 1024²).
+    pub inputs: Vec<PathBuf>,
+    #[arg(long, default_value = nmat_encode::DEFAULT_PROFILE)]
+    pub profile: String,
+    /// Optimizer steps per timed run.
+    #[arg(long, default_value_t = 100)]
+    pub steps: usize,
+    /// Thread counts to measure, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [1, 2])]
+    pub threads: Vec<usize>,
+    /// Kernels to measure, comma-separated (scalar, avx2, avx512), or `all` this CPU runs.
+    #[arg(long, value_delimiter = ',', default_values_t = ["all".to_string()])]
+    pub kernel: Vec<String>,
+    /// Timed runs per row (the median is reported).
+    #[arg(long, default_value_t = 3)]
+    pub runs: usize,
+    /// Percent of the steps in the joint and the quantization-aware phase, as `JOINT,QAT`
+    /// (default: the encoder's; `80,5` is the phase mix of the trainer before the SIMD work).
+    #[arg(long, value_delimiter = ',', value_name = "JOINT,QAT")]
+    pub phases: Option<Vec<u32>>,
+    #[command(flatten)]
+    pub memory: MemoryArg,
+}
+
+/// `--max-memory` of the commands whose memory grows with a number given to them or read from a
+/// file's header.
+#[derive(Args)]
+pub struct MemoryArg {
+    /// Memory this command may use, e.g. 8G or 512M (MiB without a unit); work that would need
+    /// more is refused before it starts [default: 8G].
+    #[arg(long, value_parser = parse_memory)]
+    pub max_memory: Option<u64>,
+}
+
+impl MemoryArg {
+    pub fn bytes(&self) -> u64 {
+        self.max_memory.unwrap_or(texset::DEFAULT_MAX_MEMORY)
+    }
+}
+
+#[derive(Args)]
+pub struct TrainArgs {
+    /// Optimizer steps (more: better quality, longer encode) [default: 30000 for encode, 3000
+    /// for demo].
+    #[arg(long, conflicts_with = "effort")]
+    pub steps: Option<usize>,
+    /// Encode time for quality: fast = ¼ of the default steps (0.4–0.9 dB lower); max = twice
+    /// the steps, about twice the time (+0.16–0.43 dB at the default profile ntc-0.5 on the
+    /// materials measured; docs/ENCODING.md).
+    #[arg(long, value_enum, default_value_t = EffortArg::Default)]
+    pub effort: EffortArg,
+    /// Seed of every random choice: same inputs, seed and steps give the same file.
+    #[arg(long, default_value_t = TrainOptions::default().seed)]
+    pub seed: u64,
+    /// Worker threads (default: all cores). The file does not depend on it.
+    #[arg(long)]
+    pub threads: Option<usize>,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum EffortArg {
+    Fast,
+    Default,
+    Max,
+}
+
+impl From<EffortArg> for Effort {
+    fn from(e: EffortArg) -> Effort {
+        match e {
+            EffortArg::Fast => Effort::Fast,
+            EffortArg::Default => Effort::Default,
+            EffortArg::Max => Effort::Max,
+        }
+    }
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum CodecArg {
+    Neural,
+    Jpeg,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum SubsamplingArg {
+    #[value(name = "4:2:0")]
+    S420,
+    #[value(name = "4:2:2")]
+    S422,
+    #[value(name = "4:4:4")]
+    S444,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum Address {
+    Wrap,
+    Clamp,
+}
+
+#[derive(Args)]
+pub struct EncodeArgs {
+    /// Folders and/or map files; roles come from file names (or --map).
+    pub inputs: Vec<PathBuf>,
+    /// Output file.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Assign a role explicitly: ROLE=PATH (albedo, normal, roughness, gloss, specular, height,
+    /// ao, metallic, emissive, opacity). Repeatable.
+    #[arg(long = "map", value_name = "ROLE=PATH")]
+    pub maps: Vec<String>,
+    /// neural: a network and latent grids (the profiles); jpeg: every map as indexed baseline
+    /// JPEG (a colour map as YCbCr, others gray), decodable texel by texel like a neural one.
+    #[arg(long, value_enum, default_value_t = CodecArg::Neural)]
+    pub codec: CodecArg,
+    /// Rate/layout profile (neural).
+    #[arg(long, conflicts_with_all = ["bppc", "target_psnr", "quality"])]
+    pub profile: Option<String>,
+    /// Neural: pick the profile nearest to this many bits per pixel per channel; jpeg: the
+    /// highest quality whose file is at most this rate.
+    #[arg(long, conflicts_with_all = ["target_psnr", "quality"])]
+    pub bppc: Option<f64>,
+    /// JPEG quality, 1–100 on the IJG scale (cjpeg's) [default: 85] (jpeg).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=100))]
+    pub quality: Option<u8>,
+    /// Chroma resolution of colour maps (albedo, emissive, specular colour); normals are always
+    /// 4:4:4 [default: 4:2:0] (jpeg).
+    #[arg(long, value_enum)]
+    pub subsampling: Option<SubsamplingArg>,
+    /// Search for the smallest profile whose whole-chain PSNR reaches this many dB.
+    #[arg(long)]
+    pub target_psnr: Option<f64>,
+    /// Resize maps of another size to the first map's size (Lanczos3) instead of failing.
+    #[arg(long)]
+    pub resize: bool,
+    /// Memory loading the maps may use, e.g. 8G or 512M (MiB without a unit); a map that would
+    /// need more is refused before it is decoded [default: 8G].
+    #[arg(long, value_parser = parse_memory)]
+    pub max_memory: Option<u64>,
+    /// Texture addressing at the edges.
+    #[arg(long, value_enum, default_value = "wrap")]
+    pub address: Address,
+    /// Solve the layout and print the file's byte budget without training; writes nothing.
+    #[arg(long, conflicts_with = "target_psnr")]
+    pub dry_run: bool,
+    #[command(flatten)]
+    pub train: TrainArgs,
+}
+
+#[derive(Args)]
+pub struct DecodeArgs {
+    pub input: PathBuf,
+    /// Output folder (created if missing).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Which mip to write: a number or "all".
+    #[arg(long, default_value = "0")]
+    pub mip: String,
+    /// Decode with the float reference decoder instead of the integer-exact one.
+    #[arg(long, conflicts_with = "int")]
+    pub float: bool,
+    /// Decode with the integer-exact decoder (the default).
+    #[arg(long)]
+    pub int: bool,
+    /// Decode on the GPU (wgpu; bit-identical to --int). Needs the `gpu` feature:
+    /// cargo build --release -p nmat --features gpu
+    #[arg(long, conflicts_with = "float")]
+    pub gpu: bool,
+    /// Replace files that already exist in the output folder (by default nmat refuses, so the
+    /// source maps are never overwritten with their decodes).
+    #[arg(long)]
+    pub force: bool,
+    /// Write every map as PNG, whatever its original format (e.g. a gray+alpha map that came from
+    /// a TIFF, which cannot hold one).
+    #[arg(long)]
+    pub png: bool,
+    /// Memory the decoded maps may use, e.g. 8G or 512M (MiB without a unit); a larger decode is
+    /// refused before it starts [default: 8G].
+    #[arg(long, value_parser = parse_memory)]
+    pub max_memory: Option<u64>,
+}
+
+#[derive(Args)]
+pub struct TranscodeArgs {
+    pub input: PathBuf,
+    /// Output folder (created if missing).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// `auto`: from each map's meaning (albedo → BC1 sRGB, normal → BC5 of X/Y, one channel →
+    /// BC4, two → BC5, alpha → its own BC4); or one format for every map (bc7: RGB or RGBA,
+    /// higher quality at twice BC1's size).
+    #[arg(long, value_enum, default_value_t = FormatArg::Auto)]
+    pub format: FormatArg,
+    /// The format of the maps of one role, over --format: ROLE=FORMAT, e.g. albedo=bc7 (roles as
+    /// in `nmat encode --map`). Repeatable.
+    #[arg(long = "as", value_name = "ROLE=FORMAT")]
+    pub as_role: Vec<String>,
+    /// File container.
+    #[arg(long, value_enum, default_value_t = ContainerArg::Ktx2)]
+    pub container: ContainerArg,
+    /// Worker threads (default: all cores). The files do not depend on it.
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Decode and encode BC1, BC4 and BC5 textures on the GPU (wgpu; the same bytes as the CPU;
+    /// BC7 textures stay on the CPU). Needs the `gpu` feature:
+    /// cargo build --release -p nmat --features gpu
+    #[arg(long)]
+    pub gpu: bool,
+    /// Replace files that already exist in the output folder.
+    #[arg(long)]
+    pub force: bool,
+    #[command(flatten)]
+    pub memory: MemoryArg,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum FormatArg {
+    Auto,
+    Bc1,
+    Bc4,
+    Bc5,
+    Bc7,
+}
+
+impl FormatArg {
+    pub fn format(self) -> Option<nmat_core::bc::BcFormat> {
+        use nmat_core::bc::BcFormat;
+        match self {
+            FormatArg::Auto => None,
+            FormatArg::Bc1 => Some(BcFormat::Bc1),
+            FormatArg::Bc4 => Some(BcFormat::Bc4),
+            FormatArg::Bc5 => Some(BcFormat::Bc5),
+            FormatArg::Bc7 => Some(BcFormat::Bc7Rgb),
+        }
+    }
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum ContainerArg {
+    Ktx2,
+    Dds,
+}
+
+/// `--size`: `WIDTHxHEIGHT`, each 1 to 16384.
+fn parse_size(text: &str) -> std::result::Result<(u32, u32), String> {
+    let bad = || format!("expected WIDTHxHEIGHT (each 1 to 16384), got {text:?}");
+    let (w, h) = text.split_once(['x', '×']).ok_or_else(bad)?;
+    let (w, h): (u32, u32) = (w.parse().map_err(|_| bad())?, h.parse().map_err(|_| bad())?);
+    if !(1..=16384).contains(&w) || !(1..=16384).contains(&h) {
+        return Err(bad());
+    }
+    Ok((w, h))
+}
+
+/// `--max-memory`: a size with an optional binary unit (K, M, G; MiB without one), in bytes.
+fn parse_memory(text: &str) -> std::result::Result<u64, String> {
+    let t = text.trim();
+    let (digits, shift) = match t.char_indices().last() {
+        Some((i, 'K' | 'k')) => (&t[..i], 10),
+        Some((i, 'M' | 'm')) => (&t[..i], 20),
+        Some((i, 'G' | 'g')) => (&t[..i], 30),
+        _ => (t, 20),
+    };
+    let n: u64 = digits
+        .trim()
+        .parse()
+        .map_err(|_| format!("expected a size such as 8G or 512M, got {text:?}"))?;
+    n.checked_mul(1 << shift)
+        .filter(|&b| b > 0)
+        .ok_or_else(|| format!("{text:?}: must be above 0 and below 16 EiB"))
+}

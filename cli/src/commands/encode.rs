@@ -1,0 +1,229 @@
+//! `nmat encode`: maps → .nmat, neural (a profile, a rate or a PSNR target) or indexed JPEG.
+
+use crate::args::{Address, CodecArg, EffortArg, EncodeArgs, SubsamplingArg};
+use crate::common::{Result, encode_with_progress, profile_named, threads, train_options};
+use nmat_cli::output;
+use nmat_core::AddressMode;
+use nmat_encode::texset::{self, LoadOptions};
+use nmat_encode::{
+    EncodeError, EncodeOption, EncodeOptions, Encoded, PROFILES, Profile, TextureSet, TrainOptions,
+};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+pub fn run(args: EncodeArgs) -> Result<()> {
+    threads(args.train.threads)?;
+    let explicit = args
+        .maps
+        .iter()
+        .map(|m| texset::parse_map_argument(m))
+        .collect::<std::result::Result<Vec<_>, _>>()?;
+    let files = texset::collect_inputs(&args.inputs)?;
+    if files.is_empty() && explicit.is_empty() {
+        return Err("no input maps: pass a folder, files, or --map ROLE=PATH".into());
+    }
+    let roles = texset::assign_roles(&files, &explicit)?;
+    if !args.dry_run {
+        let inputs: Vec<PathBuf> = roles.iter().map(|(_, p)| p.clone()).collect();
+        output::check_output(&args.output, &inputs)?;
+    }
+    let max_memory = args.max_memory.unwrap_or(texset::DEFAULT_MAX_MEMORY);
+    let set = texset::load(&roles, &LoadOptions { resize: args.resize, max_memory })?;
+    let address_mode = match args.address {
+        Address::Wrap => AddressMode::Wrap,
+        Address::Clamp => AddressMode::Clamp,
+    };
+    if args.codec == CodecArg::Jpeg {
+        return encode_jpeg(&args, &set, address_mode);
+    }
+    if let Some(q) = args.quality {
+        return Err(Box::new(EncodeError::BadOption {
+            option: EncodeOption::Quality,
+            value: q.to_string(),
+            reason: "sets the JPEG codec's quality; pass --codec jpeg (neural rates are \
+                     --profile, --bppc or --target-psnr)",
+        }));
+    }
+    if args.subsampling.is_some() {
+        return Err("--subsampling belongs to the JPEG codec; pass --codec jpeg".into());
+    }
+    let train = train_options(&args.train, nmat_encode::train::DEFAULT_STEPS)?;
+    let start = Instant::now();
+    let encoded = if let Some(target) = args.target_psnr {
+        search_target(&set, target, &train, address_mode)?
+    } else {
+        let profile = match (&args.profile, args.bppc) {
+            (Some(name), _) => profile_named(name)?,
+            (None, Some(b)) if b.is_finite() && b > 0.0 => Profile::nearest(b),
+            (None, Some(b)) => {
+                return Err(Box::new(EncodeError::BadOption {
+                    option: EncodeOption::Bppc,
+                    value: b.to_string(),
+                    reason: "must be a positive number",
+                }));
+            }
+            (None, None) => profile_named(nmat_encode::DEFAULT_PROFILE)?,
+        };
+        if args.dry_run {
+            print!("{}", plan(&set, profile));
+            return Ok(());
+        }
+        encode_with_progress(&set, &EncodeOptions { profile, train, address_mode })?
+    };
+    if let Some(note) = rate_note(&encoded) {
+        eprintln!("{note}");
+    }
+    write_encoded(&args.output, &encoded.bytes, start)?;
+    print!(
+        "{}",
+        output::quality_table(
+            &set,
+            &encoded.quality,
+            Some(&format!("profile {}", encoded.config.profile)),
+        )
+    );
+    Ok(())
+}
+
+/// Writes an encoded file atomically and says so, with the time since `start`.
+fn write_encoded(path: &Path, bytes: &[u8], start: Instant) -> Result<()> {
+    output::write_atomic(path, bytes)?;
+    let seconds = start.elapsed().as_secs_f64();
+    println!("wrote {} ({} bytes) in {seconds:.1} s", path.display(), bytes.len());
+    Ok(())
+}
+
+/// `nmat encode --codec jpeg`: at `--quality` or the highest quality within `--bppc`.
+fn encode_jpeg(args: &EncodeArgs, set: &TextureSet, address_mode: AddressMode) -> Result<()> {
+    use nmat_encode::jpeg::{JpegOptions, Subsampling};
+    let neural_only = [
+        ("--profile", args.profile.is_some()),
+        ("--target-psnr", args.target_psnr.is_some()),
+        ("--dry-run", args.dry_run),
+        ("--steps", args.train.steps.is_some()),
+        ("--effort", args.train.effort != EffortArg::Default),
+        ("--seed", args.train.seed != TrainOptions::default().seed),
+    ];
+    if let Some((option, _)) = neural_only.iter().find(|(_, given)| *given) {
+        return Err(format!(
+            "{option} belongs to the neural codec; --codec jpeg takes --quality or --bppc"
+        )
+        .into());
+    }
+    let subsampling = match args.subsampling {
+        None | Some(SubsamplingArg::S420) => Subsampling::S420,
+        Some(SubsamplingArg::S422) => Subsampling::S422,
+        Some(SubsamplingArg::S444) => Subsampling::S444,
+    };
+    let quality = args.quality.unwrap_or(nmat_encode::jpeg::DEFAULT_QUALITY);
+    let options = JpegOptions { quality, subsampling, address_mode };
+    let start = Instant::now();
+    let encoded = match args.bppc {
+        Some(bppc) => nmat_encode::jpeg::encode_jpeg_to_rate(set, bppc, &options)?,
+        None => nmat_encode::jpeg::encode_jpeg(set, &options)?,
+    };
+    if let Some(bppc) = args.bppc.filter(|&b| encoded.quality.bppc > b) {
+        eprintln!(
+            "note: {:.3} BPPC at quality 1 is above --bppc {bppc}: the MCU index and DC values \
+             alone cost 0.21 bits per pixel of a 4:2:0 map and 0.47 of a gray one",
+            encoded.quality.bppc
+        );
+    }
+    write_encoded(&args.output, &encoded.bytes, start)?;
+    let maps = nmat_encode::jpeg::plan_maps(set, subsampling);
+    let setting = format!("jpeg quality {} ({} JPEG maps)", encoded.jpeg_quality, maps.len());
+    print!("{}", output::quality_table(set, &encoded.quality, Some(&setting)));
+    Ok(())
+}
+
+/// What `encode --dry-run` prints: the solved layout of `profile` for `set` and its byte budget.
+fn plan(set: &TextureSet, profile: Profile) -> String {
+    let shape = nmat_encode::shape_of(set);
+    let cfg = nmat_encode::configure(profile, &shape);
+    let budget = cfg.byte_budget(&shape);
+    // BPPC's denominator: width · height · channels of mip 0.
+    let texel_channels = shape.budget_bits(1.0);
+    let mut s = format!(
+        "{}: {}×{}, {} channels ({} learned), nominal {} BPPC, this file {:.4} BPPC ({:+.1} %)\n",
+        profile.name(),
+        set.width,
+        set.height,
+        set.channel_count(),
+        shape.learned,
+        profile.bppc(),
+        budget.total() as f64 * 8.0 / texel_channels,
+        100.0 * (budget.total() as f64 * 8.0 / shape.budget_bits(profile.bppc()) - 1.0)
+    );
+    s.push_str(&output::map_lines(&set.maps));
+    s.push_str(&format!(
+        "\nnetwork {} → {:?} → {}\n",
+        cfg.input_width(),
+        cfg.hidden,
+        set.channel_count()
+    ));
+    for (i, g) in cfg.grids.iter().enumerate() {
+        s.push_str(&format!(
+            "  grid {i:2} {:5}×{:<5} {:2} channels × {} bits  {:8} bytes\n",
+            g.width,
+            g.height,
+            g.channels,
+            g.bits,
+            4 * g.bits().div_ceil(32)
+        ));
+    }
+    s.push_str(&output::budget_table(&budget, texel_channels));
+    s
+}
+
+/// A note when the file lands more than 5 % away from its profile's nominal rate: the material is
+/// too small for the rate (the smallest network and grids exceed it) or the layout's largest
+/// grids fall short of it.
+fn rate_note(e: &Encoded) -> Option<String> {
+    let nominal = Profile::by_name(e.config.profile)?.bppc();
+    let off = e.quality.bppc / nominal - 1.0;
+    let why = if off > 0.0 {
+        "the material is too small for that rate: its smallest network and grids are this file"
+    } else {
+        "the layout's largest grids do not reach that rate on this material"
+    };
+    (off.abs() > 0.05).then(|| {
+        format!(
+            "note: {:.3} BPPC is {:+.0} % from {}'s nominal {nominal}: {why}",
+            e.quality.bppc,
+            100.0 * off,
+            e.config.profile
+        )
+    })
+}
+
+/// Encodes with profiles from the smallest rate up until the whole-chain PSNR reaches `target`.
+fn search_target(
+    set: &TextureSet,
+    target: f64,
+    train: &TrainOptions,
+    address_mode: AddressMode,
+) -> Result<Encoded> {
+    if !target.is_finite() || target <= 0.0 {
+        return Err(Box::new(EncodeError::BadOption {
+            option: EncodeOption::TargetPsnr,
+            value: target.to_string(),
+            reason: "must be a positive number of dB",
+        }));
+    }
+    let mut order: Vec<Profile> = PROFILES.to_vec();
+    order.sort_by(|a, b| a.bppc().total_cmp(&b.bppc()));
+    let mut last = None;
+    for profile in order {
+        let e = encode_with_progress(
+            set,
+            &EncodeOptions { profile, train: train.clone(), address_mode },
+        )?;
+        eprintln!("  {:9} {:.3} BPPC  {:.2} dB", profile.name(), e.quality.bppc, e.quality.psnr);
+        if e.quality.psnr >= target {
+            return Ok(e);
+        }
+        last = Some(e);
+    }
+    eprintln!("no profile reached {target} dB; keeping the largest");
+    last.ok_or_else(|| "no profile".into())
+}

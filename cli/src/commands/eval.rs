@@ -1,0 +1,21 @@
+//! `nmat eval`: a .nmat file against its source maps — PSNR per map and mip, SSIM, BPPC.
+
+use crate::args::EvalArgs;
+use crate::common::{Result, chain_quality_shown, parse};
+use crate::reference::{load_reference, warn_if_decoded};
+use nmat_cli::input::read_nmat;
+use nmat_cli::output;
+use std::time::Instant;
+
+pub fn run(args: EvalArgs) -> Result<()> {
+    let (input, reference) = (&args.input, &args.reference);
+    let start = Instant::now();
+    let bytes = read_nmat(input)?;
+    let m = parse(&bytes, input)?;
+    let set = load_reference(&m, reference, args.force, args.memory.bytes())?;
+    let q = chain_quality_shown(&m, &set);
+    warn_if_decoded(&q, reference);
+    print!("{}", output::quality_table(&set, &q, None));
+    println!("evaluated in {:.1} s", start.elapsed().as_secs_f64());
+    Ok(())
+}

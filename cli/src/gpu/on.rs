@@ -1,0 +1,94 @@
+//! The GPU paths of a `--features gpu` build, through nmat-wgpu.
+
+use super::{BenchRow, Levels, Walk, device};
+use crate::common::Result;
+use crate::corridor::Options as WalkOptions;
+use nmat_cli::output;
+use nmat_cli::stats::median_seconds;
+use nmat_core::Material;
+use nmat_core::bc::BcFormat;
+use std::path::{Path, PathBuf};
+
+/// `nmat decode --gpu`: the maps of `plan` decoded on the GPU and written to `dir`.
+pub fn decode_maps(
+    m: &Material<'_>,
+    plan: &output::DecodePlan,
+    dir: &Path,
+    progress: &mut dyn FnMut(u64),
+) -> Result<Vec<PathBuf>> {
+    let (device, queue, info) = device::open()?;
+    eprintln!("decoding on {} ({:?}, {:?})", info.name, info.backend, info.device_type);
+    let ctx = nmat_wgpu::Context::new(&device);
+    let gm = ctx.upload(&device, m)?;
+    let decode = |mip: u32| -> Result<Vec<u8>> {
+        Ok(ctx.decode_mip(&device, &queue, &gm, mip, nmat_core::ChannelMask::ALL)?)
+    };
+    let with = output::DecodeWith { float: false, batch: Some(&decode) };
+    output::write_maps(m, plan, dir, with, progress)
+}
+
+/// Whether nmat-wgpu encodes `format` (the others are encoded on the CPU).
+pub fn encodes(format: BcFormat) -> bool {
+    nmat_wgpu::encodes(format)
+}
+
+/// `nmat transcode --gpu`: the transcoder of `m`'s textures on the GPU.
+pub fn transcoder(m: &Material<'_>) -> Result<Levels> {
+    let (device, queue, info) = device::open()?;
+    eprintln!("transcoding on {} ({:?}, {:?})", info.name, info.backend, info.device_type);
+    let ctx = nmat_wgpu::Context::new(&device);
+    let gm = ctx.upload(&device, m)?;
+    Ok(Box::new(move |texture, progress| {
+        if !encodes(texture.format) {
+            return Ok(None);
+        }
+        let mut levels = Vec::new();
+        for (mip, &(w, h)) in gm.mip_sizes().iter().enumerate() {
+            levels.push(ctx.transcode_mip(&device, &queue, &gm, texture, mip as u32)?);
+            progress(u64::from(w) * u64::from(h));
+        }
+        Ok(Some(levels))
+    }))
+}
+
+/// The GPU row of `nmat bench`'s CPU table (median of 5 runs): a real GPU decodes the whole mip
+/// 0; a software adapter (lavapipe, on a machine without a GPU) only the bench's region `side` of
+/// it — the whole mip of a 1024² material takes it minutes.
+pub fn bench_row(m: &Material<'_>, side: (u32, u32), row: &BenchRow<'_>) -> Result<()> {
+    let Some((device, queue, info)) = device::find() else {
+        println!("  GPU: no adapter found");
+        return Ok(());
+    };
+    let ctx = nmat_wgpu::Context::new(&device);
+    let gm = ctx.upload(&device, m)?;
+    let all = nmat_core::ChannelMask::ALL;
+    if info.device_type == nmat_wgpu::DeviceType::Cpu {
+        let what = format!("GPU {} (a software rasterizer on the CPU)", info.name);
+        let secs = median_seconds(5, || -> Result<()> {
+            ctx.submit_region(&device, &queue, &gm, 0, (0, 0, side.0, side.1), all)?
+                .wait(&device)?;
+            Ok(())
+        })?;
+        let scope = format!("region {}×{} only: software adapter", side.0, side.1);
+        row(&what, secs, u64::from(side.0) * u64::from(side.1), &scope);
+    } else {
+        let what = format!("GPU {}", info.name);
+        let secs = median_seconds(5, || -> Result<()> {
+            ctx.decode_mip(&device, &queue, &gm, 0, all)?;
+            Ok(())
+        })?;
+        let (w, h) = m.mip_size(0);
+        row(&what, secs, u64::from(w) * u64::from(h), "whole mip 0");
+    }
+    Ok(())
+}
+
+/// `nmat bench --gpu`'s table for `m` (docs/GPU.md, "Measured").
+pub fn bench_table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
+    super::bench::table(m, region, runs)
+}
+
+/// `nmat walk --gpu`: the walk through nmat-wgpu's tile cache.
+pub fn walk(opts: &WalkOptions, materials: &[Material<'_>], mips: bool) -> Result<Walk> {
+    super::walk::walk(opts, materials, mips)
+}
