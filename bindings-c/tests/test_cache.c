@@ -2,7 +2,7 @@
  * resolved value equals nmat_sample in integer mode (an independent path: direct decoding);
  * frame counters, a second frame from the cache, eviction, a cache too small, decoding on
  * threads, footprints marked in one batch, refusals, calls that overlap where they must not
- * (NMAT_CACHE_BUSY). Compiled as C99 and as C++17 under ASan+UBSan (see ../Makefile).
+ * (NMAT_CACHE_BUSY), materials freed before their cache. Compiled as C99 and as C++17 under ASan+UBSan (see ../Makefile).
  * Usage: test_cache NEURAL.nmat JPEG.nmat */
 #include "nmat.h"
 #include "check.h"
@@ -300,6 +300,33 @@ static void test_overlapping_calls(const nmat_material *const *m, const nmat_inf
     nmat_cache_free(cache);
 }
 
+/* The cache holds its own reference to each material: the caller may free its handles first
+ * (ASan reports a use after free if it did not). Its values still equal nmat_sample on other
+ * handles of the same files. */
+static void test_materials_freed_first(char **paths, const nmat_material *const *m,
+                                       const nmat_info *info) {
+    static lookup l[LOOKUPS / 10];
+    nmat_material *own[2] = {NULL, NULL};
+    nmat_cache *cache = NULL;
+    nmat_frame_stats stats;
+    int i;
+    for (i = 0; i < 2; i++) {
+        size_t len = 0;
+        uint8_t *bytes = read_file(paths[i], &len);
+        CHECK(bytes != NULL && nmat_material_open(bytes, len, &own[i]) == NMAT_OK);
+        free(bytes);
+    }
+    make_lookups(l, LOOKUPS / 10, info);
+    if (own[0] && own[1]) {
+        CHECK(nmat_cache_create((const nmat_material *const *)own, 2, 256, &cache) == NMAT_OK);
+    }
+    for (i = 0; i < 2; i++) nmat_material_free(own[i]);
+    if (!cache) return;
+    CHECK(run_frame(cache, m, l, LOOKUPS / 10, 2, &stats) == 0);
+    CHECK(stats.decoded > 0 && stats.decoded == stats.marked);
+    nmat_cache_free(cache);
+}
+
 int main(int argc, char **argv) {
     nmat_material *m[2] = {NULL, NULL};
     nmat_info info[2];
@@ -324,6 +351,7 @@ int main(int argc, char **argv) {
     test_batch_marking((const nmat_material *const *)m, info);
     test_refusals((const nmat_material *const *)m);
     test_overlapping_calls((const nmat_material *const *)m, info);
+    test_materials_freed_first(argv + 1, (const nmat_material *const *)m, info);
     for (i = 0; i < 2; i++) nmat_material_free(m[i]);
     if (failures) {
         fprintf(stderr, "%d check(s) failed\n", failures);

@@ -8,13 +8,18 @@
 //! [`Users`], a reader-writer lock that never waits: a call that would overlap where it must not
 //! returns `NMAT_CACHE_BUSY` and does nothing, instead of racing.
 
-use super::{
-    Castable, arg_mut, fail, free_box, guard, handle, mask, nmat_status, request, set_last_error,
-    slice, slice_mut, to_boxed_ptr, try_ref,
+use crate::boundary::boundary;
+use crate::decode::mask;
+use crate::material::{Handle, nmat_material};
+use crate::pointers::{
+    Castable, OwnershipBox, arg_mut, clone_arc, free_box, slice, slice_mut, to_boxed_ptr, try_ref,
 };
+use crate::sample::request;
+use crate::status::{fail, guard, nmat_status, set_last_error};
 use nmat_core::{Decoder, FrameStats, Material, Slot, TileCache, TileKey};
 use std::cell::UnsafeCell;
 use std::ops::{Deref, DerefMut};
+use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, Ordering};
 
 /// A tile cache over a fixed list of materials. Opaque; create with `nmat_cache_create`, destroy
@@ -70,15 +75,36 @@ pub(crate) struct Cache {
     inner: UnsafeCell<Inner>,
 }
 
-/// The cache with its memory, and the prepared decoder of each of its materials. The material
-/// handles are the caller's and outlive it (the contract of `nmat_cache_create`), so their
-/// references are held as `'static`.
-struct Inner {
-    cache: TileCache<'static, Vec<Slot>, Vec<u8>>,
-    decoders: Vec<&'static Decoder>,
+self_cell::self_cell!(
+    /// The cache's materials, one reference to each handle (so C may free its own handles
+    /// first), and the state that borrows them.
+    struct Inner {
+        owner: Vec<Arc<Handle>>,
+        #[covariant]
+        dependent: State,
+    }
+);
+
+/// The cache with its memory, and the prepared decoder of each of its materials.
+struct State<'m> {
+    cache: TileCache<'m, Vec<Slot>, Vec<u8>>,
+    decoders: Vec<&'m Decoder>,
+}
+
+impl Inner {
+    /// The state, to read.
+    fn state(&self) -> &State<'_> {
+        self.borrow_dependent()
+    }
+
+    /// The state, to change.
+    fn change<R>(&mut self, f: impl for<'m> FnOnce(&mut State<'m>) -> R) -> R {
+        self.with_dependent_mut(|_, state| f(state))
+    }
 }
 
 impl Castable for nmat_cache {
+    type Ownership = OwnershipBox;
     type RustType = Cache;
 }
 
@@ -200,10 +226,11 @@ unsafe impl Sync for Cache {}
 
 /// Creates a cache of `tiles` tiles (16 × 16 texels each, every channel, 8-bit codes) over the
 /// `material_count` materials at `materials` (then named by their index, 0 …). Its memory is
-/// allocated here, once: `tiles` × (256 × the largest channel count + 24) bytes. The materials
-/// must stay open until `nmat_cache_free`. At most 64 materials; `tiles` from 1 to 2^32 − 2
-/// (`NMAT_BAD_ARGUMENT` otherwise, naming the limit, before anything is allocated);
-/// `NMAT_OUT_OF_MEMORY` when the memory cannot be allocated.
+/// allocated here, once: `tiles` × (256 × the largest channel count + 24) bytes. The cache holds
+/// its own reference to each material: the caller may free its handles before the cache (the
+/// bytes of a borrowed material stay in use until the cache is freed). At most 64 materials;
+/// `tiles` from 1 to 2^32 − 2 (`NMAT_BAD_ARGUMENT` otherwise, naming the limit, before anything
+/// is allocated); `NMAT_OUT_OF_MEMORY` when the memory cannot be allocated.
 ///
 /// Threads: the calls that change the cache (`nmat_cache_begin_frame`, `_mark`, `_mark_texel`,
 /// `_mark_tiles`, `_decode_missing`, `_end_frame`) need it to themselves; `nmat_cache_footprint`,
@@ -212,7 +239,7 @@ unsafe impl Sync for Cache {}
 /// (the other call goes on unharmed). `nmat_cache_free` must not overlap with any call.
 #[unsafe(no_mangle)]
 pub extern "C" fn nmat_cache_create(
-    materials: *const *const super::nmat_material,
+    materials: *const *const nmat_material,
     material_count: usize,
     tiles: usize,
     out: *mut *mut nmat_cache,
@@ -221,39 +248,32 @@ pub extern "C" fn nmat_cache_create(
         let out = arg_mut(out)?;
         *out = std::ptr::null_mut();
         let handles = slice(materials, material_count)?;
-        let mut list: Vec<&'static Material<'static>> = Vec::with_capacity(handles.len());
-        let mut decoders: Vec<&'static Decoder> = Vec::with_capacity(handles.len());
-        for &h in handles {
-            let h = handle(h)?;
-            // SAFETY: the contract of this function: every material handle stays open (and so
-            // its parsed material and decoder stay where they are, unchanged) until
-            // `nmat_cache_free`, which drops these references first.
-            list.push(unsafe { &*std::ptr::from_ref(h.material()).cast::<Material<'static>>() });
-            // SAFETY: as above.
-            decoders.push(unsafe { &*std::ptr::from_ref(&h.decoder) });
-        }
+        let owned = handles.iter().map(|&h| clone_arc(h)).collect::<Result<Vec<_>, _>>()?;
         // Checks the tile count (`TileCache::memory_for`) before it allocates, fallibly.
-        let cache = TileCache::with_capacity(&list, tiles).map_err(fail)?;
-        let inner = UnsafeCell::new(Inner { cache, decoders });
+        let inner = Inner::try_new(owned, |owned| {
+            let list: Vec<&Material<'_>> = owned.iter().map(|h| h.material()).collect();
+            let decoders = owned.iter().map(|h| &h.decoder).collect();
+            TileCache::with_capacity(&list, tiles).map(|cache| State { cache, decoders })
+        })
+        .map_err(fail)?;
+        let inner = UnsafeCell::new(inner);
         *out = to_boxed_ptr(Cache { users: Users::default(), inner });
         Ok(())
     })
 }
 
-/// Destroys a cache (before its materials). NULL is accepted and ignored.
+/// Destroys a cache, and gives back its references to its materials. NULL is accepted and
+/// ignored.
 #[unsafe(no_mangle)]
 pub extern "C" fn nmat_cache_free(cache: *mut nmat_cache) {
-    let _ = guard(|| {
-        free_box(cache);
-        Ok(())
-    });
+    boundary(|| free_box(cache));
 }
 
 /// Starts a frame: its counters start at zero. `NMAT_CACHE_BUSY` if another call uses the cache.
 #[unsafe(no_mangle)]
 pub extern "C" fn nmat_cache_begin_frame(cache: *mut nmat_cache) -> nmat_status {
     guard(|| {
-        exclusive(cache, "nmat_cache_begin_frame")?.cache.begin_frame();
+        exclusive(cache, "nmat_cache_begin_frame")?.change(|s| s.cache.begin_frame());
         Ok(())
     })
 }
@@ -276,7 +296,7 @@ pub extern "C" fn nmat_cache_mark(
     guard(|| {
         let mut c = exclusive(cache, "nmat_cache_mark")?;
         let req = request(u, v, lod, filter, random)?;
-        c.cache.mark(material as usize, &req).map_err(fail)
+        c.change(|s| s.cache.mark(material as usize, &req)).map_err(fail)
     })
 }
 
@@ -293,7 +313,7 @@ pub extern "C" fn nmat_cache_mark_texel(
 ) -> nmat_status {
     guard(|| {
         let mut c = exclusive(cache, "nmat_cache_mark_texel")?;
-        c.cache.mark_texel(material as usize, x, y, mip).map_err(fail)
+        c.change(|s| s.cache.mark_texel(material as usize, x, y, mip)).map_err(fail)
     })
 }
 
@@ -345,7 +365,7 @@ pub extern "C" fn nmat_cache_footprint(
         let c = shared(cache, "nmat_cache_footprint")?;
         let (out, count) = (slice_mut(out, out_len)?, arg_mut(count)?);
         let req = request(u, v, lod, filter, random)?;
-        let keys = c.cache.footprint(material as usize, &req).map_err(fail)?;
+        let keys = c.state().cache.footprint(material as usize, &req).map_err(fail)?;
         if out.len() < keys.len() {
             return Err(nmat_status::NMAT_BUFFER_TOO_SMALL);
         }
@@ -371,7 +391,7 @@ pub extern "C" fn nmat_cache_mark_tiles(
     guard(|| {
         let mut c = exclusive(cache, "nmat_cache_mark_tiles")?;
         let keys: Vec<TileKey> = slice(keys, count)?.iter().map(|&k| k.into()).collect();
-        c.cache.mark_tiles(&keys).map_err(fail)
+        c.change(|s| s.cache.mark_tiles(&keys)).map_err(fail)
     })
 }
 
@@ -389,43 +409,7 @@ pub extern "C" fn nmat_cache_decode_missing(
         let mut c = exclusive(cache, "nmat_cache_decode_missing")?;
         // Checked before the work, so a bad pointer is refused with nothing done.
         let decoded = if decoded.is_null() { None } else { Some(arg_mut(decoded)?) };
-        let c = &mut *c;
-        let decoders = &c.decoders;
-        let jobs: Vec<_> = c.cache.pending().collect();
-        let threads = match threads {
-            0 => std::thread::available_parallelism().map_or(1, usize::from),
-            n => n as usize,
-        };
-        let threads = threads.min(jobs.len()).max(1);
-        let mut parts: Vec<Vec<_>> = (0..threads).map(|_| Vec::new()).collect();
-        for (k, job) in jobs.into_iter().enumerate() {
-            parts[k % threads].push(job);
-        }
-        let run = |part: Vec<nmat_core::PendingTile<'_, '_>>| {
-            let mut result = (0u32, None);
-            for job in part {
-                let d = decoders.get(usize::from(job.key().material));
-                match d.map(|d| job.decode_with(d)) {
-                    Some(Ok(())) => result.0 += 1,
-                    Some(Err(e)) => {
-                        result.1.get_or_insert(e);
-                    }
-                    None => {}
-                }
-            }
-            result
-        };
-        let results: Vec<(u32, Option<nmat_core::Error>)> = if threads == 1 {
-            parts.into_iter().map(run).collect()
-        } else {
-            std::thread::scope(|s| {
-                let running: Vec<_> =
-                    parts.into_iter().map(|part| s.spawn(move || run(part))).collect();
-                // A panic on a decoding thread reaches `guard` (NMAT_INTERNAL_ERROR).
-                let joined = running.into_iter().map(|t| t.join());
-                joined.map(|r| r.unwrap_or_else(|p| std::panic::resume_unwind(p))).collect()
-            })
-        };
+        let results = c.change(|state| decode_pending(state, threads));
         if let Some(decoded) = decoded {
             *decoded = results.iter().map(|r| r.0).sum();
         }
@@ -434,6 +418,47 @@ pub extern "C" fn nmat_cache_decode_missing(
             None => Ok(()),
         }
     })
+}
+
+/// Decodes the tiles marked and missing on `threads` threads (0: one per core): per thread the
+/// tiles decoded and the first error.
+fn decode_pending(state: &mut State<'_>, threads: u32) -> Vec<(u32, Option<nmat_core::Error>)> {
+    let decoders = &state.decoders;
+    let jobs: Vec<_> = state.cache.pending().collect();
+    let threads = match threads {
+        0 => std::thread::available_parallelism().map_or(1, usize::from),
+        n => n as usize,
+    };
+    let threads = threads.min(jobs.len()).max(1);
+    let mut parts: Vec<Vec<_>> = (0..threads).map(|_| Vec::new()).collect();
+    for (k, job) in jobs.into_iter().enumerate() {
+        parts[k % threads].push(job);
+    }
+    let run = |part: Vec<nmat_core::PendingTile<'_, '_>>| {
+        let mut result = (0u32, None);
+        for job in part {
+            let d = decoders.get(usize::from(job.key().material));
+            match d.map(|d| job.decode_with(d)) {
+                Some(Ok(())) => result.0 += 1,
+                Some(Err(e)) => {
+                    result.1.get_or_insert(e);
+                }
+                None => {}
+            }
+        }
+        result
+    };
+    if threads == 1 {
+        parts.into_iter().map(run).collect()
+    } else {
+        std::thread::scope(|s| {
+            let running: Vec<_> =
+                parts.into_iter().map(|part| s.spawn(move || run(part))).collect();
+            // A panic on a decoding thread reaches `guard` (NMAT_INTERNAL_ERROR).
+            let joined = running.into_iter().map(|t| t.join());
+            joined.map(|r| r.unwrap_or_else(|p| std::panic::resume_unwind(p))).collect()
+        })
+    }
 }
 
 /// The filtered lookup of `nmat_sample` in integer mode (`NMAT_MODE_INTEGER`), from the cache:
@@ -456,11 +481,12 @@ pub extern "C" fn nmat_cache_resolve(
 ) -> nmat_status {
     guard(|| {
         let c = shared(cache, "nmat_cache_resolve")?;
-        let m = c.cache.material(material as usize).map_err(fail)?;
+        let state = c.state();
+        let m = state.cache.material(material as usize).map_err(fail)?;
         let out = slice_mut(out, out_len)?;
         let (channels, _) = mask(m, channel_mask)?;
         let req = nmat_core::SampleRequest { channels, ..request(u, v, lod, filter, random)? };
-        c.cache.resolve(material as usize, &req, out).map(|_| ()).map_err(fail)
+        state.cache.resolve(material as usize, &req, out).map(|_| ()).map_err(fail)
     })
 }
 
@@ -473,7 +499,7 @@ pub extern "C" fn nmat_cache_stats(
 ) -> nmat_status {
     guard(|| {
         let c = shared(cache, "nmat_cache_stats")?;
-        *arg_mut(out)? = c.cache.stats().into();
+        *arg_mut(out)? = c.state().cache.stats().into();
         Ok(())
     })
 }
@@ -489,7 +515,7 @@ pub extern "C" fn nmat_cache_end_frame(
         let mut c = exclusive(cache, "nmat_cache_end_frame")?;
         // Checked before the frame ends, so a bad pointer is refused with nothing done.
         let out = if out.is_null() { None } else { Some(arg_mut(out)?) };
-        let stats = c.cache.end_frame();
+        let stats = c.change(|s| s.cache.end_frame());
         if let Some(out) = out {
             *out = stats.into();
         }
