@@ -1,0 +1,114 @@
+//! The CPU trainer (docs/ENCODING.md): latents and MLP optimized jointly with Adam and a cosine
+//! schedule under simulated quantization (uniform noise), then latents frozen at their quantized
+//! values while the MLP is fine-tuned, then quantization-aware fine-tuning of the int8 weights
+//! (straight-through estimator) so the integer decoder is the trained model.
+//!
+//! Forward and backward are written by hand (the NTC paper's own trainer was 10× faster than a
+//! general framework): a chunk of samples goes through each layer as one matrix product on the
+//! SIMD kernels of `gemm` (fixed fma chains: the same bits on every kernel). A step's batch is
+//! cut into fixed chunks processed in parallel; their gradients are summed in chunk order, so the
+//! result is the same for any number of threads and any kernel.
+
+mod adam;
+mod export;
+mod latents;
+mod layers;
+mod model;
+mod options;
+mod rng;
+
+pub use export::{export_layer, frac_bits_for};
+pub use latents::GridState;
+pub use layers::{Dense, row_scale};
+pub use model::Model;
+pub use options::{DEFAULT_STEPS, Effort, Phase, Progress, TrainOptions, mlp_flops_per_sample};
+
+/// Fraction bits of the MLP input: latents span ±1.5, fusion chains of 4 grids ±6, within ±8.
+pub const INPUT_FRAC_BITS: u8 = 12;
+/// Fraction bits of the last layer: outputs are unit values, Q.13 holds ±4.
+pub const OUTPUT_FRAC_BITS: u8 = 13;
+/// Latents are dequantized onto [−SPAN, SPAN].
+const SPAN: f64 = 1.5;
+/// Samples per parallel work item (fixed: it, not the thread count, shapes the arithmetic).
+const CHUNK: usize = 256;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::memhint::huge_vec;
+    use latents::{LATENT_BUCKETS, LatentBuckets, latent_bucket_edges, split_at_edges};
+    use nmat_core::Activation;
+
+    #[test]
+    fn a_row_carried_by_its_bias_survives_export() {
+        // Dead weights, a live bias: the int8 scale must still express the bias.
+        for (w, b) in [(1e-12f32, 0.7f32), (0.0, -3.0), (0.5, 0.25), (1e-6, 5.0)] {
+            let layer = Dense { inputs: 64, outputs: 1, hidden: true, w: vec![w; 64], b: vec![b] };
+            for in_frac in [10u8, 12, 14] {
+                let spec = export_layer(&layer, in_frac, 12, &[Some(0)], Activation::HardGelu);
+                let lsb = 1.0 / f64::from(1u32 << in_frac);
+                let real_bias = f64::from(spec.bias[0]) * f64::from(spec.scales[0]) * lsb;
+                assert!(
+                    (real_bias - f64::from(b)).abs() < 1e-3 * f64::from(b.abs()).max(1.0),
+                    "w {w} b {b}: {real_bias}"
+                );
+                let limit = f64::from(i32::MAX) - 64.0 * 127.0 * 32768.0;
+                assert!(f64::from(spec.bias[0]).abs() <= limit);
+            }
+        }
+    }
+    fn grid(width: u32, height: u32, channels: usize, base: usize) -> GridState {
+        GridState { width, height, channels, bits: 2, base, offset_q: 0, step_q: 1 }
+    }
+
+    #[test]
+    fn latent_buckets_hold_whole_cells_and_cover_every_latent() {
+        // Grids of 9, 5 and 9 channels, small enough to check every latent; the last pair has
+        // fewer latents than buckets.
+        for sizes in [vec![(17, 13, 9), (9, 7, 5), (1, 1, 9)], vec![(1, 1, 9), (1, 1, 5)]] {
+            let mut grids = Vec::new();
+            let mut base = 0;
+            for (w, h, c) in sizes {
+                grids.push(grid(w, h, c, base));
+                base += (w * h) as usize * c;
+            }
+            let buckets = LatentBuckets::new(latent_bucket_edges(&grids));
+            let edges = &buckets.edges;
+            assert_eq!(edges.len(), LATENT_BUCKETS + 1);
+            assert_eq!((edges[0], edges[LATENT_BUCKETS]), (0, base));
+            assert!(edges.windows(2).all(|w| w[0] <= w[1]), "{edges:?}");
+            for &e in &edges[..LATENT_BUCKETS] {
+                let g = grids.iter().rev().find(|g| g.base <= e).unwrap();
+                assert_eq!((e - g.base) % g.channels, 0, "edge {e} splits a cell: {edges:?}");
+            }
+            for latent in 0..base {
+                let k = buckets.of(latent as u32);
+                assert!(edges[k] <= latent && latent < edges[k + 1], "{latent} in {k}: {edges:?}");
+            }
+            let mut values: Vec<usize> = (0..base).collect();
+            let parts = split_at_edges(&mut values, edges);
+            for (k, part) in parts.iter().enumerate() {
+                assert_eq!(part.first().copied(), (edges[k] < edges[k + 1]).then_some(edges[k]));
+                assert_eq!(part.len(), edges[k + 1] - edges[k]);
+            }
+        }
+    }
+
+    #[test]
+    fn effort_trades_a_quarter_or_twice_the_steps() {
+        assert_eq!(Effort::Fast.schedule(30_000, 2048), (7_500, 2048));
+        assert_eq!(Effort::Fast.schedule(3, 2048), (1, 2048));
+        assert_eq!(Effort::Default.schedule(30_000, 2048), (30_000, 2048));
+        assert_eq!(Effort::Max.schedule(30_000, 2048), (60_000, 2048));
+        assert_eq!(Effort::Max.schedule(usize::MAX, 2048), (usize::MAX, 2048));
+    }
+
+    #[test]
+    fn huge_vectors_hold_their_values() {
+        // Large enough to span several 2 MiB blocks, whatever the allocation's alignment.
+        let n = (5 << 20) + 3;
+        let v = huge_vec(n, 0.25f32);
+        assert_eq!(v.len(), n);
+        assert!(v.iter().all(|&x| x == 0.25));
+    }
+}

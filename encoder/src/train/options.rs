@@ -1,0 +1,137 @@
+//! What an encode asks of the trainer: steps, batch, seed and the tuned knobs (`TrainOptions`),
+//! effort, the phases of the schedule and the learning-rate curve, and the work a step does.
+
+use crate::gemm::TrainKernel;
+use crate::profile::ModelConfig;
+
+/// Default optimizer steps: a 1024² four-map material trains in 1–3½ minutes on 2 cores
+/// (docs/ENCODING.md, "Tuning").
+pub const DEFAULT_STEPS: usize = 30_000;
+
+/// Encode time traded for quality (`--effort`): a quarter of a command's default steps, or twice
+/// them. `Max` doubles the steps at the same batch: at the default profile `ntc-0.5` that gained
+/// 0.16–0.43 dB on the three development materials tried, for about twice the time; a larger batch
+/// (what `Max` was before) lost up to 1.2 dB there (docs/ENCODING.md, "Speed").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Effort {
+    /// A quarter of the steps: for previews and iteration.
+    Fast,
+    /// The default steps and batch.
+    #[default]
+    Default,
+    /// Twice the steps, about twice the time.
+    Max,
+}
+
+impl Effort {
+    /// Steps and batch at this effort when `default_steps` and `default_batch` are the defaults.
+    pub fn schedule(self, default_steps: usize, default_batch: usize) -> (usize, usize) {
+        match self {
+            Effort::Fast => ((default_steps / 4).max(1), default_batch),
+            Effort::Default => (default_steps, default_batch),
+            Effort::Max => (default_steps.saturating_mul(2), default_batch),
+        }
+    }
+}
+
+/// How an encode trains. Beyond steps and seed these are tuning knobs (`nmat-sweep` measures
+/// them); the defaults are the tuned values.
+#[derive(Clone, Debug)]
+pub struct TrainOptions {
+    pub steps: usize,
+    /// Texels per optimizer step.
+    pub batch: usize,
+    pub seed: u64,
+    /// Peak learning rates of the MLP and the latents (cosine schedule down to 1 %).
+    pub lr_mlp: f32,
+    pub lr_latents: f32,
+    /// Percent of the steps that train latents and MLP together; the last `qat_percent` train
+    /// the MLP with fake-quantized int8 weights; the steps between, the MLP on frozen latents.
+    pub joint_percent: u32,
+    pub qat_percent: u32,
+    /// Share of the samples drawn uniformly over the mips; the rest in proportion to their area.
+    pub mip_uniform_share: f32,
+    /// Latents start at the middle of their range ± half this (a unit range is 1).
+    pub latent_init_spread: f32,
+    /// Matrix-product kernel; `None` picks [`TrainKernel::best`]. The file does not depend on it.
+    pub kernel: Option<TrainKernel>,
+}
+
+impl TrainOptions {
+    /// The kernel that runs: the one asked for, else the fastest this CPU has.
+    pub fn kernel(&self) -> TrainKernel {
+        self.kernel.unwrap_or_else(TrainKernel::best)
+    }
+
+    /// The phase of step `step` (from 0).
+    pub fn phase(&self, step: usize) -> Phase {
+        let steps = self.steps.max(1);
+        if step < self.joint_end() {
+            Phase::Joint
+        } else if step < steps * 100usize.saturating_sub(self.qat_percent as usize) / 100 {
+            Phase::FrozenLatents
+        } else {
+            Phase::QuantizationAware
+        }
+    }
+
+    /// The first step after the joint phase.
+    pub(super) fn joint_end(&self) -> usize {
+        self.steps.max(1) * (self.joint_percent as usize).min(100) / 100
+    }
+}
+
+impl Default for TrainOptions {
+    fn default() -> Self {
+        TrainOptions {
+            steps: DEFAULT_STEPS,
+            batch: 2048,
+            seed: 1,
+            lr_mlp: 1e-2,
+            lr_latents: 4e-2,
+            joint_percent: 90,
+            qat_percent: 3,
+            mip_uniform_share: 0.1,
+            latent_init_spread: 0.05,
+            kernel: None,
+        }
+    }
+}
+
+/// Reported during training.
+#[derive(Clone, Copy, Debug)]
+pub struct Progress {
+    pub step: usize,
+    pub steps: usize,
+    /// PSNR of the running training loss (unit scale, all learned channels), dB.
+    pub psnr: f64,
+    pub phase: Phase,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Phase {
+    /// Latents and MLP, latents under uniform quantization noise.
+    Joint,
+    /// Latents frozen at their quantized values; MLP only.
+    FrozenLatents,
+    /// MLP with fake-quantized int8 weights.
+    QuantizationAware,
+}
+
+/// Floating-point operations (2 per multiply-add) of the MLP's matrix products per training
+/// sample in `phase`: forward, weight gradients, and input gradients of every layer but the
+/// first — of the first too while latents train. What `nmat bench-train` counts as work.
+pub fn mlp_flops_per_sample(cfg: &ModelConfig, phase: Phase) -> u64 {
+    let mut widths = vec![cfg.input_width()];
+    widths.extend(&cfg.hidden);
+    widths.push(cfg.outputs.max(1));
+    let products: Vec<u64> = widths.windows(2).map(|w| (w[0] * w[1]) as u64).collect();
+    let all: u64 = products.iter().sum();
+    let input_grads = if phase == Phase::Joint { all } else { all - products[0] };
+    2 * (2 * all + input_grads)
+}
+
+pub(super) fn cosine(lr: f32, t: usize, total: usize) -> f32 {
+    let x = (t as f32 / total.max(1) as f32).min(1.0);
+    0.01 * lr + 0.99 * lr * 0.5 * (1.0 + (std::f32::consts::PI * x).cos())
+}
