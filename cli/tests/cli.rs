@@ -1,5 +1,7 @@
 //! The `nmat` binary end to end: encode → info → decode → eval, determinism across thread counts,
 //! and bad input that fails cleanly without leaving partial files.
+// Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
+#![allow(clippy::unwrap_used)]
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};

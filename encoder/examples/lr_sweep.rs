@@ -12,8 +12,8 @@ fn main() {
         let (a, b) = pair.split_once(',').expect("LR_MLP,LR_LATENTS");
         let train = TrainOptions {
             steps,
-            lr_mlp: a.parse().unwrap(),
-            lr_latents: b.parse().unwrap(),
+            lr_mlp: a.parse().expect("the MLP learning rate, a number"),
+            lr_latents: b.parse().expect("the latents' learning rate, a number"),
             ..TrainOptions::default()
         };
         let t = std::time::Instant::now();
@@ -22,7 +22,7 @@ fn main() {
             &EncodeOptions { profile, train, ..EncodeOptions::default() },
             &mut |_| {},
         )
-        .unwrap();
+        .expect("the procedural material encodes");
         println!(
             "{pair}: {:.2} dB, {:.3} BPPC, {:.1} s",
             out.quality.psnr,

@@ -27,6 +27,8 @@ pub enum TrainKernel {
     Avx512,
 }
 
+// The dispatch into the SIMD kernels: each call after the CPU check it needs.
+#[allow(unsafe_code)]
 impl TrainKernel {
     /// Every kernel this build knows, slowest first.
     pub const ALL: [TrainKernel; 3] = [TrainKernel::Scalar, TrainKernel::Avx2, TrainKernel::Avx512];

@@ -2,6 +2,8 @@
 //! `jpeg-encoder` crate, indexed by `nmat_encode::jpeg`, decoded texel by texel and row by row by
 //! `nmat-core`, and compared with libjpeg-turbo's `djpeg -dct int -nosmooth` (the integer IDCT and
 //! chroma replicated, not interpolated: what an MCU decoded on its own can give).
+// Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
+#![allow(clippy::unwrap_used)]
 
 use std::process::Command;
 

@@ -2,6 +2,8 @@
 //! every golden fixture, a trained material, and random-access requests at odd coordinates with
 //! channel subsets — through every kernel the device runs (`Kernel::ALL`). Runs on whatever
 //! adapter wgpu finds (lavapipe in CI); no adapter is a failure.
+// Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
+#![allow(clippy::unwrap_used)]
 
 use nmat_core::{ChannelMask, Container, Material};
 use nmat_tests::generate::{generate, golden_configs};

@@ -5,6 +5,8 @@
 //! `nmat_sample` bit for bit; the engine's module resolves like the recorded pass; a cache too
 //! small overflows as documented; refusals. Coordinates are dyadic, so the f32 footprints of the
 //! GPU and the f64 ones of the CPU pick the same texels (filter.wgsl).
+// Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
+#![allow(clippy::unwrap_used)]
 
 use std::collections::BTreeMap;
 

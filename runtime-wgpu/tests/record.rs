@@ -1,5 +1,7 @@
 //! Decodes recorded into the caller's command encoder and buffers, the packed output, and the
 //! reuse of buffers between submit-and-wait calls: every code against the CPU integer decoder.
+// Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
+#![allow(clippy::unwrap_used)]
 
 use nmat_core::{ChannelMask, Container};
 use nmat_tests::generate::{generate, golden_configs};

@@ -3,6 +3,8 @@
 //! here as a module) draws every filter, lod and channel group of the golden fixtures and a
 //! trained material like `Material::sample` on the CPU, to f32 rounding. The coordinates cross
 //! the material's edges (wrap and clamp addressing) and the lods go past the chain.
+// Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
+#![allow(clippy::unwrap_used)]
 
 use nmat_core::{ChannelMask, Container, Filter};
 use nmat_tests::generate::{generate, golden_configs};

@@ -3,6 +3,8 @@
 //! of the golden fixtures, a trained material and a material with constant channels against
 //! `Decoder::transcode_blocks`. Runs on whatever adapter wgpu finds (lavapipe in CI); no adapter
 //! is a failure.
+// Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
+#![allow(clippy::unwrap_used)]
 
 use nmat_core::bc::{self, BcFormat, BcTexture, layout_with};
 use nmat_core::{BlockRegion, Container, Decoder, Material};

@@ -16,7 +16,9 @@ fn main() {
         let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{path}: {e}"));
         let m = nmat_core::Container::parse(&bytes).unwrap_or_else(|e| panic!("{path}: {e}"));
         let a = nmat_tests::int_vs_float(&m);
-        let name = std::path::Path::new(&path).file_name().unwrap().to_string_lossy().into_owned();
+        let name = std::path::Path::new(&path)
+            .file_name()
+            .map_or(path.clone(), |n| n.to_string_lossy().into_owned());
         println!(
             "| {name} | {} | {} | {:+.4} | {:.2} % |",
             a.count,

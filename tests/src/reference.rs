@@ -170,12 +170,12 @@ fn to_code(y: i64, f: u32, max: i64) -> i64 {
 }
 
 pub fn decode_u8(spec: &MaterialSpec, x: i64, y: i64, mip: u32) -> Vec<u8> {
-    let f = u32::from(spec.mlp.layers.last().unwrap().out_frac_bits);
+    let f = u32::from(spec.mlp.layers.last().expect("a network has an output layer").out_frac_bits);
     decode_int_raw(spec, x, y, mip).into_iter().map(|v| to_code(v, f, 255) as u8).collect()
 }
 
 pub fn decode_u16(spec: &MaterialSpec, x: i64, y: i64, mip: u32) -> Vec<u16> {
-    let f = u32::from(spec.mlp.layers.last().unwrap().out_frac_bits);
+    let f = u32::from(spec.mlp.layers.last().expect("a network has an output layer").out_frac_bits);
     decode_int_raw(spec, x, y, mip).into_iter().map(|v| to_code(v, f, 65535) as u16).collect()
 }
 

@@ -1,4 +1,6 @@
 //! The decode API: channel subsets, filters, bad arguments, threads.
+// Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
+#![allow(clippy::unwrap_used)]
 
 use nmat_core::{
     Argument, ChannelMask, Container, Error, Filter, Material, Precision, SampleRequest,

@@ -1,5 +1,7 @@
 //! Truncated and bit-flipped fixtures: always an error or a valid material that decodes (like
 //! the reference decoder), never a panic.
+// Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
+#![allow(clippy::unwrap_used)]
 
 use nmat_core::checksum::file_checksum;
 use nmat_core::{

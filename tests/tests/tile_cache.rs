@@ -1,6 +1,8 @@
 //! The tile cache (`nmat_core::cache`): every resolved value equals `Material::sample`, for
 //! neural and JPEG materials, every filter, wrap and clamp, in one cache; what a frame counts;
 //! eviction of unseen tiles; a cache too small for the frame; decoding on threads; refusals.
+// Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
+#![allow(clippy::unwrap_used)]
 
 use nmat_core::cache::{MAX_CACHE_MATERIALS, MAX_CACHE_TILES};
 use nmat_core::{

@@ -46,9 +46,10 @@ unsafe fn rows<const R: usize>(
     let (ap, bp, cp) = (a.data.as_ptr(), b.data.as_ptr(), c.data.as_mut_ptr());
     let mut n = 0;
     while n < b.stride {
-        // SAFETY (all loads and stores): n + 16 ≤ stride (a multiple of 16); k < depth ≤ b.rows;
-        // rows r0 .. r0 + R of a and c exist; k < depth ≤ a.cols ≤ a.stride.
+        // Bounds of the loads and stores below: n + 16 ≤ stride (a multiple of 16); k < depth ≤
+        // b.rows; rows r0 .. r0 + R of a and c exist (callers); k < depth ≤ a.cols ≤ a.stride.
         let (i0, i1) = match init {
+            // SAFETY: `init` holds b.stride ≥ n + 16 values (the bounds above).
             Some(i) => unsafe {
                 (_mm256_loadu_ps(i.as_ptr().add(n)), _mm256_loadu_ps(i.as_ptr().add(n + 8)))
             },
@@ -56,17 +57,20 @@ unsafe fn rows<const R: usize>(
         };
         let mut acc = [[i0, i1]; R];
         for k in 0..depth {
+            // SAFETY: row k and columns n .. n + 16 of b (the bounds above).
             let (b0, b1) = unsafe {
                 let row = bp.add(k * b.stride + n);
                 (_mm256_loadu_ps(row), _mm256_loadu_ps(row.add(8)))
             };
             for (i, acc) in acc.iter_mut().enumerate() {
+                // SAFETY: one element of a within its rows and columns (the bounds above).
                 let av = unsafe { _mm256_broadcast_ss(&*ap.add((r0 + i) * a.stride + k)) };
                 acc[0] = _mm256_fmadd_ps(av, b0, acc[0]);
                 acc[1] = _mm256_fmadd_ps(av, b1, acc[1]);
             }
         }
         for (i, acc) in acc.iter().enumerate() {
+            // SAFETY: the row of c and columns n .. n + 16 (the bounds above).
             unsafe {
                 let row = cp.add((r0 + i) * c.stride + n);
                 _mm256_storeu_ps(row, acc[0]);
@@ -99,27 +103,31 @@ unsafe fn at_rows<const R: usize>(a: &Matrix, b: &Matrix, c: &mut Matrix, m0: us
     let (ap, bp, cp) = (a.data.as_ptr(), b.data.as_ptr(), c.data.as_mut_ptr());
     let mut n = 0;
     while n < b.stride {
-        // SAFETY (all loads and stores): n + 16 ≤ stride; k < a.rows == b.rows; columns
+        // Bounds of the loads and stores below: n + 16 ≤ stride; k < a.rows == b.rows; columns
         // m0 .. m0 + R of a exist (c.rows ≤ a.cols ≤ a.stride) and so do rows m0 .. m0 + R of c.
         let mut acc = [[_mm256_setzero_ps(); 2]; R];
         for (i, acc) in acc.iter_mut().enumerate() {
+            // SAFETY: the row of c and columns n .. n + 16 (the bounds above).
             unsafe {
                 let row = cp.add((m0 + i) * c.stride + n);
                 *acc = [_mm256_loadu_ps(row), _mm256_loadu_ps(row.add(8))];
             }
         }
         for k in 0..a.rows {
+            // SAFETY: row k and columns n .. n + 16 of b (the bounds above).
             let (b0, b1) = unsafe {
                 let row = bp.add(k * b.stride + n);
                 (_mm256_loadu_ps(row), _mm256_loadu_ps(row.add(8)))
             };
             for (i, acc) in acc.iter_mut().enumerate() {
+                // SAFETY: one element of a within its rows and columns (the bounds above).
                 let av = unsafe { _mm256_broadcast_ss(&*ap.add(k * a.stride + m0 + i)) };
                 acc[0] = _mm256_fmadd_ps(av, b0, acc[0]);
                 acc[1] = _mm256_fmadd_ps(av, b1, acc[1]);
             }
         }
         for (i, acc) in acc.iter().enumerate() {
+            // SAFETY: the row of c and columns n .. n + 16 (the bounds above).
             unsafe {
                 let row = cp.add((m0 + i) * c.stride + n);
                 _mm256_storeu_ps(row, acc[0]);

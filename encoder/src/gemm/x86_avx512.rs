@@ -46,21 +46,25 @@ unsafe fn rows<const R: usize>(
     let (ap, bp, cp) = (a.data.as_ptr(), b.data.as_ptr(), c.data.as_mut_ptr());
     let mut n = 0;
     while n < b.stride {
-        // SAFETY (all loads and stores): n + 16 ≤ stride (a multiple of 16); k < depth ≤ b.rows;
-        // rows r0 .. r0 + R of a and c exist; k < depth ≤ a.cols ≤ a.stride.
+        // Bounds of the loads and stores below: n + 16 ≤ stride (a multiple of 16); k < depth ≤
+        // b.rows; rows r0 .. r0 + R of a and c exist (callers); k < depth ≤ a.cols ≤ a.stride.
         let i0 = match init {
+            // SAFETY: `init` holds b.stride ≥ n + 16 values (the bounds above).
             Some(i) => unsafe { _mm512_loadu_ps(i.as_ptr().add(n)) },
             None => _mm512_setzero_ps(),
         };
         let mut acc = [i0; R];
         for k in 0..depth {
+            // SAFETY: row k and columns n .. n + 16 of b (the bounds above).
             let b0 = unsafe { _mm512_loadu_ps(bp.add(k * b.stride + n)) };
             for (i, acc) in acc.iter_mut().enumerate() {
+                // SAFETY: one element of a within its rows and columns (the bounds above).
                 let av = unsafe { _mm512_set1_ps(*ap.add((r0 + i) * a.stride + k)) };
                 *acc = _mm512_fmadd_ps(av, b0, *acc);
             }
         }
         for (i, acc) in acc.iter().enumerate() {
+            // SAFETY: the row of c and columns n .. n + 16 (the bounds above).
             unsafe { _mm512_storeu_ps(cp.add((r0 + i) * c.stride + n), *acc) };
         }
         n += 16;
@@ -89,20 +93,24 @@ unsafe fn at_rows<const R: usize>(a: &Matrix, b: &Matrix, c: &mut Matrix, m0: us
     let (ap, bp, cp) = (a.data.as_ptr(), b.data.as_ptr(), c.data.as_mut_ptr());
     let mut n = 0;
     while n < b.stride {
-        // SAFETY (all loads and stores): n + 16 ≤ stride; k < a.rows == b.rows; columns
+        // Bounds of the loads and stores below: n + 16 ≤ stride; k < a.rows == b.rows; columns
         // m0 .. m0 + R of a exist (c.rows ≤ a.cols ≤ a.stride) and so do rows m0 .. m0 + R of c.
         let mut acc = [_mm512_setzero_ps(); R];
         for (i, acc) in acc.iter_mut().enumerate() {
+            // SAFETY: row m0 + i and columns n .. n + 16 of c (the bounds above).
             *acc = unsafe { _mm512_loadu_ps(cp.add((m0 + i) * c.stride + n)) };
         }
         for k in 0..a.rows {
+            // SAFETY: row k and columns n .. n + 16 of b (the bounds above).
             let b0 = unsafe { _mm512_loadu_ps(bp.add(k * b.stride + n)) };
             for (i, acc) in acc.iter_mut().enumerate() {
+                // SAFETY: one element of a within its rows and columns (the bounds above).
                 let av = unsafe { _mm512_set1_ps(*ap.add(k * a.stride + m0 + i)) };
                 *acc = _mm512_fmadd_ps(av, b0, *acc);
             }
         }
         for (i, acc) in acc.iter().enumerate() {
+            // SAFETY: the row of c and columns n .. n + 16 (the bounds above).
             unsafe { _mm512_storeu_ps(cp.add((m0 + i) * c.stride + n), *acc) };
         }
         n += 16;

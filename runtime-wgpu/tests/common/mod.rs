@@ -1,4 +1,6 @@
 //! What the GPU tests share: the device, and a small trained material.
+// Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
+#![allow(clippy::unwrap_used)]
 
 /// The first adapter wgpu finds (lavapipe in CI); none is a failure, not a skip.
 pub fn device() -> (wgpu::Device, wgpu::Queue) {

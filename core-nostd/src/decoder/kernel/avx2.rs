@@ -138,7 +138,7 @@ fn block<const B: usize, const S: usize>(
         2 * l.in_pairs() <= MAX_WIDTH && l.weights().len() == l.in_pairs() * l.out_pad() * 2
     );
     let mut acc = [[_mm256_setzero_si256(); S]; B];
-    // SAFETY (all pointer accesses below): within the bounds stated above.
+    // SAFETY: every pointer access below stays within the bounds stated above.
     unsafe {
         let bias = l.bias().as_ptr().add(8 * first);
         for (k, a) in acc.iter_mut().enumerate() {
@@ -226,7 +226,7 @@ fn group_block<const G: usize, const B: usize>(
     );
     debug_assert!(pairs <= l.in_pairs());
     let mut acc = [[_mm256_setzero_si256(); B]; G];
-    // SAFETY (all pointer accesses below): within the bounds stated above.
+    // SAFETY: every pointer access below stays within the bounds stated above.
     unsafe {
         for (texel, start) in acc.iter_mut().zip(init) {
             let start = start.add(8 * first);
@@ -271,6 +271,7 @@ fn requantize(l: &PackedLayer, acc: __m256i, b: usize) -> __m128i {
     debug_assert!(lanes.post_shift.len() >= 8 * b + 8 && l.multiplier().len() >= 8 * b + 8);
     // SAFETY: every per-row vector holds out_pad ≥ 8·b + 8 entries.
     let row = |v: *const i32| unsafe { _mm256_loadu_si256(v.add(8 * b).cast()) };
+    // SAFETY: as for `row`: the 64-bit vectors hold out_pad ≥ 8·b + 8 entries too.
     let wide = |v: *const i64| unsafe {
         let v = v.add(8 * b);
         (_mm256_loadu_si256(v.cast()), _mm256_loadu_si256(v.add(4).cast()))

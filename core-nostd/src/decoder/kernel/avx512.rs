@@ -124,7 +124,7 @@ fn block<const B: usize, const S: usize>(
         2 * l.in_pairs() <= MAX_WIDTH && l.weights().len() == l.in_pairs() * l.out_pad() * 2
     );
     let mut acc = [[_mm512_setzero_si512(); S]; B];
-    // SAFETY (all pointer accesses below): within the bounds stated above.
+    // SAFETY: every pointer access below stays within the bounds stated above.
     unsafe {
         let bias = l.bias().as_ptr().add(16 * first);
         for (k, a) in acc.iter_mut().enumerate() {
@@ -214,7 +214,7 @@ fn group_block<const G: usize, const B: usize>(
     );
     debug_assert!(pairs <= l.in_pairs());
     let mut acc = [[_mm512_setzero_si512(); B]; G];
-    // SAFETY (all pointer accesses below): within the bounds stated above.
+    // SAFETY: every pointer access below stays within the bounds stated above.
     unsafe {
         for (texel, start) in acc.iter_mut().zip(init) {
             let start = start.add(16 * first);

@@ -236,16 +236,19 @@ pub(super) trait Job {
 /// Runs `job` with `kernel`: the one place a kernel is chosen.
 pub(super) fn run<J: Job>(kernel: Available, job: J) -> J::Output {
     match kernel.0 {
-        // SAFETY (each arm): an `Available` holds a kernel only after `Kernel::is_available`
-        // said this CPU runs its instruction set (`Available::new`): AVX2; AVX-512 F, BW and
-        // VNNI; NEON; NEON and the dot-product extension.
+        // Each arm: an `Available` holds a kernel only after `Kernel::is_available` said this
+        // CPU runs its instruction set (`Available::new`).
         #[cfg(target_arch = "x86_64")]
+        // SAFETY: the CPU has AVX2 (see above).
         Kernel::Avx2 => unsafe { avx2::run(job) },
         #[cfg(target_arch = "x86_64")]
+        // SAFETY: the CPU has AVX-512 F, BW and VNNI (see above).
         Kernel::Avx512Vnni => unsafe { avx512::run(job) },
         #[cfg(target_arch = "aarch64")]
+        // SAFETY: the CPU has NEON (see above).
         Kernel::Neon => unsafe { neon::run(job) },
         #[cfg(target_arch = "aarch64")]
+        // SAFETY: the CPU has NEON and the dot-product extension (see above).
         Kernel::NeonDot => unsafe { neon_dot::run(job) },
         _ => job.run(scalar::Scalar),
     }
