@@ -27,7 +27,7 @@ pub enum TrainKernel {
     Avx512,
 }
 
-// The dispatch into the SIMD kernels: each call after the CPU check it needs.
+// `probe` runs a SIMD kernel after its own CPU check.
 #[allow(unsafe_code)]
 impl TrainKernel {
     /// Every kernel this build knows, slowest first.
@@ -101,6 +101,25 @@ impl TrainKernel {
         })
     }
 
+    /// This kernel, if this CPU runs it: the one CPU check, after which the matrix products run
+    /// it without asking again.
+    pub(crate) fn available(self) -> Option<Available> {
+        self.is_available().then_some(Available(self))
+    }
+}
+
+/// A kernel this CPU was found to run, made only by [`TrainKernel::available`]: the trainer picks
+/// its kernel once and the products below dispatch on it without a check per call (the pattern
+/// of the decoder's kernels in nmat-core).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Available(TrainKernel);
+
+// The dispatch into the SIMD kernels: an `Available` holds a kernel only after the CPU check.
+#[allow(unsafe_code)]
+impl Available {
+    /// The portable kernel, which every CPU runs.
+    pub(crate) const SCALAR: Available = Available(TrainKernel::Scalar);
+
     /// `c[r][n] = init[n]` (or 0), then `c[r][n] = fma(a[r][k], b[k][n], c[r][n])` for
     /// k = 0 .. depth in order; every row of `a`, every (padded) column of `b`.
     pub(crate) fn matmul(
@@ -114,16 +133,16 @@ impl TrainKernel {
         assert!(depth <= a.cols && depth <= b.rows, "matmul: depth {depth} out of range");
         assert!(c.rows == a.rows && c.stride == b.stride, "matmul: output shape");
         assert!(init.is_none_or(|i| i.len() == b.stride), "matmul: init length");
-        match self {
+        match self.0 {
             #[cfg(target_arch = "x86_64")]
-            TrainKernel::Avx2 if self.is_available() => {
-                // SAFETY: the CPU has AVX2 and FMA (checked above); the shapes were checked
+            TrainKernel::Avx2 => {
+                // SAFETY: the CPU has AVX2 and FMA (an `Available` exists only then); the shapes were checked
                 // against the matrices' invariants (rows × stride elements, stride % LANES == 0).
                 unsafe { x86_avx2::matmul(a, depth, b, init, c) }
             }
             #[cfg(target_arch = "x86_64")]
-            TrainKernel::Avx512 if self.is_available() => {
-                // SAFETY: as for AVX2, with AVX-512F checked.
+            TrainKernel::Avx512 => {
+                // SAFETY: as for AVX2, the CPU having AVX-512F.
                 unsafe { x86_avx512::matmul(a, depth, b, init, c) }
             }
             _ => scalar::matmul(a, depth, b, init, c),
@@ -136,15 +155,15 @@ impl TrainKernel {
     /// instruction set — IEEE add, multiply, divide, square root, min/max; Rust never fuses a
     /// multiply and an add by itself — so only its speed depends on the kernel.
     pub(crate) fn run<R>(self, f: impl FnOnce() -> R) -> R {
-        match self {
+        match self.0 {
             #[cfg(target_arch = "x86_64")]
-            TrainKernel::Avx2 if self.is_available() => {
-                // SAFETY: the CPU has AVX2 and FMA (checked above).
+            TrainKernel::Avx2 => {
+                // SAFETY: the CPU has AVX2 and FMA (an `Available` exists only then).
                 unsafe { x86_avx2::run(f) }
             }
             #[cfg(target_arch = "x86_64")]
-            TrainKernel::Avx512 if self.is_available() => {
-                // SAFETY: the CPU has AVX-512F (checked above).
+            TrainKernel::Avx512 => {
+                // SAFETY: the CPU has AVX-512F (an `Available` exists only then).
                 unsafe { x86_avx512::run(f) }
             }
             _ => f(),
@@ -156,14 +175,14 @@ impl TrainKernel {
     pub(crate) fn matmul_at_acc(self, a: &Matrix, b: &Matrix, c: &mut Matrix) {
         assert!(a.rows == b.rows, "matmul_at_acc: depth");
         assert!(c.rows <= a.cols && c.stride == b.stride, "matmul_at_acc: output shape");
-        match self {
+        match self.0 {
             #[cfg(target_arch = "x86_64")]
-            TrainKernel::Avx2 if self.is_available() => {
+            TrainKernel::Avx2 => {
                 // SAFETY: as in `matmul`.
                 unsafe { x86_avx2::matmul_at_acc(a, b, c) }
             }
             #[cfg(target_arch = "x86_64")]
-            TrainKernel::Avx512 if self.is_available() => {
+            TrainKernel::Avx512 => {
                 // SAFETY: as in `matmul`.
                 unsafe { x86_avx512::matmul_at_acc(a, b, c) }
             }
@@ -249,7 +268,8 @@ mod tests {
 
     #[test]
     fn every_kernel_computes_the_same_fma_chains() {
-        let available: Vec<_> = TrainKernel::ALL.into_iter().filter(|k| k.is_available()).collect();
+        let available: Vec<Available> =
+            TrainKernel::ALL.into_iter().filter_map(TrainKernel::available).collect();
         for (rows, depth, width) in [(1, 1, 1), (7, 50, 64), (13, 64, 8), (256, 64, 64), (9, 3, 33)]
         {
             let a = filled(rows, depth, 1);
@@ -276,7 +296,7 @@ mod tests {
                     c.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
                     want.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
                     "{} matmul {rows}×{depth}×{width}",
-                    k.name()
+                    k.0.name()
                 );
                 let mut c = c0.clone();
                 k.matmul_at_acc(&a, &b2, &mut c);
@@ -284,7 +304,7 @@ mod tests {
                     c.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
                     want_at.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
                     "{} matmul_at_acc {rows}×{depth}×{width}",
-                    k.name()
+                    k.0.name()
                 );
             }
         }

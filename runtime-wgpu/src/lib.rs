@@ -440,8 +440,8 @@ impl Context {
     /// Uploads a parsed material once: the latent words as stored, the int8 weights (widened to
     /// i32 for the reference kernel, packed four per word for the tiled ones), and per row the
     /// bias and requantization constants derived exactly as the CPU does; and prepares the
-    /// fastest kernel the device runs ([`Kernel::ALL`] order; pipelines are shared by materials
-    /// of the same network shape).
+    /// fastest kernel the device runs ([`Kernel::ALL`] from its end; pipelines are shared by
+    /// materials of the same network shape).
     pub fn upload(&self, device: &wgpu::Device, m: &Material<'_>) -> Result<GpuMaterial, GpuError> {
         self.upload_with(device, m, None)
     }
@@ -645,6 +645,7 @@ impl Context {
             },
             None => Ok(Kernel::ALL
                 .into_iter()
+                .rev()
                 .find_map(|k| prepare(k).ok().map(|t| (k, t)))
                 .unwrap_or((Kernel::Reference, None))),
         }

@@ -20,8 +20,10 @@ pub enum Kernel {
 }
 
 impl Kernel {
-    /// Every kernel, fastest first: the order [`crate::Context::upload`] tries them in.
-    pub const ALL: [Kernel; 3] = [Kernel::Dot4, Kernel::Int32, Kernel::Reference];
+    /// Every kernel, slowest first, as every kernel list of the workspace is (nmat-core's
+    /// `Kernel::ALL`, nmat-encode's `TrainKernel::ALL`); [`crate::Context::upload`] tries them
+    /// from the end.
+    pub const ALL: [Kernel; 3] = [Kernel::Reference, Kernel::Int32, Kernel::Dot4];
 
     pub fn name(self) -> &'static str {
         match self {

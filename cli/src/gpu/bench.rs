@@ -44,6 +44,7 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
     // The other kernels the device runs, for a region row each (same codes, other speed).
     let others: Vec<GpuMaterial> = Kernel::ALL
         .into_iter()
+        .rev()
         .filter(|&k| k != gm.kernel())
         .filter_map(|k| ctx.upload_with(&device, m, Some(k)).ok())
         .collect();

@@ -10,7 +10,7 @@ use super::layers::{Dense, EvalLayer, eval_layers, hard_gelu, hard_gelu_grad};
 use super::options::{Phase, Progress, TrainOptions, cosine};
 use super::rng::Rng;
 use super::{CHUNK, INPUT_FRAC_BITS, SPAN};
-use crate::gemm::{Matrix, TrainKernel};
+use crate::gemm::{Available, Matrix, TrainKernel};
 use crate::memhint::{huge_vec, prefetch};
 use crate::profile::ModelConfig;
 use crate::texset::TextureSet;
@@ -36,7 +36,7 @@ pub(super) fn store_features(
 /// How a step runs its chunks.
 #[derive(Clone, Copy)]
 pub(super) struct ChunkMode {
-    pub(super) kernel: TrainKernel,
+    pub(super) kernel: Available,
     pub(super) latents: LatentMode,
     /// Whether gradients flow back to the latents (the joint phase).
     pub(super) train_latents: bool,
@@ -371,7 +371,7 @@ impl<'a> Model<'a> {
     #[inline(always)]
     pub(super) fn forward(
         layers: &[EvalLayer],
-        kernel: TrainKernel,
+        kernel: Available,
         x0: Matrix,
     ) -> (Vec<Matrix>, Vec<Matrix>) {
         let samples = x0.rows();
@@ -463,7 +463,8 @@ impl<'a> Model<'a> {
         let mut latent_state = LatentState::new(self.latents.len());
         let mut running = None::<f64>;
         let chunks = opts.batch.div_ceil(CHUNK);
-        let kernel = opts.kernel();
+        // The kernel is chosen once (a kernel this CPU lacks falls back to the scalar one).
+        let kernel = opts.kernel().available().unwrap_or(Available::SCALAR);
         let (tap_count, latent_reads) = self.taps_per_sample;
         for step in 0..steps {
             let phase = opts.phase(step);
@@ -554,6 +555,7 @@ impl<'a> Model<'a> {
     /// Largest |pre-activation| of each hidden layer over `samples` texels, with the final
     /// (fake-quantized) weights and quantized latents: sets the hidden Q-formats.
     pub fn activation_ranges(&self, samples: usize, seed: u64, kernel: TrainKernel) -> Vec<f32> {
+        let kernel = kernel.available().unwrap_or(Available::SCALAR);
         let layers = eval_layers(&self.layers, true);
         let mut rng = Rng::new(seed, u64::MAX, 7);
         let mut max = vec![0f32; layers.len()];
@@ -591,7 +593,7 @@ pub(super) struct LatentUpdate {
 impl LatentUpdate {
     /// Sums the gradients of `bucket` over `results` (in chunk order) and updates the latent
     /// cells it touched; `range` is that bucket's, which starts at latent `base`. Inlined into
-    /// [`TrainKernel::run`], so its loops run in the kernel's SIMD lanes.
+    /// [`Available::run`], so its loops run in the kernel's SIMD lanes.
     #[inline(always)]
     pub(super) fn apply(
         &self,
