@@ -117,8 +117,10 @@ pub(crate) struct Available(TrainKernel);
 // The dispatch into the SIMD kernels: an `Available` holds a kernel only after the CPU check.
 #[allow(unsafe_code)]
 impl Available {
-    /// The portable kernel, which every CPU runs.
-    pub(crate) const SCALAR: Available = Available(TrainKernel::Scalar);
+    /// `kernel` if this CPU runs it, else the portable kernel, which every CPU runs.
+    pub(crate) fn or_scalar(kernel: TrainKernel) -> Available {
+        kernel.available().unwrap_or(Available(TrainKernel::Scalar))
+    }
 
     /// `c[r][n] = init[n]` (or 0), then `c[r][n] = fma(a[r][k], b[k][n], c[r][n])` for
     /// k = 0 .. depth in order; every row of `a`, every (padded) column of `b`.

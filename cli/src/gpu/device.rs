@@ -16,3 +16,16 @@ pub fn find() -> Option<(wgpu::Device, wgpu::Queue, wgpu::AdapterInfo)> {
 pub fn open() -> Result<(wgpu::Device, wgpu::Queue, wgpu::AdapterInfo)> {
     Ok(find().ok_or(NO_ADAPTER)?)
 }
+
+/// The default adapter's device and queue, a context on it and `m` uploaded, after saying on
+/// stderr which adapter does `what` ("decoding", "transcoding").
+pub fn upload(
+    m: &nmat_core::Material<'_>,
+    what: &str,
+) -> Result<(wgpu::Device, wgpu::Queue, nmat_wgpu::Context, nmat_wgpu::GpuMaterial)> {
+    let (device, queue, info) = open()?;
+    eprintln!("{what} on {} ({:?}, {:?})", info.name, info.backend, info.device_type);
+    let ctx = nmat_wgpu::Context::new(&device);
+    let gm = ctx.upload(&device, m)?;
+    Ok((device, queue, ctx, gm))
+}

@@ -16,10 +16,7 @@ pub fn decode_maps(
     dir: &Path,
     progress: &mut dyn FnMut(u64),
 ) -> Result<Vec<PathBuf>> {
-    let (device, queue, info) = device::open()?;
-    eprintln!("decoding on {} ({:?}, {:?})", info.name, info.backend, info.device_type);
-    let ctx = nmat_wgpu::Context::new(&device);
-    let gm = ctx.upload(&device, m)?;
+    let (device, queue, ctx, gm) = device::upload(m, "decoding")?;
     let decode = |mip: u32| -> Result<Vec<u8>> {
         Ok(ctx.decode_mip(&device, &queue, &gm, mip, nmat_core::ChannelMask::ALL)?)
     };
@@ -34,10 +31,7 @@ pub fn encodes(format: BcFormat) -> bool {
 
 /// `nmat transcode --gpu`: the transcoder of `m`'s textures on the GPU.
 pub fn transcoder(m: &Material<'_>) -> Result<Levels> {
-    let (device, queue, info) = device::open()?;
-    eprintln!("transcoding on {} ({:?}, {:?})", info.name, info.backend, info.device_type);
-    let ctx = nmat_wgpu::Context::new(&device);
-    let gm = ctx.upload(&device, m)?;
+    let (device, queue, ctx, gm) = device::upload(m, "transcoding")?;
     Ok(Box::new(move |texture, progress| {
         if !encodes(texture.format) {
             return Ok(None);

@@ -464,7 +464,7 @@ impl<'a> Model<'a> {
         let mut running = None::<f64>;
         let chunks = opts.batch.div_ceil(CHUNK);
         // The kernel is chosen once (a kernel this CPU lacks falls back to the scalar one).
-        let kernel = opts.kernel().available().unwrap_or(Available::SCALAR);
+        let kernel = Available::or_scalar(opts.kernel());
         let (tap_count, latent_reads) = self.taps_per_sample;
         for step in 0..steps {
             let phase = opts.phase(step);
@@ -555,7 +555,7 @@ impl<'a> Model<'a> {
     /// Largest |pre-activation| of each hidden layer over `samples` texels, with the final
     /// (fake-quantized) weights and quantized latents: sets the hidden Q-formats.
     pub fn activation_ranges(&self, samples: usize, seed: u64, kernel: TrainKernel) -> Vec<f32> {
-        let kernel = kernel.available().unwrap_or(Available::SCALAR);
+        let kernel = Available::or_scalar(kernel);
         let layers = eval_layers(&self.layers, true);
         let mut rng = Rng::new(seed, u64::MAX, 7);
         let mut max = vec![0f32; layers.len()];
