@@ -314,7 +314,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         pollster::block_on(nmat_wgpu::default_device()).ok_or("no GPU adapter found")?;
     println!("adapter: {} ({:?})", info.name, info.backend);
     let context = Context::new(&device);
-    let gpu = context.upload(&device, &material)?;
+    let gpu = context.upload(&device, &queue, &material)?;
     let quad = Quad::new(&device);
     // The whole material (uv in [0, 1]) on a power-of-two square, halfway between mips 0 and 1.
     let (w, h) = material.mip_size(0);

@@ -16,7 +16,7 @@
 //! // An engine passes its own device; tools can ask for the first adapter wgpu finds.
 //! let (device, queue, _info) = nmat_wgpu::default_device().await.ok_or("no GPU adapter")?;
 //! let context = Context::new(&device); // once per device
-//! let gpu = context.upload(&device, &material)?; // once per material
+//! let gpu = context.upload(&device, &queue, &material)?; // once per material
 //! // A whole mip: one code per texel and channel, row by row.
 //! let mip0 = context.decode_mip(&device, &queue, &gpu, 0, ChannelMask::ALL)?;
 //! // Scattered texels (e.g. what a frame touches): many per call.
@@ -31,13 +31,16 @@
 //! [`Context::record_region`] and [`Context::record_requests`] (requests read from the caller's
 //! buffer, e.g. written by its own pass) add a dispatch to the caller's command encoder that
 //! writes the codes, packed four per `u32`, into the caller's buffer; nothing is submitted.
-//! Upload prepares the fastest of the [`Kernel`]s the device runs (tiled: 4 rows × 4 texels per
-//! invocation over workgroup memory, with `dot4I8Packed` where the device's WGSL has it); all
-//! give the same codes. To decode where a material is drawn, an engine includes the decoder in its
+//! Upload picks, of the [`Kernel`]s the device runs (tiled: 4 rows × 4 texels per invocation
+//! over workgroup memory, with `dot4I8Packed` where the device's WGSL has it; matrix: tensor
+//! cores through wgpu's cooperative matrices, where the device has them), the fastest by
+//! measurement among those whose codes on a probe of the material equal the CPU's; all give the
+//! same codes. To decode where a material is drawn, an engine includes the decoder in its
 //! own shaders: [`SampleBindings::module`] is a WGSL module with `nmat_sample(uv, lod, rnd, mode,
 //! channels)` (the CPU's filters) and `nmat_texel`, bound with [`GpuMaterial::sample_entries`]
 //! (example `sample_quad`). Only downlevel limits are needed: 32-bit integers only (no `f16`,
-//! no subgroups, no 64-bit integers; the wide products are computed in pieces). The decode
+//! no subgroups, no 64-bit integers; the wide products are computed in pieces); the matrix
+//! kernel alone needs more ([`MATRIX_FEATURES`]) and is skipped where the device lacks it. The decode
 //! arithmetic is that of the format specification (`docs/FORMAT.md` of the repository, §6;
 //! embedded in `nmat_core::spec`); how the kernel maps it onto 32-bit integers and what it costs
 //! is in `docs/GPU.md`, embedded here as [`design`]. JPEG materials (§11) upload and decode
@@ -48,17 +51,21 @@
 
 mod cache;
 mod jpeg;
+mod matrix;
 pub mod measure;
 mod sample;
 mod texture;
 mod tiled;
 mod transcode;
+mod upload;
 
 pub use cache::{CacheLookup, GpuTileCache, MAX_CACHE_MATERIALS};
+pub use matrix::{FEATURES as MATRIX_FEATURES, usable as matrix_usable};
 pub use sample::SampleBindings;
 pub use texture::TextureTarget;
 pub use tiled::Kernel;
 pub use transcode::{PendingBlocks, aligned_row_pitch, encodes, texture_format};
+pub use upload::PROBE_TEXELS;
 
 /// The GPU runtime's design and measured speed (`docs/GPU.md` of the repository).
 #[cfg(doc)]
@@ -67,9 +74,8 @@ pub use transcode::{PendingBlocks, aligned_row_pitch, encodes, texture_format};
 pub mod design {}
 
 use nmat_core::bc::BcFormat;
-use nmat_core::{BlockRegion, ChannelMask, Material, TermMode};
+use nmat_core::{BlockRegion, ChannelMask};
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, mpsc};
 use wgpu::util::DeviceExt;
 
@@ -196,7 +202,7 @@ pub struct Context {
     encode: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
     pipeline_layout: wgpu::PipelineLayout,
-    /// Tiled pipelines by source (one per kernel and material shape); `None` where the device
+    /// Tiled and matrix pipelines by source (one per kernel and material shape); `None` where the device
     /// refused the source.
     tiled: Mutex<HashMap<String, Option<Arc<wgpu::ComputePipeline>>>>,
     /// Store pipelines of `record_map_to_texture` by texture format.
@@ -210,6 +216,10 @@ pub struct Context {
     pool: Pool,
     /// The JPEG decode pipeline (jpeg.wgsl), built when a JPEG material is first decoded.
     jpeg: Mutex<Option<Arc<jpeg::JpegPipelines>>>,
+    /// The kernel measured fastest per network shape (`shape_key`).
+    choices: Mutex<HashMap<String, Kernel>>,
+    /// A kernel made to compute wrong codes ([`Context::break_kernel_for_testing`]).
+    fault: Mutex<Option<Kernel>>,
 }
 
 /// A material's buffers on the GPU.
@@ -227,7 +237,10 @@ pub struct GpuMaterial {
     /// transcoding uses instead of the decoded one, as the CPU does.
     constant_codes: Vec<Option<u8>>,
     kernel: Kernel,
-    /// The tiled kernel's pipeline and texels per workgroup (`None`: the reference kernel).
+    /// Kernels whose codes on the upload's probe differed from the CPU's, and why.
+    rejected: Vec<(Kernel, &'static str)>,
+    /// The tiled or matrix kernel's pipeline and texels per workgroup (`None`: the reference
+    /// kernel).
     tiled: Option<(Arc<wgpu::ComputePipeline>, u32)>,
     /// A JPEG material's maps (`desc` and `latents` then hold its descriptor and section).
     jpeg: Option<jpeg::JpegMaps>,
@@ -240,6 +253,11 @@ impl GpuMaterial {
     /// The kernel that decodes this material's regions and requests.
     pub fn kernel(&self) -> Kernel {
         self.kernel
+    }
+    /// The kernels [`Context::upload`] did not use because their codes on its probe differed
+    /// from the CPU's (a driver that computes differently), with the reason; usually empty.
+    pub fn rejected(&self) -> &[(Kernel, &'static str)] {
+        &self.rejected
     }
     /// Width and height of each mip.
     pub fn mip_sizes(&self) -> &[(u32, u32)] {
@@ -394,6 +412,8 @@ impl Context {
             empty,
             pool: Pool::default(),
             jpeg: Mutex::default(),
+            choices: Mutex::default(),
+            fault: Mutex::default(),
         }
     }
 
@@ -435,220 +455,6 @@ impl Context {
             layout: &self.layout,
             entries: &entries,
         })
-    }
-
-    /// Uploads a parsed material once: the latent words as stored, the int8 weights (widened to
-    /// i32 for the reference kernel, packed four per word for the tiled ones), and per row the
-    /// bias and requantization constants derived exactly as the CPU does; and prepares the
-    /// fastest kernel the device runs ([`Kernel::ALL`] from its end; pipelines are shared by
-    /// materials of the same network shape).
-    pub fn upload(&self, device: &wgpu::Device, m: &Material<'_>) -> Result<GpuMaterial, GpuError> {
-        self.upload_with(device, m, None)
-    }
-
-    /// [`Context::upload`] with the kernel chosen by the caller (`None`: the fastest the device
-    /// runs), e.g. to compare kernels; [`GpuError::Kernel`] where the device cannot run it.
-    pub fn upload_with(
-        &self,
-        device: &wgpu::Device,
-        m: &Material<'_>,
-        kernel: Option<Kernel>,
-    ) -> Result<GpuMaterial, GpuError> {
-        static NEXT_ID: AtomicU64 = AtomicU64::new(0);
-        let init = |label, contents: Vec<u8>| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents: &contents,
-                usage: wgpu::BufferUsages::STORAGE,
-            })
-        };
-        if m.codec() == nmat_core::Codec::Jpeg {
-            // One kernel decodes JPEG materials; asking for a network kernel is an error.
-            if let Some(k) = kernel.filter(|&k| k != Kernel::Reference) {
-                return Err(GpuError::Kernel {
-                    kernel: k,
-                    reason: "a JPEG material has no network",
-                });
-            }
-            let (desc, section, maps) = jpeg::upload_words(device, m)?;
-            return Ok(GpuMaterial {
-                id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
-                desc: init("nmat jpeg desc", words_to_bytes(&desc)),
-                latents: init("nmat jpeg section", words_to_bytes(&section)),
-                channel_count: m.channel_count(),
-                mip_sizes: (0..m.mip_count()).map(|mip| m.mip_size(mip)).collect(),
-                address_clamp: m.address_mode() == nmat_core::AddressMode::Clamp,
-                ranges: m.channels().iter().map(|c| (c.range_min, c.range_max)).collect(),
-                constant_codes: m.channels().iter().map(|c| c.constant_code()).collect(),
-                kernel: Kernel::Reference,
-                tiled: None,
-                jpeg: Some(maps),
-            });
-        }
-        let (kernel, tiled) = self.kernel_for(device, m, kernel)?;
-        let mlp = m.mlp();
-        let mut desc = vec![0u32; 31];
-        desc[0] = m.width();
-        desc[1] = m.height();
-        desc[2] = m.mip_count();
-        desc[3] = m.channel_count() as u32;
-        desc[4] = m.address_mode() as u32;
-        desc[5] = u32::from(mlp.input_frac_bits());
-        desc[6] = u32::from(mlp.pe_frequencies());
-        desc[7] = u32::from(mlp.lod_input());
-        desc[8] = mlp.layers().len() as u32;
-        desc[9] = m.levels().len() as u32;
-        desc[10] = m.grids().len() as u32;
-        for mip in 0..m.mip_count() {
-            desc[14 + mip as usize] = m.level_for_mip(mip) as u32;
-        }
-        // Channel ranges (for `nmat_sample`): min and max per channel as f32 bits.
-        desc[30] = desc.len() as u32;
-        for ch in m.channels() {
-            desc.extend([ch.range_min.to_bits(), ch.range_max.to_bits()]);
-        }
-        // Grids: 8 words each, then their quantizers.
-        let mut latents: Vec<u32> = Vec::new();
-        desc[11] = desc.len() as u32;
-        let grids_at = desc.len();
-        desc.resize(grids_at + 8 * m.grids().len(), 0);
-        for (g, grid) in m.grids().iter().enumerate() {
-            let bits = u64::from(grid.width())
-                * u64::from(grid.height())
-                * grid.channels() as u64
-                * u64::from(grid.bits_per_latent());
-            if bits >= 1 << 32 {
-                return Err(GpuError::GridTooLarge { grid: g });
-            }
-            let words: Vec<u32> = grid
-                .packed_data()
-                .chunks_exact(4)
-                .map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]))
-                .collect();
-            let quant_at = desc.len() as u32;
-            for c in 0..grid.channels() {
-                let (offset, step) = grid.quantization(c);
-                desc.push(i32::from(offset) as u32);
-                desc.push(i32::from(step) as u32);
-            }
-            let record = [
-                grid.width(),
-                grid.height(),
-                grid.channels() as u32,
-                grid.bits_per_latent(),
-                latents.len() as u32,
-                words.len() as u32,
-                quant_at,
-                0,
-            ];
-            desc[grids_at + 8 * g..grids_at + 8 * g + 8].copy_from_slice(&record);
-            latents.extend(words);
-        }
-        // Levels: 1 + 4 × 10 words each.
-        desc[12] = desc.len() as u32;
-        for level in m.levels() {
-            let mut rec = vec![0u32; 41];
-            rec[0] = level.terms.len() as u32;
-            for (t, term) in level.terms.iter().enumerate() {
-                let tb = 1 + 10 * t;
-                rec[tb] = u32::from(term.mode != TermMode::Nearest4);
-                rec[tb + 1] = term.grids.len() as u32;
-                for (k, &g) in term.grids.iter().enumerate() {
-                    rec[tb + 2 + k] = u32::from(g);
-                }
-            }
-            desc.extend(rec);
-        }
-        // Layers: 8 words each; weights and row constants in `weights`.
-        desc[13] = desc.len() as u32;
-        let mut weights: Vec<i32> = Vec::new();
-        for layer in mlp.layers() {
-            let (n_in, n_out) = (layer.inputs(), layer.outputs());
-            let weights_at = weights.len() as u32;
-            for o in 0..n_out {
-                weights.extend((0..n_in).map(|i| i32::from(layer.weight_i8(o, i))));
-            }
-            let rows_at = weights.len() as u32;
-            for o in 0..n_out {
-                let rq = layer.requant(o);
-                weights.extend([layer.bias(o), rq.multiplier, rq.shift as i32]);
-            }
-            desc.extend([
-                n_in as u32,
-                n_out as u32,
-                u32::from(layer.out_frac_bits()),
-                u32::from(layer.activation() == nmat_core::Activation::HardGelu),
-                weights_at,
-                rows_at,
-                0,
-                0,
-            ]);
-        }
-        // The weights follow the descriptors in one buffer: move the layers' offsets past them.
-        let base = desc.len() as u32;
-        for l in 0..mlp.layers().len() {
-            let at = desc[13] as usize + 8 * l;
-            desc[at + 4] += base;
-            desc[at + 5] += base;
-        }
-        desc.extend(weights.iter().map(|&w| w as u32));
-        if kernel != Kernel::Reference {
-            let layers_at = desc[13] as usize;
-            tiled::append_tables(&mut desc, layers_at, m, kernel == Kernel::Dot4);
-        }
-        Ok(GpuMaterial {
-            id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
-            desc: init("nmat desc", words_to_bytes(&desc)),
-            latents: init("nmat latents", words_to_bytes(&latents)),
-            channel_count: m.channel_count(),
-            mip_sizes: (0..m.mip_count()).map(|mip| m.mip_size(mip)).collect(),
-            address_clamp: m.address_mode() == nmat_core::AddressMode::Clamp,
-            ranges: m.channels().iter().map(|c| (c.range_min, c.range_max)).collect(),
-            constant_codes: m.channels().iter().map(|c| c.constant_code()).collect(),
-            kernel,
-            tiled,
-            jpeg: None,
-        })
-    }
-
-    /// The kernel `wanted` (or the fastest that compiles) for `m`, with its tiled pipeline and
-    /// texels per workgroup.
-    #[allow(clippy::type_complexity)]
-    fn kernel_for(
-        &self,
-        device: &wgpu::Device,
-        m: &Material<'_>,
-        wanted: Option<Kernel>,
-    ) -> Result<(Kernel, Option<(Arc<wgpu::ComputePipeline>, u32)>), GpuError> {
-        // The reference kernel needs nothing prepared; a tiled one its pipeline.
-        let prepare = |kernel| -> Result<Option<(Arc<wgpu::ComputePipeline>, u32)>, &'static str> {
-            if kernel == Kernel::Reference {
-                return Ok(None);
-            }
-            let bytes = device.limits().max_compute_workgroup_storage_size;
-            let shape = tiled::Shape::new(m, kernel, bytes)
-                .ok_or("the network is too wide for the device's workgroup memory")?;
-            let mut cache = self.tiled.lock().unwrap_or_else(|e| e.into_inner());
-            let pipeline = cache.entry(shape.source(kernel)).or_insert_with_key(|source| {
-                try_pipeline(device, source, "tiled", Some(&self.pipeline_layout)).map(Arc::new)
-            });
-            let refused = match kernel {
-                Kernel::Dot4 => "the device refused the shader (its WGSL may lack dot4I8Packed)",
-                _ => "the device refused the shader",
-            };
-            pipeline.clone().map(|p| Some((p, shape.texels))).ok_or(refused)
-        };
-        match wanted {
-            Some(kernel) => match prepare(kernel) {
-                Ok(t) => Ok((kernel, t)),
-                Err(reason) => Err(GpuError::Kernel { kernel, reason }),
-            },
-            None => Ok(Kernel::ALL
-                .into_iter()
-                .rev()
-                .find_map(|k| prepare(k).ok().map(|t| (k, t)))
-                .unwrap_or((Kernel::Reference, None))),
-        }
     }
 
     /// The decode pipeline of `gm` and its texels per workgroup.
@@ -1259,16 +1065,20 @@ pub async fn default_device() -> Option<(wgpu::Device, wgpu::Queue, wgpu::Adapte
         .await
         .ok()?;
     let info = adapter.get_info();
+    // Cooperative matrices (the matrix kernel) where the adapter has the configuration it uses.
+    let matrices = adapter.features().contains(MATRIX_FEATURES)
+        && matrix_usable(&adapter.cooperative_matrix_properties());
     let (device, queue) = adapter
         .request_device(&wgpu::DeviceDescriptor {
             label: Some("nmat"),
-            // BC textures (for transcoded blocks), timestamp queries (for measuring) and the
-            // adapter's own format features (R8Unorm storage textures) where the adapter has
-            // them, nothing else.
+            // BC textures (for transcoded blocks), timestamp queries (for measuring), the
+            // adapter's own format features (R8Unorm storage textures) and cooperative matrices
+            // where the adapter has them, nothing else.
             required_features: adapter.features()
                 & (wgpu::Features::TEXTURE_COMPRESSION_BC
                     | measure::TIMESTAMP_FEATURES
-                    | wgpu::Features::TEXTURE_ADAPTER_SPECIFIC_FORMAT_FEATURES),
+                    | wgpu::Features::TEXTURE_ADAPTER_SPECIFIC_FORMAT_FEATURES)
+                | if matrices { MATRIX_FEATURES } else { wgpu::Features::empty() },
             // Downlevel limits, but all the workgroup memory the adapter has: the tiled kernel
             // decodes more texels per workgroup with more.
             required_limits: wgpu::Limits {
@@ -1277,11 +1087,25 @@ pub async fn default_device() -> Option<(wgpu::Device, wgpu::Queue, wgpu::Adapte
                     .max_compute_workgroup_storage_size,
                 ..wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits())
             },
-            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            experimental_features: if matrices {
+                experimental()
+            } else {
+                wgpu::ExperimentalFeatures::disabled()
+            },
             memory_hints: wgpu::MemoryHints::MemoryUsage,
             trace: wgpu::Trace::Off,
         })
         .await
         .ok()?;
     Some((device, queue, info))
+}
+
+/// wgpu's consent token for its experimental features, which the matrix kernel's cooperative
+/// matrices are.
+#[allow(unsafe_code)]
+fn experimental() -> wgpu::ExperimentalFeatures {
+    // SAFETY: wgpu asks its caller to accept that an experimental feature may have bugs. The
+    // only experimental feature enabled is EXPERIMENTAL_COOPERATIVE_MATRIX, used only by the
+    // matrix kernel, whose results `Context::upload` compares with the CPU's before using it.
+    unsafe { wgpu::ExperimentalFeatures::enabled() }
 }

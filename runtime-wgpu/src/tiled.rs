@@ -8,6 +8,11 @@ use std::fmt::Write as _;
 /// (the CPU's); they differ in speed only.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Kernel {
+    /// Layers as 16×16×16 cooperative matrix multiply-adds (tensor cores) on f16 operands that
+    /// hold the int8 weights and the activations' bytes exactly, summed in f32 below 2^24
+    /// (matrix.wgsl). Where the device has wgpu's cooperative matrices with that configuration
+    /// ([`crate::matrix_usable`]) and a subgroup size that does not vary.
+    Matrix,
     /// Tiled (4 rows × 4 texels per invocation over workgroup memory), products from
     /// `dot4I8Packed` (two per four W8A16 multiply-adds). Where the device's shader language has
     /// it.
@@ -23,10 +28,11 @@ impl Kernel {
     /// Every kernel, slowest first, as every kernel list of the workspace is (nmat-core's
     /// `Kernel::ALL`, nmat-encode's `TrainKernel::ALL`); [`crate::Context::upload`] tries them
     /// from the end.
-    pub const ALL: [Kernel; 3] = [Kernel::Reference, Kernel::Int32, Kernel::Dot4];
+    pub const ALL: [Kernel; 4] = [Kernel::Reference, Kernel::Int32, Kernel::Dot4, Kernel::Matrix];
 
     pub fn name(self) -> &'static str {
         match self {
+            Kernel::Matrix => "matrix",
             Kernel::Dot4 => "tiled dot4",
             Kernel::Int32 => "tiled i32",
             Kernel::Reference => "reference",
@@ -62,7 +68,7 @@ impl Shape {
         let per_texel = match kernel {
             Kernel::Dot4 => 4 * wmax + 4 * channels,
             Kernel::Int32 => 8 * wmax + 4 * channels,
-            Kernel::Reference => return None,
+            Kernel::Reference | Kernel::Matrix => return None,
         };
         let texels = TEXELS.into_iter().find(|p| p * per_texel <= workgroup_bytes)?;
         let layers = layers
@@ -89,12 +95,13 @@ impl Shape {
         };
         format!(
             "const P: u32 = {}u;\nconst WMAX: u32 = {}u;\nconst CH: u32 = {}u;\n\
-             fn layers(lid: u32) {{\n{calls}}}\n{}\n{}\n{products}\n{}",
+             fn layers(lid: u32) {{\n{calls}}}\n{}\n{}\n{products}\n{}\n{}",
             self.texels,
             self.wmax,
             self.channels,
             include_str!("texel.wgsl"),
             include_str!("decode.wgsl"),
+            include_str!("requant.wgsl"),
             include_str!("tiled.wgsl"),
         )
     }

@@ -10,7 +10,7 @@
 // `fn layers(lid)`, which calls `layer` once per layer with its widths as literals, a barrier
 // after each. Then texel.wgsl (the decoder, `nmat_features`), decode.wgsl (bindings), one of
 // tiled_i32.wgsl / tiled_dot4.wgsl (where activations live and how a tile's products are
-// formed), then this file.
+// formed), requant.wgsl (`requant_row`), then this file.
 //
 // Per layer l, nmat_desc[layers_at + 8l + 6] is where its packed weights start in `nmat_desc`:
 // rows padded to a multiple of 4 rows and 4 columns, 4 int8 weights per word (column 4j + b in
@@ -21,49 +21,6 @@
 
 // The codes of this workgroup, one per u32, in output order (texel, then channel).
 var<workgroup> tile_codes: array<u32, P * CH>;
-
-// sat16((acc · m + 2^(s−1)) >> s) exactly, with acc first clamped to the row's saturation range
-// [lo, hi] (outside it the result saturates anyway, inside it fits an i32).
-//
-// 32-bit path (u ≠ 0; lib.rs sets it where m' < 2^24, |acc| ≤ 2^24 on [lo, hi], u ≤ 31 and
-// |acc · m' / 2^u| ≤ 2^20): the result is r = floor((acc · m' + 2^(u−1)) / 2^u). The f32
-// estimate q = floor(acc · (m' / 2^u) + 0.5) is within 1 of r (acc and m' / 2^u are exact f32
-// values; the two roundings err by at most 2^−3 in all). Then e = acc · m' − q · 2^u lies in
-// (−(1/2 + 2^−3) · 2^u, (1/2 + 2^−3) · 2^u) ⊂ (−2^31, 2^31), so wrapping i32 arithmetic gives it
-// exactly, and r = q − 1 if e < −2^(u−1), q + 1 if e ≥ 2^(u−1), else q.
-//
-// 64-bit path: |acc| · m as a 64-bit (hi, lo) pair; floor(x / 2^s) of x = acc · m + 2^(s−1) is
-// (|acc| · m + 2^(s−1)) >> s for acc ≥ 0 and −((|acc| · m + 2^(s−1) − 1) >> s) for acc < 0
-// (floor(−y) = −ceil(y)); the clamp keeps the quotient below 2^31.
-fn requant_row(acc_in: i32, rb: u32) -> i32 {
-    let acc = clamp(acc_in, bitcast<i32>(nmat_desc[rb + 6u]), bitcast<i32>(nmat_desc[rb + 7u]));
-    let u = nmat_desc[rb + 3u];
-    if (u != 0u) {
-        var q = i32(floor(f32(acc) * bitcast<f32>(nmat_desc[rb + 5u]) + 0.5));
-        let e = acc * bitcast<i32>(nmat_desc[rb + 4u]) - (q << u);
-        let half = 1 << (u - 1u);
-        q += select(0, -1, e < -half) + select(0, 1, e >= half);
-        return nmat_sat16(q);
-    }
-    let s = nmat_desc[rb + 2u];
-    let negative = acc < 0;
-    let magnitude = select(bitcast<u32>(acc), 0u - bitcast<u32>(acc), negative);
-    let p = nmat_umul64(magnitude, nmat_desc[rb + 1u]);
-    let minus = select(0u, 1u, negative);
-    var add = vec2<u32>(0u, (1u << (s - 1u)) - minus);
-    if (s > 32u) {
-        add = vec2<u32>((1u << (s - 33u)) - minus, 0u - minus);
-    }
-    let lo = p.y + add.y;
-    let hi = p.x + add.x + select(0u, 1u, lo < p.y);
-    var r: u32;
-    if (s < 32u) {
-        r = (lo >> s) | (hi << (32u - s));
-    } else {
-        r = hi >> (s - 32u);
-    }
-    return nmat_sat16(select(bitcast<i32>(r), -bitcast<i32>(r), negative));
-}
 
 // Layer `l` (its inputs in `kw` words of 4 per row, its outputs in `row_groups` groups of 4
 // rows) from activation buffer `src` into the other one, or into `tile_codes` if `last`.

@@ -15,11 +15,19 @@ use common::{cpu_codes, device, random_requests, trained_material};
 
 /// `m` uploaded once per kernel the device runs: the tiled 32-bit and reference kernels run
 /// everywhere; the dot4 kernel where the device's WGSL has `dot4I8Packed` (lavapipe has it, and
-/// `NMAT_REQUIRE_DOT4=1` makes its absence a failure). The default upload takes the fastest.
-fn each_kernel(ctx: &Context, device: &wgpu::Device, m: &Material<'_>) -> Vec<GpuMaterial> {
+/// `NMAT_REQUIRE_DOT4=1` makes its absence a failure); the matrix kernel where the device has
+/// cooperative matrices (lavapipe has none; `NMAT_REQUIRE_MATRIX=1` makes their absence a
+/// failure). Each upload checked its kernel on a probe; the default upload takes one of them (on
+/// a software adapter, which is not measured, the last of `Kernel::ALL`).
+fn each_kernel(
+    ctx: &Context,
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    m: &Material<'_>,
+) -> Vec<GpuMaterial> {
     let mut uploads = Vec::new();
     for kernel in Kernel::ALL {
-        match ctx.upload_with(device, m, Some(kernel)) {
+        match ctx.upload_with(device, queue, m, Some(kernel)) {
             Ok(gm) => {
                 assert_eq!(gm.kernel(), kernel);
                 uploads.push(gm);
@@ -29,12 +37,20 @@ fn each_kernel(ctx: &Context, device: &wgpu::Device, m: &Material<'_>) -> Vec<Gp
             {
                 eprintln!("dot4 kernel not tested here: {reason}");
             }
+            Err(GpuError::Kernel { kernel: Kernel::Matrix, reason })
+                if std::env::var_os("NMAT_REQUIRE_MATRIX").is_none() =>
+            {
+                eprintln!("matrix kernel not tested here: {reason}");
+            }
             Err(e) => panic!("{kernel:?}: {e}"),
         }
     }
-    // `Kernel::ALL` is slowest first: the fastest the device runs is the last upload.
-    let fastest = uploads.last().map(GpuMaterial::kernel);
-    assert_eq!(Some(ctx.upload(device, m).unwrap().kernel()), fastest, "not the fastest");
+    let chosen = ctx.upload(device, queue, m).unwrap();
+    assert!(chosen.rejected().is_empty(), "{:?}", chosen.rejected());
+    assert!(uploads.iter().any(|gm| gm.kernel() == chosen.kernel()));
+    if device.adapter_info().device_type == wgpu::DeviceType::Cpu {
+        assert_eq!(Some(chosen.kernel()), uploads.last().map(GpuMaterial::kernel));
+    }
     uploads
 }
 
@@ -46,7 +62,7 @@ fn golden_fixtures_decode_identically_on_the_gpu() {
         let bytes = std::fs::read(fixtures_dir().join(format!("{}.nmat", cfg.name))).unwrap();
         let m = Container::parse(&bytes).unwrap();
         let cpu = decode_all_u8(&m);
-        for gm in each_kernel(&ctx, &device, &m) {
+        for gm in each_kernel(&ctx, &device, &queue, &m) {
             let gpu = ctx.decode_chain(&device, &queue, &gm, ChannelMask::ALL).unwrap();
             assert_eq!(gpu.len(), cpu.len(), "{}", cfg.name);
             let first = gpu.iter().zip(&cpu).position(|(a, b)| a != b);
@@ -71,7 +87,7 @@ fn random_access_requests_and_subsets_match_the_cpu() {
     ]);
     let as_requests: Vec<TexelRequest> =
         (7..18).flat_map(|y| (5..35).map(move |x| TexelRequest { x, y, mip: 1 })).collect();
-    for gm in each_kernel(&ctx, &device, &m) {
+    for gm in each_kernel(&ctx, &device, &queue, &m) {
         let kernel = gm.kernel();
         for mask in [ChannelMask::ALL, ChannelMask(0b1), ChannelMask(0b10_1001_0110)] {
             let gpu = ctx.decode_requests(&device, &queue, &gm, &reqs, mask).unwrap();
@@ -85,7 +101,7 @@ fn random_access_requests_and_subsets_match_the_cpu() {
             .unwrap();
         assert_eq!(region, cpu_codes(&m, &as_requests, ChannelMask(0b111)), "{kernel:?}");
     }
-    let gm = ctx.upload(&device, &m).unwrap();
+    let gm = ctx.upload(&device, &queue, &m).unwrap();
     // Sizes are validated before anything is submitted.
     assert!(ctx.submit_region(&device, &queue, &gm, 1, (40, 0, 10, 1), ChannelMask::ALL).is_err());
     assert!(ctx.submit_region(&device, &queue, &gm, 9, (0, 0, 1, 1), ChannelMask::ALL).is_err());
@@ -100,8 +116,49 @@ fn a_trained_material_decodes_identically_on_the_gpu() {
     let trained = trained_material();
     let m = Container::parse(&trained).unwrap();
     let cpu = decode_all_u8(&m);
-    for gm in each_kernel(&ctx, &device, &m) {
+    for gm in each_kernel(&ctx, &device, &queue, &m) {
         let gpu = ctx.decode_chain(&device, &queue, &gm, ChannelMask::ALL).unwrap();
         assert!(gpu == cpu, "trained material differs on the GPU ({:?})", gm.kernel());
     }
+}
+
+/// Never wrong: a kernel whose codes differ from the CPU's on the upload's probe is not used.
+/// The kernel the default upload picks is broken on purpose (`break_kernel_for_testing`: the
+/// last layer's first row requantized to 0, so channel 0 decodes as code 0): the upload falls
+/// back to another kernel, names the broken one in `rejected`, and still decodes every mip as
+/// the CPU does. Every kernel, broken and asked for, is an error that says why.
+#[test]
+fn a_kernel_that_differs_from_the_cpu_on_the_probe_is_not_used() {
+    let (device, queue) = device();
+    let cfg = golden_configs().into_iter().find(|c| c.name == "ntc_rgb_64").unwrap();
+    let bytes = std::fs::read(fixtures_dir().join(format!("{}.nmat", cfg.name))).unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    let cpu = decode_all_u8(&m);
+    // Channel 0 is not code 0 everywhere, so the broken row shows on the probe.
+    assert!(cpu.chunks(m.channel_count()).any(|texel| texel[0] != 0));
+    let chosen = Context::new(&device).upload(&device, &queue, &m).unwrap().kernel();
+    let ctx = Context::new(&device);
+    ctx.break_kernel_for_testing(chosen);
+    let gm = ctx.upload(&device, &queue, &m).unwrap();
+    assert_ne!(gm.kernel(), chosen);
+    assert_eq!(gm.rejected(), [(chosen, "its codes on the probe differ from the CPU's")]);
+    let gpu = ctx.decode_chain(&device, &queue, &gm, ChannelMask::ALL).unwrap();
+    assert!(gpu == cpu, "{:?} after rejecting {chosen:?}", gm.kernel());
+    let mut runs = 0;
+    for broken in Kernel::ALL {
+        let ctx = Context::new(&device);
+        if ctx.upload_with(&device, &queue, &m, Some(broken)).is_err() {
+            continue; // not on this device
+        }
+        runs += 1;
+        ctx.break_kernel_for_testing(broken);
+        match ctx.upload_with(&device, &queue, &m, Some(broken)) {
+            Err(GpuError::Kernel { kernel, reason }) => {
+                assert_eq!(kernel, broken);
+                assert!(reason.contains("differ from the CPU"), "{reason}");
+            }
+            other => panic!("{broken:?}: {:?}", other.map(|gm| gm.kernel())),
+        }
+    }
+    assert!(runs >= 3, "{runs} kernels run here");
 }

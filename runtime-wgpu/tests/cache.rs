@@ -285,7 +285,7 @@ fn frames_match_the_cpu_cache_tile_for_tile_and_value_for_value() {
     let bytes = fixture_bytes();
     let materials: Vec<Material<'_>> = bytes.iter().map(|b| Container::parse(b).unwrap()).collect();
     let refs: Vec<&Material<'_>> = materials.iter().collect();
-    let gpus: Vec<_> = materials.iter().map(|m| ctx.upload(&device, m).unwrap()).collect();
+    let gpus: Vec<_> = materials.iter().map(|m| ctx.upload(&device, &queue, m).unwrap()).collect();
     let gpu_refs: Vec<_> = gpus.iter().collect();
     let cache = ctx.create_tile_cache(&device, &gpu_refs, 512).unwrap();
     assert_eq!(cache.capacity(), 512);
@@ -365,7 +365,7 @@ fn a_full_cache_overflows_counts_its_misses_and_keeps_what_it_holds_exact() {
     let bytes = fixture_bytes();
     let materials: Vec<Material<'_>> = bytes.iter().map(|b| Container::parse(b).unwrap()).collect();
     let refs: Vec<&Material<'_>> = materials.iter().collect();
-    let gpus: Vec<_> = materials.iter().map(|m| ctx.upload(&device, m).unwrap()).collect();
+    let gpus: Vec<_> = materials.iter().map(|m| ctx.upload(&device, &queue, m).unwrap()).collect();
     let gpu_refs: Vec<_> = gpus.iter().collect();
     let slots = 5;
     let cache = ctx.create_tile_cache(&device, &gpu_refs, slots).unwrap();
@@ -414,7 +414,7 @@ fn refusals_name_what_is_wrong() {
     let ctx = Context::new(&device);
     let bytes = fixture_bytes();
     let m = Container::parse(&bytes[0]).unwrap();
-    let gpu = ctx.upload(&device, &m).unwrap();
+    let gpu = ctx.upload(&device, &queue, &m).unwrap();
     let cache_error = |r: Result<GpuTileCache, GpuError>| match r {
         Err(GpuError::Cache { reason }) => reason,
         Err(e) => panic!("{e}"),

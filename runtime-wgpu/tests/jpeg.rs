@@ -47,7 +47,7 @@ fn check_material(
     m: &Material<'_>,
     name: &str,
 ) {
-    let gm = context.upload(device, m).unwrap();
+    let gm = context.upload(device, queue, m).unwrap();
     assert_eq!(gm.codec(), Codec::Jpeg);
     let all = ChannelMask::ALL;
     // Every mip whole, all channels.
@@ -146,7 +146,7 @@ fn recorded_jpeg_decodes_equal_submitted_ones() {
     let context = Context::new(&device);
     let bytes = bricks_jpeg(nmat_encode::jpeg::Subsampling::S420);
     let m = Container::parse(&bytes).unwrap();
-    let gm = context.upload(&device, &m).unwrap();
+    let gm = context.upload(&device, &queue, &m).unwrap();
     let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
     let out = common::buffer(&device, 1 << 16, usage, Some(0xAB));
     let (rect, mask) = ((5, 3, 23, 17), ChannelMask(0b1100_0101));
@@ -199,12 +199,12 @@ fn paths_for_neural_materials_refuse_a_jpeg_one() {
     let context = Context::new(&device);
     let bytes = fixture();
     let m = Container::parse(&bytes).unwrap();
-    let gm = context.upload(&device, &m).unwrap();
+    let gm = context.upload(&device, &queue, &m).unwrap();
     let texture = nmat_core::bc::default_layout(&m)[0];
     let r = context.transcode_mip(&device, &queue, &gm, &texture, 0);
     assert!(matches!(r, Err(GpuError::Codec)), "{:?}", r.err());
     let bindings = nmat_wgpu::SampleBindings { group: 0, first_binding: 0 };
     assert!(matches!(gm.sample_entries(bindings), Err(GpuError::Codec)));
-    let r = context.upload_with(&device, &m, Some(nmat_wgpu::Kernel::Dot4));
+    let r = context.upload_with(&device, &queue, &m, Some(nmat_wgpu::Kernel::Dot4));
     assert!(matches!(r, Err(GpuError::Kernel { .. })));
 }

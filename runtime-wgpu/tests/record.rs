@@ -31,7 +31,7 @@ fn recorded_regions_pack_their_codes_at_the_offset() {
     let ctx = Context::new(&device);
     let bytes = golden("ntc_pbr10_96x80_clamp");
     let m = Container::parse(&bytes).unwrap();
-    let gm = ctx.upload(&device, &m).unwrap();
+    let gm = ctx.upload(&device, &queue, &m).unwrap();
     let cases = [
         (0, (5, 7, 31, 13), ChannelMask(0b00_1001_0100)),
         (1, (0, 0, 48, 40), ChannelMask(0b1)),
@@ -64,7 +64,7 @@ fn recorded_requests_read_from_the_callers_buffer() {
     let ctx = Context::new(&device);
     let bytes = golden("ntc_pbr10_96x80_clamp");
     let m = Container::parse(&bytes).unwrap();
-    let gm = ctx.upload(&device, &m).unwrap();
+    let gm = ctx.upload(&device, &queue, &m).unwrap();
     let mut reqs = random_requests(99, 300, 300, 10);
     reqs.push(TexelRequest { x: i32::MIN, y: i32::MAX, mip: u32::MAX });
     let mask = ChannelMask(0b11_0000_0111);
@@ -121,7 +121,8 @@ fn reused_buffers_keep_materials_and_sizes_apart() {
     let a_bytes = trained_material();
     let b_bytes = golden("ntc_pbr10_96x80_clamp");
     let (a, b) = (Container::parse(&a_bytes).unwrap(), Container::parse(&b_bytes).unwrap());
-    let (ga, gb) = (ctx.upload(&device, &a).unwrap(), ctx.upload(&device, &b).unwrap());
+    let (ga, gb) =
+        (ctx.upload(&device, &queue, &a).unwrap(), ctx.upload(&device, &queue, &b).unwrap());
     let mask = ChannelMask(0b111);
     for round in 0..3u32 {
         for (m, gm) in [(&a, &ga), (&b, &gb)] {

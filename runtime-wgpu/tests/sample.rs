@@ -36,7 +36,7 @@ fn fragment_shader_samples_like_the_cpu() {
     let filters = [Filter::Nearest, Filter::Bilinear, Filter::Trilinear, Filter::Stochastic];
     for (name, bytes) in materials() {
         let m = Container::parse(&bytes).unwrap();
-        let gpu = ctx.upload(&device, &m).unwrap();
+        let gpu = ctx.upload(&device, &queue, &m).unwrap();
         for first_channel in (0..m.channel_count() as u32).step_by(4) {
             for lod in [0.0, 0.5, 2.25, 40.0] {
                 for filter in filters {
@@ -119,7 +119,7 @@ fn texel_codes_match_the_cpu_byte_for_byte() {
         });
         for (name, bytes) in materials() {
             let m = Container::parse(&bytes).unwrap();
-            let gpu = ctx.upload(&device, &m).unwrap();
+            let gpu = ctx.upload(&device, &queue, &m).unwrap();
             let reqs = random_requests(7, 300, 200, m.mip_count() + 2);
             let words: Vec<u8> = reqs
                 .iter()

@@ -101,7 +101,7 @@ fn maps_decode_into_storage_textures_like_the_cpu() {
     let ctx = Context::new(&device);
     let bytes = pbr10();
     let m = Container::parse(&bytes).unwrap();
-    let gm = ctx.upload(&device, &m).unwrap();
+    let gm = ctx.upload(&device, &queue, &m).unwrap();
     let usage = wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_SRC;
     let all = maps(&m);
     assert!(all.iter().any(|map| map.count == 1) && all.iter().any(|map| map.count == 3));
@@ -136,11 +136,11 @@ fn maps_decode_into_storage_textures_like_the_cpu() {
 
 #[test]
 fn bad_targets_are_refused_before_anything_is_recorded() {
-    let (device, _queue) = device();
+    let (device, queue) = device();
     let ctx = Context::new(&device);
     let bytes = pbr10();
     let m = Container::parse(&bytes).unwrap();
-    let gm = ctx.upload(&device, &m).unwrap();
+    let gm = ctx.upload(&device, &queue, &m).unwrap();
     let rgb = *maps(&m).iter().find(|map| map.count == 3).unwrap();
     let storage =
         texture(&device, wgpu::TextureFormat::Rgba8Unorm, wgpu::TextureUsages::STORAGE_BINDING);

@@ -102,7 +102,7 @@ fn check_material(
     m: &Material<'_>,
     name: &str,
 ) {
-    let gm = ctx.upload(device, m).unwrap();
+    let gm = ctx.upload(device, queue, m).unwrap();
     let cpu = Decoder::new(m);
     let mut textures: Vec<BcTexture> = Vec::new();
     for format in GPU_FORMATS {
@@ -162,7 +162,7 @@ fn recorded_regions_land_where_asked_and_bad_arguments_are_refused() {
     let cfg = golden_configs().into_iter().find(|c| c.name == "ntc_pbr10_96x80_clamp").unwrap();
     let bytes = generate(&cfg).to_bytes().unwrap();
     let m = Container::parse(&bytes).unwrap();
-    let gm: GpuMaterial = ctx.upload(&device, &m).unwrap();
+    let gm: GpuMaterial = ctx.upload(&device, &queue, &m).unwrap();
     let texture = BcTexture { format: BcFormat::Bc5, channels: [3, 4, 0, 0], srgb: false };
     let whole = ctx.transcode_mip(&device, &queue, &gm, &texture, 0).unwrap();
     let all = gm.blocks(0).unwrap();
@@ -248,7 +248,7 @@ fn blocks_copy_into_a_bc_texture() {
     let cfg = golden_configs().into_iter().find(|c| c.name == "ntc_pbr10_96x80_clamp").unwrap();
     let bytes = generate(&cfg).to_bytes().unwrap();
     let m = Container::parse(&bytes).unwrap();
-    let gm = ctx.upload(&device, &m).unwrap();
+    let gm = ctx.upload(&device, &queue, &m).unwrap();
     let texture = BcTexture { format: BcFormat::Bc1, channels: [0, 1, 2, 0], srgb: true };
     let blocks = gm.blocks(0).unwrap();
     let pitch = nmat_wgpu::aligned_row_pitch(texture.format, blocks.width);

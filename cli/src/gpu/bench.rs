@@ -38,7 +38,7 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
     );
     let ctx = Context::new(&device);
     let start = Instant::now();
-    let gm = ctx.upload(&device, m)?;
+    let gm = ctx.upload(&device, &queue, m)?;
     device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| e.to_string())?;
     let upload = start.elapsed().as_secs_f64();
     // The other kernels the device runs, for a region row each (same codes, other speed).
@@ -46,7 +46,7 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
         .into_iter()
         .rev()
         .filter(|&k| k != gm.kernel())
-        .filter_map(|k| ctx.upload_with(&device, m, Some(k)).ok())
+        .filter_map(|k| ctx.upload_with(&device, &queue, m, Some(k)).ok())
         .collect();
     let c = m.channel_count();
     let (w, h) = m.mip_size(0);
@@ -70,7 +70,14 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
         usage: wgpu::BufferUsages::STORAGE,
         mapped_at_creation: false,
     });
-    println!("  kernel: {} (the fastest this device runs; docs/GPU.md)", gm.kernel().name());
+    println!(
+        "  kernel: {} (of the kernels whose codes equal the CPU's on upload's probe, the fastest \
+         measured on this device; docs/GPU.md)",
+        gm.kernel().name()
+    );
+    for (kernel, reason) in gm.rejected() {
+        println!("  not used: the {} kernel ({reason})", kernel.name());
+    }
     println!(
         "  median of {} runs; Mtexel/s and % of the i32 roofline (MACs per texel × texels/s ÷ peak \
          multiply-adds/s) from the kernels' time alone ({})",

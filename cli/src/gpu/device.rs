@@ -26,6 +26,6 @@ pub fn upload(
     let (device, queue, info) = open()?;
     eprintln!("{what} on {} ({:?}, {:?})", info.name, info.backend, info.device_type);
     let ctx = nmat_wgpu::Context::new(&device);
-    let gm = ctx.upload(&device, m)?;
+    let gm = ctx.upload(&device, &queue, m)?;
     Ok((device, queue, ctx, gm))
 }

@@ -54,7 +54,7 @@ pub fn bench_row(m: &Material<'_>, side: (u32, u32), row: &BenchRow<'_>) -> Resu
         return Ok(());
     };
     let ctx = nmat_wgpu::Context::new(&device);
-    let gm = ctx.upload(&device, m)?;
+    let gm = ctx.upload(&device, &queue, m)?;
     let all = nmat_core::ChannelMask::ALL;
     if info.device_type == nmat_wgpu::DeviceType::Cpu {
         let what = format!("GPU {} (a software rasterizer on the CPU)", info.name);

@@ -37,8 +37,10 @@ fn direct_source(material: usize) -> String {
 pub fn walk(opts: &Options, materials: &[Material<'_>], mips: bool) -> Result<Walk> {
     let (device, queue, info) = device::open()?;
     let ctx = Context::new(&device);
-    let gpus: Vec<_> =
-        materials.iter().map(|m| ctx.upload(&device, m)).collect::<std::result::Result<_, _>>()?;
+    let gpus: Vec<_> = materials
+        .iter()
+        .map(|m| ctx.upload(&device, &queue, m))
+        .collect::<std::result::Result<_, _>>()?;
     let refs: Vec<_> = gpus.iter().collect();
     let tiles = u32::try_from(opts.tiles).map_err(|_| "--tiles: at most 2^32 − 1 on the GPU")?;
     let cache = ctx.create_tile_cache(&device, &refs, tiles)?;

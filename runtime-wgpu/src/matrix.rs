@@ -1,0 +1,285 @@
+//! The matrix kernel (matrix.wgsl): layers as 16×16×16 cooperative matrix multiply-adds (tensor
+//! cores), a pipeline per material shape. docs/GPU.md ("The matrix kernel") argues exactness.
+
+use nmat_core::Material;
+use std::fmt::Write as _;
+
+/// The wgpu features the matrix kernel needs on the device.
+pub const FEATURES: wgpu::Features = wgpu::Features::SHADER_F16
+    .union(wgpu::Features::SUBGROUP)
+    .union(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX);
+
+/// Whether `configs` (an adapter's [`wgpu::Adapter::cooperative_matrix_properties`]) has the
+/// configuration the matrix kernel uses: 16×16×16, f16 operands, f32 accumulators.
+pub fn usable(configs: &[wgpu::CooperativeMatrixProperties]) -> bool {
+    configs.iter().any(|c| {
+        (c.m_size, c.n_size, c.k_size) == (16, 16, 16)
+            && c.ab_type == wgpu::CooperativeScalarType::F16
+            && c.cr_type == wgpu::CooperativeScalarType::F32
+    })
+}
+
+/// How a workgroup is laid out: subgroups, texel blocks of 16 per subgroup, batches decoded
+/// after staging the weights once. `NMAT_WGPU_MATRIX=NW,TB,BATCHES` overrides it (for measuring).
+const LAYOUT: (u32, u32, u32) = (4, 1, 4);
+
+/// Elements added to the rows of the activations, the weights and the products in workgroup
+/// memory, so that the 16 rows of a matrix load or store fall in different memory banks.
+/// `NMAT_WGPU_MATRIX_PAD=A,W,S` overrides it (for measuring).
+const PADS: (u32, u32, u32) = (8, 8, 4);
+
+/// Three numbers `A,B,C` from the environment variable `name` (a measuring override), if they are
+/// there and `valid`.
+fn overridden(name: &str, valid: impl Fn([u32; 3]) -> bool) -> Option<(u32, u32, u32)> {
+    let text = std::env::var(name).ok()?;
+    let n: Vec<u32> = text.split(',').map(|x| x.trim().parse().ok()).collect::<Option<_>>()?;
+    let [a, b, c] = <[u32; 3]>::try_from(n).ok()?;
+    valid([a, b, c]).then_some((a, b, c))
+}
+
+/// What a matrix pipeline is specialised to: widths and offsets are literals in its source.
+pub(crate) struct Shape {
+    /// Subgroups per workgroup, texel blocks per subgroup, batches per workgroup.
+    warps: u32,
+    blocks: u32,
+    batches: u32,
+    /// Invocations per subgroup.
+    subgroup: u32,
+    /// Row padding of the activations, weights and products ([`PADS`]).
+    pads: (u32, u32, u32),
+    /// The widest layer rounded up to 16 (`WMAX`).
+    wmax: u32,
+    channels: u32,
+    /// Per layer: fan-in and rows rounded up to 16, and where its weights start in the staged
+    /// array (rows `kpad + pads.1` apart).
+    layers: Vec<(u32, u32, u32)>,
+    /// Staged weights (f16) of all layers.
+    total: u32,
+}
+
+impl Shape {
+    /// The shape of `m`'s network on `device`, or why the matrix kernel cannot decode it there.
+    pub fn new(m: &Material<'_>, device: &wgpu::Device) -> Result<Shape, &'static str> {
+        if !device.features().contains(FEATURES) {
+            return Err("the device has no cooperative matrices (wgpu features SHADER_F16, \
+                        SUBGROUP and EXPERIMENTAL_COOPERATIVE_MATRIX; default_device asks for \
+                        them where the adapter has 16×16×16 f16 → f32)");
+        }
+        let info = device.adapter_info();
+        let subgroup = info.subgroup_min_size;
+        if subgroup != info.subgroup_max_size || !(16..=128).contains(&subgroup) {
+            return Err("the device's subgroup size varies or is unknown");
+        }
+        let layout = overridden("NMAT_WGPU_MATRIX", |[w, b, n]| {
+            [w, b, n].iter().all(|x| (1..=64).contains(x))
+        })
+        .unwrap_or(LAYOUT);
+        let pads = overridden("NMAT_WGPU_MATRIX_PAD", |[a, w, s]| {
+            a.is_multiple_of(8)
+                && w.is_multiple_of(8)
+                && s.is_multiple_of(4)
+                && a.max(w).max(s) <= 64
+        })
+        .unwrap_or(PADS);
+        let limits = device.limits();
+        Shape::sized(m, subgroup, layout, pads, limits.max_compute_workgroup_storage_size)
+    }
+
+    /// The shape of `m`'s network for `layout` with subgroups of `subgroup` invocations and
+    /// `limit` bytes of workgroup memory (fewer subgroups where the memory is short).
+    fn sized(
+        m: &Material<'_>,
+        subgroup: u32,
+        (warps, blocks, batches): (u32, u32, u32),
+        pads: (u32, u32, u32),
+        limit: u32,
+    ) -> Result<Shape, &'static str> {
+        let pad = |n: usize| n.next_multiple_of(16) as u32;
+        let mut layers = Vec::new();
+        let mut total = 0;
+        for l in m.mlp().layers() {
+            let (kpad, opad) = (pad(l.inputs()), pad(l.outputs()));
+            layers.push((kpad, opad, total));
+            total += (kpad + pads.1) * opad;
+        }
+        let wmax = layers.iter().flat_map(|&(k, o, _)| [k, o]).max().ok_or("no layers")?;
+        let channels = m.channel_count() as u32;
+        // Workgroup memory: staged weights, the activations' high and low bytes (f16), a row
+        // block of products per subgroup (two f32 arrays) and the codes.
+        let bytes = |w: u32| {
+            let p = 16 * blocks * w;
+            2 * total + 4 * wmax * (p + pads.0) + 64 * (16 + pads.2) * blocks * w + 4 * channels * p
+        };
+        let warps = (1..=warps)
+            .rev()
+            .find(|&w| bytes(w) <= limit)
+            .ok_or("the network is too large for the device's workgroup memory")?;
+        Ok(Shape { warps, blocks, batches, subgroup, pads, wmax, channels, layers, total })
+    }
+
+    /// Texels per batch.
+    fn batch(&self) -> u32 {
+        16 * self.blocks * self.warps
+    }
+
+    /// Texels per workgroup.
+    pub fn texels(&self) -> u32 {
+        self.batch() * self.batches
+    }
+
+    /// The WGSL of the pipeline (entry point `matrix`).
+    pub fn source(&self) -> String {
+        let (mut stage, mut layers) = (String::new(), String::new());
+        for (l, &(kpad, opad, woff)) in self.layers.iter().enumerate() {
+            let ws = kpad + self.pads.1;
+            let _ = writeln!(stage, "    stage(lid, {l}u, {kpad}u, {opad}u, {woff}u, {ws}u);");
+            layers += &self.layer(l, kpad, opad, woff);
+        }
+        format!(
+            "enable f16;\nenable wgpu_cooperative_matrix;\n\
+             const P: u32 = {}u;\nconst NW: u32 = {}u;\nconst TB: u32 = {}u;\n\
+             const BATCHES: u32 = {}u;\nconst SG: u32 = {}u;\nconst AS: u32 = {}u;\n\
+             const SS: u32 = {}u;\nconst SB: u32 = 16u * SS;\n\
+             const PER_LANE: u32 = 256u * TB / SG;\n\
+             const WMAX: u32 = {}u;\nconst CH: u32 = {}u;\nconst WTOTAL: u32 = {}u;\n\
+             fn stage_weights(lid: u32) {{\n{stage}    workgroupBarrier();\n}}\n\
+             fn layers(lane: u32, warp: u32) {{\n{layers}}}\n{}\n{}\n{}\n{}",
+            self.batch(),
+            self.warps,
+            self.blocks,
+            self.batches,
+            self.subgroup,
+            self.batch() + self.pads.0,
+            16 + self.pads.2,
+            self.wmax,
+            self.channels,
+            self.total,
+            include_str!("texel.wgsl"),
+            include_str!("decode.wgsl"),
+            include_str!("requant.wgsl"),
+            include_str!("matrix.wgsl"),
+        )
+    }
+
+    /// Layer `l` in `layers(lane, warp)`: the products of every (texel block, row block) pair
+    /// accumulated in registers over the fan-in (each weight block loaded once per step and
+    /// used for every texel block), then per row block its products through workgroup memory
+    /// into `finish`.
+    fn layer(&self, l: usize, kpad: u32, opad: u32, woff: u32) -> String {
+        let last = l + 1 == self.layers.len();
+        let (row_blocks, blocks) = (opad / 16, self.blocks);
+        let mut s = format!("    {{ // layer {l}\n");
+        for tb in 0..blocks {
+            for ob in 0..row_blocks {
+                let _ = writeln!(
+                    s,
+                    "    var h{tb}_{ob} = coop_mat16x16<f32, C>();\n    \
+                     var l{tb}_{ob} = coop_mat16x16<f32, C>();"
+                );
+            }
+        }
+        let ws = kpad + self.pads.1;
+        let _ = writeln!(s, "    for (var kb = 0u; kb < {}u; kb++) {{", kpad / 16);
+        for tb in 0..blocks {
+            let _ = writeln!(
+                s,
+                "        let x{tb} = 16u * kb * AS + 16u * (warp * TB + {tb}u);\n        \
+                 let bh{tb} = coopLoadT<coop_mat16x16<f16, B>>(&act_hi[x{tb}], AS);\n        \
+                 let bl{tb} = coopLoadT<coop_mat16x16<f16, B>>(&act_lo[x{tb}], AS);"
+            );
+        }
+        for ob in 0..row_blocks {
+            let _ = writeln!(
+                s,
+                "        let w{ob} = coopLoadT<coop_mat16x16<f16, A>>(\
+                 &weights16[{}u + 16u * kb], {ws}u);",
+                woff + 16 * ob * ws
+            );
+            for tb in 0..blocks {
+                let _ = writeln!(
+                    s,
+                    "        h{tb}_{ob} = coopMultiplyAdd(w{ob}, bh{tb}, h{tb}_{ob});\n        \
+                     l{tb}_{ob} = coopMultiplyAdd(w{ob}, bl{tb}, l{tb}_{ob});"
+                );
+            }
+        }
+        s += "    }\n    workgroupBarrier();\n";
+        let store = |s: &mut String, part: char, ob: u32| {
+            for tb in 0..blocks {
+                let _ = writeln!(
+                    s,
+                    "    coopStoreT({part}{tb}_{ob}, &sums[SB * (warp * TB + {tb}u)], SS);"
+                );
+            }
+        };
+        for ob in 0..row_blocks {
+            store(&mut s, 'h', ob);
+            s += "    workgroupBarrier();\n    collect(lane, warp);\n    workgroupBarrier();\n";
+            store(&mut s, 'l', ob);
+            let _ = writeln!(
+                s,
+                "    workgroupBarrier();\n    finish(lane, warp, {l}u, {ob}u, {last});\n    \
+                 workgroupBarrier();"
+            );
+        }
+        s + "    }\n"
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nmat_core::Container;
+    use nmat_tests::generate::{FixtureConfig, generate, golden_configs};
+
+    /// naga's verdict on `source`: parsed, validated with every capability a device may lack
+    /// (cooperative matrices, f16) and written as SPIR-V, as wgpu does on Vulkan.
+    fn compile(source: &str) -> Result<Vec<u32>, String> {
+        let module = naga::front::wgsl::parse_str(source).map_err(|e| e.emit_to_string(source))?;
+        let flags = naga::valid::ValidationFlags::all();
+        let info = naga::valid::Validator::new(flags, naga::valid::Capabilities::all())
+            .validate(&module)
+            .map_err(|e| e.emit_to_string(source))?;
+        let options = naga::back::spv::Options { lang_version: (1, 6), ..Default::default() };
+        naga::back::spv::write_vec(&module, &info, &options, None).map_err(|e| e.to_string())
+    }
+
+    /// lavapipe runs no cooperative matrices, so CI cannot run this kernel: its WGSL for every
+    /// golden fixture's network (fan-ins 21 to 64, 3 to 16 channels, two and three layers) and
+    /// the widest the format allows is valid for naga and becomes SPIR-V with the cooperative
+    /// matrix instructions; a network past the workgroup memory is refused, not miscompiled.
+    #[test]
+    fn the_matrix_kernel_validates_for_every_fixture_shape() {
+        let mut configs = golden_configs();
+        configs.push(FixtureConfig {
+            hidden: vec![128, 128, 128],
+            ..FixtureConfig::ntc("widest", 9, 32, 32, 16)
+        });
+        let mut refused = 0;
+        for cfg in configs {
+            let bytes = generate(&cfg).to_bytes().unwrap();
+            let m = Container::parse(&bytes).unwrap();
+            let shape = match Shape::sized(&m, 32, LAYOUT, PADS, 49152) {
+                Ok(shape) => shape,
+                Err(reason) => {
+                    assert_eq!(cfg.name, "widest", "{reason}");
+                    // 4 layers of 128 × 128 f16 weights are 128 KiB.
+                    assert!(Shape::sized(&m, 32, LAYOUT, PADS, 1 << 18).is_ok(), "{}", cfg.name);
+                    refused += 1;
+                    continue;
+                }
+            };
+            assert_eq!(shape.texels() % 16, 0);
+            if cfg.hidden.iter().all(|&h| h <= 64) {
+                // Networks up to 64 wide keep the 4 subgroups in 48 KiB.
+                assert_eq!(shape.warps, LAYOUT.0, "{}", cfg.name);
+            }
+            let source = shape.source();
+            let spirv = compile(&source).unwrap_or_else(|e| panic!("{}: {e}", cfg.name));
+            // OpCooperativeMatrixMulAddKHR (4459) and OpCooperativeMatrixLoadKHR (4457).
+            let has = |op: u32| spirv.iter().any(|&w| w & 0xFFFF == op && w >> 16 >= 4);
+            assert!(has(4459) && has(4457), "{}: no cooperative matrix instructions", cfg.name);
+        }
+        assert_eq!(refused, 1);
+    }
+}

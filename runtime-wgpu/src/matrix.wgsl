@@ -1,0 +1,174 @@
+// The matrix kernel (docs/GPU.md, "The matrix kernel"): every layer as 16×16×16 cooperative
+// matrix multiply-adds (tensor cores), bit-identical with `nmat_decode` (texel.wgsl) and the CPU.
+// A workgroup is NW subgroups of SG invocations. It stages every layer's int8 weights as f16 in
+// workgroup memory once, then decodes BATCHES batches of P = 16 · NW texels: one invocation per
+// texel computes its input features; then each subgroup takes its own 16 texels through every
+// layer: per block of 16 output rows, two products over the fan-in in steps of 16 — the weights
+// times the activations' high bytes and times their low bytes — accumulated in registers, then
+// combined, biased, requantized and activated in i32 and written back over the activations.
+//
+// Exactness: an i16 activation a is 256 · h + l with h = a >> 8 in [−128, 127] and l = a & 255
+// in [0, 255], both exact in f16 (integers up to 2^11 are), as is every int8 weight. Each
+// product w · h or w · l is an integer below 2^15 in magnitude, and every partial sum of a row
+// over a fan-in K ≤ 128 (MAX_WIDTH) is an integer of magnitude at most K · 127 · 255 < 2^22,
+// which f32 (24-bit significand) holds exactly: whatever order or grouping the matrix unit sums
+// in, no rounding happens. Then Σ w · a = 256 · Σ w · h + Σ w · l in i32 (below 2^31, as on the
+// CPU).
+//
+// Prepended by matrix.rs (per material shape): the `enable` directives, `const P`, `const NW`,
+// `const BATCHES`, `const SG` (a subgroup's invocations), `const WMAX` (the widest layer rounded
+// up to 16), `const CH` (channels), `const WTOTAL` (staged weights), the strides `AS` and `SS`,
+// `const SB` (16 · SS), `const PER_LANE`, `fn stage_weights(lid)`
+// calling `stage` per layer and `fn layers(lane, warp)`: per layer its products with the block
+// counts and offsets as literals (the accumulators of all its row blocks live in registers),
+// calling `finish` per row block. Then texel.wgsl, decode.wgsl, requant.wgsl and this file.
+// Weights and row tables are the tiled kernels' (tiled.wgsl), the bias without the dot4
+// kernel's 128 · Σ w.
+
+// Every layer's weights, row o and column k of a layer at woff + o · ws + k (ws: its fan-in
+// padded with zeros to a multiple of 16, plus a pad against bank conflicts; rows padded with
+// zeros to a multiple of 16): the A operands, row-major.
+var<workgroup> weights16: array<f16, WTOTAL>;
+// Activations, row k of texel t at k · AS + t (AS = P + a pad), high and low bytes apart: the B
+// operands, row-major. Subgroup w reads and writes only its texels [16 · TB · w,
+// 16 · TB · (w + 1)). Rows past a layer's width hold zeros or earlier finite values, and meet
+// zero weights.
+var<workgroup> act_hi: array<f16, WMAX * AS>;
+var<workgroup> act_lo: array<f16, WMAX * AS>;
+// Per subgroup and texel block, one row block of products (16 rows of SS = 16 + a pad, row-
+// major): first the products with the high bytes, then with the low bytes.
+var<workgroup> sums: array<f32, SB * TB * NW>;
+// The codes of this batch, one per u32, in output order (texel, then channel).
+var<workgroup> tile_codes: array<u32, P * CH>;
+// This invocation's share of a subgroup's products with the high bytes (256 · TB / SG).
+var<private> hi_part: array<i32, PER_LANE>;
+
+// Layer `l`'s weights (the tiled kernels' packed int8 table) into weights16 from `woff`,
+// `opad` rows of `kpad` columns `ws` apart, zeros outside the layer.
+fn stage(lid: u32, l: u32, kpad: u32, opad: u32, woff: u32, ws: u32) {
+    let lb = nmat_desc[13] + 8u * l;
+    let kw = (nmat_desc[lb] + 3u) / 4u;
+    let rows = (nmat_desc[lb + 1u] + 3u) / 4u * 4u;
+    let weights_at = nmat_desc[lb + 6u];
+    let row_words = kpad / 4u;
+    for (var i = lid; i < opad * row_words; i += SG * NW) {
+        let o = i / row_words;
+        let j = i % row_words;
+        var word = 0;
+        if (o < rows && j < kw) {
+            word = bitcast<i32>(nmat_desc[weights_at + o * kw + j]);
+        }
+        let at = woff + o * ws + 4u * j;
+        weights16[at] = f16(extractBits(word, 0u, 8u));
+        weights16[at + 1u] = f16(extractBits(word, 8u, 8u));
+        weights16[at + 2u] = f16(extractBits(word, 16u, 8u));
+        weights16[at + 3u] = f16(extractBits(word, 24u, 8u));
+    }
+}
+
+// Activation `a` (an i16 value) of row k, texel t, split into its bytes.
+fn put_activation(k: u32, t: u32, a: i32) {
+    act_hi[k * AS + t] = f16(a >> 8u);
+    act_lo[k * AS + t] = f16(a & 255);
+}
+
+// Where product e (texel block e / 256, row (e % 256) / 16, texel e % 16) of subgroup `warp` is.
+fn sum_at(warp: u32, e: u32) -> u32 {
+    return SB * (warp * TB + e / 256u) + (e % 256u) / 16u * SS + e % 16u;
+}
+
+// This invocation's products with the high bytes, from `sums` into hi_part (exact integers).
+fn collect(lane: u32, warp: u32) {
+    for (var i = 0u; i < PER_LANE; i++) {
+        hi_part[i] = i32(sums[sum_at(warp, lane + i * SG)]);
+    }
+}
+
+// Row block `ob` of layer `l` for subgroup `warp`, from hi_part and the products with the low
+// bytes in `sums`: bias, requantization and activation, into the activations (or, if `last`,
+// the codes).
+fn finish(lane: u32, warp: u32, l: u32, ob: u32, last: bool) {
+    let lb = nmat_desc[13] + 8u * l;
+    let outputs = nmat_desc[lb + 1u];
+    let frac = nmat_desc[lb + 2u];
+    let gelu = nmat_desc[lb + 3u] == 1u;
+    let rows_at = nmat_desc[lb + 7u];
+    let n = params.out_channels;
+    for (var i = 0u; i < PER_LANE; i++) {
+        let e = lane + i * SG;
+        let o = 16u * ob + (e % 256u) / 16u;
+        let t = 16u * (warp * TB + e / 256u) + e % 16u;
+        if (o >= outputs) {
+            continue;
+        }
+        let rb = rows_at + 8u * o;
+        let acc = 256 * hi_part[i] + i32(sums[sum_at(warp, e)]) + bitcast<i32>(nmat_desc[rb]);
+        var z = requant_row(acc, rb);
+        if (gelu) {
+            z = nmat_hard_gelu(z, frac);
+        }
+        if (!last) {
+            put_activation(o, t, z);
+        } else if (o < CH && (params.channel_mask & (1u << o)) != 0u) {
+            let slot = countOneBits(params.channel_mask & ((1u << o) - 1u));
+            let code = clamp((z * 255 + (1 << (frac - 1u))) >> frac, 0, 255);
+            tile_codes[t * n + slot] = u32(code);
+        }
+    }
+}
+
+// The input features of texel `index` of the request list or rectangle into activation column
+// `t`, zeros up to WMAX.
+fn features(t: u32, index: u32, inputs: u32) {
+    if (params.mode == 0u) {
+        let r = params.in_offset + 3u * index;
+        nmat_features(requests[r], requests[r + 1u], bitcast<u32>(requests[r + 2u]));
+    } else {
+        let x = params.x0 + index % params.width;
+        let y = params.y0 + index / params.width;
+        nmat_features(i32(x), i32(y), params.mip);
+    }
+    for (var k = 0u; k < WMAX; k++) {
+        put_activation(k, t, select(0, nmat_act_a[min(k, 127u)], k < inputs));
+    }
+}
+
+// Decodes `params.count` texels as `main` does (same requests, rectangle and packed output),
+// P · BATCHES per workgroup.
+@compute @workgroup_size(SG * NW)
+fn matrix(
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(subgroup_id) warp: u32,
+    @builtin(subgroup_invocation_id) lane: u32,
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+) {
+    stage_weights(lid);
+    let inputs = nmat_desc[nmat_desc[13]];
+    let n = params.out_channels;
+    for (var batch = 0u; batch < BATCHES; batch++) {
+        let first = ((wg.x + wg.y * groups.x) * BATCHES + batch) * P;
+        if (first >= params.count) {
+            break;
+        }
+        for (var t = lid; t < P; t += SG * NW) {
+            if (first + t < params.count) {
+                features(t, first + t, inputs);
+            }
+        }
+        workgroupBarrier();
+        layers(lane, warp);
+        let texels = min(params.count - first, P);
+        let count = texels * n;
+        for (var w = lid; 4u * w < count; w += SG * NW) {
+            var word = 0u;
+            for (var k = 0u; k < 4u; k++) {
+                if (4u * w + k < count) {
+                    word |= tile_codes[4u * w + k] << (8u * k);
+                }
+            }
+            out_codes[params.out_offset + first / 4u * n + w] = word;
+        }
+        workgroupBarrier();
+    }
+}

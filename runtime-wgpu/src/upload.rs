@@ -1,0 +1,404 @@
+//! `Context::upload`: a material's buffers, its kernel checked against the CPU on a probe of the
+//! material, and the fastest of the exact kernels picked by measurement (docs/GPU.md, "The
+//! kernels, and how `upload` picks one").
+
+use crate::{Context, GpuError, GpuMaterial, Kernel, TexelRequest, jpeg, matrix, measure, tiled};
+use crate::{try_pipeline, words_to_bytes};
+use nmat_core::{ChannelMask, Material, TermMode};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use wgpu::util::DeviceExt;
+
+impl Context {
+    /// Uploads a parsed material once: the latent words as stored, the int8 weights (widened to
+    /// i32 for the reference kernel, packed four per word for the tiled and matrix ones), and per
+    /// row the bias and requantization constants derived exactly as the CPU does; and picks its
+    /// kernel: of the [`Kernel`]s the device runs, those whose codes on a probe of the material
+    /// itself (a few texels of every mip, [`PROBE_TEXELS`] at most) equal the CPU's, the fastest
+    /// by measurement (a region decoded through each, timed once per network shape and
+    /// `Context`; on a software adapter, which the measuring would cost seconds, the first in
+    /// [`Kernel::ALL`] from its end). A kernel whose probe differs is logged (`log::warn!`) and
+    /// listed by [`GpuMaterial::rejected`]. Pipelines are shared by materials of the same network
+    /// shape. Waits for the probe decodes (a few milliseconds on a GPU).
+    pub fn upload(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        m: &Material<'_>,
+    ) -> Result<GpuMaterial, GpuError> {
+        self.upload_with(device, queue, m, None)
+    }
+
+    /// [`Context::upload`] with the kernel chosen by the caller (`None`: the fastest exact one
+    /// the device runs), e.g. to compare kernels; [`GpuError::Kernel`] where the device cannot
+    /// run it or its codes on the probe differ from the CPU's.
+    pub fn upload_with(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        m: &Material<'_>,
+        kernel: Option<Kernel>,
+    ) -> Result<GpuMaterial, GpuError> {
+        if m.codec() == nmat_core::Codec::Jpeg {
+            // One kernel decodes JPEG materials; asking for a network kernel is an error.
+            if let Some(k) = kernel.filter(|&k| k != Kernel::Reference) {
+                return Err(GpuError::Kernel {
+                    kernel: k,
+                    reason: "a JPEG material has no network",
+                });
+            }
+            let (desc, section, maps) = jpeg::upload_words(device, m)?;
+            return Ok(GpuMaterial {
+                id: next_id(),
+                desc: storage_init(device, "nmat jpeg desc", &desc),
+                latents: storage_init(device, "nmat jpeg section", &section),
+                channel_count: m.channel_count(),
+                mip_sizes: (0..m.mip_count()).map(|mip| m.mip_size(mip)).collect(),
+                address_clamp: m.address_mode() == nmat_core::AddressMode::Clamp,
+                ranges: m.channels().iter().map(|c| (c.range_min, c.range_max)).collect(),
+                constant_codes: m.channels().iter().map(|c| c.constant_code()).collect(),
+                kernel: Kernel::Reference,
+                rejected: Vec::new(),
+                tiled: None,
+                jpeg: Some(maps),
+            });
+        }
+        let (desc, latents) = network_words(m)?;
+        let latents = storage_init(device, "nmat latents", &latents);
+        let probe = Probe::new(m);
+        let mut rejected = Vec::new();
+        // `kernel`, prepared and checked against the CPU on the probe.
+        let mut exact = |kernel: Kernel| -> Result<GpuMaterial, &'static str> {
+            let tiled = self.prepare(device, m, kernel)?;
+            let mut desc = desc.clone();
+            if kernel != Kernel::Reference {
+                let layers_at = desc[13] as usize;
+                tiled::append_tables(&mut desc, layers_at, m, kernel == Kernel::Dot4);
+            }
+            if *self.fault.lock().unwrap_or_else(|e| e.into_inner()) == Some(kernel) {
+                break_last_row(&mut desc);
+            }
+            let gm = GpuMaterial {
+                id: next_id(),
+                desc: storage_init(device, "nmat desc", &desc),
+                latents: latents.clone(),
+                channel_count: m.channel_count(),
+                mip_sizes: (0..m.mip_count()).map(|mip| m.mip_size(mip)).collect(),
+                address_clamp: m.address_mode() == nmat_core::AddressMode::Clamp,
+                ranges: m.channels().iter().map(|c| (c.range_min, c.range_max)).collect(),
+                constant_codes: m.channels().iter().map(|c| c.constant_code()).collect(),
+                kernel,
+                rejected: Vec::new(),
+                tiled,
+                jpeg: None,
+            };
+            let codes = self.decode_requests(device, queue, &gm, &probe.requests, ChannelMask::ALL);
+            match codes {
+                Ok(codes) if codes == probe.codes => Ok(gm),
+                Ok(_) => {
+                    let reason = "its codes on the probe differ from the CPU's";
+                    log::warn!("nmat-wgpu: the {} kernel is not used: {reason}", kernel.name());
+                    rejected.push((kernel, reason));
+                    Err(reason)
+                }
+                Err(_) => Err("the probe decode failed"),
+            }
+        };
+        if let Some(kernel) = kernel {
+            return exact(kernel).map_err(|reason| GpuError::Kernel { kernel, reason });
+        }
+        let software = device.adapter_info().device_type == wgpu::DeviceType::Cpu;
+        let key = shape_key(m);
+        let known = self.choices.lock().unwrap_or_else(|e| e.into_inner()).get(&key).copied();
+        // The kernel measured fastest for this shape first, the others only where it fails
+        // this material's probe; without a measurement, all that pass, to measure.
+        let order =
+            known.into_iter().chain(Kernel::ALL.into_iter().rev().filter(|&k| Some(k) != known));
+        let mut candidates = Vec::new();
+        for kernel in order {
+            if let Ok(gm) = exact(kernel) {
+                candidates.push(gm);
+                if software || known.is_some() {
+                    break;
+                }
+            }
+        }
+        let chosen = if candidates.len() > 1 {
+            // The better of two timings each: a device's first submissions can read slow.
+            let time = |gm| self.time_region(device, queue, gm).unwrap_or(f64::INFINITY);
+            let times: Vec<f64> = candidates.iter().map(|gm| time(gm).min(time(gm))).collect();
+            let best =
+                (0..candidates.len()).min_by(|&a, &b| times[a].total_cmp(&times[b])).unwrap_or(0);
+            let kernel = candidates[best].kernel;
+            self.choices.lock().unwrap_or_else(|e| e.into_inner()).insert(key, kernel);
+            candidates.swap_remove(best)
+        } else {
+            candidates.pop().ok_or(GpuError::Kernel {
+                kernel: Kernel::Reference,
+                reason: "no kernel's codes on the probe equal the CPU's",
+            })?
+        };
+        Ok(GpuMaterial { rejected, ..chosen })
+    }
+
+    /// Seconds per texel of a region of mip 0 (up to 512 × 512 texels, repeated to at least
+    /// 2^18 texels) decoded through `gm`'s kernel.
+    fn time_region(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        gm: &GpuMaterial,
+    ) -> Result<f64, GpuError> {
+        let (w, h) = gm.mip_sizes[0];
+        let region = (0, 0, w.min(512), h.min(512));
+        let texels = u64::from(region.2) * u64::from(region.3);
+        let repeats = (1u64 << 18).div_ceil(texels).min(64) as u32;
+        let bytes = (texels * gm.channel_count as u64).next_multiple_of(4);
+        let out = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("nmat kernel timing"),
+            size: bytes,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+        let (seconds, _) = measure::time_recorded(device, queue, repeats, |encoder| {
+            self.record_region(device, encoder, gm, 0, region, ChannelMask::ALL, (&out, 0))
+                .map(|_| ())
+        })?;
+        Ok(seconds / texels as f64)
+    }
+
+    /// The tiled or matrix pipeline of `kernel` for `m` and its texels per workgroup (`None`:
+    /// the reference kernel), or why the device cannot run it.
+    #[allow(clippy::type_complexity)]
+    fn prepare(
+        &self,
+        device: &wgpu::Device,
+        m: &Material<'_>,
+        kernel: Kernel,
+    ) -> Result<Option<(Arc<wgpu::ComputePipeline>, u32)>, &'static str> {
+        let (source, entry, texels) = match kernel {
+            Kernel::Reference => return Ok(None),
+            Kernel::Matrix => {
+                let shape = matrix::Shape::new(m, device)?;
+                (shape.source(), "matrix", shape.texels())
+            }
+            Kernel::Dot4 | Kernel::Int32 => {
+                let bytes = device.limits().max_compute_workgroup_storage_size;
+                let shape = tiled::Shape::new(m, kernel, bytes)
+                    .ok_or("the network is too wide for the device's workgroup memory")?;
+                (shape.source(kernel), "tiled", shape.texels)
+            }
+        };
+        let mut cache = self.tiled.lock().unwrap_or_else(|e| e.into_inner());
+        let pipeline = cache.entry(source).or_insert_with_key(|source| {
+            try_pipeline(device, source, entry, Some(&self.pipeline_layout)).map(Arc::new)
+        });
+        let refused = match kernel {
+            Kernel::Dot4 => "the device refused the shader (its WGSL may lack dot4I8Packed)",
+            _ => "the device refused the shader",
+        };
+        pipeline.clone().map(|p| Some((p, texels))).ok_or(refused)
+    }
+
+    /// Makes `kernel`'s uploads compute wrong codes (the last layer's first row requantized to
+    /// 0), so that a test can see the probe reject it. For tests only.
+    #[doc(hidden)]
+    pub fn break_kernel_for_testing(&self, kernel: Kernel) {
+        *self.fault.lock().unwrap_or_else(|e| e.into_inner()) = Some(kernel);
+    }
+}
+
+/// A neural material's descriptor words (docs in texel.wgsl; without the tiled and matrix
+/// kernels' tables) and its latent words.
+fn network_words(m: &Material<'_>) -> Result<(Vec<u32>, Vec<u32>), GpuError> {
+    let mlp = m.mlp();
+    let mut desc = vec![0u32; 31];
+    desc[0] = m.width();
+    desc[1] = m.height();
+    desc[2] = m.mip_count();
+    desc[3] = m.channel_count() as u32;
+    desc[4] = m.address_mode() as u32;
+    desc[5] = u32::from(mlp.input_frac_bits());
+    desc[6] = u32::from(mlp.pe_frequencies());
+    desc[7] = u32::from(mlp.lod_input());
+    desc[8] = mlp.layers().len() as u32;
+    desc[9] = m.levels().len() as u32;
+    desc[10] = m.grids().len() as u32;
+    for mip in 0..m.mip_count() {
+        desc[14 + mip as usize] = m.level_for_mip(mip) as u32;
+    }
+    // Channel ranges (for `nmat_sample`): min and max per channel as f32 bits.
+    desc[30] = desc.len() as u32;
+    for ch in m.channels() {
+        desc.extend([ch.range_min.to_bits(), ch.range_max.to_bits()]);
+    }
+    // Grids: 8 words each, then their quantizers.
+    let mut latents: Vec<u32> = Vec::new();
+    desc[11] = desc.len() as u32;
+    let grids_at = desc.len();
+    desc.resize(grids_at + 8 * m.grids().len(), 0);
+    for (g, grid) in m.grids().iter().enumerate() {
+        let bits = u64::from(grid.width())
+            * u64::from(grid.height())
+            * grid.channels() as u64
+            * u64::from(grid.bits_per_latent());
+        if bits >= 1 << 32 {
+            return Err(GpuError::GridTooLarge { grid: g });
+        }
+        let words: Vec<u32> = grid
+            .packed_data()
+            .chunks_exact(4)
+            .map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]))
+            .collect();
+        let quant_at = desc.len() as u32;
+        for c in 0..grid.channels() {
+            let (offset, step) = grid.quantization(c);
+            desc.push(i32::from(offset) as u32);
+            desc.push(i32::from(step) as u32);
+        }
+        let record = [
+            grid.width(),
+            grid.height(),
+            grid.channels() as u32,
+            grid.bits_per_latent(),
+            latents.len() as u32,
+            words.len() as u32,
+            quant_at,
+            0,
+        ];
+        desc[grids_at + 8 * g..grids_at + 8 * g + 8].copy_from_slice(&record);
+        latents.extend(words);
+    }
+    // Levels: 1 + 4 × 10 words each.
+    desc[12] = desc.len() as u32;
+    for level in m.levels() {
+        let mut rec = vec![0u32; 41];
+        rec[0] = level.terms.len() as u32;
+        for (t, term) in level.terms.iter().enumerate() {
+            let tb = 1 + 10 * t;
+            rec[tb] = u32::from(term.mode != TermMode::Nearest4);
+            rec[tb + 1] = term.grids.len() as u32;
+            for (k, &g) in term.grids.iter().enumerate() {
+                rec[tb + 2 + k] = u32::from(g);
+            }
+        }
+        desc.extend(rec);
+    }
+    // Layers: 8 words each; weights and row constants in `weights`.
+    desc[13] = desc.len() as u32;
+    let mut weights: Vec<i32> = Vec::new();
+    for layer in mlp.layers() {
+        let (n_in, n_out) = (layer.inputs(), layer.outputs());
+        let weights_at = weights.len() as u32;
+        for o in 0..n_out {
+            weights.extend((0..n_in).map(|i| i32::from(layer.weight_i8(o, i))));
+        }
+        let rows_at = weights.len() as u32;
+        for o in 0..n_out {
+            let rq = layer.requant(o);
+            weights.extend([layer.bias(o), rq.multiplier, rq.shift as i32]);
+        }
+        desc.extend([
+            n_in as u32,
+            n_out as u32,
+            u32::from(layer.out_frac_bits()),
+            u32::from(layer.activation() == nmat_core::Activation::HardGelu),
+            weights_at,
+            rows_at,
+            0,
+            0,
+        ]);
+    }
+    // The weights follow the descriptors in one buffer: move the layers' offsets past them.
+    let base = desc.len() as u32;
+    for l in 0..mlp.layers().len() {
+        let at = desc[13] as usize + 8 * l;
+        desc[at + 4] += base;
+        desc[at + 5] += base;
+    }
+    desc.extend(weights.iter().map(|&w| w as u32));
+    Ok((desc, latents))
+}
+
+/// A new [`GpuMaterial`] id.
+fn next_id() -> u64 {
+    static NEXT_ID: AtomicU64 = AtomicU64::new(0);
+    NEXT_ID.fetch_add(1, Ordering::Relaxed)
+}
+
+/// A storage buffer holding `words`.
+fn storage_init(device: &wgpu::Device, label: &str, words: &[u32]) -> wgpu::Buffer {
+    device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some(label),
+        contents: &words_to_bytes(words),
+        usage: wgpu::BufferUsages::STORAGE,
+    })
+}
+
+/// The most texels [`Context::upload`] decodes to check a kernel against the CPU.
+pub const PROBE_TEXELS: usize = 1024;
+
+/// The texels a kernel decodes before it is used for a material, and the CPU's codes of them:
+/// the first 8 × 8 texels of mip 0 and up to 8 × 8 spread over every mip (the edges included),
+/// all channels.
+struct Probe {
+    requests: Vec<TexelRequest>,
+    codes: Vec<u8>,
+}
+
+impl Probe {
+    fn new(m: &Material<'_>) -> Probe {
+        let mut requests: Vec<TexelRequest> =
+            (0..64).map(|i| TexelRequest { x: i % 8, y: i / 8, mip: 0 }).collect();
+        for mip in 0..m.mip_count() {
+            let (w, h) = m.mip_size(mip);
+            let at = |k: u32, size: u32| (u64::from(k) * u64::from(size - 1) / 7) as i32;
+            for k in 0..64 {
+                let r = TexelRequest { x: at(k % 8, w), y: at(k / 8, h), mip };
+                if !requests.contains(&r) && requests.len() < PROBE_TEXELS {
+                    requests.push(r);
+                }
+            }
+        }
+        let mut codes = Vec::with_capacity(requests.len() * m.channel_count());
+        let mut texel = [0u8; 16];
+        for r in &requests {
+            let n = m
+                .decode_texel_u8(
+                    i64::from(r.x),
+                    i64::from(r.y),
+                    r.mip,
+                    ChannelMask::ALL,
+                    &mut texel,
+                )
+                .unwrap_or(0);
+            codes.extend_from_slice(&texel[..n]);
+        }
+        Probe { requests, codes }
+    }
+}
+
+/// The last layer's first row of a descriptor requantized to 0 (multiplier 0), in the reference
+/// kernel's rows and the tiled kernels' row table: [`Context::break_kernel_for_testing`].
+fn break_last_row(desc: &mut [u32]) {
+    let layers = desc[8] as usize;
+    let Some(last) = layers.checked_sub(1) else { return };
+    let record = desc[13] as usize + 8 * last;
+    let rows = desc[record + 5] as usize;
+    desc[rows + 1] = 0;
+    let table = desc[record + 7] as usize;
+    if table != 0 {
+        // m = 0, and the 32-bit path's u = 1, m' = 0, m'/2^u = 0.0.
+        desc[table + 1] = 0;
+        desc[table + 3] = 1;
+        desc[table + 4] = 0;
+        desc[table + 5] = 0;
+    }
+}
+
+/// What the kernel measured fastest is remembered by: the network's widths and channels.
+fn shape_key(m: &Material<'_>) -> String {
+    let widths: Vec<(usize, usize)> =
+        m.mlp().layers().iter().map(|l| (l.inputs(), l.outputs())).collect();
+    format!("{widths:?} {}", m.channel_count())
+}
