@@ -55,6 +55,8 @@ pub(crate) struct Shape {
     layers: Vec<(u32, u32, u32)>,
     /// Staged weights (f16) of all layers.
     total: u32,
+    /// Per layer: its output fraction bits (a literal, so that hardGELU divides by a constant).
+    fracs: Vec<u32>,
 }
 
 impl Shape {
@@ -114,7 +116,8 @@ impl Shape {
             .rev()
             .find(|&w| bytes(w) <= limit)
             .ok_or("the network is too large for the device's workgroup memory")?;
-        Ok(Shape { warps, blocks, batches, subgroup, pads, wmax, channels, layers, total })
+        let fracs = m.mlp().layers().iter().map(|l| u32::from(l.out_frac_bits())).collect();
+        Ok(Shape { warps, blocks, batches, subgroup, pads, wmax, channels, layers, total, fracs })
     }
 
     /// Texels per batch.
@@ -167,6 +170,7 @@ impl Shape {
     /// into `finish`.
     fn layer(&self, l: usize, kpad: u32, opad: u32, woff: u32) -> String {
         let last = l + 1 == self.layers.len();
+        let frac = self.fracs[l];
         let (row_blocks, blocks) = (opad / 16, self.blocks);
         let mut s = format!("    {{ // layer {l}\n");
         for tb in 0..blocks {
@@ -218,7 +222,7 @@ impl Shape {
             store(&mut s, 'l', ob);
             let _ = writeln!(
                 s,
-                "    workgroupBarrier();\n    finish(lane, warp, {l}u, {ob}u, {last});\n    \
+                "    workgroupBarrier();\n    finish(lane, warp, {l}u, {ob}u, {last}, {frac}u);\n    \
                  workgroupBarrier();"
             );
         }

@@ -72,45 +72,47 @@ fn put_activation(k: u32, t: u32, a: i32) {
     act_lo[k * AS + t] = f16(a & 255);
 }
 
-// Where product e (texel block e / 256, row (e % 256) / 16, texel e % 16) of subgroup `warp` is.
-fn sum_at(warp: u32, e: u32) -> u32 {
-    return SB * (warp * TB + e / 256u) + (e % 256u) / 16u * SS + e % 16u;
+// This invocation's place in a subgroup's row block: row lane % 16 of it, and texels
+// lane / 16 + k · (SG / 16) of the subgroup's 16 · TB, k < PER_LANE; `sum_at` is where the
+// product of row r and texel j is.
+fn sum_at(warp: u32, r: u32, j: u32) -> u32 {
+    return SB * (warp * TB + j / 16u) + r * SS + j % 16u;
 }
 
 // This invocation's products with the high bytes, from `sums` into hi_part (exact integers).
 fn collect(lane: u32, warp: u32) {
-    for (var i = 0u; i < PER_LANE; i++) {
-        hi_part[i] = i32(sums[sum_at(warp, lane + i * SG)]);
+    for (var k = 0u; k < PER_LANE; k++) {
+        hi_part[k] = i32(sums[sum_at(warp, lane % 16u, lane / 16u + k * (SG / 16u))]);
     }
 }
 
-// Row block `ob` of layer `l` for subgroup `warp`, from hi_part and the products with the low
-// bytes in `sums`: bias, requantization and activation, into the activations (or, if `last`,
-// the codes).
-fn finish(lane: u32, warp: u32, l: u32, ob: u32, last: bool) {
+// Row block `ob` of layer `l` (output fraction bits `frac`) for subgroup `warp`, from hi_part
+// and the products with the low bytes in `sums`: bias, requantization and activation, into the
+// activations (or, if `last`, the codes). Each invocation reads its row's table once.
+fn finish(lane: u32, warp: u32, l: u32, ob: u32, last: bool, frac: u32) {
     let lb = nmat_desc[13] + 8u * l;
-    let outputs = nmat_desc[lb + 1u];
-    let frac = nmat_desc[lb + 2u];
+    let o = 16u * ob + lane % 16u;
+    if (o >= nmat_desc[lb + 1u] || (last && (o >= CH || (params.channel_mask & (1u << o)) == 0u))) {
+        return;
+    }
     let gelu = nmat_desc[lb + 3u] == 1u;
-    let rows_at = nmat_desc[lb + 7u];
+    let row = requant_table(nmat_desc[lb + 7u] + 8u * o);
     let n = params.out_channels;
-    for (var i = 0u; i < PER_LANE; i++) {
-        let e = lane + i * SG;
-        let o = 16u * ob + (e % 256u) / 16u;
-        let t = 16u * (warp * TB + e / 256u) + e % 16u;
-        if (o >= outputs) {
-            continue;
-        }
-        let rb = rows_at + 8u * o;
-        let acc = 256 * hi_part[i] + i32(sums[sum_at(warp, e)]) + bitcast<i32>(nmat_desc[rb]);
-        var z = requant_row(acc, rb);
+    var slot = 0u;
+    if (last) {
+        slot = countOneBits(params.channel_mask & ((1u << o) - 1u));
+    }
+    for (var k = 0u; k < PER_LANE; k++) {
+        let j = lane / 16u + k * (SG / 16u);
+        let acc = 256 * hi_part[k] + i32(sums[sum_at(warp, lane % 16u, j)]) + row.bias;
+        var z = requant_with(acc, row);
         if (gelu) {
             z = nmat_hard_gelu(z, frac);
         }
+        let t = 16u * TB * warp + j;
         if (!last) {
             put_activation(o, t, z);
-        } else if (o < CH && (params.channel_mask & (1u << o)) != 0u) {
-            let slot = countOneBits(params.channel_mask & ((1u << o) - 1u));
+        } else {
             let code = clamp((z * 255 + (1 << (frac - 1u))) >> frac, 0, 255);
             tile_codes[t * n + slot] = u32(code);
         }

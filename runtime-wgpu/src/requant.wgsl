@@ -1,7 +1,32 @@
 // The requantization of the tiled and matrix kernels (tiled.wgsl, matrix.wgsl), from a layer's
 // row table (tiled.rs: `row_table`; layout in tiled.wgsl).
 
-// sat16((acc · m + 2^(s−1)) >> s) exactly, with acc first clamped to the row's saturation range
+// A row table (tiled.wgsl), read once for all the accumulators of the row.
+struct RequantRow {
+    bias: i32,
+    m: u32,
+    s: u32,
+    u: u32,
+    mp: i32,
+    c: f32,
+    lo: i32,
+    hi: i32,
+}
+
+fn requant_table(rb: u32) -> RequantRow {
+    return RequantRow(
+        bitcast<i32>(nmat_desc[rb]),
+        nmat_desc[rb + 1u],
+        nmat_desc[rb + 2u],
+        nmat_desc[rb + 3u],
+        bitcast<i32>(nmat_desc[rb + 4u]),
+        bitcast<f32>(nmat_desc[rb + 5u]),
+        bitcast<i32>(nmat_desc[rb + 6u]),
+        bitcast<i32>(nmat_desc[rb + 7u]),
+    );
+}
+
+// requant_with(acc, row) is sat16((acc · m + 2^(s−1)) >> s) exactly, with acc first clamped to the row's saturation range
 // [lo, hi] (outside it the result saturates anyway, inside it fits an i32).
 //
 // 32-bit path (u ≠ 0; lib.rs sets it where m' < 2^24, |acc| ≤ 2^24 on [lo, hi], u ≤ 31 and
@@ -14,20 +39,20 @@
 // 64-bit path: |acc| · m as a 64-bit (hi, lo) pair; floor(x / 2^s) of x = acc · m + 2^(s−1) is
 // (|acc| · m + 2^(s−1)) >> s for acc ≥ 0 and −((|acc| · m + 2^(s−1) − 1) >> s) for acc < 0
 // (floor(−y) = −ceil(y)); the clamp keeps the quotient below 2^31.
-fn requant_row(acc_in: i32, rb: u32) -> i32 {
-    let acc = clamp(acc_in, bitcast<i32>(nmat_desc[rb + 6u]), bitcast<i32>(nmat_desc[rb + 7u]));
-    let u = nmat_desc[rb + 3u];
+fn requant_with(acc_in: i32, row: RequantRow) -> i32 {
+    let acc = clamp(acc_in, row.lo, row.hi);
+    let u = row.u;
     if (u != 0u) {
-        var q = i32(floor(f32(acc) * bitcast<f32>(nmat_desc[rb + 5u]) + 0.5));
-        let e = acc * bitcast<i32>(nmat_desc[rb + 4u]) - (q << u);
+        var q = i32(floor(f32(acc) * row.c + 0.5));
+        let e = acc * row.mp - (q << u);
         let half = 1 << (u - 1u);
         q += select(0, -1, e < -half) + select(0, 1, e >= half);
         return nmat_sat16(q);
     }
-    let s = nmat_desc[rb + 2u];
+    let s = row.s;
     let negative = acc < 0;
     let magnitude = select(bitcast<u32>(acc), 0u - bitcast<u32>(acc), negative);
-    let p = nmat_umul64(magnitude, nmat_desc[rb + 1u]);
+    let p = nmat_umul64(magnitude, row.m);
     let minus = select(0u, 1u, negative);
     var add = vec2<u32>(0u, (1u << (s - 1u)) - minus);
     if (s > 32u) {

@@ -177,7 +177,7 @@ mod tests {
     use super::*;
     use nmat_core::Requant;
 
-    /// tiled.wgsl's `requant_row` step by step in Rust (f32 and wrapping i32 as WGSL has them).
+    /// requant.wgsl's `requant_with` step by step in Rust (f32 and wrapping i32 as WGSL has them).
     fn requant_row(acc: i32, table: [u32; ROW_WORDS]) -> i32 {
         let [_, m, s, u, mp, c, lo, hi] = table;
         let acc = acc.clamp(lo as i32, hi as i32);

@@ -10,7 +10,7 @@
 // `fn layers(lid)`, which calls `layer` once per layer with its widths as literals, a barrier
 // after each. Then texel.wgsl (the decoder, `nmat_features`), decode.wgsl (bindings), one of
 // tiled_i32.wgsl / tiled_dot4.wgsl (where activations live and how a tile's products are
-// formed), requant.wgsl (`requant_row`), then this file.
+// formed), requant.wgsl (`requant_with`), then this file.
 //
 // Per layer l, nmat_desc[layers_at + 8l + 6] is where its packed weights start in `nmat_desc`:
 // rows padded to a multiple of 4 rows and 4 columns, 4 int8 weights per word (column 4j + b in
@@ -42,9 +42,9 @@ fn layer(lid: u32, l: u32, kw: u32, row_groups: u32, src: u32, last: bool) {
         let acc = mac4(src, t0, weights_at + o0 * kw, kw);
         var v: array<vec4<i32>, 4>;
         for (var r = 0u; r < 4u; r++) {
-            let rb = rows_at + 8u * (o0 + r);
+            let row = requant_table(rows_at + 8u * (o0 + r));
             for (var j = 0u; j < 4u; j++) {
-                var z = requant_row(acc[r][j] + bitcast<i32>(nmat_desc[rb]), rb);
+                var z = requant_with(acc[r][j] + row.bias, row);
                 if (gelu) {
                     z = nmat_hard_gelu(z, frac);
                 }

@@ -141,8 +141,9 @@ impl Context {
         Ok(GpuMaterial { rejected, ..chosen })
     }
 
-    /// Seconds per texel of a region of mip 0 (up to 512 × 512 texels, repeated to at least
-    /// 2^18 texels) decoded through `gm`'s kernel.
+    /// Seconds per texel of a region of mip 0 (up to 1024 × 1024 texels, repeated to at least
+    /// 2^20 texels) decoded through `gm`'s kernel. (A 512² region misled on an H200: it ranked
+    /// the matrix kernel above the reference one, which a 1024² region decodes faster.)
     fn time_region(
         &self,
         device: &wgpu::Device,
@@ -150,9 +151,9 @@ impl Context {
         gm: &GpuMaterial,
     ) -> Result<f64, GpuError> {
         let (w, h) = gm.mip_sizes[0];
-        let region = (0, 0, w.min(512), h.min(512));
+        let region = (0, 0, w.min(1024), h.min(1024));
         let texels = u64::from(region.2) * u64::from(region.3);
-        let repeats = (1u64 << 18).div_ceil(texels).min(64) as u32;
+        let repeats = (1u64 << 20).div_ceil(texels).min(64) as u32;
         let bytes = (texels * gm.channel_count as u64).next_multiple_of(4);
         let out = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("nmat kernel timing"),
