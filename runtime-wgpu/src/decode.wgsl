@@ -35,6 +35,18 @@ struct Params {
 @group(0) @binding(3) var<storage, read_write> out_codes: array<u32>;
 @group(0) @binding(4) var<uniform> params: Params;
 
+// Texel `index` of a dispatch (x, y, mip as i32 bits): request `index` from word
+// `params.in_offset` of `requests`, or texel `index` of the rectangle in row-major order.
+fn texel_of(index: u32) -> vec3<i32> {
+    if (params.mode == 0u) {
+        let r = params.in_offset + 3u * index;
+        return vec3<i32>(requests[r], requests[r + 1u], requests[r + 2u]);
+    }
+    let x = params.x0 + index % params.width;
+    let y = params.y0 + index / params.width;
+    return vec3<i32>(i32(x), i32(y), bitcast<i32>(params.mip));
+}
+
 // One workgroup's codes, one per u32, in output order (texel, then channel), before packing.
 var<workgroup> staged: array<u32, 1024>;
 
@@ -53,15 +65,8 @@ fn main(
     let index = group * 64u + lid;
     let n = params.out_channels;
     if (index < params.count) {
-        if (params.mode == 0u) {
-            let r = params.in_offset + 3u * index;
-            let mip = bitcast<u32>(requests[r + 2u]);
-            nmat_decode(requests[r], requests[r + 1u], mip, params.channel_mask);
-        } else {
-            let x = params.x0 + index % params.width;
-            let y = params.y0 + index / params.width;
-            nmat_decode(i32(x), i32(y), params.mip, params.channel_mask);
-        }
+        let texel = texel_of(index);
+        nmat_decode(texel.x, texel.y, bitcast<u32>(texel.z), params.channel_mask);
         var slot = lid * n;
         for (var c = 0u; c < nmat_desc[3]; c++) {
             if ((params.channel_mask & (1u << c)) != 0u) {

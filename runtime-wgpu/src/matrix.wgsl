@@ -122,14 +122,8 @@ fn finish(lane: u32, warp: u32, l: u32, ob: u32, last: bool, frac: u32) {
 // The input features of texel `index` of the request list or rectangle into activation column
 // `t`, zeros up to WMAX.
 fn features(t: u32, index: u32, inputs: u32) {
-    if (params.mode == 0u) {
-        let r = params.in_offset + 3u * index;
-        nmat_features(requests[r], requests[r + 1u], bitcast<u32>(requests[r + 2u]));
-    } else {
-        let x = params.x0 + index % params.width;
-        let y = params.y0 + index / params.width;
-        nmat_features(i32(x), i32(y), params.mip);
-    }
+    let texel = texel_of(index);
+    nmat_features(texel.x, texel.y, bitcast<u32>(texel.z));
     for (var k = 0u; k < WMAX; k++) {
         put_activation(k, t, select(0, nmat_act_a[min(k, 127u)], k < inputs));
     }

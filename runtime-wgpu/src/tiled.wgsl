@@ -81,14 +81,8 @@ fn tiled(
     for (var t = lid; t < P; t += 64u) {
         let index = first + t;
         if (index < params.count) {
-            if (params.mode == 0u) {
-                let r = params.in_offset + 3u * index;
-                nmat_features(requests[r], requests[r + 1u], bitcast<u32>(requests[r + 2u]));
-            } else {
-                let x = params.x0 + index % params.width;
-                let y = params.y0 + index / params.width;
-                nmat_features(i32(x), i32(y), params.mip);
-            }
+            let texel = texel_of(index);
+            nmat_features(texel.x, texel.y, bitcast<u32>(texel.z));
             put_features(t, inputs);
         }
     }
