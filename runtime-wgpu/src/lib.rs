@@ -40,8 +40,8 @@
 //! channels)` (the CPU's filters) and `nmat_texel`, bound with [`GpuMaterial::sample_entries`]
 //! (example `sample_quad`). Only downlevel limits are needed: 32-bit integers only (no `f16`,
 //! no subgroups, no 64-bit integers; the wide products are computed in pieces); the matrix
-//! kernel alone needs more ([`MATRIX_FEATURES`]) and is skipped where the device lacks it. The decode
-//! arithmetic is that of the format specification (`docs/FORMAT.md` of the repository, §6;
+//! kernel alone needs more ([`MATRIX_FEATURES`]) and is skipped where the device lacks it. The
+//! decode arithmetic is that of the format specification (`docs/FORMAT.md` of the repository, §6;
 //! embedded in `nmat_core::spec`); how the kernel maps it onto 32-bit integers and what it costs
 //! is in `docs/GPU.md`, embedded here as [`design`]. JPEG materials (§11) upload and decode
 //! through the same region and request calls, one workgroup per MCU ([`GpuMaterial::codec`]).
@@ -202,8 +202,8 @@ pub struct Context {
     encode: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
     pipeline_layout: wgpu::PipelineLayout,
-    /// Tiled and matrix pipelines by source (one per kernel and material shape); `None` where the device
-    /// refused the source.
+    /// Tiled and matrix pipelines by source (one per kernel and material shape); `None` where
+    /// the device refused the source.
     tiled: Mutex<HashMap<String, Option<Arc<wgpu::ComputePipeline>>>>,
     /// Store pipelines of `record_map_to_texture` by texture format.
     stores: Mutex<HashMap<wgpu::TextureFormat, Option<Arc<wgpu::ComputePipeline>>>>,

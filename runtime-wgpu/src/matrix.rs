@@ -107,7 +107,7 @@ impl Shape {
         let wmax = layers.iter().flat_map(|&(k, o, _)| [k, o]).max().ok_or("no layers")?;
         let channels = m.channel_count() as u32;
         // Workgroup memory: staged weights, the activations' high and low bytes (f16), a row
-        // block of products per subgroup (two f32 arrays) and the codes.
+        // block of products per subgroup and texel block (f32) and the codes.
         let bytes = |w: u32| {
             let p = 16 * blocks * w;
             2 * total + 4 * wmax * (p + pads.0) + 64 * (16 + pads.2) * blocks * w + 4 * channels * p

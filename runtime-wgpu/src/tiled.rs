@@ -25,9 +25,10 @@ pub enum Kernel {
 }
 
 impl Kernel {
-    /// Every kernel, slowest first, as every kernel list of the workspace is (nmat-core's
-    /// `Kernel::ALL`, nmat-encode's `TrainKernel::ALL`); [`crate::Context::upload`] tries them
-    /// from the end.
+    /// Every kernel, in the order every kernel list of the workspace has (nmat-core's
+    /// `Kernel::ALL`, nmat-encode's `TrainKernel::ALL`): the simplest first, the one expected
+    /// fastest last. Which is fastest depends on the GPU: [`crate::Context::upload`] measures
+    /// them, and takes them from the end only where it cannot (a software adapter).
     pub const ALL: [Kernel; 4] = [Kernel::Reference, Kernel::Int32, Kernel::Dot4, Kernel::Matrix];
 
     pub fn name(self) -> &'static str {

@@ -189,7 +189,9 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
         })
         .collect::<Result<_>>()?;
     println!(
-        "  upload {:.2} ms (once per material); region round trip (submit, decode, read back, wall clock) {:.2} ms",
+        "  upload {:.2} ms (once per material: it compiles, probes and, first per network \
+         shape, times the kernels); region round trip (submit, decode, read back, wall clock) \
+         {:.2} ms",
         upload * 1e3,
         median(round_trips) * 1e3
     );
