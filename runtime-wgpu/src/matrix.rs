@@ -249,9 +249,10 @@ mod tests {
     }
 
     /// lavapipe runs no cooperative matrices, so CI cannot run this kernel: its WGSL for every
-    /// golden fixture's network (fan-ins 21 to 64, 3 to 16 channels, two and three layers) and
-    /// the widest the format allows is valid for naga and becomes SPIR-V with the cooperative
-    /// matrix instructions; a network past the workgroup memory is refused, not miscompiled.
+    /// golden fixture's network (1 to 16 channels, 2 to 4 layers up to 64 wide) is valid for
+    /// naga and becomes SPIR-V with the cooperative matrix instructions; the widest network the
+    /// format allows (four layers of 128) is refused in 48 KiB of workgroup memory, not
+    /// miscompiled.
     #[test]
     fn the_matrix_kernel_validates_for_every_fixture_shape() {
         let mut configs = golden_configs();
