@@ -48,20 +48,9 @@ impl Context {
                 });
             }
             let (desc, section, maps) = jpeg::upload_words(device, m)?;
-            return Ok(GpuMaterial {
-                id: next_id(),
-                desc: storage_init(device, "nmat jpeg desc", &desc),
-                latents: storage_init(device, "nmat jpeg section", &section),
-                channel_count: m.channel_count(),
-                mip_sizes: (0..m.mip_count()).map(|mip| m.mip_size(mip)).collect(),
-                address_clamp: m.address_mode() == nmat_core::AddressMode::Clamp,
-                ranges: m.channels().iter().map(|c| (c.range_min, c.range_max)).collect(),
-                constant_codes: m.channels().iter().map(|c| c.constant_code()).collect(),
-                kernel: Kernel::Reference,
-                rejected: Vec::new(),
-                tiled: None,
-                jpeg: Some(maps),
-            });
+            let desc = storage_init(device, "nmat jpeg desc", &desc);
+            let section = storage_init(device, "nmat jpeg section", &section);
+            return Ok(GpuMaterial::new(m, desc, section, Kernel::Reference, None, Some(maps)));
         }
         let (desc, latents) = network_words(m)?;
         let latents = storage_init(device, "nmat latents", &latents);
@@ -78,20 +67,8 @@ impl Context {
             if *self.fault.lock().unwrap_or_else(|e| e.into_inner()) == Some(kernel) {
                 break_last_row(&mut desc);
             }
-            let gm = GpuMaterial {
-                id: next_id(),
-                desc: storage_init(device, "nmat desc", &desc),
-                latents: latents.clone(),
-                channel_count: m.channel_count(),
-                mip_sizes: (0..m.mip_count()).map(|mip| m.mip_size(mip)).collect(),
-                address_clamp: m.address_mode() == nmat_core::AddressMode::Clamp,
-                ranges: m.channels().iter().map(|c| (c.range_min, c.range_max)).collect(),
-                constant_codes: m.channels().iter().map(|c| c.constant_code()).collect(),
-                kernel,
-                rejected: Vec::new(),
-                tiled,
-                jpeg: None,
-            };
+            let desc = storage_init(device, "nmat desc", &desc);
+            let gm = GpuMaterial::new(m, desc, latents.clone(), kernel, tiled, None);
             let codes = self.decode_requests(device, queue, &gm, &probe.requests, ChannelMask::ALL);
             match codes {
                 Ok(codes) if codes == probe.codes => Ok(gm),
@@ -124,8 +101,9 @@ impl Context {
             }
         }
         let chosen = if candidates.len() > 1 {
+            let out = timing_buffer(device, m);
             // The better of two timings each: a device's first submissions can read slow.
-            let time = |gm| self.time_region(device, queue, gm).unwrap_or(f64::INFINITY);
+            let time = |gm| self.time_region(device, queue, gm, &out).unwrap_or(f64::INFINITY);
             let times: Vec<f64> = candidates.iter().map(|gm| time(gm).min(time(gm))).collect();
             let best =
                 (0..candidates.len()).min_by(|&a, &b| times[a].total_cmp(&times[b])).unwrap_or(0);
@@ -142,27 +120,20 @@ impl Context {
     }
 
     /// Seconds per texel of a region of mip 0 (up to 1024 × 1024 texels, repeated to at least
-    /// 2^20 texels) decoded through `gm`'s kernel. (A 512² region misled on an H200: it ranked
+    /// 2^20 texels) decoded through `gm`'s kernel into `out` ([`timing_buffer`]). (A 512² region misled on an H200: it ranked
     /// the matrix kernel above the reference one, which a 1024² region decodes faster.)
     fn time_region(
         &self,
         device: &wgpu::Device,
         queue: &wgpu::Queue,
         gm: &GpuMaterial,
+        out: &wgpu::Buffer,
     ) -> Result<f64, GpuError> {
-        let (w, h) = gm.mip_sizes[0];
-        let region = (0, 0, w.min(1024), h.min(1024));
+        let region = timing_region(gm.mip_sizes[0]);
         let texels = u64::from(region.2) * u64::from(region.3);
         let repeats = (1u64 << 20).div_ceil(texels).min(64) as u32;
-        let bytes = (texels * gm.channel_count as u64).next_multiple_of(4);
-        let out = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("nmat kernel timing"),
-            size: bytes,
-            usage: wgpu::BufferUsages::STORAGE,
-            mapped_at_creation: false,
-        });
         let (seconds, _) = measure::time_recorded(device, queue, repeats, |encoder| {
-            self.record_region(device, encoder, gm, 0, region, ChannelMask::ALL, (&out, 0))
+            self.record_region(device, encoder, gm, 0, region, ChannelMask::ALL, (out, 0))
                 .map(|_| ())
         })?;
         Ok(seconds / texels as f64)
@@ -402,4 +373,48 @@ fn shape_key(m: &Material<'_>) -> String {
     let widths: Vec<(usize, usize)> =
         m.mlp().layers().iter().map(|l| (l.inputs(), l.outputs())).collect();
     format!("{widths:?} {}", m.channel_count())
+}
+
+/// The region of mip 0 `upload` times each kernel on: up to 1024 × 1024 texels.
+fn timing_region((w, h): (u32, u32)) -> (u32, u32, u32, u32) {
+    (0, 0, w.min(1024), h.min(1024))
+}
+
+/// The output of `Context::time_region` for `m`, shared by every kernel's timing.
+fn timing_buffer(device: &wgpu::Device, m: &Material<'_>) -> wgpu::Buffer {
+    let (_, _, w, h) = timing_region(m.mip_size(0));
+    let bytes = u64::from(w) * u64::from(h) * m.channel_count() as u64;
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("nmat kernel timing"),
+        size: bytes.next_multiple_of(4),
+        usage: wgpu::BufferUsages::STORAGE,
+        mapped_at_creation: false,
+    })
+}
+
+impl GpuMaterial {
+    /// `m` on the GPU: its descriptor and latent (or JPEG section) buffers, decoded by `kernel`.
+    fn new(
+        m: &Material<'_>,
+        desc: wgpu::Buffer,
+        latents: wgpu::Buffer,
+        kernel: Kernel,
+        tiled: Option<(Arc<wgpu::ComputePipeline>, u32)>,
+        jpeg: Option<jpeg::JpegMaps>,
+    ) -> GpuMaterial {
+        GpuMaterial {
+            id: next_id(),
+            desc,
+            latents,
+            channel_count: m.channel_count(),
+            mip_sizes: (0..m.mip_count()).map(|mip| m.mip_size(mip)).collect(),
+            address_clamp: m.address_mode() == nmat_core::AddressMode::Clamp,
+            ranges: m.channels().iter().map(|c| (c.range_min, c.range_max)).collect(),
+            constant_codes: m.channels().iter().map(|c| c.constant_code()).collect(),
+            kernel,
+            rejected: Vec::new(),
+            tiled,
+            jpeg,
+        }
+    }
 }
