@@ -3,6 +3,11 @@
 
 fuzz_targets=(parse decode roundtrip ffi cli jpeg)
 
+# One thread per fuzzer: `cli` transcodes small materials through rayon, whose worker threads
+# would take the other fuzzers' cores (the jobs are already one per core) and add a hand-off per
+# block row; the bytes do not depend on the thread count.
+export RAYON_NUM_THREADS=1
+
 # Nightly and cargo-fuzz, installed when missing (idempotent, fast when present).
 fuzz_install_tools() {
   rustup toolchain list | grep -q '^nightly' || rustup toolchain install nightly --profile minimal
