@@ -11,23 +11,23 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use nmat_core::{ChannelMask, Filter, FrameStats, TILE_SIZE, TileKey};
 use wgpu::util::DeviceExt;
 
-use crate::{
-    Context, GpuError, GpuMaterial, Params, SampleBindings, dispatch, read_back, read_buffer,
-    spread, storage_entry, uniform_buffer, uniform_entry,
+use crate::gpu::{
+    check_output, check_requests, dispatch, read_back, read_buffer, spread, storage_entry,
+    try_pipeline, uniform_buffer, uniform_entry,
 };
+use crate::layout::{
+    self, CacheArgs, CacheDecodeParams, CacheHeader, CacheMaterial, CacheParams, CacheState,
+    ChannelRange, DecodeArgs, DispatchArgs, JpegParams, MAX_MIPS, PAGE_MARK, PageRange, QueueEntry,
+    QueueHead, ShaderLayout, words_to_bytes,
+};
+use crate::{Context, GpuError, GpuMaterial, SampleBindings};
+use std::mem::offset_of;
 
 /// Materials one GPU tile cache serves (as `nmat_core::TileCache`).
 pub const MAX_CACHE_MATERIALS: usize = nmat_core::cache::MAX_CACHE_MATERIALS;
 
-/// Words of the table before the material records, and per record (cache_sample.wgsl).
-const HEADER_WORDS: usize = 16;
-const RECORD_WORDS: usize = 64;
-/// Where the state's free-slot stack starts (cache.wgsl).
-const FREE_AT: usize = 16;
-/// Mips a material record holds pages for.
-const MAX_MIPS: usize = 16;
-/// The frame's counters: the first 8 words of the table.
-const COUNTER_BYTES: u64 = 32;
+/// The frame's counters: the table's head up to `materials` (layout.rs: [`CacheHeader`]).
+const COUNTER_BYTES: u64 = offset_of!(CacheHeader, materials) as u64;
 
 /// One lookup of a frame, as the mark and resolve passes read it from the caller's buffer:
 /// 32 bytes, little-endian (`bytemuck`-compatible layout): `nmat_core::SampleRequest`'s
@@ -35,7 +35,7 @@ const COUNTER_BYTES: u64 = 32;
 /// list; [`CacheLookup::NONE`] or any index past the list: no lookup, e.g. the sky, resolved
 /// as zeros). An engine's G-buffer pass writes these from its own shader.
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct CacheLookup {
     pub u: f32,
     pub v: f32,
@@ -45,6 +45,19 @@ pub struct CacheLookup {
     /// [`CacheLookup::filter_code`]; other values filter as nearest.
     pub filter: u32,
     pub random: [f32; 3],
+}
+
+impl ShaderLayout for CacheLookup {
+    const FIELDS: &'static [(&'static str, usize, usize)] = &[
+        ("u", offset_of!(CacheLookup, u) / 4, 1),
+        ("v", offset_of!(CacheLookup, v) / 4, 1),
+        ("lod", offset_of!(CacheLookup, lod) / 4, 1),
+        ("material", offset_of!(CacheLookup, material) / 4, 1),
+        ("filter", offset_of!(CacheLookup, filter) / 4, 1),
+        ("random_0", offset_of!(CacheLookup, random) / 4, 1),
+        ("random_1", offset_of!(CacheLookup, random) / 4 + 1, 1),
+        ("random_2", offset_of!(CacheLookup, random) / 4 + 2, 1),
+    ];
 }
 
 impl CacheLookup {
@@ -153,10 +166,34 @@ pub struct GpuTileCache {
     frame: AtomicU32,
 }
 
-/// The uniform block of cache.wgsl (`NmatCacheParams`).
+/// The shader of the cache's passes (cache.wgsl).
+pub(crate) fn passes_source() -> String {
+    [
+        layout::cache_state_wgsl(),
+        layout::cache_table_wgsl(),
+        layout::wgsl_struct::<CacheParams>("NmatCacheParams"),
+        include_str!("shaders/cache.wgsl").to_string(),
+        include_str!("shaders/cache_sample.wgsl").to_string(),
+        include_str!("shaders/filter.wgsl").to_string(),
+    ]
+    .join("\n")
+}
+
+/// The shader of the neural decode of new tiles (cache_decode.wgsl).
+pub(crate) fn decode_source() -> String {
+    [
+        SampleBindings { group: 0, first_binding: 0 }.module(),
+        layout::cache_state_wgsl(),
+        layout::wgsl_struct::<CacheDecodeParams>("NmatCacheDecode"),
+        include_str!("shaders/cache_decode.wgsl").to_string(),
+    ]
+    .join("\n")
+}
+
+/// The uniform block of cache.wgsl.
 fn cache_params(count: u32, in_offset: u32, channels: u32, out_offset: u32) -> Vec<u8> {
-    let words = [count, in_offset, channels, channels.count_ones(), out_offset, 0, 0, 0];
-    words.iter().flat_map(|w| w.to_le_bytes()).collect()
+    let out_channels = channels.count_ones();
+    CacheParams { count, in_offset, channels, out_channels, out_offset, pad: [0; 3] }.bytes()
 }
 
 impl Context {
@@ -186,24 +223,25 @@ impl Context {
                 reason: "its codes are larger than one storage binding of the device",
             });
         }
-        // The table: header, material records, ranges, pages.
-        let mut table = vec![0u32; HEADER_WORDS + RECORD_WORDS * materials.len()];
+        // The table: header, material records, page ranges, pages.
+        let header_words = CacheHeader::WORDS + CacheMaterial::WORDS * materials.len();
+        let mut table = vec![0u32; header_words];
+        let mut records = Vec::new();
         let mut ranges = Vec::new();
         let mut cached = Vec::new();
         let mut pages = 0u32;
         for (k, m) in materials.iter().enumerate() {
-            let record = HEADER_WORDS + RECORD_WORDS * k;
             let (w, h) = m.mip_sizes[0];
-            table[record..record + 5].copy_from_slice(&[
-                w,
-                h,
-                m.mip_sizes.len() as u32,
-                m.channel_count as u32,
-                m.address_clamp as u32,
-            ]);
-            for (c, &(lo, hi)) in m.ranges.iter().enumerate().take(16) {
-                table[record + 24 + 2 * c] = lo.to_bits();
-                table[record + 25 + 2 * c] = hi.to_bits();
+            let mut record = CacheMaterial {
+                width: w,
+                height: h,
+                mip_count: m.mip_sizes.len() as u32,
+                channel_count: m.channel_count as u32,
+                address_mode: m.address_clamp as u32,
+                ..CacheMaterial::default()
+            };
+            for (range, &(lo, hi)) in record.ranges.iter_mut().zip(&m.ranges) {
+                *range = ChannelRange { min: lo.to_bits(), max: hi.to_bits() };
             }
             let mut first_page = Vec::new();
             for (mip, &(mw, mh)) in m.mip_sizes.iter().enumerate().take(MAX_MIPS) {
@@ -211,6 +249,7 @@ impl Context {
                 ranges.push((pages, (k as u32) << 8 | mip as u32));
                 pages += mw.div_ceil(TILE_SIZE) * mh.div_ceil(TILE_SIZE);
             }
+            records.push(record);
             cached.push(CachedMaterial {
                 channels: m.channel_count as u32,
                 mip_sizes: m.mip_sizes.clone(),
@@ -218,46 +257,51 @@ impl Context {
             });
         }
         let ranges_at = table.len() as u32;
-        let pages_at = ranges_at + 2 * ranges.len() as u32;
-        for (c, m) in cached.iter_mut().enumerate() {
-            let record = HEADER_WORDS + RECORD_WORDS * c;
-            for (mip, first) in m.first_page.iter_mut().enumerate() {
+        let pages_at = ranges_at + (PageRange::WORDS * ranges.len()) as u32;
+        for (k, (m, record)) in cached.iter_mut().zip(&mut records).enumerate() {
+            for (first, slot) in m.first_page.iter_mut().zip(&mut record.first_page) {
                 *first += pages_at;
-                table[record + 8 + mip] = *first;
+                *slot = *first;
             }
+            layout::write(&mut table, CacheHeader::WORDS + CacheMaterial::WORDS * k, record);
         }
         for &(first, which) in &ranges {
-            table.extend([first + pages_at, which]);
+            table.extend_from_slice(PageRange { first_page: first + pages_at, which }.words());
         }
-        table[8..15].copy_from_slice(&[
-            materials.len() as u32,
-            ranges.len() as u32,
+        let head = CacheHeader {
+            materials: materials.len() as u32,
+            ranges: ranges.len() as u32,
             ranges_at,
             pages_at,
             pages,
-            slot_words as u32,
+            slot_words: slot_words as u32,
             slots,
-        ]);
+            ..CacheHeader::default()
+        };
+        layout::write(&mut table, 0, &head);
         table.resize(table.len() + pages as usize, 0);
         // The state: every slot free. Both tables are checked before the state is allocated.
-        let queue_words = 4 + 2 * slots as usize;
-        let state_words = FREE_AT + 2 * slots as usize + materials.len() * queue_words;
+        let queue_words = QueueHead::WORDS + QueueEntry::WORDS * slots as usize;
+        let queues_at = CacheState::WORDS + 2 * slots as usize;
+        let state_words = queues_at + materials.len() * queue_words;
         if 4 * table.len().max(state_words) as u64 > max_binding {
             return Err(GpuError::Cache {
                 reason: "its tables are larger than one storage binding of the device",
             });
         }
         let mut state = vec![0u32; state_words];
-        state[0] = slots;
-        for (i, s) in state[FREE_AT..FREE_AT + slots as usize].iter_mut().enumerate() {
+        layout::write(&mut state, 0, &CacheState { free: slots, ..CacheState::default() });
+        let free = &mut state[CacheState::WORDS..CacheState::WORDS + slots as usize];
+        for (i, s) in free.iter_mut().enumerate() {
             *s = slots - 1 - i as u32;
         }
         use wgpu::BufferUsages as U;
-        let args_bytes = 4 * (8 + 12 * materials.len() as u64);
+        let args_bytes =
+            (size_of::<CacheArgs>() + size_of::<DecodeArgs>() * materials.len()) as u64;
         let init = |label, words: &[u32], usage| {
             device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some(label),
-                contents: &crate::words_to_bytes(words),
+                contents: &words_to_bytes(words),
                 usage,
             })
         };
@@ -284,11 +328,16 @@ impl Context {
         let mut decodes = Vec::new();
         let neural = self.cache_decode_pipeline(device)?;
         for (k, m) in materials.iter().enumerate() {
-            let queue_at = (FREE_AT + 2 * slots as usize + k * queue_words) as u32;
-            let args = |per_tile: u32| 4 * (8 + 12 * k as u64 + 3 * u64::from(per_tile.ilog2()));
+            let queue_at = (queues_at + k * queue_words) as u32;
+            // The byte of the material's dispatch of `per_tile` (1, 2 or 4) workgroups per tile.
+            let args = |per_tile: u32| {
+                let at = size_of::<CacheArgs>() + size_of::<DecodeArgs>() * k;
+                (at + size_of::<DispatchArgs>() * per_tile.ilog2() as usize) as u64
+            };
             let Some(maps) = &m.jpeg else {
-                let words = [queue_at, slot_words as u32, 0, 0];
-                let params = uniform(&crate::words_to_bytes(&words));
+                let words =
+                    CacheDecodeParams { queue_at, slot_words: slot_words as u32, pad: [0; 2] };
+                let params = uniform(&words.bytes());
                 let bind = self.bind_with(device, Some(m), Some(&state), &codes, &params);
                 // Four workgroups per tile (cache_decode.wgsl).
                 decodes.push(Decode { pipeline: neural.clone(), bind, args: args(4) });
@@ -297,16 +346,16 @@ impl Context {
             let jpeg = self.jpeg_pipelines(device)?;
             for (map, &(_, _, mw, mh)) in maps.maps.iter().enumerate() {
                 let (columns, rows) = (TILE_SIZE / mw, TILE_SIZE / mh);
-                let params = Params {
+                let params = JpegParams {
                     mode: 2,
                     channel_mask: (1 << m.channel_count) - 1,
                     out_channels: m.channel_count as u32,
-                    format: map as u32,
-                    components: columns,
-                    constants: columns * rows,
-                    row_words: slot_words as u32,
+                    map: map as u32,
+                    mcu_columns: columns,
+                    mcu_count: columns * rows,
+                    slot_words: slot_words as u32,
                     in_offset: queue_at,
-                    ..Params::default()
+                    ..JpegParams::default()
                 };
                 let bind = self.bind_with(
                     device,
@@ -358,19 +407,12 @@ impl Context {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        let source = format!(
-            "{}\n{}\n{}",
-            include_str!("cache.wgsl"),
-            include_str!("cache_sample.wgsl"),
-            include_str!("filter.wgsl")
-        );
+        let source = passes_source();
         let pipeline = |entry: &str| {
-            crate::try_pipeline(device, &source, entry, Some(&pipeline_layout)).ok_or(
-                GpuError::Kernel {
-                    kernel: crate::Kernel::Reference,
-                    reason: "the device refused the tile cache's shader",
-                },
-            )
+            try_pipeline(device, &source, entry, Some(&pipeline_layout)).ok_or(GpuError::Kernel {
+                kernel: crate::Kernel::Reference,
+                reason: "the device refused the tile cache's shader",
+            })
         };
         let passes = Passes {
             mark: pipeline("nmat_cache_mark")?,
@@ -389,16 +431,13 @@ impl Context {
         &self,
         device: &wgpu::Device,
     ) -> Result<wgpu::ComputePipeline, GpuError> {
-        let source = format!(
-            "{}\n{}",
-            SampleBindings { group: 0, first_binding: 0 }.module(),
-            include_str!("cache_decode.wgsl")
-        );
-        crate::try_pipeline(device, &source, "nmat_cache_decode", Some(&self.pipeline_layout))
-            .ok_or(GpuError::Kernel {
+        let source = decode_source();
+        try_pipeline(device, &source, "nmat_cache_decode", Some(&self.pipeline_layout)).ok_or(
+            GpuError::Kernel {
                 kernel: crate::Kernel::Reference,
                 reason: "the device refused the tile cache's decode shader",
-            })
+            },
+        )
     }
 }
 
@@ -456,7 +495,7 @@ impl GpuTileCache {
         (lookups, offset, count): (&wgpu::Buffer, u64, u32),
     ) -> Result<(), GpuError> {
         let bytes = CacheLookup::BYTES * u64::from(count);
-        let in_offset = Context::check_requests(device, lookups, offset, bytes)?;
+        let in_offset = check_requests(device, lookups, offset, bytes)?;
         let params = cache_params(count, in_offset, 0xFFFF, 0);
         let uniform = uniform_buffer(device, &params);
         let group =
@@ -484,13 +523,13 @@ impl GpuTileCache {
         pass.dispatch_workgroups(1, 1, 1);
         pass.set_bind_group(0, &self.frame_bind, &[]);
         pass.set_pipeline(&self.passes.allocate);
-        pass.dispatch_workgroups_indirect(&self.args, 0);
+        pass.dispatch_workgroups_indirect(&self.args, offset_of!(CacheArgs, allocate) as u64);
         pass.set_bind_group(0, &self.plan_bind, &[]);
         pass.set_pipeline(&self.passes.finish);
         pass.dispatch_workgroups(1, 1, 1);
         pass.set_bind_group(0, &self.frame_bind, &[]);
         pass.set_pipeline(&self.passes.clear);
-        pass.dispatch_workgroups_indirect(&self.args, 16);
+        pass.dispatch_workgroups_indirect(&self.args, offset_of!(CacheArgs, clear) as u64);
         for d in &self.decodes {
             pass.set_pipeline(&d.pipeline);
             pass.set_bind_group(0, &d.bind, &[]);
@@ -516,9 +555,9 @@ impl GpuTileCache {
             return Err(GpuError::Channels { mask: channels.0 });
         }
         let bytes = CacheLookup::BYTES * u64::from(count);
-        let in_offset = Context::check_requests(device, lookups, offset, bytes)?;
+        let in_offset = check_requests(device, lookups, offset, bytes)?;
         let values = u64::from(count) * u64::from(channels.0.count_ones());
-        let out_word = Context::check_output(device, out, out_offset, 4 * values)?;
+        let out_word = check_output(device, out, out_offset, 4 * values)?;
         let params = cache_params(count, in_offset, u32::from(channels.0), out_word);
         let uniform = uniform_buffer(device, &params);
         let group = bind(device, &self.layout, [&self.table, out, lookups, &self.codes], &uniform);
@@ -539,16 +578,20 @@ impl GpuTileCache {
         let bytes = read_back(device, &self.stats, COUNTER_BYTES)?;
         let w: Vec<u32> =
             bytes.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
-        let counter = |i: usize| w.get(i).copied().unwrap_or(0);
+        let mut head = [0u32; CacheHeader::WORDS];
+        for (to, from) in head.iter_mut().zip(w) {
+            *to = from;
+        }
+        let c: CacheHeader = bytemuck::cast(head);
         Ok(FrameStats {
             frame: self.frame.load(Ordering::Relaxed),
-            marked: counter(0),
-            hits: counter(1),
-            decoded: counter(2),
-            decoded_texels: counter(3),
-            evicted: counter(4),
-            overflowed: counter(5),
-            resolve_misses: counter(6),
+            marked: c.marked,
+            hits: c.hits,
+            decoded: c.decoded,
+            decoded_texels: c.decoded_texels,
+            evicted: c.evicted,
+            overflowed: c.overflowed,
+            resolve_misses: c.resolve_misses,
         })
     }
 
@@ -572,7 +615,7 @@ impl GpuTileCache {
             for (mip, (&(w, h), &first)) in m.mip_sizes.iter().zip(&m.first_page).enumerate() {
                 let columns = w.div_ceil(TILE_SIZE);
                 for p in 0..columns * h.div_ceil(TILE_SIZE) {
-                    let slot = word(first + p) & 0x7FFF_FFFF;
+                    let slot = word(first + p) & !PAGE_MARK;
                     if slot == 0 {
                         continue;
                     }
@@ -605,10 +648,11 @@ impl GpuTileCache {
              @group({g}) @binding({}) var<storage, read> nmat_cache_codes: array<u32>;\n\
              fn nmat_cache_word(i: u32) -> u32 {{ return nmat_cache_table[i]; }}\n\
              fn nmat_cache_code_word(i: u32) -> u32 {{ return nmat_cache_codes[i]; }}\n\
-             fn nmat_fetch(x: i32, y: i32, mip: u32, mask: u32) {{ nmat_cache_read(x, y, mip, mask); }}\n\n{}\n{}",
+             fn nmat_fetch(x: i32, y: i32, mip: u32, mask: u32) {{ nmat_cache_read(x, y, mip, mask); }}\n\n{}\n{}\n{}",
             b + 1,
-            include_str!("cache_sample.wgsl"),
-            include_str!("filter.wgsl"),
+            layout::cache_table_wgsl(),
+            include_str!("shaders/cache_sample.wgsl"),
+            include_str!("shaders/filter.wgsl"),
         )
     }
 

@@ -1,5 +1,6 @@
 //! Indexed-JPEG materials (docs/FORMAT.md §11) on the GPU: the section uploaded as it is stored,
-//! a small descriptor of where each stream and table lies (`jpeg.wgsl` documents the words), and
+//! a small descriptor of where each stream and table lies (layout.rs: [`JpegHeader`] and the
+//! records after it), and
 //! a pass that clears the output, then one dispatch per map with one workgroup per MCU. Regions
 //! and requests, submitted or recorded; the sampling module, the texture and the BC paths refuse
 //! a JPEG material with [`GpuError::Codec`].
@@ -9,7 +10,12 @@ use std::sync::Arc;
 use nmat_core::Material;
 use nmat_core::jpeg::huffman_decoding;
 
-use crate::{Context, GpuError, GpuMaterial, MAX_GROUPS, Params, dispatch, try_pipeline};
+use crate::gpu::{MAX_GROUPS, dispatch, try_pipeline};
+use crate::layout::{
+    self, HuffmanRecord, JpegHeader, JpegMapRecord, JpegParams, JpegStreamRecord, MipSize, Params,
+    ShaderLayout,
+};
+use crate::{Context, GpuError, GpuMaterial};
 
 /// Sections from this size on are refused: bit positions must stay below 2^32 on the GPU.
 const MAX_SECTION_BYTES: usize = 1 << 28;
@@ -41,56 +47,67 @@ pub(crate) fn upload_words(
     if section.len() as u64 > limit {
         return Err(GpuError::SectionTooLarge { bytes: section.len() as u64, limit });
     }
-    let mut desc = vec![0u32; 16 + 2 * 16];
-    desc[0] = m.width();
-    desc[1] = m.height();
-    desc[2] = m.mip_count();
-    desc[3] = m.channel_count() as u32;
-    desc[4] = m.address_mode() as u32;
-    desc[5] = j.maps().len() as u32;
+    let mut head = JpegHeader {
+        width: m.width(),
+        height: m.height(),
+        mip_count: m.mip_count(),
+        channel_count: m.channel_count() as u32,
+        address_mode: m.address_mode() as u32,
+        map_count: j.maps().len() as u32,
+        ..JpegHeader::default()
+    };
     for mip in 0..m.mip_count() {
-        let (w, h) = m.mip_size(mip);
-        desc[16 + 2 * mip as usize] = w;
-        desc[17 + 2 * mip as usize] = h;
+        let (width, height) = m.mip_size(mip);
+        head.mip_sizes[mip as usize] = MipSize { width, height };
     }
-    desc[6] = desc.len() as u32;
+    let mut desc = vec![0u32; JpegHeader::WORDS];
+    head.maps_at = desc.len() as u32;
     let mut maps = Vec::new();
     for map in j.maps() {
         let (mw, mh) = map.mcu_size();
-        let record = [map.first_channel, map.channel_count, map.luma_h, map.luma_v];
-        desc.extend(record.map(u32::from));
+        let record = JpegMapRecord {
+            first_channel: u32::from(map.first_channel),
+            channel_count: u32::from(map.channel_count),
+            luma_h: u32::from(map.luma_h),
+            luma_v: u32::from(map.luma_v),
+        };
+        desc.extend_from_slice(record.words());
         maps.push((u32::from(map.first_channel), u32::from(map.channel_count), mw, mh));
     }
-    desc[7] = desc.len() as u32;
+    head.streams_at = desc.len() as u32;
     let mut tables = 0u8;
     for map in 0..j.maps().len() {
         for mip in 0..m.mip_count() {
             let p = j.stream_parts(map, mip).ok_or(GpuError::Codec)?;
-            let mut record = vec![
-                p.index_at as u32,
-                p.dc_at as u32,
-                p.data_at as u32,
-                p.data_len as u32,
-                p.mcus.0,
-                p.mcus.1,
-            ];
-            record.extend(p.quant_at.map(|q| q as u32));
-            record.extend(p.dc_table.map(u32::from));
-            record.extend(p.ac_table.map(u32::from));
-            record.push(0);
+            let record = JpegStreamRecord {
+                index_at: p.index_at as u32,
+                dc_at: p.dc_at as u32,
+                data_at: p.data_at as u32,
+                data_len: p.data_len as u32,
+                mcus_x: p.mcus.0,
+                mcus_y: p.mcus.1,
+                quant_at: p.quant_at.map(|q| q as u32),
+                dc_table: p.dc_table.map(u32::from),
+                ac_table: p.ac_table.map(u32::from),
+                pad: 0,
+            };
             tables = tables.max(p.dc_table.into_iter().chain(p.ac_table).max().unwrap_or(0) + 1);
-            desc.extend(record);
+            desc.extend_from_slice(record.words());
         }
     }
-    desc[8] = desc.len() as u32;
+    head.huffman_at = desc.len() as u32;
     for t in 0..tables {
         let (_, counts, values_at) = j.huffman_table(t).ok_or(GpuError::Codec)?;
         let (maxcode, offset) = huffman_decoding(&counts);
-        desc.extend(maxcode.map(|v| v as u32));
-        desc.extend(offset.map(|v| v as u32));
-        let values: u32 = counts.iter().map(|&c| u32::from(c)).sum();
-        desc.extend([values_at as u32, values]);
+        let record = HuffmanRecord {
+            maxcode: maxcode.map(|v| v as u32),
+            offset: offset.map(|v| v as u32),
+            values_at: values_at as u32,
+            values: counts.iter().map(|&c| u32::from(c)).sum(),
+        };
+        desc.extend_from_slice(record.words());
     }
+    layout::write(&mut desc, 0, &head);
     let words = section
         .chunks(4)
         .map(|w| {
@@ -110,10 +127,10 @@ impl Context {
     ) -> Result<Arc<JpegPipelines>, GpuError> {
         let mut slot = self.jpeg.lock().unwrap_or_else(|e| e.into_inner());
         if slot.is_none() {
-            let source = include_str!("jpeg.wgsl");
+            let source = crate::layout::jpeg_wgsl();
             let layout = Some(&self.pipeline_layout);
-            let decode = try_pipeline(device, source, "jpeg_main", layout);
-            let clear = try_pipeline(device, source, "jpeg_clear", layout);
+            let decode = try_pipeline(device, &source, "jpeg_main", layout);
+            let clear = try_pipeline(device, &source, "jpeg_clear", layout);
             if let (Some(decode), Some(clear)) = (decode, clear) {
                 *slot = Some(Arc::new(JpegPipelines { decode, clear }));
             }
@@ -155,8 +172,7 @@ impl Context {
             if params.channel_mask & (((1 << count) - 1) << first) == 0 {
                 continue;
             }
-            let mut p = params;
-            p.format = k as u32;
+            let mut p = JpegParams { map: k as u32, ..JpegParams::from(params) };
             let groups = if params.mode == 0 {
                 u64::from(params.count)
             } else if params.count == 0 {
@@ -165,8 +181,8 @@ impl Context {
                 let height = params.count / params.width;
                 let columns = (params.x0 + params.width - 1) / mw - params.x0 / mw + 1;
                 let rows = (params.y0 + height - 1) / mh - params.y0 / mh + 1;
-                p.components = columns;
-                p.constants = columns * rows;
+                p.mcu_columns = columns;
+                p.mcu_count = columns * rows;
                 u64::from(columns) * u64::from(rows)
             };
             if groups > max_groups {
@@ -176,7 +192,7 @@ impl Context {
         }
         // The clear pass takes its word count from the host (no 32-bit product in the shader).
         let words = len.div_ceil(4);
-        let clear = Params { constant_mask: words as u32, ..params };
+        let clear = JpegParams { clear_words: words as u32, ..JpegParams::from(params) };
         let bind = self.bind(device, Some(gm), requests, out, &clear);
         dispatch(encoder, &pipelines.clear, &bind, words.div_ceil(64));
         for (p, groups) in &dispatches {

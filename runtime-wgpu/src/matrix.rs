@@ -157,10 +157,10 @@ impl Shape {
             self.wmax,
             self.channels,
             self.total,
-            include_str!("texel.wgsl"),
-            include_str!("decode.wgsl"),
-            include_str!("requant.wgsl"),
-            include_str!("matrix.wgsl"),
+            crate::layout::texel_wgsl(),
+            crate::layout::decode_wgsl(),
+            include_str!("shaders/requant.wgsl"),
+            include_str!("shaders/matrix.wgsl"),
         )
     }
 

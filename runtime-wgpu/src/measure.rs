@@ -3,7 +3,9 @@
 //! multiply-adds and `dot4I8Packed` from register-only WGSL loops (`probe.wgsl`), the roofline
 //! the decoder is compared against.
 
-use crate::{GpuError, dispatch, try_pipeline};
+use crate::GpuError;
+use crate::gpu::{dispatch, read_back, try_pipeline};
+use crate::layout::words_to_bytes;
 use std::time::Instant;
 use wgpu::util::DeviceExt;
 
@@ -99,7 +101,7 @@ pub fn time_once(
     encoder.resolve_query_set(q, 0..2, &resolve, 0);
     encoder.copy_buffer_to_buffer(&resolve, 0, &back, 0, 16);
     queue.submit([encoder.finish()]);
-    let bytes = crate::read_back(device, &back, 16)?;
+    let bytes = read_back(device, &back, 16)?;
     let tick = |k: usize| {
         let mut word = [0u8; 8];
         word.copy_from_slice(&bytes[8 * k..8 * k + 8]);
@@ -128,12 +130,12 @@ const PROBE_OPS: f64 = 32.0;
 /// Measures [`Peak`] on `device`: each probe grows its loop until one dispatch takes at least
 /// 20 ms, then reports the best of three.
 pub fn probe_peak(device: &wgpu::Device, queue: &wgpu::Queue) -> Result<Peak, GpuError> {
-    let probe = include_str!("probe.wgsl");
+    let probe = include_str!("shaders/probe.wgsl");
     let mad = try_pipeline(device, probe, "mad", None).ok_or(GpuError::Map(
         "the integer peak probe did not compile on this device".to_string(),
     ))?;
     let (mad_rate, clock) = rate(device, queue, &mad, 1.0)?;
-    let dot4_source = format!("{probe}\n{}", include_str!("probe_dot4.wgsl"));
+    let dot4_source = format!("{probe}\n{}", include_str!("shaders/probe_dot4.wgsl"));
     let dot4 = try_pipeline(device, &dot4_source, "dot4", None);
     let dot4_mac_per_s = match dot4 {
         Some(p) => Some(rate(device, queue, &p, 4.0)?.0),
@@ -160,7 +162,7 @@ fn rate(
         let words = [iterations, 0x0101_0103, 0x2545_F491, 0];
         let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("nmat probe"),
-            contents: &crate::words_to_bytes(&words),
+            contents: &words_to_bytes(&words),
             usage: wgpu::BufferUsages::UNIFORM,
         });
         let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {

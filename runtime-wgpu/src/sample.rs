@@ -49,9 +49,9 @@ impl SampleBindings {
              @group({g}) @binding({b}) var<storage, read> nmat_desc: array<u32>;\n\
              @group({g}) @binding({}) var<storage, read> nmat_latents: array<u32>;\n\n{}\n{}\n{}",
             b + 1,
-            include_str!("texel.wgsl"),
-            include_str!("sample.wgsl"),
-            include_str!("filter.wgsl"),
+            crate::layout::texel_wgsl(),
+            include_str!("shaders/sample.wgsl"),
+            include_str!("shaders/filter.wgsl"),
         )
     }
 

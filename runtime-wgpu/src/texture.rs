@@ -3,7 +3,9 @@
 //! into the caller's command encoder. Two passes: the material's decode kernel writes the codes
 //! into a buffer, `store.wgsl` writes them into the texture.
 
-use crate::{Context, GpuError, GpuMaterial, try_pipeline, words_to_bytes};
+use crate::gpu::try_pipeline;
+use crate::layout::words_to_bytes;
+use crate::{Context, GpuError, GpuMaterial};
 use nmat_core::ChannelMask;
 use nmat_core::bc::MapChannels;
 use std::sync::Arc;
@@ -154,7 +156,7 @@ impl Context {
         cache
             .entry(format)
             .or_insert_with(|| {
-                let source = include_str!("store.wgsl").replace("FORMAT", name);
+                let source = include_str!("shaders/store.wgsl").replace("FORMAT", name);
                 try_pipeline(device, &source, "store_texels", None).map(Arc::new)
             })
             .clone()

@@ -1,6 +1,7 @@
 //! The tiled kernel (tiled.wgsl): a pipeline per material shape, and the packed weights and row
 //! tables it reads. docs/GPU.md ("The tiled kernel") argues the arithmetic.
 
+use crate::layout::{self, LayerRecord, NeuralHeader, RequantRow, ShaderLayout};
 use nmat_core::{Layer, Material};
 use std::fmt::Write as _;
 
@@ -43,8 +44,8 @@ impl Kernel {
 
 /// Texels per workgroup the tiled kernel tries, largest first.
 const TEXELS: [u32; 5] = [64, 32, 16, 8, 4];
-/// Words per row in a layer's row table (tiled.wgsl).
-const ROW_WORDS: usize = 8;
+/// Words per row in a layer's row table (a [`RequantRow`]).
+const ROW_WORDS: usize = std::mem::size_of::<RequantRow>() / 4;
 
 /// What a tiled pipeline is specialised to: widths are literals in its source.
 pub(crate) struct Shape {
@@ -91,8 +92,8 @@ impl Shape {
             );
         }
         let products = match kernel {
-            Kernel::Dot4 => include_str!("tiled_dot4.wgsl"),
-            _ => include_str!("tiled_i32.wgsl"),
+            Kernel::Dot4 => include_str!("shaders/tiled_dot4.wgsl"),
+            _ => include_str!("shaders/tiled_i32.wgsl"),
         };
         format!(
             "const P: u32 = {}u;\nconst WMAX: u32 = {}u;\nconst CH: u32 = {}u;\n\
@@ -100,21 +101,22 @@ impl Shape {
             self.texels,
             self.wmax,
             self.channels,
-            include_str!("texel.wgsl"),
-            include_str!("decode.wgsl"),
-            include_str!("requant.wgsl"),
-            include_str!("tiled.wgsl"),
+            crate::layout::texel_wgsl(),
+            crate::layout::decode_wgsl(),
+            include_str!("shaders/requant.wgsl"),
+            include_str!("shaders/tiled.wgsl"),
         )
     }
 }
 
-/// Appends the tiled kernel's tables of every layer to `desc` and sets the layer records'
-/// words 6 (packed weights) and 7 (row table), whose records start at `desc[layers_at]`.
-pub(crate) fn append_tables(desc: &mut Vec<u32>, layers_at: usize, m: &Material<'_>, dot4: bool) {
+/// Appends the tiled kernel's tables of every layer to `desc` (a neural descriptor without
+/// them) and sets the layer records' `packed_at` and `requant_at`.
+pub(crate) fn append_tables(desc: &mut Vec<u32>, m: &Material<'_>, dot4: bool) {
+    let head: NeuralHeader = layout::read(desc, 0);
     for (l, layer) in m.mlp().layers().iter().enumerate() {
         let rows = layer.outputs().next_multiple_of(4);
         let kw = layer.inputs().div_ceil(4);
-        let weights_at = desc.len() as u32;
+        let packed_at = desc.len() as u32;
         for o in 0..rows {
             for j in 0..kw {
                 let byte = |b: usize| {
@@ -128,21 +130,21 @@ pub(crate) fn append_tables(desc: &mut Vec<u32>, layers_at: usize, m: &Material<
                 desc.push(byte(0) | byte(1) << 8 | byte(2) << 16 | byte(3) << 24);
             }
         }
-        let rows_at = desc.len() as u32;
+        let requant_at = desc.len() as u32;
         for o in 0..rows {
             desc.extend(row_table(layer, o, dot4));
         }
-        let record = layers_at + 8 * l;
-        desc[record + 6] = weights_at;
-        desc[record + 7] = rows_at;
+        let at = head.layers_at as usize + LayerRecord::WORDS * l;
+        let record: LayerRecord = layout::read(desc, at);
+        layout::write(desc, at, &LayerRecord { packed_at, requant_at, ..record });
     }
 }
 
-/// Row `o`'s table (tiled.wgsl): bias, m, s, u, m', m'/2^u as f32, lo, hi. A padding row
+/// Row `o`'s [`RequantRow`]: bias, m, s, u, m', m'/2^u as f32, lo, hi. A padding row
 /// (o ≥ outputs) requantizes everything to 0.
 fn row_table(layer: &Layer<'_>, o: usize, dot4: bool) -> [u32; ROW_WORDS] {
     if o >= layer.outputs() {
-        return [0, 0, 1, 1, 0, 0, 0, 0];
+        return bytemuck::cast(RequantRow { s: 1, u: 1, ..RequantRow::default() });
     }
     let rq = layer.requant(o);
     let (lo, hi) = rq.saturation_range();
@@ -152,8 +154,18 @@ fn row_table(layer: &Layer<'_>, o: usize, dot4: bool) -> [u32; ROW_WORDS] {
         bias = bias.wrapping_add(128 * sum);
     }
     let m = rq.multiplier as u32;
-    let (u, narrow, c) = narrow(m, rq.shift, lo, hi).unwrap_or((0, 0, 0.0));
-    [bias as u32, m, rq.shift, u, narrow, c.to_bits(), lo as u32, hi as u32]
+    let (u, mp, c) = narrow(m, rq.shift, lo, hi).unwrap_or((0, 0, 0.0));
+    let row = RequantRow {
+        bias: bias as u32,
+        m,
+        s: rq.shift,
+        u,
+        mp,
+        c: c.to_bits(),
+        lo: lo as u32,
+        hi: hi as u32,
+    };
+    bytemuck::cast(row)
 }
 
 /// The 32-bit requantization of a row with multiplier `m`, shift `s` and saturation range
@@ -176,7 +188,29 @@ fn narrow(m: u32, s: u32, lo: i32, hi: i32) -> Option<(u32, u32, f32)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nmat_core::Requant;
+    use nmat_core::{Container, Requant};
+    use nmat_tests::generate::{generate, golden_configs};
+
+    /// Both tiled kernels' WGSL for every golden fixture's network (1 to 16 channels, 2 to 4
+    /// layers up to 64 wide) parses and validates in naga (on a device that refuses a source
+    /// the kernel is only skipped, so this is where a broken source shows on every machine).
+    #[test]
+    fn the_tiled_kernels_validate_for_every_fixture_shape() {
+        for cfg in golden_configs() {
+            let bytes = generate(&cfg).to_bytes().unwrap();
+            let m = Container::parse(&bytes).unwrap();
+            for kernel in [Kernel::Int32, Kernel::Dot4] {
+                let shape = Shape::new(&m, kernel, 16384).expect("a shape in 16 KiB");
+                let source = shape.source(kernel);
+                let module = naga::front::wgsl::parse_str(&source)
+                    .unwrap_or_else(|e| panic!("{}: {}", cfg.name, e.emit_to_string(&source)));
+                let flags = naga::valid::ValidationFlags::all();
+                naga::valid::Validator::new(flags, naga::valid::Capabilities::all())
+                    .validate(&module)
+                    .unwrap_or_else(|e| panic!("{}: {}", cfg.name, e.emit_to_string(&source)));
+            }
+        }
+    }
 
     /// requant.wgsl's `requant_with` step by step in Rust (f32 and wrapping i32 as WGSL has them).
     fn requant_row(acc: i32, table: [u32; ROW_WORDS]) -> i32 {

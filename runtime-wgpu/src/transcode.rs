@@ -3,7 +3,9 @@
 //! BC4 or BC5 blocks byte-identical with the CPU's `Decoder::transcode_blocks` into a buffer that
 //! can be copied into a BC texture. The encoders are `bc.wgsl`, ports of `nmat_core::bc`.
 
-use crate::{Context, GpuError, GpuMaterial, MAX_GROUPS, Params, dispatch, read_back};
+use crate::gpu::{MAX_GROUPS, check_output, dispatch, read_back};
+use crate::layout::Params;
+use crate::{Context, GpuError, GpuMaterial};
 use nmat_core::BlockRegion;
 use nmat_core::bc::{BLOCK_PIXELS, BcFormat, BcTexture};
 use wgpu::util::DeviceExt;
@@ -138,7 +140,7 @@ impl Context {
             0 => 0,
             h => u64::from(h - 1) * row_pitch + row_bytes,
         };
-        let out_offset = Context::check_output(device, out, offset, span)?;
+        let out_offset = check_output(device, out, offset, span)?;
         let count = u64::from(region.width) * u64::from(region.height);
         let groups = count.div_ceil(BLOCKS_PER_GROUP);
         if groups > u64::from(MAX_GROUPS) * u64::from(MAX_GROUPS) {

@@ -2,8 +2,13 @@
 //! material, and the fastest of the exact kernels picked by measurement (docs/GPU.md, "The
 //! kernels, and how `upload` picks one").
 
-use crate::{Context, GpuError, GpuMaterial, Kernel, TexelRequest, jpeg, matrix, measure, tiled};
-use crate::{try_pipeline, words_to_bytes};
+use crate::gpu::try_pipeline;
+use crate::layout::words_to_bytes;
+use crate::layout::{
+    self, ChannelRange, GridRecord, LayerRecord, LevelRecord, NeuralHeader, Quantizer, RequantRow,
+    RowConstants, ShaderLayout,
+};
+use crate::{Context, GpuError, Kernel, TexelRequest, jpeg, matrix, measure, tiled};
 use nmat_core::{ChannelMask, Material, TermMode};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -61,8 +66,7 @@ impl Context {
             let tiled = self.prepare(device, m, kernel)?;
             let mut desc = desc.clone();
             if kernel != Kernel::Reference {
-                let layers_at = desc[13] as usize;
-                tiled::append_tables(&mut desc, layers_at, m, kernel == Kernel::Dot4);
+                tiled::append_tables(&mut desc, m, kernel == Kernel::Dot4);
             }
             if *self.fault.lock().unwrap_or_else(|e| e.into_inner()) == Some(kernel) {
                 break_last_row(&mut desc);
@@ -180,35 +184,40 @@ impl Context {
     }
 }
 
-/// A neural material's descriptor words (docs in texel.wgsl; without the tiled and matrix
-/// kernels' tables) and its latent words.
+/// A neural material's descriptor words (layout.rs: a [`NeuralHeader`], then the channels'
+/// ranges, the grids' records and quantizers, the levels' and layers' records, the weights and
+/// row constants; without the tiled and matrix kernels' tables) and its latent words.
 fn network_words(m: &Material<'_>) -> Result<(Vec<u32>, Vec<u32>), GpuError> {
     let mlp = m.mlp();
-    let mut desc = vec![0u32; 31];
-    desc[0] = m.width();
-    desc[1] = m.height();
-    desc[2] = m.mip_count();
-    desc[3] = m.channel_count() as u32;
-    desc[4] = m.address_mode() as u32;
-    desc[5] = u32::from(mlp.input_frac_bits());
-    desc[6] = u32::from(mlp.pe_frequencies());
-    desc[7] = u32::from(mlp.lod_input());
-    desc[8] = mlp.layers().len() as u32;
-    desc[9] = m.levels().len() as u32;
-    desc[10] = m.grids().len() as u32;
+    let mut head = NeuralHeader {
+        width: m.width(),
+        height: m.height(),
+        mip_count: m.mip_count(),
+        channel_count: m.channel_count() as u32,
+        address_mode: m.address_mode() as u32,
+        input_frac_bits: u32::from(mlp.input_frac_bits()),
+        pe_frequencies: u32::from(mlp.pe_frequencies()),
+        lod_input: u32::from(mlp.lod_input()),
+        layer_count: mlp.layers().len() as u32,
+        level_count: m.levels().len() as u32,
+        grid_count: m.grids().len() as u32,
+        ..NeuralHeader::default()
+    };
     for mip in 0..m.mip_count() {
-        desc[14 + mip as usize] = m.level_for_mip(mip) as u32;
+        head.level_of_mip[mip as usize] = m.level_for_mip(mip) as u32;
     }
-    // Channel ranges (for `nmat_sample`): min and max per channel as f32 bits.
-    desc[30] = desc.len() as u32;
+    let mut desc = vec![0u32; NeuralHeader::WORDS];
+    // Channel ranges (for `nmat_sample`).
+    head.ranges_at = desc.len() as u32;
     for ch in m.channels() {
-        desc.extend([ch.range_min.to_bits(), ch.range_max.to_bits()]);
+        let range = ChannelRange { min: ch.range_min.to_bits(), max: ch.range_max.to_bits() };
+        desc.extend_from_slice(range.words());
     }
-    // Grids: 8 words each, then their quantizers.
+    // Grids, then their quantizers.
     let mut latents: Vec<u32> = Vec::new();
-    desc[11] = desc.len() as u32;
+    head.grids_at = desc.len() as u32;
     let grids_at = desc.len();
-    desc.resize(grids_at + 8 * m.grids().len(), 0);
+    desc.resize(grids_at + GridRecord::WORDS * m.grids().len(), 0);
     for (g, grid) in m.grids().iter().enumerate() {
         let bits = u64::from(grid.width())
             * u64::from(grid.height())
@@ -225,70 +234,68 @@ fn network_words(m: &Material<'_>) -> Result<(Vec<u32>, Vec<u32>), GpuError> {
         let quant_at = desc.len() as u32;
         for c in 0..grid.channels() {
             let (offset, step) = grid.quantization(c);
-            desc.push(i32::from(offset) as u32);
-            desc.push(i32::from(step) as u32);
+            let q = Quantizer { offset: i32::from(offset) as u32, step: i32::from(step) as u32 };
+            desc.extend_from_slice(q.words());
         }
-        let record = [
-            grid.width(),
-            grid.height(),
-            grid.channels() as u32,
-            grid.bits_per_latent(),
-            latents.len() as u32,
-            words.len() as u32,
+        let record = GridRecord {
+            width: grid.width(),
+            height: grid.height(),
+            channels: grid.channels() as u32,
+            bits: grid.bits_per_latent(),
+            latents_at: latents.len() as u32,
+            latent_words: words.len() as u32,
             quant_at,
-            0,
-        ];
-        desc[grids_at + 8 * g..grids_at + 8 * g + 8].copy_from_slice(&record);
+            pad: 0,
+        };
+        layout::write(&mut desc, grids_at + GridRecord::WORDS * g, &record);
         latents.extend(words);
     }
-    // Levels: 1 + 4 × 10 words each.
-    desc[12] = desc.len() as u32;
+    head.levels_at = desc.len() as u32;
     for level in m.levels() {
-        let mut rec = vec![0u32; 41];
-        rec[0] = level.terms.len() as u32;
-        for (t, term) in level.terms.iter().enumerate() {
-            let tb = 1 + 10 * t;
-            rec[tb] = u32::from(term.mode != TermMode::Nearest4);
-            rec[tb + 1] = term.grids.len() as u32;
-            for (k, &g) in term.grids.iter().enumerate() {
-                rec[tb + 2 + k] = u32::from(g);
+        let mut record = LevelRecord { term_count: level.terms.len() as u32, ..Default::default() };
+        for (term, out) in level.terms.iter().zip(&mut record.terms) {
+            out.bilinear = u32::from(term.mode != TermMode::Nearest4);
+            out.chain_len = term.grids.len() as u32;
+            for (&g, slot) in term.grids.iter().zip(&mut out.grids) {
+                *slot = u32::from(g);
             }
         }
-        desc.extend(rec);
+        desc.extend_from_slice(record.words());
     }
-    // Layers: 8 words each; weights and row constants in `weights`.
-    desc[13] = desc.len() as u32;
-    let mut weights: Vec<i32> = Vec::new();
+    // Layers; weights and row constants in `weights`, which follow the records.
+    head.layers_at = desc.len() as u32;
+    let base = (desc.len() + LayerRecord::WORDS * mlp.layers().len()) as u32;
+    let mut weights: Vec<u32> = Vec::new();
     for layer in mlp.layers() {
         let (n_in, n_out) = (layer.inputs(), layer.outputs());
-        let weights_at = weights.len() as u32;
+        let weights_at = base + weights.len() as u32;
         for o in 0..n_out {
-            weights.extend((0..n_in).map(|i| i32::from(layer.weight_i8(o, i))));
+            weights.extend((0..n_in).map(|i| i32::from(layer.weight_i8(o, i)) as u32));
         }
-        let rows_at = weights.len() as u32;
+        let rows_at = base + weights.len() as u32;
         for o in 0..n_out {
             let rq = layer.requant(o);
-            weights.extend([layer.bias(o), rq.multiplier, rq.shift as i32]);
+            let row = RowConstants {
+                bias: layer.bias(o) as u32,
+                multiplier: rq.multiplier as u32,
+                shift: rq.shift,
+            };
+            weights.extend_from_slice(row.words());
         }
-        desc.extend([
-            n_in as u32,
-            n_out as u32,
-            u32::from(layer.out_frac_bits()),
-            u32::from(layer.activation() == nmat_core::Activation::HardGelu),
+        let record = LayerRecord {
+            inputs: n_in as u32,
+            outputs: n_out as u32,
+            out_frac_bits: u32::from(layer.out_frac_bits()),
+            hard_gelu: u32::from(layer.activation() == nmat_core::Activation::HardGelu),
             weights_at,
             rows_at,
-            0,
-            0,
-        ]);
+            packed_at: 0,
+            requant_at: 0,
+        };
+        desc.extend_from_slice(record.words());
     }
-    // The weights follow the descriptors in one buffer: move the layers' offsets past them.
-    let base = desc.len() as u32;
-    for l in 0..mlp.layers().len() {
-        let at = desc[13] as usize + 8 * l;
-        desc[at + 4] += base;
-        desc[at + 5] += base;
-    }
-    desc.extend(weights.iter().map(|&w| w as u32));
+    desc.extend(weights);
+    layout::write(&mut desc, 0, &head);
     Ok((desc, latents))
 }
 
@@ -353,18 +360,19 @@ impl Probe {
 /// The last layer's first row of a descriptor requantized to 0 (multiplier 0), in the reference
 /// kernel's rows and the tiled kernels' row table: [`Context::break_kernel_for_testing`].
 fn break_last_row(desc: &mut [u32]) {
-    let layers = desc[8] as usize;
-    let Some(last) = layers.checked_sub(1) else { return };
-    let record = desc[13] as usize + 8 * last;
-    let rows = desc[record + 5] as usize;
-    desc[rows + 1] = 0;
-    let table = desc[record + 7] as usize;
-    if table != 0 {
+    let head: NeuralHeader = layout::read(desc, 0);
+    let Some(last) = head.layer_count.checked_sub(1) else { return };
+    let record: LayerRecord =
+        layout::read(desc, (head.layers_at + LayerRecord::WORDS as u32 * last) as usize);
+    let rows = record.rows_at as usize;
+    let mut row: RowConstants = layout::read(desc, rows);
+    row.multiplier = 0;
+    layout::write(desc, rows, &row);
+    if record.requant_at != 0 {
         // m = 0, and the 32-bit path's u = 1, m' = 0, m'/2^u = 0.0.
-        desc[table + 1] = 0;
-        desc[table + 3] = 1;
-        desc[table + 4] = 0;
-        desc[table + 5] = 0;
+        let at = record.requant_at as usize;
+        let table: RequantRow = layout::read(desc, at);
+        layout::write(desc, at, &RequantRow { m: 0, u: 1, mp: 0, c: 0, ..table });
     }
 }
 
@@ -416,5 +424,57 @@ impl GpuMaterial {
             tiled,
             jpeg,
         }
+    }
+}
+
+/// A material's buffers on the GPU.
+pub struct GpuMaterial {
+    /// Unique per upload: which material a cached bind group binds.
+    pub(crate) id: u64,
+    pub(crate) desc: wgpu::Buffer,
+    pub(crate) latents: wgpu::Buffer,
+    pub(crate) channel_count: usize,
+    pub(crate) mip_sizes: Vec<(u32, u32)>,
+    /// Clamp (true) or wrap addressing, and each channel's range (min, max): for the tile cache.
+    pub(crate) address_clamp: bool,
+    pub(crate) ranges: Vec<(f32, f32)>,
+    /// Per channel: the code of a constant channel (`Channel::constant_code`), which BC
+    /// transcoding uses instead of the decoded one, as the CPU does.
+    pub(crate) constant_codes: Vec<Option<u8>>,
+    pub(crate) kernel: Kernel,
+    /// Kernels whose codes on the upload's probe differed from the CPU's, and why.
+    pub(crate) rejected: Vec<(Kernel, &'static str)>,
+    /// The tiled or matrix kernel's pipeline and texels per workgroup (`None`: the reference
+    /// kernel).
+    pub(crate) tiled: Option<(Arc<wgpu::ComputePipeline>, u32)>,
+    /// A JPEG material's maps (`desc` and `latents` then hold its descriptor and section).
+    pub(crate) jpeg: Option<jpeg::JpegMaps>,
+}
+
+impl GpuMaterial {
+    pub fn channel_count(&self) -> usize {
+        self.channel_count
+    }
+    /// The kernel that decodes this material's regions and requests.
+    pub fn kernel(&self) -> Kernel {
+        self.kernel
+    }
+    /// The kernels [`Context::upload`] did not use because their codes on its probe differed
+    /// from the CPU's (a driver that computes differently), with the reason; usually empty.
+    pub fn rejected(&self) -> &[(Kernel, &'static str)] {
+        &self.rejected
+    }
+    /// Width and height of each mip.
+    pub fn mip_sizes(&self) -> &[(u32, u32)] {
+        &self.mip_sizes
+    }
+    /// The material's codec. A JPEG material decodes through regions and requests (submitted or
+    /// recorded); `nmat_sample`, textures and BC transcoding refuse it with [`GpuError::Codec`].
+    pub fn codec(&self) -> nmat_core::Codec {
+        if self.jpeg.is_some() { nmat_core::Codec::Jpeg } else { nmat_core::Codec::Neural }
+    }
+    /// [`GpuError::Codec`] for a JPEG material (paths that decode neural materials only).
+    pub(crate) fn neural(&self) -> Result<(), GpuError> {
+        if self.jpeg.is_some() { Err(GpuError::Codec) } else { Ok(()) }
     }
 }

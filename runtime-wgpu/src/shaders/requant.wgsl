@@ -1,7 +1,7 @@
 // The requantization of the tiled and matrix kernels (tiled.wgsl, matrix.wgsl), from a layer's
 // row table (tiled.rs: `row_table`; layout in tiled.wgsl).
 
-// A row table (tiled.wgsl), read once for all the accumulators of the row.
+// A row table (layout.rs: `RequantRow`), read once for all the accumulators of the row.
 struct RequantRow {
     bias: i32,
     m: u32,
@@ -15,21 +15,21 @@ struct RequantRow {
 
 fn requant_table(rb: u32) -> RequantRow {
     return RequantRow(
-        bitcast<i32>(nmat_desc[rb]),
-        nmat_desc[rb + 1u],
-        nmat_desc[rb + 2u],
-        nmat_desc[rb + 3u],
-        bitcast<i32>(nmat_desc[rb + 4u]),
-        bitcast<f32>(nmat_desc[rb + 5u]),
-        bitcast<i32>(nmat_desc[rb + 6u]),
-        bitcast<i32>(nmat_desc[rb + 7u]),
+        bitcast<i32>(nmat_desc[rb + NMAT_REQUANT_BIAS]),
+        nmat_desc[rb + NMAT_REQUANT_M],
+        nmat_desc[rb + NMAT_REQUANT_S],
+        nmat_desc[rb + NMAT_REQUANT_U],
+        bitcast<i32>(nmat_desc[rb + NMAT_REQUANT_MP]),
+        bitcast<f32>(nmat_desc[rb + NMAT_REQUANT_C]),
+        bitcast<i32>(nmat_desc[rb + NMAT_REQUANT_LO]),
+        bitcast<i32>(nmat_desc[rb + NMAT_REQUANT_HI]),
     );
 }
 
 // requant_with(acc, row) is sat16((acc · m + 2^(s−1)) >> s) exactly, with acc first clamped to the row's saturation range
 // [lo, hi] (outside it the result saturates anyway, inside it fits an i32).
 //
-// 32-bit path (u ≠ 0; lib.rs sets it where m' < 2^24, |acc| ≤ 2^24 on [lo, hi], u ≤ 31 and
+// 32-bit path (u ≠ 0; tiled.rs sets it where m' < 2^24, |acc| ≤ 2^24 on [lo, hi], u ≤ 31 and
 // |acc · m' / 2^u| ≤ 2^20): the result is r = floor((acc · m' + 2^(u−1)) / 2^u). The f32
 // estimate q = floor(acc · (m' / 2^u) + 0.5) is within 1 of r (acc and m' / 2^u are exact f32
 // values; the two roundings err by at most 2^−3 in all). Then e = acc · m' − q · 2^u lies in

@@ -2,7 +2,7 @@
 // and `encode_bc5` (core-nostd/src/bc/bc1.rs, bc4.rs): the same candidates in the same order, the
 // same integer arithmetic, the same rules on ties. The one 64-bit step (BC1's power iteration) is
 // computed exactly in 32-bit pieces. `BC1_SINGLE` (the endpoints of single-colour blocks, taken
-// from the core) is prepended to this file by lib.rs.
+// from the core) is prepended to this file by context.rs.
 //
 // Entry points (bindings and `Params` of decode.wgsl, which comes first):
 //   `transcode`: params.count blocks of a region of mip params.mip (x0, y0 and width in blocks),
@@ -566,8 +566,8 @@ fn transcode(
     let bx = params.x0 + block % params.width;
     let by = params.y0 + block / params.width;
     let mip = params.mip;
-    let mw = max(nmat_desc[0] >> mip, 1u);
-    let mh = max(nmat_desc[1] >> mip, 1u);
+    let mw = max(nmat_desc[NMAT_DESC_WIDTH] >> mip, 1u);
+    let mh = max(nmat_desc[NMAT_DESC_HEIGHT] >> mip, 1u);
     let x = 4u * bx + texel % 4u;
     let y = 4u * by + texel / 4u;
     var pixel = 0u;

@@ -5,19 +5,19 @@
 // and every activation read serves 4 rows. Bit-identical with `nmat_decode` (texel.wgsl) and
 // with the CPU.
 //
-// Prepended by lib.rs (per material shape): `const P` (texels per workgroup, a multiple of 4
+// Prepended by tiled.rs (per material shape): `const P` (texels per workgroup, a multiple of 4
 // up to 64), `const WMAX` (the widest layer rounded up to 4), `const CH` (channels) and
 // `fn layers(lid)`, which calls `layer` once per layer with its widths as literals, a barrier
 // after each. Then texel.wgsl (the decoder, `nmat_features`), decode.wgsl (bindings), one of
 // tiled_i32.wgsl / tiled_dot4.wgsl (where activations live and how a tile's products are
 // formed), requant.wgsl (`requant_with`), then this file.
 //
-// Per layer l, nmat_desc[layers_at + 8l + 6] is where its packed weights start in `nmat_desc`:
-// rows padded to a multiple of 4 rows and 4 columns, 4 int8 weights per word (column 4j + b in
-// byte b of word j). nmat_desc[... + 7] is where its row table starts: 8 words per (padded) row:
-//   [0] bias (the 8-bit-product kernel adds 128 × the row's weight sum, see tiled_dot4.wgsl)
-//   [1] multiplier m  [2] shift s  [3] u: 0 for the 64-bit path, else the shift of the 32-bit one
-//   [4] m' = m >> (s − u)  [5] m' / 2^u as f32 bits  [6] lo  [7] hi: the saturation range
+// Per layer (its record's NMAT_LAYER_PACKED_AT) its packed weights in `nmat_desc`: rows padded
+// to a multiple of 4 rows and 4 columns, 4 int8 weights per word (column 4j + b in byte b of
+// word j); at NMAT_LAYER_REQUANT_AT its row table, a RequantRow per (padded) row (layout.rs):
+// bias (the 8-bit-product kernel adds 128 × the row's weight sum, see tiled_dot4.wgsl),
+// multiplier m, shift s, u (0 for the 64-bit path, else the shift of the 32-bit one),
+// m' = m >> (s − u), m' / 2^u as f32 bits, and the saturation range lo, hi.
 
 // The codes of this workgroup, one per u32, in output order (texel, then channel).
 var<workgroup> tile_codes: array<u32, P * CH>;
@@ -25,11 +25,11 @@ var<workgroup> tile_codes: array<u32, P * CH>;
 // Layer `l` (its inputs in `kw` words of 4 per row, its outputs in `row_groups` groups of 4
 // rows) from activation buffer `src` into the other one, or into `tile_codes` if `last`.
 fn layer(lid: u32, l: u32, kw: u32, row_groups: u32, src: u32, last: bool) {
-    let lb = nmat_desc[13] + 8u * l;
-    let frac = nmat_desc[lb + 2u];
-    let gelu = nmat_desc[lb + 3u] == 1u;
-    let weights_at = nmat_desc[lb + 6u];
-    let rows_at = nmat_desc[lb + 7u];
+    let lb = nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_WORDS * l;
+    let frac = nmat_desc[lb + NMAT_LAYER_OUT_FRAC_BITS];
+    let gelu = nmat_desc[lb + NMAT_LAYER_HARD_GELU] == 1u;
+    let weights_at = nmat_desc[lb + NMAT_LAYER_PACKED_AT];
+    let rows_at = nmat_desc[lb + NMAT_LAYER_REQUANT_AT];
     let n = params.out_channels;
     // Neighbouring invocations take neighbouring texels of the same rows: one weight word
     // serves the whole subgroup.
@@ -42,7 +42,7 @@ fn layer(lid: u32, l: u32, kw: u32, row_groups: u32, src: u32, last: bool) {
         let acc = mac4(src, t0, weights_at + o0 * kw, kw);
         var v: array<vec4<i32>, 4>;
         for (var r = 0u; r < 4u; r++) {
-            let row = requant_table(rows_at + 8u * (o0 + r));
+            let row = requant_table(rows_at + NMAT_REQUANT_WORDS * (o0 + r));
             for (var j = 0u; j < 4u; j++) {
                 var z = requant_with(acc[r][j] + row.bias, row);
                 if (gelu) {
@@ -77,7 +77,7 @@ fn tiled(
     @builtin(num_workgroups) groups: vec3<u32>,
 ) {
     let first = (wg.x + wg.y * groups.x) * P;
-    let inputs = nmat_desc[nmat_desc[13]];
+    let inputs = nmat_desc[nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_INPUTS];
     for (var t = lid; t < P; t += 64u) {
         let index = first + t;
         if (index < params.count) {

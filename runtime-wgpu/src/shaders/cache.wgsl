@@ -3,15 +3,15 @@
 // resolve. The table and the codes are laid out as cache_sample.wgsl says; `nmat_cache_rw` is
 // the state below, or the resolved values in `nmat_cache_resolve`.
 //
-// The state, in u32 words:
-//   [0] free slots, [1] tiles marked this frame and not cached ("new"), [2] new tiles given a slot
-//   16: the free slots (a stack), then the new tiles' pages (as many as slots), then per material
-//   k its decode queue: [count, 0, 0, 0, then per tile (slot, mip << 26 | row << 13 | column)],
-//   4 + 2 · slots words.
+// The state (NMAT_CACHE_STATE_*, generated from nmat-wgpu's layout.rs like every layout these
+// passes read): the free slots, the new tiles (marked this frame and not cached), the new tiles
+// given a slot; from NMAT_CACHE_STATE_WORDS the free slots (a stack), then the new tiles' pages
+// (as many as slots), then per material its decode queue (NMAT_CACHE_QUEUE_*, then an entry per
+// tile, NMAT_CACHE_ENTRY_*: its slot and mip << 26 | row << 13 | column).
 // The dispatch arguments (their own buffer: a dispatch may not read its arguments from a buffer
 // it writes), bound in place of the codes in the plan and finish passes, which write them:
-//   [0, 3) the allocate pass, [4, 7) the clear pass, 8 + 12·k: material k's decode, with one, two
-//   and four workgroups per new tile.
+// NMAT_CACHE_ARGS_* (the allocate and clear passes), then per material NMAT_CACHE_DECODE_* (its
+// decode with one, two and four workgroups per new tile), each a NMAT_CACHE_DISPATCH_* (x, y, z).
 
 @group(0) @binding(0) var<storage, read_write> nmat_cache_table: array<atomic<u32>>;
 @group(0) @binding(1) var<storage, read_write> nmat_cache_rw: array<atomic<u32>>;
@@ -20,20 +20,6 @@
 @group(0) @binding(3) var<storage, read_write> nmat_cache_codes: array<atomic<u32>>;
 @group(0) @binding(4) var<uniform> nmat_cache_params: NmatCacheParams;
 
-struct NmatCacheParams {
-    // Lookups (mark, resolve): how many, and the word of the first in `nmat_cache_lookups`.
-    count: u32,
-    in_offset: u32,
-    // Resolve: the channels written per lookup (mask), how many, and the first word of the output.
-    channels: u32,
-    out_channels: u32,
-    out_offset: u32,
-    unused0: u32,
-    unused1: u32,
-    unused2: u32,
-}
-
-const NMAT_CACHE_FREE_AT: u32 = 16u;
 const NMAT_CACHE_MAX_GROUPS: u32 = 65535u;
 
 fn nmat_cache_word(i: u32) -> u32 {
@@ -59,32 +45,34 @@ fn nmat_fetch(x: i32, y: i32, mip: u32, mask: u32) {
     }
     let old = atomicOr(&nmat_cache_table[page], NMAT_CACHE_MARK);
     if ((old & NMAT_CACHE_MARK) == 0u) {
-        atomicAdd(&nmat_cache_table[0], 1u);
+        atomicAdd(&nmat_cache_table[NMAT_CACHE_MARKED], 1u);
         if (old != 0u) {
-            atomicAdd(&nmat_cache_table[1], 1u);
+            atomicAdd(&nmat_cache_table[NMAT_CACHE_HITS], 1u);
         }
     }
 }
 
 fn nmat_cache_slots() -> u32 {
-    return nmat_cache_word(14u);
+    return nmat_cache_word(NMAT_CACHE_SLOTS);
 }
 
 fn nmat_cache_new_at() -> u32 {
-    return NMAT_CACHE_FREE_AT + nmat_cache_slots();
+    return NMAT_CACHE_STATE_WORDS + nmat_cache_slots();
 }
 
 fn nmat_cache_queue_at(material: u32) -> u32 {
-    return NMAT_CACHE_FREE_AT + 2u * nmat_cache_slots() + material * (4u + 2u * nmat_cache_slots());
+    let queue_words = NMAT_CACHE_QUEUE_WORDS + NMAT_CACHE_ENTRY_WORDS * nmat_cache_slots();
+    return NMAT_CACHE_STATE_WORDS + 2u * nmat_cache_slots() + material * queue_words;
 }
 
 // The indirect dispatch of `groups` workgroups at word `at` of the arguments (over y past the
 // limit).
 fn nmat_cache_dispatch(at: u32, groups: u32) {
     let x = min(groups, NMAT_CACHE_MAX_GROUPS);
-    atomicStore(&nmat_cache_codes[at], x);
-    atomicStore(&nmat_cache_codes[at + 1u], select((groups + x - 1u) / max(x, 1u), 1u, groups == 0u));
-    atomicStore(&nmat_cache_codes[at + 2u], 1u);
+    atomicStore(&nmat_cache_codes[at + NMAT_CACHE_DISPATCH_X], x);
+    let y = select((groups + x - 1u) / max(x, 1u), 1u, groups == 0u);
+    atomicStore(&nmat_cache_codes[at + NMAT_CACHE_DISPATCH_Y], y);
+    atomicStore(&nmat_cache_codes[at + NMAT_CACHE_DISPATCH_Z], 1u);
 }
 
 fn nmat_cache_index(id: vec3<u32>, groups: vec3<u32>) -> u32 {
@@ -94,19 +82,20 @@ fn nmat_cache_index(id: vec3<u32>, groups: vec3<u32>) -> u32 {
 // Lookups are 8 words: u, v, lod (f32 bits), material (its index; past the list: no lookup),
 // filter (NMAT_NEAREST …), three random numbers for NMAT_STOCHASTIC (f32 bits).
 fn nmat_cache_lookup(i: u32) -> array<f32, 16> {
-    let at = nmat_cache_params.in_offset + 8u * i;
-    let material = nmat_cache_lookups[at + 3u];
-    if (material >= nmat_cache_word(8u)) {
+    let at = nmat_cache_params.in_offset + NMAT_LOOKUP_WORDS * i;
+    let material = nmat_cache_lookups[at + NMAT_LOOKUP_MATERIAL];
+    if (material >= nmat_cache_word(NMAT_CACHE_MATERIALS)) {
         return array<f32, 16>();
     }
-    let uv = vec2<f32>(bitcast<f32>(nmat_cache_lookups[at]), bitcast<f32>(nmat_cache_lookups[at + 1u]));
-    let lod = bitcast<f32>(nmat_cache_lookups[at + 2u]);
-    let rnd = vec3<f32>(
-        bitcast<f32>(nmat_cache_lookups[at + 5u]),
-        bitcast<f32>(nmat_cache_lookups[at + 6u]),
-        bitcast<f32>(nmat_cache_lookups[at + 7u]),
-    );
-    return nmat_cache_sample(material, uv, lod, rnd, nmat_cache_lookups[at + 4u], nmat_cache_params.channels);
+    let uv = bitcast<vec2<f32>>(vec2<u32>(nmat_cache_lookups[at + NMAT_LOOKUP_U], nmat_cache_lookups[at + NMAT_LOOKUP_V]));
+    let lod = bitcast<f32>(nmat_cache_lookups[at + NMAT_LOOKUP_LOD]);
+    let rnd = bitcast<vec3<f32>>(vec3<u32>(
+        nmat_cache_lookups[at + NMAT_LOOKUP_RANDOM_0],
+        nmat_cache_lookups[at + NMAT_LOOKUP_RANDOM_1],
+        nmat_cache_lookups[at + NMAT_LOOKUP_RANDOM_2],
+    ));
+    let mode = nmat_cache_lookups[at + NMAT_LOOKUP_FILTER];
+    return nmat_cache_sample(material, uv, lod, rnd, mode, nmat_cache_params.channels);
 }
 
 // Marks the tiles each lookup reads (one invocation per lookup); counts marked tiles and hits.
@@ -125,24 +114,24 @@ fn nmat_cache_mark(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_wo
 @compute @workgroup_size(64)
 fn nmat_cache_compact(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
     let i = nmat_cache_index(id, groups);
-    if (i >= nmat_cache_word(12u)) {
+    if (i >= nmat_cache_word(NMAT_CACHE_PAGES)) {
         return;
     }
-    let page = nmat_cache_word(11u) + i;
+    let page = nmat_cache_word(NMAT_CACHE_PAGES_AT) + i;
     let v = atomicLoad(&nmat_cache_table[page]);
     if (v == 0u) {
         return;
     }
     let slot = v & ~NMAT_CACHE_MARK;
     if (v == NMAT_CACHE_MARK) {
-        let q = atomicAdd(&nmat_cache_rw[1], 1u);
+        let q = atomicAdd(&nmat_cache_rw[NMAT_CACHE_STATE_NEW], 1u);
         if (q < nmat_cache_slots()) {
             atomicStore(&nmat_cache_rw[nmat_cache_new_at() + q], page);
         }
     } else if ((v & NMAT_CACHE_MARK) == 0u) {
-        let f = atomicAdd(&nmat_cache_rw[0], 1u);
-        atomicStore(&nmat_cache_rw[NMAT_CACHE_FREE_AT + f], slot - 1u);
-        atomicAdd(&nmat_cache_table[4], 1u);
+        let f = atomicAdd(&nmat_cache_rw[NMAT_CACHE_STATE_FREE], 1u);
+        atomicStore(&nmat_cache_rw[NMAT_CACHE_STATE_WORDS + f], slot - 1u);
+        atomicAdd(&nmat_cache_table[NMAT_CACHE_EVICTED], 1u);
         atomicStore(&nmat_cache_table[page], 0u);
         return;
     }
@@ -152,10 +141,10 @@ fn nmat_cache_compact(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num
 // One invocation: the allocate pass's dispatch; every decode queue emptied.
 @compute @workgroup_size(1)
 fn nmat_cache_plan() {
-    let n = min(atomicLoad(&nmat_cache_rw[1]), nmat_cache_slots());
-    nmat_cache_dispatch(0u, (n + 63u) / 64u);
-    for (var k = 0u; k < nmat_cache_word(8u); k++) {
-        atomicStore(&nmat_cache_rw[nmat_cache_queue_at(k)], 0u);
+    let n = min(atomicLoad(&nmat_cache_rw[NMAT_CACHE_STATE_NEW]), nmat_cache_slots());
+    nmat_cache_dispatch(NMAT_CACHE_ARGS_ALLOCATE, (n + 63u) / 64u);
+    for (var k = 0u; k < nmat_cache_word(NMAT_CACHE_MATERIALS); k++) {
+        atomicStore(&nmat_cache_rw[nmat_cache_queue_at(k) + NMAT_CACHE_QUEUE_COUNT], 0u);
     }
 }
 
@@ -164,27 +153,28 @@ fn nmat_cache_plan() {
 @compute @workgroup_size(64)
 fn nmat_cache_allocate(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
     let i = nmat_cache_index(id, groups);
-    let free = atomicLoad(&nmat_cache_rw[0]);
-    if (i >= min(atomicLoad(&nmat_cache_rw[1]), free)) {
+    let free = atomicLoad(&nmat_cache_rw[NMAT_CACHE_STATE_FREE]);
+    if (i >= min(atomicLoad(&nmat_cache_rw[NMAT_CACHE_STATE_NEW]), free)) {
         return;
     }
-    let slot = atomicLoad(&nmat_cache_rw[NMAT_CACHE_FREE_AT + free - 1u - i]);
+    let slot = atomicLoad(&nmat_cache_rw[NMAT_CACHE_STATE_WORDS + free - 1u - i]);
     let page = atomicLoad(&nmat_cache_rw[nmat_cache_new_at() + i]);
     atomicStore(&nmat_cache_table[page], slot + 1u);
     // The page's mip: the last range starting at or before it (binary search).
-    let ranges_at = nmat_cache_word(10u);
+    let ranges_at = nmat_cache_word(NMAT_CACHE_RANGES_AT);
     var lo = 0u;
-    var hi = nmat_cache_word(9u);
+    var hi = nmat_cache_word(NMAT_CACHE_RANGES);
     while (hi - lo > 1u) {
         let mid = (lo + hi) / 2u;
-        if (nmat_cache_word(ranges_at + 2u * mid) <= page) {
+        if (nmat_cache_word(ranges_at + NMAT_CACHE_SPAN_WORDS * mid + NMAT_CACHE_SPAN_FIRST_PAGE) <= page) {
             lo = mid;
         } else {
             hi = mid;
         }
     }
-    let first = nmat_cache_word(ranges_at + 2u * lo);
-    let which = nmat_cache_word(ranges_at + 2u * lo + 1u);
+    let span = ranges_at + NMAT_CACHE_SPAN_WORDS * lo;
+    let first = nmat_cache_word(span + NMAT_CACHE_SPAN_FIRST_PAGE);
+    let which = nmat_cache_word(span + NMAT_CACHE_SPAN_WHICH);
     nmat_cache_material = which >> 8u;
     let mip = which & 255u;
     let size = nmat_mip_size(mip);
@@ -192,30 +182,32 @@ fn nmat_cache_allocate(@builtin(global_invocation_id) id: vec3<u32>, @builtin(nu
     let tx = (page - first) % columns;
     let ty = (page - first) / columns;
     let q = nmat_cache_queue_at(nmat_cache_material);
-    let at = atomicAdd(&nmat_cache_rw[q], 1u);
-    atomicStore(&nmat_cache_rw[q + 4u + 2u * at], slot);
-    atomicStore(&nmat_cache_rw[q + 5u + 2u * at], (mip << 26u) | (ty << 13u) | tx);
+    let at = atomicAdd(&nmat_cache_rw[q + NMAT_CACHE_QUEUE_COUNT], 1u);
+    let entry = q + NMAT_CACHE_QUEUE_WORDS + NMAT_CACHE_ENTRY_WORDS * at;
+    atomicStore(&nmat_cache_rw[entry + NMAT_CACHE_ENTRY_SLOT], slot);
+    atomicStore(&nmat_cache_rw[entry + NMAT_CACHE_ENTRY_KEY], (mip << 26u) | (ty << 13u) | tx);
     let texels = min(16u, size.x - 16u * tx) * min(16u, size.y - 16u * ty);
-    atomicAdd(&nmat_cache_table[3], texels);
+    atomicAdd(&nmat_cache_table[NMAT_CACHE_DECODED_TEXELS], texels);
 }
 
 // One invocation: the slots taken, the tiles decoded and overflowed, the clear and decode
 // dispatches.
 @compute @workgroup_size(1)
 fn nmat_cache_finish() {
-    let free = atomicLoad(&nmat_cache_rw[0]);
-    let wanted = atomicLoad(&nmat_cache_rw[1]);
+    let free = atomicLoad(&nmat_cache_rw[NMAT_CACHE_STATE_FREE]);
+    let wanted = atomicLoad(&nmat_cache_rw[NMAT_CACHE_STATE_NEW]);
     let given = min(wanted, free);
-    atomicStore(&nmat_cache_rw[0], free - given);
-    atomicStore(&nmat_cache_rw[2], given);
-    atomicStore(&nmat_cache_table[2], given);
-    atomicAdd(&nmat_cache_table[5], wanted - given);
-    nmat_cache_dispatch(4u, given);
-    for (var k = 0u; k < nmat_cache_word(8u); k++) {
-        let count = atomicLoad(&nmat_cache_rw[nmat_cache_queue_at(k)]);
-        nmat_cache_dispatch(8u + 12u * k, count);
-        nmat_cache_dispatch(11u + 12u * k, 2u * count);
-        nmat_cache_dispatch(14u + 12u * k, 4u * count);
+    atomicStore(&nmat_cache_rw[NMAT_CACHE_STATE_FREE], free - given);
+    atomicStore(&nmat_cache_rw[NMAT_CACHE_STATE_GIVEN], given);
+    atomicStore(&nmat_cache_table[NMAT_CACHE_DECODED], given);
+    atomicAdd(&nmat_cache_table[NMAT_CACHE_OVERFLOWED], wanted - given);
+    nmat_cache_dispatch(NMAT_CACHE_ARGS_CLEAR, given);
+    for (var k = 0u; k < nmat_cache_word(NMAT_CACHE_MATERIALS); k++) {
+        let count = atomicLoad(&nmat_cache_rw[nmat_cache_queue_at(k) + NMAT_CACHE_QUEUE_COUNT]);
+        let args = NMAT_CACHE_ARGS_WORDS + NMAT_CACHE_DECODE_WORDS * k;
+        nmat_cache_dispatch(args + NMAT_CACHE_DECODE_ONE, count);
+        nmat_cache_dispatch(args + NMAT_CACHE_DECODE_TWO, 2u * count);
+        nmat_cache_dispatch(args + NMAT_CACHE_DECODE_FOUR, 4u * count);
     }
 }
 
@@ -227,11 +219,11 @@ fn nmat_cache_clear(
     @builtin(num_workgroups) groups: vec3<u32>,
 ) {
     let g = wg.x + wg.y * groups.x;
-    if (g >= atomicLoad(&nmat_cache_rw[2])) {
+    if (g >= atomicLoad(&nmat_cache_rw[NMAT_CACHE_STATE_GIVEN])) {
         return;
     }
     let page = atomicLoad(&nmat_cache_rw[nmat_cache_new_at() + g]);
-    let words = nmat_cache_word(13u);
+    let words = nmat_cache_word(NMAT_CACHE_SLOT_WORDS);
     let first = ((nmat_cache_word(page) & ~NMAT_CACHE_MARK) - 1u) * words;
     for (var w = lid; w < words; w += 64u) {
         atomicStore(&nmat_cache_codes[first + w], 0u);
@@ -251,7 +243,7 @@ fn nmat_cache_resolve(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num
     nmat_cache_misses = 0u;
     let values = nmat_cache_lookup(i);
     if (nmat_cache_misses != 0u) {
-        atomicAdd(&nmat_cache_table[6], nmat_cache_misses);
+        atomicAdd(&nmat_cache_table[NMAT_CACHE_RESOLVE_MISSES], nmat_cache_misses);
     }
     var at = nmat_cache_params.out_offset + i * nmat_cache_params.out_channels;
     for (var c = 0u; c < 16u; c++) {

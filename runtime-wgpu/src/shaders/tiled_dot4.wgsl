@@ -3,7 +3,7 @@
 // l − 128 (= l ^ 128), 4 rows per word: buffer b, word j (rows 4j..4j+3), texel t at
 // hi_tile / lo_tile[(b · WMAX / 4 + j) · P + t]. Then
 //   Σ w · a = 256 · Σ w · h + Σ w · (l − 128) + 128 · Σ w,
-// two dot4I8Packed per 4 weights; lib.rs folds 128 · Σ w into the row's bias. Both partial sums
+// two dot4I8Packed per 4 weights; tiled.rs folds 128 · Σ w into the row's bias. Both partial sums
 // stay below 2^22 in magnitude (fan-in ≤ 128, |w| ≤ 127, bytes in [−128, 127]).
 
 var<workgroup> hi_tile: array<u32, WMAX / 2u * P>;

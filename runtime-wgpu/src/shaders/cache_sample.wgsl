@@ -4,23 +4,16 @@
 // calls `nmat_cache_read` (cache.rs writes both buffers; every name starts with `nmat_`, `Nmat`
 // or `NMAT_`, as in the sampling module).
 //
-// The table, in u32 words:
-//   [0, 8) this frame's counters: marked, hits, decoded, decoded texels, evicted, overflowed,
-//     resolve misses, 0 (cleared by `record_begin_frame`)
-//   [8] materials, [9] ranges, [10] ranges_at, [11] pages_at, [12] pages, [13] words per slot,
-//   [14] slots, [15] 0
-//   16 + 64·k: material k: width, height, mip count, channel count, address mode (0 wrap,
-//     1 clamp), 0, 0, 0; at 8 + mip the index of the mip's first page; at 24 + 2·c channel c's
-//     range (min, max) as f32 bits
-//   ranges_at + 2·r: (first page, material << 8 | mip) of every mip of every material, in page
-//     order (how a page finds its tile)
-//   pages_at: one page per tile of every mip of every material, row by row: bit 31 set when the
-//     frame marked the tile, bits 0–30 the slot holding it + 1 (0: not in the cache)
+// The table (cache.rs writes it) is read through the constants nmat-wgpu's layout.rs generates
+// and prepends to this file: NMAT_CACHE_* (its head: this frame's counters, then the materials,
+// the page ranges and the pages), NMAT_CACHE_MAT_* (a record per material, from word
+// NMAT_CACHE_WORDS: sizes, address mode, each mip's first page, each channel's range),
+// NMAT_CACHE_SPAN_* (the pages of every mip of every material in page order: how a page finds
+// its tile). A page is the slot holding its tile + 1 (0: not in the cache), NMAT_CACHE_MARK set
+// when the frame marked it.
 // The codes: slot s from word s · (words per slot); texel (x, y) of the tile, channel c of its
 // material at byte (16 · y + x) · (channel count) + c.
 
-const NMAT_CACHE_MARK: u32 = 0x80000000u;
-const NMAT_CACHE_MATERIALS_AT: u32 = 16u;
 
 // The codes `nmat_fetch` wrote, by channel.
 var<private> nmat_codes: array<u32, 16>;
@@ -29,26 +22,29 @@ var<private> nmat_cache_material: u32;
 // Texels the last lookup read from tiles the cache did not hold (their codes read as 0).
 var<private> nmat_cache_misses: u32;
 
+// Word `i` of the record of the material being filtered.
 fn nmat_cache_record(i: u32) -> u32 {
-    return nmat_cache_word(NMAT_CACHE_MATERIALS_AT + 64u * nmat_cache_material + i);
+    return nmat_cache_word(NMAT_CACHE_WORDS + NMAT_CACHE_MAT_WORDS * nmat_cache_material + i);
 }
 
 fn nmat_channel_count() -> u32 {
-    return nmat_cache_record(3u);
+    return nmat_cache_record(NMAT_CACHE_MAT_CHANNEL_COUNT);
 }
 
 fn nmat_mip_count() -> u32 {
-    return nmat_cache_record(2u);
+    return nmat_cache_record(NMAT_CACHE_MAT_MIP_COUNT);
 }
 
 fn nmat_mip_size(mip: u32) -> vec2<u32> {
     let m = min(mip, nmat_mip_count() - 1u);
-    return max(vec2<u32>(nmat_cache_record(0u) >> m, nmat_cache_record(1u) >> m), vec2<u32>(1u));
+    let size = vec2<u32>(nmat_cache_record(NMAT_CACHE_MAT_WIDTH), nmat_cache_record(NMAT_CACHE_MAT_HEIGHT));
+    return max(size >> vec2<u32>(m), vec2<u32>(1u));
 }
 
 fn nmat_channel_range(c: u32) -> vec2<f32> {
-    let at = 24u + 2u * c;
-    return vec2<f32>(bitcast<f32>(nmat_cache_record(at)), bitcast<f32>(nmat_cache_record(at + 1u)));
+    let at = NMAT_CACHE_MAT_RANGES + NMAT_CACHE_RANGE_WORDS * c;
+    let range = vec2<u32>(nmat_cache_record(at + NMAT_CACHE_RANGE_MIN), nmat_cache_record(at + NMAT_CACHE_RANGE_MAX));
+    return bitcast<vec2<f32>>(range);
 }
 
 fn nmat_valid_channels(channels: u32) -> u32 {
@@ -68,10 +64,10 @@ fn nmat_cache_address(i: i32, size: u32, clamp_mode: bool) -> u32 {
 fn nmat_cache_page(x: i32, y: i32, mip: u32) -> vec4<u32> {
     let m = min(mip, nmat_mip_count() - 1u);
     let size = nmat_mip_size(m);
-    let clamp_mode = nmat_cache_record(4u) == 1u;
+    let clamp_mode = nmat_cache_record(NMAT_CACHE_MAT_ADDRESS_MODE) == 1u;
     let ax = nmat_cache_address(x, size.x, clamp_mode);
     let ay = nmat_cache_address(y, size.y, clamp_mode);
-    let page = nmat_cache_record(8u + m) + (ay / 16u) * ((size.x + 15u) / 16u) + ax / 16u;
+    let page = nmat_cache_record(NMAT_CACHE_MAT_FIRST_PAGE + m) + (ay / 16u) * ((size.x + 15u) / 16u) + ax / 16u;
     return vec4<u32>(page, ax, ay, m);
 }
 
@@ -88,7 +84,7 @@ fn nmat_cache_read(x: i32, y: i32, mip: u32, mask: u32) {
         return;
     }
     let n = nmat_channel_count();
-    let first = (entry - 1u) * nmat_cache_word(13u) * 4u + ((p.z % 16u) * 16u + p.y % 16u) * n;
+    let first = (entry - 1u) * nmat_cache_word(NMAT_CACHE_SLOT_WORDS) * 4u + ((p.z % 16u) * 16u + p.y % 16u) * n;
     for (var c = 0u; c < n; c++) {
         if (((mask >> c) & 1u) != 0u) {
             let byte = first + c;

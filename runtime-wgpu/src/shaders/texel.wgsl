@@ -5,23 +5,17 @@
 // also part of the module engines include in their own shaders (sample.wgsl); whoever includes
 // it declares the two material bindings, `nmat_desc` and `nmat_latents`.
 //
-// `nmat_desc` layout (written by `upload` in lib.rs, all u32):
-//   [0] width  [1] height  [2] mip_count  [3] channel_count  [4] address_mode (0 wrap, 1 clamp)
-//   [5] input_frac_bits  [6] pe_frequencies  [7] lod_input  [8] layer_count  [9] level_count
-//   [10] grid_count  [11] grids_at  [12] levels_at  [13] layers_at  [14..30) mip_to_level[16]
-//   [30] ranges_at: per channel its range (min, max) as f32 bits
-//   grid g at grids_at + 8g: width, height, channels, bits, word offset in `nmat_latents`, word
-//        count, quant_at (offset into nmat_desc: channels × (offset, step) as i32 bit patterns), 0
-//   level l at levels_at + 41l: term_count, then 4 terms × [mode, chain_len, grid ids × 8]
-//   layer k at layers_at + 8k: inputs, outputs, out_frac_bits, activation, weights_at (i32 per
-//        weight, in `nmat_desc`), rows_at (per row: bias, multiplier, shift, in `nmat_desc`)
+// `nmat_desc` (written by `network_words` in upload.rs) is read through the constants that
+// nmat-wgpu's layout.rs generates and prepends to this file, one per field of its records:
+// NMAT_DESC_* (the header: sizes, network, where the records start, the level of each mip),
+// NMAT_RANGE_*, NMAT_GRID_* and NMAT_QUANT_* (grids and their dequantization), NMAT_LEVEL_* and
+// NMAT_TERM_* (how a level's features are made), NMAT_LAYER_* and NMAT_ROW_* (layers, their i32
+// weights and per-row constants), NMAT_REQUANT_* (the tiled and matrix kernels' row tables), and
+// *_WORDS for each record's size.
 
 fn nmat_weight(i: u32) -> i32 {
     return bitcast<i32>(nmat_desc[i]);
 }
-
-const NMAT_TERM_WORDS: u32 = 10u;
-const NMAT_LEVEL_WORDS: u32 = 41u;
 
 fn nmat_address(i: i32, size: u32, clamp_mode: bool) -> u32 {
     let s = i32(max(size, 1u));
@@ -41,12 +35,12 @@ fn nmat_grid_pos(x: u32, mip_size: u32, grid_size: u32) -> i32 {
 }
 
 fn nmat_grid_code(g: u32, x: u32, y: u32, c: u32) -> u32 {
-    let gb = nmat_desc[11] + 8u * g;
-    let w = nmat_desc[gb];
-    let ch = nmat_desc[gb + 2u];
-    let bits = nmat_desc[gb + 3u];
-    let base = nmat_desc[gb + 4u];
-    let words = nmat_desc[gb + 5u];
+    let gb = nmat_desc[NMAT_DESC_GRIDS_AT] + NMAT_GRID_WORDS * g;
+    let w = nmat_desc[gb + NMAT_GRID_WIDTH];
+    let ch = nmat_desc[gb + NMAT_GRID_CHANNELS];
+    let bits = nmat_desc[gb + NMAT_GRID_BITS];
+    let base = nmat_desc[gb + NMAT_GRID_LATENTS_AT];
+    let words = nmat_desc[gb + NMAT_GRID_LATENT_WORDS];
     let bit = ((y * w + x) * ch + c) * bits;
     let word = bit / 32u;
     let shift = bit % 32u;
@@ -59,8 +53,10 @@ fn nmat_grid_code(g: u32, x: u32, y: u32, c: u32) -> u32 {
 }
 
 fn nmat_grid_value(g: u32, x: u32, y: u32, c: u32) -> i32 {
-    let qa = nmat_desc[nmat_desc[11] + 8u * g + 6u] + 2u * c;
-    return bitcast<i32>(nmat_desc[qa]) + i32(nmat_grid_code(g, x, y, c)) * bitcast<i32>(nmat_desc[qa + 1u]);
+    let gb = nmat_desc[NMAT_DESC_GRIDS_AT] + NMAT_GRID_WORDS * g;
+    let qa = nmat_desc[gb + NMAT_GRID_QUANT_AT] + NMAT_QUANT_WORDS * c;
+    let offset = bitcast<i32>(nmat_desc[qa + NMAT_QUANT_OFFSET]);
+    return offset + i32(nmat_grid_code(g, x, y, c)) * bitcast<i32>(nmat_desc[qa + NMAT_QUANT_STEP]);
 }
 
 struct NmatFootprint {
@@ -73,10 +69,10 @@ struct NmatFootprint {
 }
 
 fn nmat_footprint(g: u32, x: u32, y: u32, mw: u32, mh: u32) -> NmatFootprint {
-    let gb = nmat_desc[11] + 8u * g;
-    let gw = nmat_desc[gb];
-    let gh = nmat_desc[gb + 1u];
-    let clamp_mode = nmat_desc[4] == 1u;
+    let gb = nmat_desc[NMAT_DESC_GRIDS_AT] + NMAT_GRID_WORDS * g;
+    let gw = nmat_desc[gb + NMAT_GRID_WIDTH];
+    let gh = nmat_desc[gb + NMAT_GRID_HEIGHT];
+    let clamp_mode = nmat_desc[NMAT_DESC_ADDRESS_MODE] == 1u;
     let px = nmat_grid_pos(x, mw, gw);
     let py = nmat_grid_pos(y, mh, gh);
     let ix = px >> 8u;
@@ -189,23 +185,23 @@ var<private> nmat_codes: array<u32, 16>;
 // The input features of texel (xi, yi) of `mip_in` (addressed and clamped to the chain as on
 // the CPU) in nmat_act_a[0..input width): latents, positional encoding, LOD (§6.2–6.4).
 fn nmat_features(xi: i32, yi: i32, mip_in: u32) {
-    let mip = min(mip_in, nmat_desc[2] - 1u);
-    let mw = max(nmat_desc[0] >> mip, 1u);
-    let mh = max(nmat_desc[1] >> mip, 1u);
-    let clamp_mode = nmat_desc[4] == 1u;
+    let mip = min(mip_in, nmat_desc[NMAT_DESC_MIP_COUNT] - 1u);
+    let mw = max(nmat_desc[NMAT_DESC_WIDTH] >> mip, 1u);
+    let mh = max(nmat_desc[NMAT_DESC_HEIGHT] >> mip, 1u);
+    let clamp_mode = nmat_desc[NMAT_DESC_ADDRESS_MODE] == 1u;
     let x = nmat_address(xi, mw, clamp_mode);
     let y = nmat_address(yi, mh, clamp_mode);
-    let f_in = nmat_desc[5];
-    let level = nmat_desc[14u + mip];
-    let lb = nmat_desc[12] + level * NMAT_LEVEL_WORDS;
+    let f_in = nmat_desc[NMAT_DESC_INPUT_FRAC_BITS];
+    let level = nmat_desc[NMAT_DESC_LEVEL_OF_MIP + mip];
+    let lb = nmat_desc[NMAT_DESC_LEVELS_AT] + level * NMAT_LEVEL_WORDS;
     var n = 0u;
-    let terms = nmat_desc[lb];
+    let terms = nmat_desc[lb + NMAT_LEVEL_TERM_COUNT];
     for (var t = 0u; t < terms; t++) {
-        let tb = lb + 1u + t * NMAT_TERM_WORDS;
-        let chain = nmat_desc[tb + 1u];
-        let g0 = nmat_desc[tb + 2u];
-        let channels = nmat_desc[nmat_desc[11] + 8u * g0 + 2u];
-        if (nmat_desc[tb] == 0u) {
+        let tb = lb + NMAT_LEVEL_TERMS + t * NMAT_TERM_WORDS;
+        let chain = nmat_desc[tb + NMAT_TERM_CHAIN_LEN];
+        let g0 = nmat_desc[tb + NMAT_TERM_GRIDS];
+        let channels = nmat_desc[nmat_desc[NMAT_DESC_GRIDS_AT] + NMAT_GRID_WORDS * g0 + NMAT_GRID_CHANNELS];
+        if (nmat_desc[tb + NMAT_TERM_BILINEAR] == 0u) {
             let f = nmat_footprint(g0, x, y, mw, mh);
             for (var k = 0u; k < 4u; k++) {
                 let cx = select(f.x0, f.x1, (k & 1u) == 1u);
@@ -222,7 +218,7 @@ fn nmat_features(xi: i32, yi: i32, mip_in: u32) {
                 var hi = 0;
                 var lo = 0u;
                 for (var k = 0u; k < chain; k++) {
-                    let g = nmat_desc[tb + 2u + k];
+                    let g = nmat_desc[tb + NMAT_TERM_GRIDS + k];
                     let s = nmat_bilinear(g, nmat_footprint(g, x, y, mw, mh), c);
                     hi += s >> 16u;
                     lo += bitcast<u32>(s) & 0xFFFFu;
@@ -232,14 +228,14 @@ fn nmat_features(xi: i32, yi: i32, mip_in: u32) {
             }
         }
     }
-    for (var k = 0u; k < nmat_desc[6]; k++) {
+    for (var k = 0u; k < nmat_desc[NMAT_DESC_PE_FREQUENCIES]; k++) {
         nmat_act_a[n] = nmat_triangle(x, k, 0u, f_in);
         nmat_act_a[n + 1u] = nmat_triangle(x, k, 1u, f_in);
         nmat_act_a[n + 2u] = nmat_triangle(y, k, 0u, f_in);
         nmat_act_a[n + 3u] = nmat_triangle(y, k, 1u, f_in);
         n += 4u;
     }
-    if (nmat_desc[7] == 1u) {
+    if (nmat_desc[NMAT_DESC_LOD_INPUT] == 1u) {
         nmat_act_a[n] = i32(mip << (f_in - 4u));
         n++;
     }
@@ -248,23 +244,24 @@ fn nmat_features(xi: i32, yi: i32, mip_in: u32) {
 // Decodes texel (xi, yi) of `mip_in` into nmat_codes, the channels in `mask` (bit c: channel c).
 fn nmat_decode(xi: i32, yi: i32, mip_in: u32, mask: u32) {
     nmat_features(xi, yi, mip_in);
-    let layer_count = nmat_desc[8];
+    let layer_count = nmat_desc[NMAT_DESC_LAYER_COUNT];
     var out_frac = 1u;
     for (var l = 0u; l < layer_count; l++) {
-        let lb2 = nmat_desc[13] + 8u * l;
-        let inputs = nmat_desc[lb2];
-        let outputs = nmat_desc[lb2 + 1u];
-        out_frac = nmat_desc[lb2 + 2u];
-        let gelu = nmat_desc[lb2 + 3u] == 1u;
-        let wa = nmat_desc[lb2 + 4u];
-        let ra = nmat_desc[lb2 + 5u];
+        let lb2 = nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_WORDS * l;
+        let inputs = nmat_desc[lb2 + NMAT_LAYER_INPUTS];
+        let outputs = nmat_desc[lb2 + NMAT_LAYER_OUTPUTS];
+        out_frac = nmat_desc[lb2 + NMAT_LAYER_OUT_FRAC_BITS];
+        let gelu = nmat_desc[lb2 + NMAT_LAYER_HARD_GELU] == 1u;
+        let wa = nmat_desc[lb2 + NMAT_LAYER_WEIGHTS_AT];
+        let ra = nmat_desc[lb2 + NMAT_LAYER_ROWS_AT];
         let last = l + 1u == layer_count;
         for (var o = 0u; o < outputs; o++) {
             if (last && (o >= 16u || (mask & (1u << o)) == 0u)) {
                 nmat_act_b[o] = 0;
                 continue;
             }
-            var acc = nmat_weight(ra + 3u * o);
+            let rc = ra + NMAT_ROW_WORDS * o;
+            var acc = nmat_weight(rc + NMAT_ROW_BIAS);
             // Four inputs per iteration (i32 sums wrap, so the order does not change them):
             // lavapipe caps the loop iterations of a shader invocation, all loops together, at
             // 65 535 (docs/GPU.md, "Known problems"); this keeps a decode far below it.
@@ -279,7 +276,7 @@ fn nmat_decode(xi: i32, yi: i32, mip_in: u32, mask: u32) {
             for (; i < inputs; i++) {
                 acc += nmat_weight(row + i) * nmat_act_a[i];
             }
-            var v = nmat_requantize(acc, nmat_desc[ra + 3u * o + 1u], nmat_desc[ra + 3u * o + 2u]);
+            var v = nmat_requantize(acc, nmat_desc[rc + NMAT_ROW_MULTIPLIER], nmat_desc[rc + NMAT_ROW_SHIFT]);
             if (gelu) {
                 v = nmat_hard_gelu(v, out_frac);
             }
@@ -289,7 +286,7 @@ fn nmat_decode(xi: i32, yi: i32, mip_in: u32, mask: u32) {
             nmat_act_a[o] = nmat_act_b[o];
         }
     }
-    for (var c = 0u; c < nmat_desc[3]; c++) {
+    for (var c = 0u; c < nmat_desc[NMAT_DESC_CHANNEL_COUNT]; c++) {
         if ((mask & (1u << c)) != 0u) {
             nmat_codes[c] = u32(clamp((nmat_act_a[c] * 255 + (1 << (out_frac - 1u))) >> out_frac, 0, 255));
         }

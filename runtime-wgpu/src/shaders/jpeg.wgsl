@@ -2,46 +2,15 @@
 // decoder: one workgroup per MCU (the JPEG-texture paper's layout). Invocation 0 decodes the MCU's
 // entropy-coded blocks (sequential by nature) into workgroup memory, 8 invocations per block run
 // the two passes of the islow IDCT, and every invocation then writes the texels it owns. One
-// dispatch decodes one map; lib.rs dispatches each map that holds a selected channel.
+// dispatch decodes one map; jpeg.rs dispatches each map that holds a selected channel.
 //
-// `jdesc` (written by `Context::upload` for a JPEG material), in u32 words:
-//   0 width, 1 height, 2 mip_count, 3 channel_count, 4 address mode (0 wrap, 1 clamp),
-//   5 map_count, 6 maps_at, 7 streams_at, 8 huffman_at; 16 + 2·mip: the mip's width and height;
-//   maps_at + 4·map: first_channel, channel_count, luma_h, luma_v;
-//   streams_at + 16·(map · mip_count + mip): index_at, dc_at, data_at, data_len, mcus_x, mcus_y,
-//     quant_at (Y, Cb, Cr), dc table (Y, Cb, Cr), ac table (Y, Cb, Cr): byte offsets into `section`
-//     and table numbers (`Jpeg::stream_parts`);
-//   huffman_at + 36·table: maxcode[0..17] and offset[0..17] as i32 bits (`huffman_decoding`),
-//     then where the symbols start in `section` and how many there are.
+// `jdesc` (written by `upload_words` in jpeg.rs) is read through the constants nmat-wgpu's
+// layout.rs generates and prepends to this file: JDESC_* (the header: sizes, address mode, where
+// the records start), JMIP_* (each mip's size), JMAP_* (a map's channels and luma sampling),
+// JSTREAM_* (per map and mip, map-major: byte offsets into `section` and the Y, Cb, Cr tables'
+// numbers, `Jpeg::stream_parts`), JHUFF_* (per table: maxcode[0..17] and offset[0..17] as i32
+// bits, `huffman_decoding`, then where its symbols start in `section` and how many there are).
 // `section` is the file's JPEG section, four bytes per word, little-endian.
-
-struct Params {
-    // 0: decode `count` requests from `requests`; 1: the rectangle (x0, y0, width, height) of
-    // `mip`, row-major; 2: the tile cache's decode queue at `in_offset` (cache.wgsl), every
-    // channel into the tiles' slots.
-    mode: u32,
-    count: u32,
-    mip: u32,
-    x0: u32,
-    y0: u32,
-    width: u32,
-    channel_mask: u32,
-    out_channels: u32,
-    // (Params in lib.rs names these four words format, components, constants, constant_mask.)
-    // The map this dispatch decodes.
-    map: u32,
-    // Rectangles: the MCU columns of the MCUs it touches, and how many MCUs (workgroups); the
-    // tile cache: the MCU columns of a tile, and the MCUs of a tile.
-    mcu_columns: u32,
-    mcu_count: u32,
-    // The clear pass: how many words to zero.
-    clear_words: u32,
-    // The tile cache: words per slot.
-    slot_words: u32,
-    out_offset: u32,
-    in_offset: u32,
-    unused2: u32,
-}
 
 @group(0) @binding(0) var<storage, read> jdesc: array<u32>;
 @group(0) @binding(1) var<storage, read> section: array<u32>;
@@ -50,6 +19,15 @@ struct Params {
 // and MCUs share words).
 @group(0) @binding(3) var<storage, read_write> out_codes: array<atomic<u32>>;
 @group(0) @binding(4) var<uniform> params: Params;
+
+// Width and height of `mip`.
+fn mip_width(mip: u32) -> u32 {
+    return jdesc[JDESC_MIP_SIZES + JMIP_WORDS * mip + JMIP_WIDTH];
+}
+
+fn mip_height(mip: u32) -> u32 {
+    return jdesc[JDESC_MIP_SIZES + JMIP_WORDS * mip + JMIP_HEIGHT];
+}
 
 // The MCU's blocks (at most 4 luma, Cb, Cr): dequantized coefficients in natural order, then
 // samples; and the IDCT's intermediate rows.
@@ -95,17 +73,17 @@ fn take(n: u32) -> u32 {
 
 // The symbol of the next code of Huffman table `t`; an unknown code is 16 bits of symbol 0.
 fn huffman(t: u32) -> u32 {
-    let base = jdesc[8] + 36u * t;
+    let base = jdesc[JDESC_HUFFMAN_AT] + JHUFF_WORDS * t;
     let word = i32(peek16());
     for (var l = 1u; l <= 16u; l++) {
         let code = word >> (16u - l);
-        if (code <= bitcast<i32>(jdesc[base + l])) {
+        if (code <= bitcast<i32>(jdesc[base + JHUFF_MAXCODE + l])) {
             bit_pos += l;
-            let at = code + bitcast<i32>(jdesc[base + 17u + l]);
-            if (at < 0 || u32(at) >= jdesc[base + 35u]) {
+            let at = code + bitcast<i32>(jdesc[base + JHUFF_OFFSET + l]);
+            if (at < 0 || u32(at) >= jdesc[base + JHUFF_VALUES]) {
                 return 0u;
             }
-            return sbyte(jdesc[base + 34u] + u32(at));
+            return sbyte(jdesc[base + JHUFF_VALUES_AT] + u32(at));
         }
     }
     bit_pos += 16u;
@@ -172,10 +150,10 @@ fn stored_dc(dc_at: u32, dc_len: u32, k: u32) -> i32 {
 
 // Entropy-decodes MCU `mcu` of the stream whose record starts at word `s` of `jdesc`.
 fn decode_blocks(s: u32, mcu: u32, luma_blocks: u32, colour: bool) {
-    let index_at = jdesc[s];
-    let dc_at = jdesc[s + 1u];
-    data_at = jdesc[s + 2u];
-    data_len = jdesc[s + 3u];
+    let index_at = jdesc[s + JSTREAM_INDEX_AT];
+    let dc_at = jdesc[s + JSTREAM_DC_AT];
+    data_at = jdesc[s + JSTREAM_DATA_AT];
+    data_len = jdesc[s + JSTREAM_DATA_LEN];
     let g = mcu / 9u;
     let j = mcu % 9u;
     let group = index_at + 20u * g;
@@ -188,10 +166,10 @@ fn decode_blocks(s: u32, mcu: u32, luma_blocks: u32, colour: bool) {
     bit_pos = start;
     let values = select(1u, 3u, colour);
     let dc_len = data_at - dc_at;
-    let quant0 = jdesc[s + 6u];
+    let quant0 = jdesc[s + JSTREAM_QUANT_AT];
     var dc = stored_dc(dc_at, dc_len, mcu * values);
     for (var b = 0u; b < luma_blocks; b++) {
-        let diff = block(64u * b, jdesc[s + 9u], jdesc[s + 12u], quant0);
+        let diff = block(64u * b, jdesc[s + JSTREAM_DC_TABLE], jdesc[s + JSTREAM_AC_TABLE], quant0);
         if (b > 0u) {
             dc += diff;
         }
@@ -199,9 +177,11 @@ fn decode_blocks(s: u32, mcu: u32, luma_blocks: u32, colour: bool) {
     }
     if (colour) {
         for (var c = 0u; c < 2u; c++) {
-            let quant = jdesc[s + 7u + c];
+            // Component 1 + c (Cb, Cr).
+            let k = 1u + c;
+            let quant = jdesc[s + JSTREAM_QUANT_AT + k];
             let at = 64u * (luma_blocks + c);
-            block(at, jdesc[s + 10u + c], jdesc[s + 13u + c], quant);
+            block(at, jdesc[s + JSTREAM_DC_TABLE + k], jdesc[s + JSTREAM_AC_TABLE + k], quant);
             blocks[at] = stored_dc(dc_at, dc_len, mcu * values + 1u + c) * i32(sbyte(quant));
         }
     }
@@ -241,7 +221,7 @@ fn descale(v: i32, n: u32) -> i32 {
 
 fn address(v: i32, size: u32) -> u32 {
     let s = i32(size);
-    if (jdesc[4] == 0u) {
+    if (jdesc[JDESC_ADDRESS_MODE] == 0u) {
         return u32(((v % s) + s) % s);
     }
     return u32(clamp(v, 0, s - 1));
@@ -287,11 +267,11 @@ fn jpeg_main(
     @builtin(num_workgroups) groups: vec3<u32>,
 ) {
     let g = wg.x + wg.y * groups.x;
-    let map = jdesc[6] + 4u * params.map;
-    let first = jdesc[map];
-    let count = jdesc[map + 1u];
-    let lh = jdesc[map + 2u];
-    let lv = jdesc[map + 3u];
+    let map = jdesc[JDESC_MAPS_AT] + JMAP_WORDS * params.map;
+    let first = jdesc[map + JMAP_FIRST_CHANNEL];
+    let count = jdesc[map + JMAP_CHANNEL_COUNT];
+    let lh = jdesc[map + JMAP_LUMA_H];
+    let lv = jdesc[map + JMAP_LUMA_V];
     let mw = 8u * lh;
     let mh = 8u * lv;
     var mip = params.mip;
@@ -305,16 +285,17 @@ fn jpeg_main(
         // holds whole MCUs; those past the mip's edge are not decoded).
         let q = params.in_offset;
         let tile = g / params.mcu_count;
-        if (tile >= u32(requests[q])) {
+        if (tile >= u32(requests[q + NMAT_CACHE_QUEUE_COUNT])) {
             return;
         }
-        out_base = u32(requests[q + 4u + 2u * tile]) * params.slot_words;
-        let key = u32(requests[q + 5u + 2u * tile]);
+        let entry = q + NMAT_CACHE_QUEUE_WORDS + NMAT_CACHE_ENTRY_WORDS * tile;
+        out_base = u32(requests[entry + NMAT_CACHE_ENTRY_SLOT]) * params.slot_words;
+        let key = u32(requests[entry + NMAT_CACHE_ENTRY_KEY]);
         mip = key >> 26u;
         let k = g % params.mcu_count;
         mx = (16u * (key & 0x1FFFu)) / mw + k % params.mcu_columns;
         my = (16u * ((key >> 13u) & 0x1FFFu)) / mh + k / params.mcu_columns;
-        if (mx * mw >= jdesc[16u + 2u * mip] || my * mh >= jdesc[17u + 2u * mip]) {
+        if (mx * mw >= mip_width(mip) || my * mh >= mip_height(mip)) {
             return;
         }
     } else if (params.mode == 0u) {
@@ -322,9 +303,9 @@ fn jpeg_main(
             return;
         }
         let r = params.in_offset + 3u * g;
-        mip = min(bitcast<u32>(requests[r + 2u]), jdesc[2] - 1u);
-        tx = address(requests[r], jdesc[16u + 2u * mip]);
-        ty = address(requests[r + 1u], jdesc[17u + 2u * mip]);
+        mip = min(bitcast<u32>(requests[r + 2u]), jdesc[JDESC_MIP_COUNT] - 1u);
+        tx = address(requests[r], mip_width(mip));
+        ty = address(requests[r + 1u], mip_height(mip));
         mx = tx / mw;
         my = ty / mh;
     } else {
@@ -334,11 +315,11 @@ fn jpeg_main(
         mx = params.x0 / mw + g % params.mcu_columns;
         my = params.y0 / mh + g / params.mcu_columns;
     }
-    let s = jdesc[7] + 16u * (params.map * jdesc[2] + mip);
+    let s = jdesc[JDESC_STREAMS_AT] + JSTREAM_WORDS * (params.map * jdesc[JDESC_MIP_COUNT] + mip);
     let colour = count == 3u;
     let n_blocks = select(1u, lh * lv + 2u, colour);
     if (lid == 0u) {
-        decode_blocks(s, my * jdesc[s + 4u] + mx, select(1u, lh * lv, colour), colour);
+        decode_blocks(s, my * jdesc[s + JSTREAM_MCUS_X] + mx, select(1u, lh * lv, colour), colour);
     }
     workgroupBarrier();
     // Columns, then rows: invocation 8·b + k takes column (row) k of block b.
@@ -376,7 +357,7 @@ fn jpeg_main(
         let x = mx * mw + i % mw;
         let y = my * mh + i / mw;
         if (params.mode == 2u) {
-            if (x < jdesc[16u + 2u * mip] && y < jdesc[17u + 2u * mip]) {
+            if (x < mip_width(mip) && y < mip_height(mip)) {
                 write_texel((y % 16u) * 16u + x % 16u, i % mw, i / mw, first, count, lh, lv);
             }
         } else if (x >= params.x0 && x - params.x0 < params.width && y >= params.y0

@@ -1,31 +1,6 @@
 // The decode kernel (`main`): requests or a rectangle, one texel per invocation, codes packed
 // four per u32. texel.wgsl (the decoder itself) and the material's `nmat_desc` layout come with
-// it (lib.rs concatenates them).
-
-struct Params {
-    // 0: decode `count` requests from `requests`; 1: decode the rectangle (x0, y0, width, height)
-    // of `mip` in row-major order.
-    mode: u32,
-    count: u32,
-    mip: u32,
-    x0: u32,
-    y0: u32,
-    width: u32,
-    channel_mask: u32,
-    out_channels: u32,
-    // BC transcoding (bc.wgsl): 1 (BC1), 4 (BC4) or 5 (BC5); the material channel of each
-    // component (byte k = component k); the code of each constant component (byte k) and which
-    // are constant (bit k); the output row pitch. Every entry point: the output offset in words.
-    format: u32,
-    components: u32,
-    constants: u32,
-    constant_mask: u32,
-    row_words: u32,
-    out_offset: u32,
-    // Decoding requests: the word where they start in `requests`.
-    in_offset: u32,
-    pad1: u32,
-}
+// it (context.rs, tiled.rs and matrix.rs concatenate them).
 
 // Four storage buffers: the most downlevel limits allow per stage. The int8 weights (widened to
 // i32) and the per-row constants live in `nmat_desc` after the descriptors.
@@ -68,7 +43,7 @@ fn main(
         let texel = texel_of(index);
         nmat_decode(texel.x, texel.y, bitcast<u32>(texel.z), params.channel_mask);
         var slot = lid * n;
-        for (var c = 0u; c < nmat_desc[3]; c++) {
+        for (var c = 0u; c < nmat_desc[NMAT_DESC_CHANNEL_COUNT]; c++) {
             if ((params.channel_mask & (1u << c)) != 0u) {
                 staged[slot] = nmat_codes[c];
                 slot++;

@@ -46,10 +46,10 @@ var<private> hi_part: array<i32, PER_LANE>;
 // Layer `l`'s weights (the tiled kernels' packed int8 table) into weights16 from `woff`,
 // `opad` rows of `kpad` columns `ws` apart, zeros outside the layer.
 fn stage(lid: u32, l: u32, kpad: u32, opad: u32, woff: u32, ws: u32) {
-    let lb = nmat_desc[13] + 8u * l;
-    let kw = (nmat_desc[lb] + 3u) / 4u;
-    let rows = (nmat_desc[lb + 1u] + 3u) / 4u * 4u;
-    let weights_at = nmat_desc[lb + 6u];
+    let lb = nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_WORDS * l;
+    let kw = (nmat_desc[lb + NMAT_LAYER_INPUTS] + 3u) / 4u;
+    let rows = (nmat_desc[lb + NMAT_LAYER_OUTPUTS] + 3u) / 4u * 4u;
+    let weights_at = nmat_desc[lb + NMAT_LAYER_PACKED_AT];
     let row_words = kpad / 4u;
     for (var i = lid; i < opad * row_words; i += SG * NW) {
         let o = i / row_words;
@@ -90,13 +90,13 @@ fn collect(lane: u32, warp: u32) {
 // and the products with the low bytes in `sums`: bias, requantization and activation, into the
 // activations (or, if `last`, the codes). Each invocation reads its row's table once.
 fn finish(lane: u32, warp: u32, l: u32, ob: u32, last: bool, frac: u32) {
-    let lb = nmat_desc[13] + 8u * l;
+    let lb = nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_WORDS * l;
     let o = 16u * ob + lane % 16u;
-    if (o >= nmat_desc[lb + 1u] || (last && (o >= CH || (params.channel_mask & (1u << o)) == 0u))) {
+    if (o >= nmat_desc[lb + NMAT_LAYER_OUTPUTS] || (last && (o >= CH || (params.channel_mask & (1u << o)) == 0u))) {
         return;
     }
-    let gelu = nmat_desc[lb + 3u] == 1u;
-    let row = requant_table(nmat_desc[lb + 7u] + 8u * o);
+    let gelu = nmat_desc[lb + NMAT_LAYER_HARD_GELU] == 1u;
+    let row = requant_table(nmat_desc[lb + NMAT_LAYER_REQUANT_AT] + NMAT_REQUANT_WORDS * o);
     let n = params.out_channels;
     var slot = 0u;
     if (last) {
@@ -140,7 +140,7 @@ fn matrix(
     @builtin(num_workgroups) groups: vec3<u32>,
 ) {
     stage_weights(lid);
-    let inputs = nmat_desc[nmat_desc[13]];
+    let inputs = nmat_desc[nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_INPUTS];
     let n = params.out_channels;
     for (var batch = 0u; batch < BATCHES; batch++) {
         let first = ((wg.x + wg.y * groups.x) * BATCHES + batch) * P;

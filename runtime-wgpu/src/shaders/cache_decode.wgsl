@@ -3,14 +3,6 @@
 // decoded by `nmat_decode` (texel.wgsl; one decode per invocation keeps lavapipe's loop cap far
 // away, docs/GPU.md) and its codes ORed into the tile's cleared slot.
 
-struct NmatCacheDecode {
-    // The material's decode queue in the state, and the words of a slot.
-    queue_at: u32,
-    slot_words: u32,
-    unused0: u32,
-    unused1: u32,
-}
-
 @group(0) @binding(2) var<storage, read> nmat_cd_queue: array<u32>;
 @group(0) @binding(3) var<storage, read_write> nmat_cd_codes: array<atomic<u32>>;
 @group(0) @binding(4) var<uniform> nmat_cd: NmatCacheDecode;
@@ -24,11 +16,12 @@ fn nmat_cache_decode(
     let g = (wg.x + wg.y * groups.x) / 4u;
     let t = 64u * ((wg.x + wg.y * groups.x) % 4u) + lid;
     let q = nmat_cd.queue_at;
-    if (g >= nmat_cd_queue[q]) {
+    if (g >= nmat_cd_queue[q + NMAT_CACHE_QUEUE_COUNT]) {
         return;
     }
-    let slot = nmat_cd_queue[q + 4u + 2u * g];
-    let tile = nmat_cd_queue[q + 5u + 2u * g];
+    let entry = q + NMAT_CACHE_QUEUE_WORDS + NMAT_CACHE_ENTRY_WORDS * g;
+    let slot = nmat_cd_queue[entry + NMAT_CACHE_ENTRY_SLOT];
+    let tile = nmat_cd_queue[entry + NMAT_CACHE_ENTRY_KEY];
     let mip = tile >> 26u;
     let x0 = 16u * (tile & 0x1FFFu);
     let y0 = 16u * ((tile >> 13u) & 0x1FFFu);

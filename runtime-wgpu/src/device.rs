@@ -1,0 +1,61 @@
+//! [`default_device`]: a device for tools and tests, with what the kernels can use.
+
+use crate::{MATRIX_FEATURES, matrix_usable, measure};
+
+/// Creates a device on the first adapter wgpu finds (any backend, software adapters included),
+/// with downlevel limits only. For tools and tests; engines pass their own device.
+pub async fn default_device() -> Option<(wgpu::Device, wgpu::Queue, wgpu::AdapterInfo)> {
+    let instance =
+        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+    let adapter = instance
+        .request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            ..Default::default()
+        })
+        .await
+        .ok()?;
+    let info = adapter.get_info();
+    // Cooperative matrices (the matrix kernel) where the adapter has the configuration it uses.
+    let matrices = adapter.features().contains(MATRIX_FEATURES)
+        && matrix_usable(&adapter.cooperative_matrix_properties());
+    let (device, queue) = adapter
+        .request_device(&wgpu::DeviceDescriptor {
+            label: Some("nmat"),
+            // BC textures (for transcoded blocks), timestamp queries (for measuring), the
+            // adapter's own format features (R8Unorm storage textures) and cooperative matrices
+            // where the adapter has them, nothing else.
+            required_features: adapter.features()
+                & (wgpu::Features::TEXTURE_COMPRESSION_BC
+                    | measure::TIMESTAMP_FEATURES
+                    | wgpu::Features::TEXTURE_ADAPTER_SPECIFIC_FORMAT_FEATURES)
+                | if matrices { MATRIX_FEATURES } else { wgpu::Features::empty() },
+            // Downlevel limits, but all the workgroup memory the adapter has: the tiled kernel
+            // decodes more texels per workgroup with more.
+            required_limits: wgpu::Limits {
+                max_compute_workgroup_storage_size: adapter
+                    .limits()
+                    .max_compute_workgroup_storage_size,
+                ..wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits())
+            },
+            experimental_features: if matrices {
+                experimental()
+            } else {
+                wgpu::ExperimentalFeatures::disabled()
+            },
+            memory_hints: wgpu::MemoryHints::MemoryUsage,
+            trace: wgpu::Trace::Off,
+        })
+        .await
+        .ok()?;
+    Some((device, queue, info))
+}
+
+/// wgpu's consent token for its experimental features, which the matrix kernel's cooperative
+/// matrices are.
+#[allow(unsafe_code)]
+fn experimental() -> wgpu::ExperimentalFeatures {
+    // SAFETY: wgpu asks its caller to accept that an experimental feature may have bugs. The
+    // only experimental feature enabled is EXPERIMENTAL_COOPERATIVE_MATRIX, used only by the
+    // matrix kernel, whose results `Context::upload` compares with the CPU's before using it.
+    unsafe { wgpu::ExperimentalFeatures::enabled() }
+}

@@ -1,0 +1,108 @@
+//! [`GpuError`]: everything the GPU runtime refuses or fails at, named.
+
+use crate::Kernel;
+#[cfg(doc)]
+use crate::{Context, MAX_CACHE_MATERIALS};
+use nmat_core::BlockRegion;
+use nmat_core::bc::BcFormat;
+
+/// Everything that can go wrong, named.
+#[derive(Debug)]
+#[non_exhaustive]
+pub enum GpuError {
+    /// The channel mask is empty or names a channel the material lacks.
+    Channels { mask: u16 },
+    /// A region outside the mip, or a mip beyond the chain.
+    Region { mip: u32, x0: u32, y0: u32, width: u32, height: u32 },
+    /// More texels in one call than one dispatch or buffer allows.
+    TooLarge { texels: u64, limit: u64 },
+    /// A grid too large for 32-bit bit addressing on the GPU (≥ 2^32 latent bits).
+    GridTooLarge { grid: usize },
+    /// Mapping the result buffer failed (device lost, …).
+    Map(String),
+    /// A BC format the GPU does not encode (BC7 is encoded on the CPU only).
+    Format { format: BcFormat },
+    /// A region of blocks outside the mip's blocks, or a mip beyond the chain.
+    Blocks { mip: u32, region: BlockRegion },
+    /// A row pitch shorter than a row of blocks, or not a multiple of 4 bytes.
+    RowPitch { row_pitch: u64, min: u64 },
+    /// The output buffer lacks `STORAGE` usage, is larger than the device's storage binding
+    /// limit, or the offset is not a multiple of 4 bytes.
+    OutputBuffer { reason: &'static str },
+    /// The output buffer (from the offset) is too small for the blocks or codes.
+    Output { needed: u64, size: u64 },
+    /// A buffer of requests that lacks `STORAGE` usage, is larger than the device's storage
+    /// binding limit, has an offset that is not a multiple of 4 bytes, or ends before the last
+    /// request.
+    RequestBuffer { reason: &'static str },
+    /// A kernel asked for by [`Context::upload_with`] that this device cannot run.
+    Kernel { kernel: Kernel, reason: &'static str },
+    /// A texture [`Context::record_map_to_texture`] cannot write (dimension, usage, format,
+    /// mip level, room at the origin).
+    Texture { reason: &'static str },
+    /// A JPEG material's section larger than one storage binding of the device (or 2^28 bytes,
+    /// so that bit positions fit 32 bits).
+    SectionTooLarge { bytes: u64, limit: u64 },
+    /// A tile cache [`Context::create_tile_cache`] cannot make: no material or more than
+    /// [`MAX_CACHE_MATERIALS`], no slot, or more tiles than one storage binding holds.
+    Cache { reason: &'static str },
+    /// A JPEG material (docs/FORMAT.md §11) given to a path that decodes neural materials only
+    /// (`nmat_sample`, textures, BC transcoding): decode its regions or requests, or decode it
+    /// on the CPU (`nmat_core`).
+    Codec,
+}
+
+impl std::fmt::Display for GpuError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            GpuError::Channels { mask } => {
+                write!(f, "channel mask {mask:#06x} is empty or names a missing channel")
+            }
+            GpuError::SectionTooLarge { bytes, limit } => write!(
+                f,
+                "the JPEG section has {bytes} bytes; this device binds at most {limit} in one buffer"
+            ),
+            GpuError::Codec => write!(
+                f,
+                "a JPEG material: this GPU path decodes neural materials only; use the region or \
+                 request decode calls, or decode it on the CPU"
+            ),
+            GpuError::Region { mip, x0, y0, width, height } => {
+                write!(
+                    f,
+                    "region {width}×{height} at ({x0}, {y0}) of mip {mip} is outside the material"
+                )
+            }
+            GpuError::TooLarge { texels, limit } => {
+                write!(f, "{texels} texels in one call; at most {limit}")
+            }
+            GpuError::GridTooLarge { grid } => {
+                write!(f, "grid {grid} has 2^32 or more latent bits")
+            }
+            GpuError::Map(e) => write!(f, "reading the result back failed: {e}"),
+            GpuError::Format { format } => {
+                write!(f, "{} is not encoded on the GPU (BC1, BC4 and BC5 are)", format.name())
+            }
+            GpuError::Blocks { mip, region } => write!(
+                f,
+                "blocks {}×{} at ({}, {}) of mip {mip} are outside the mip's blocks",
+                region.width, region.height, region.x, region.y
+            ),
+            GpuError::RowPitch { row_pitch, min } => {
+                write!(f, "row pitch {row_pitch} bytes: needs at least {min} and a multiple of 4")
+            }
+            GpuError::OutputBuffer { reason } => write!(f, "output buffer: {reason}"),
+            GpuError::Output { needed, size } => {
+                write!(f, "output buffer of {size} bytes; the output needs {needed}")
+            }
+            GpuError::RequestBuffer { reason } => write!(f, "request buffer: {reason}"),
+            GpuError::Texture { reason } => write!(f, "target texture: {reason}"),
+            GpuError::Cache { reason } => write!(f, "tile cache: {reason}"),
+            GpuError::Kernel { kernel, reason } => {
+                write!(f, "the {} kernel does not run on this device: {reason}", kernel.name())
+            }
+        }
+    }
+}
+
+impl std::error::Error for GpuError {}

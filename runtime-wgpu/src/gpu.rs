@@ -1,0 +1,202 @@
+//! wgpu plumbing every family of passes shares: bind group layout entries, pipelines the device
+//! may refuse, dispatches past the per-dimension limit, the checks of a caller's buffers, reading
+//! a buffer back.
+
+use crate::GpuError;
+use std::sync::mpsc;
+use wgpu::util::DeviceExt;
+
+/// Texels per workgroup of the reference decode kernel.
+pub(crate) const WORKGROUP: u32 = 64;
+/// Workgroups per dispatch dimension guaranteed by downlevel limits.
+pub(crate) const MAX_GROUPS: u32 = 65535;
+
+/// Checks that `out` can take `bytes` from byte `offset` (the last word whole); returns the
+/// offset in words.
+pub(crate) fn check_output(
+    device: &wgpu::Device,
+    out: &wgpu::Buffer,
+    offset: u64,
+    bytes: u64,
+) -> Result<u32, GpuError> {
+    if !out.usage().contains(wgpu::BufferUsages::STORAGE) {
+        return Err(GpuError::OutputBuffer { reason: "it needs STORAGE usage" });
+    }
+    if !offset.is_multiple_of(4) {
+        return Err(GpuError::OutputBuffer { reason: "the offset is not a multiple of 4" });
+    }
+    if out.size() > device.limits().max_storage_buffer_binding_size {
+        return Err(GpuError::OutputBuffer {
+            reason: "it is larger than the device's storage binding limit",
+        });
+    }
+    let needed = offset + bytes.next_multiple_of(4);
+    if needed > out.size() {
+        return Err(GpuError::Output { needed, size: out.size() });
+    }
+    u32::try_from(offset / 4)
+        .map_err(|_| GpuError::OutputBuffer { reason: "the offset is 2^34 bytes or more" })
+}
+
+/// Checks that `requests` holds `bytes` of requests from byte `offset` and can be bound;
+/// returns the offset in words.
+pub(crate) fn check_requests(
+    device: &wgpu::Device,
+    requests: &wgpu::Buffer,
+    offset: u64,
+    bytes: u64,
+) -> Result<u32, GpuError> {
+    let reason = if !requests.usage().contains(wgpu::BufferUsages::STORAGE) {
+        Some("it needs STORAGE usage")
+    } else if !offset.is_multiple_of(4) {
+        Some("the offset is not a multiple of 4")
+    } else if requests.size() > device.limits().max_storage_buffer_binding_size {
+        Some("it is larger than the device's storage binding limit")
+    } else if offset + bytes > requests.size() {
+        Some("it ends before the last request")
+    } else {
+        None
+    };
+    if let Some(reason) = reason {
+        return Err(GpuError::RequestBuffer { reason });
+    }
+    u32::try_from(offset / 4)
+        .map_err(|_| GpuError::RequestBuffer { reason: "the offset is 2^34 bytes or more" })
+}
+
+/// A compute-stage storage buffer binding of a bind group layout.
+pub(crate) fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+/// A compute-stage uniform buffer binding of a bind group layout.
+pub(crate) fn uniform_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+/// The bytes of `source` (a `COPY_SRC` buffer): copied into a mappable buffer, submitted, mapped
+/// (blocks on the device). For tests and tools; a renderer keeps its results on the GPU.
+pub fn read_buffer(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    source: &wgpu::Buffer,
+) -> Result<Vec<u8>, GpuError> {
+    let back = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("nmat readback"),
+        size: source.size(),
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut encoder = device.create_command_encoder(&Default::default());
+    encoder.copy_buffer_to_buffer(source, 0, &back, 0, source.size());
+    queue.submit([encoder.finish()]);
+    read_back(device, &back, source.size())
+}
+
+/// Maps the first `bytes` of `buffer` (blocking on the device) and returns them.
+pub(crate) fn read_back(
+    device: &wgpu::Device,
+    buffer: &wgpu::Buffer,
+    bytes: u64,
+) -> Result<Vec<u8>, GpuError> {
+    let (tx, rx) = mpsc::channel();
+    buffer.map_async(wgpu::MapMode::Read, ..bytes, move |r| {
+        let _ = tx.send(r);
+    });
+    device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Map(e.to_string()))?;
+    rx.recv()
+        .map_err(|e| GpuError::Map(e.to_string()))?
+        .map_err(|e| GpuError::Map(e.to_string()))?;
+    let view = buffer.get_mapped_range(..bytes).map_err(|e| GpuError::Map(e.to_string()))?;
+    let bytes = view.to_vec();
+    drop(view);
+    buffer.unmap();
+    Ok(bytes)
+}
+
+/// The compute pipeline of `entry` in `source` (with `layout`, or the one wgpu derives), or
+/// `None` where the device refuses it (a shader language feature it lacks, a limit).
+pub(crate) fn try_pipeline(
+    device: &wgpu::Device,
+    source: &str,
+    entry: &str,
+    layout: Option<&wgpu::PipelineLayout>,
+) -> Option<wgpu::ComputePipeline> {
+    let internal = device.push_error_scope(wgpu::ErrorFilter::Internal);
+    let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(entry),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    });
+    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(entry),
+        layout,
+        module: &module,
+        entry_point: Some(entry),
+        compilation_options: Default::default(),
+        cache: None,
+    });
+    // wgpu's native backends report a scope at once; a pending answer counts as refused.
+    let mut clean = true;
+    for scope in [validation, internal] {
+        let mut error = std::pin::pin!(scope.pop());
+        let waker = std::task::Waker::noop();
+        let answer = error.as_mut().poll(&mut std::task::Context::from_waker(waker));
+        clean &= matches!(answer, std::task::Poll::Ready(None));
+    }
+    clean.then_some(pipeline)
+}
+
+/// Records one dispatch of `groups` workgroups (spread over x and y past the per-dimension limit).
+pub(crate) fn dispatch(
+    encoder: &mut wgpu::CommandEncoder,
+    pipeline: &wgpu::ComputePipeline,
+    bind: &wgpu::BindGroup,
+    groups: u64,
+) {
+    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+        label: Some("nmat"),
+        timestamp_writes: None,
+    });
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, bind, &[]);
+    if groups > 0 {
+        let (gx, gy) = spread(groups);
+        pass.dispatch_workgroups(gx, gy, 1);
+    }
+}
+
+/// `groups` workgroups as a dispatch's x and y (at least 1 each): x up to the per-dimension
+/// limit, y rows of it; shaders index workgroup x + y · (x count).
+pub(crate) fn spread(groups: u64) -> (u32, u32) {
+    let gx = groups.min(u64::from(MAX_GROUPS)) as u32;
+    let gy = groups.div_ceil(u64::from(MAX_GROUPS)) as u32;
+    (gx.max(1), gy.max(1))
+}
+
+/// A uniform buffer holding `bytes` (a dispatch's parameters).
+pub(crate) fn uniform_buffer(device: &wgpu::Device, bytes: &[u8]) -> wgpu::Buffer {
+    device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("nmat params"),
+        contents: bytes,
+        usage: wgpu::BufferUsages::UNIFORM,
+    })
+}
