@@ -6,9 +6,10 @@ use nmat_cli::output;
 use nmat_cli::progress::Progress;
 use nmat_core::{Container, Material};
 use nmat_encode::metrics::ChainQuality;
+use nmat_encode::texset::TextureSet;
 use nmat_encode::{
-    Effort, EncodeError, EncodeOption, EncodeOptions, Encoded, PROFILES, Profile, TextureSet,
-    TrainOptions, encode,
+    Effort, EncodeError, EncodeOption, EncodeOptions, Encoded, PROFILES, Profile, TrainOptions,
+    encode,
 };
 use std::path::Path;
 

@@ -27,7 +27,7 @@ pub const HEAD: usize = 16;
 /// Checks the first [`HEAD`] bytes of a file of `file_len` bytes; returns how many bytes to read
 /// (the declared length, or less if the file is shorter: the parser then names the truncation).
 pub fn check_head(head: &[u8], file_len: u64) -> Result<u64, String> {
-    if !head.starts_with(&nmat_core::container::MAGIC) {
+    if !head.starts_with(&nmat_core::MAGIC) {
         return Err(format!("not a .nmat file ({})", signature(head)));
     }
     let declared = head

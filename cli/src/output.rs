@@ -2,10 +2,11 @@
 
 use image::ImageFormat;
 use nmat_core::{ChannelMask, DecodeCost, Decoder, Material, SectionKind};
+use nmat_encode::ByteBudget;
 use nmat_encode::metrics::{ChainQuality, unit_of};
 use nmat_encode::source_maps;
+use nmat_encode::texset::TextureSet;
 use nmat_encode::texset::{FileLayout, Role, SourceMap};
-use nmat_encode::{ByteBudget, TextureSet};
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};

@@ -4,8 +4,8 @@
 use crate::common::Result;
 use nmat_cli::output;
 use nmat_core::Material;
-use nmat_encode::TextureSet;
 use nmat_encode::metrics::ChainQuality;
+use nmat_encode::texset::TextureSet;
 use nmat_encode::texset::{self, LoadOptions, Role};
 use std::path::{Path, PathBuf};
 

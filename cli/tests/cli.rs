@@ -127,7 +127,7 @@ fn encode_info_decode_eval_round_trip() {
     let (from, to) = (b"bricks_height.png", b"bricks_albedo.png");
     let at = dup.windows(from.len()).position(|w| w == from).expect("map name in the file");
     dup[at..at + to.len()].copy_from_slice(to);
-    let crc = nmat_core::checksum::file_checksum(&dup);
+    let crc = nmat_core::internals::file_checksum(&dup);
     dup[20..24].copy_from_slice(&crc.to_le_bytes());
     let dup_file = dir.join("dup.nmat");
     std::fs::write(&dup_file, &dup).unwrap();
@@ -312,7 +312,7 @@ fn with_source_maps(bytes: &[u8], patch: impl FnOnce(&mut [u8])) -> Vec<u8> {
     let at = section.as_ptr() as usize - bytes.as_ptr() as usize;
     let mut out = bytes.to_vec();
     patch(&mut out[at..at + section.len()]);
-    let crc = nmat_core::checksum::file_checksum(&out);
+    let crc = nmat_core::internals::file_checksum(&out);
     out[20..24].copy_from_slice(&crc.to_le_bytes());
     out
 }

@@ -80,24 +80,27 @@
     )
 )]
 
+// The public API is the items re-exported below, each at one path, and two namespaces: `bc` (BC
+// layouts, encoders and decoders) and `limits` (the format's limits). What the workspace's other
+// crates share with the core beyond that is in `internals`.
 pub mod bc;
 mod bytes;
-pub mod cache;
-pub mod checksum;
-pub mod container;
-pub mod decode;
+mod cache;
+mod checksum;
+mod container;
+mod decode;
 #[cfg(feature = "alloc")]
-pub mod decoder;
-pub mod error;
-pub mod filter;
-pub mod jpeg;
-pub mod latents;
+mod decoder;
+mod error;
+mod filter;
+mod jpeg;
+mod latents;
 pub mod limits;
-pub mod material;
-pub mod mlp;
-pub mod posenc;
+mod material;
+mod mlp;
+mod posenc;
 #[cfg(feature = "alloc")]
-pub mod writer;
+mod writer;
 
 /// The `.nmat` format specification (`docs/FORMAT.md` of the repository), embedded so these
 /// documents stand alone.
@@ -107,10 +110,14 @@ pub mod writer;
 pub mod spec {}
 
 #[doc(inline)]
-pub use cache::{CacheSize, FrameStats, PendingTile, Slot, TILE_SIZE, TileCache, TileKey};
+pub use cache::{
+    CacheSize, FrameStats, MAX_CACHE_MATERIALS, MAX_CACHE_TILES, PendingTile, Slot, TILE_SIZE,
+    TileCache, TileKey,
+};
 #[doc(inline)]
 pub use container::{
-    Container, Header, LEGACY_VERSION_MAJOR, ParseOptions, SectionKind, VERSION_MAJOR,
+    Container, Header, JPEG_VERSION_MINOR, LEGACY_VERSION_MAJOR, MAGIC, ParseOptions, SectionKind,
+    VERSION_MAJOR, VERSION_MINOR,
 };
 #[doc(inline)]
 pub use decode::ChannelMask;
@@ -138,3 +145,18 @@ pub use mlp::{Activation, Layer, Requant};
 #[cfg(feature = "alloc")]
 #[doc(inline)]
 pub use writer::{ChannelSpec, GridSpec, LayerSpec, LevelSpec, MaterialSpec, MlpSpec, TermSpec};
+
+/// What the workspace's other crates (the trainer, the GPU runtime, the tests, the fuzz targets)
+/// share with the core beyond its API: the bit-exact pieces a trainer or another decoder must
+/// reproduce, and the checksum tests use to forge files. Not part of the API: no stability
+/// promise, hidden from the documentation.
+#[doc(hidden)]
+pub mod internals {
+    pub use crate::checksum::file_checksum;
+    pub use crate::jpeg::{HuffmanProblem, QUANT_TABLE_LEN, check_huffman_table, huffman_decoding};
+    pub use crate::latents::footprint;
+    pub use crate::mlp::hard_gelu_q;
+    pub use crate::posenc::triangle_q;
+    #[cfg(feature = "alloc")]
+    pub use crate::writer::pack_codes;
+}

@@ -16,8 +16,3 @@ pub fn triangle_q(x: u32, k: u8, phase: u32, frac_bits: u8) -> i16 {
     // magnitude < 2^(k+3); scaled by 2^(f−k−3) it stays below 2^f ≤ 2^14.
     (if shift >= 0 { magnitude << shift } else { magnitude >> -shift }) as i16
 }
-
-/// Number of input features the encoding contributes for `frequencies`.
-pub const fn feature_count(frequencies: u8) -> usize {
-    4 * frequencies as usize
-}

@@ -12,26 +12,27 @@
 //! ```
 
 pub mod demo;
-pub mod error;
+mod error;
 mod gemm;
 pub mod input;
 pub mod jpeg;
 mod memhint;
 pub mod metrics;
 pub mod names;
-pub mod profile;
+mod profile;
 mod role;
 pub mod source_maps;
 pub mod texset;
-pub mod train;
+mod train;
 
 pub use error::{EncodeError, EncodeOption};
 pub use gemm::TrainKernel;
 pub use profile::{
     ByteBudget, DEFAULT_PROFILE, MaterialShape, ModelConfig, PROFILES, Profile, configure,
 };
-pub use texset::{Role, TextureSet};
-pub use train::{Effort, Phase, Progress, TrainOptions};
+pub use train::{DEFAULT_STEPS, Effort, Phase, Progress, TrainOptions};
+
+use texset::TextureSet;
 
 use nmat_core::{
     Activation, AddressMode, ChannelSpec, Container, GridSpec, LevelSpec, MaterialSpec, MlpSpec,
@@ -194,4 +195,11 @@ pub(crate) fn channel_specs(set: &TextureSet) -> Vec<ChannelSpec> {
             }
         })
         .collect()
+}
+
+/// What the workspace's other crates share with the encoder beyond its API (the training
+/// benchmark of `nmat bench-train`): not part of the API, hidden from the documentation.
+#[doc(hidden)]
+pub mod internals {
+    pub use crate::train::{Model, mlp_flops_per_sample};
 }

@@ -24,7 +24,7 @@ use crate::{Context, GpuError, GpuMaterial, SampleBindings};
 use std::mem::offset_of;
 
 /// Materials one GPU tile cache serves (as `nmat_core::TileCache`).
-pub const MAX_CACHE_MATERIALS: usize = nmat_core::cache::MAX_CACHE_MATERIALS;
+pub const MAX_CACHE_MATERIALS: usize = nmat_core::MAX_CACHE_MATERIALS;
 
 /// The frame's counters: the table's head up to `materials` (layout.rs: [`CacheHeader`]).
 const COUNTER_BYTES: u64 = offset_of!(CacheHeader, materials) as u64;

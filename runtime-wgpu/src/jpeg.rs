@@ -8,7 +8,7 @@
 use std::sync::Arc;
 
 use nmat_core::Material;
-use nmat_core::jpeg::huffman_decoding;
+use nmat_core::internals::huffman_decoding;
 
 use crate::gpu::{MAX_GROUPS, dispatch, try_pipeline};
 use crate::layout::{

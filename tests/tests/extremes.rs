@@ -7,8 +7,9 @@
 //!    SIMD kernels with the definition is tested in `core-nostd/src/decoder/kernel/tests.rs`, of
 //!    every decoder with golden hashes in `golden.rs`, of the GPU in `runtime-wgpu`.
 
-use nmat_core::mlp::{Requant, hard_gelu_q};
-use nmat_core::posenc::triangle_q;
+use nmat_core::Requant;
+use nmat_core::internals::hard_gelu_q;
+use nmat_core::internals::triangle_q;
 use nmat_core::{
     AddressMode, ChannelMask, Container, Error, Field, Filter, MaterialSpec, Precision,
     SampleRequest,

@@ -3,7 +3,7 @@
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
 
-use nmat_core::checksum::file_checksum;
+use nmat_core::internals::file_checksum;
 use nmat_core::{
     ChannelMask, Container, Error, Field, Filter, Material, ParseOptions, Precision, SampleRequest,
 };

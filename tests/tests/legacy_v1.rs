@@ -6,7 +6,7 @@
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
 
-use nmat_core::checksum::file_checksum;
+use nmat_core::internals::file_checksum;
 use nmat_core::{ChannelMask, Container, Error, Field, LEGACY_VERSION_MAJOR, VERSION_MAJOR};
 use nmat_tests::generate::{generate, golden_configs};
 use nmat_tests::{decode_all_u8, decode_all_u16, fixtures_dir, fnv1a, texels};

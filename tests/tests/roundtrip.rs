@@ -1,7 +1,7 @@
 //! Writer → parser round trips over many random materials, and the writer refusing what the
 //! parser would refuse.
 
-use nmat_core::writer::pack_codes;
+use nmat_core::internals::pack_codes;
 use nmat_core::{AddressMode, Argument, ChannelMask, Container, Error, Field, LatentGrid};
 use nmat_tests::generate::{FixtureConfig, Layout, Rng, generate};
 use nmat_tests::reference;

@@ -4,11 +4,11 @@
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
 
-use nmat_core::cache::{MAX_CACHE_MATERIALS, MAX_CACHE_TILES};
 use nmat_core::{
     Argument, CacheSize, ChannelMask, Container, Decoder, Error, Filter, FrameStats, Material,
     Precision, SampleRequest, Slot, TILE_SIZE, TileCache,
 };
+use nmat_core::{MAX_CACHE_MATERIALS, MAX_CACHE_TILES};
 use nmat_tests::fixtures_dir;
 use nmat_tests::generate::Rng;
 

@@ -8,9 +8,10 @@ use crate::args::BenchTrainArgs;
 use crate::common::{Result, check_threads, profile_named};
 use nmat_cli::stats::median;
 use nmat_core::AddressMode;
+use nmat_encode::internals::{Model, mlp_flops_per_sample};
+use nmat_encode::texset::TextureSet;
 use nmat_encode::texset::{self, LoadOptions};
-use nmat_encode::train::{Model, mlp_flops_per_sample};
-use nmat_encode::{Profile, TextureSet, TrainKernel, TrainOptions, configure, shape_of};
+use nmat_encode::{Profile, TrainKernel, TrainOptions, configure, shape_of};
 use std::hint::black_box;
 use std::time::Instant;
 

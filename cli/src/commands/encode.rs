@@ -4,9 +4,10 @@ use crate::args::{Address, CodecArg, EffortArg, EncodeArgs, SubsamplingArg};
 use crate::common::{Result, encode_with_progress, profile_named, threads, train_options};
 use nmat_cli::output;
 use nmat_core::AddressMode;
+use nmat_encode::texset::TextureSet;
 use nmat_encode::texset::{self, LoadOptions};
 use nmat_encode::{
-    EncodeError, EncodeOption, EncodeOptions, Encoded, PROFILES, Profile, TextureSet, TrainOptions,
+    EncodeError, EncodeOption, EncodeOptions, Encoded, PROFILES, Profile, TrainOptions,
 };
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -47,7 +48,7 @@ pub fn run(args: EncodeArgs) -> Result<()> {
     if args.subsampling.is_some() {
         return Err("--subsampling belongs to the JPEG codec; pass --codec jpeg".into());
     }
-    let train = train_options(&args.train, nmat_encode::train::DEFAULT_STEPS)?;
+    let train = train_options(&args.train, nmat_encode::DEFAULT_STEPS)?;
     let start = Instant::now();
     let encoded = if let Some(target) = args.target_psnr {
         search_target(&set, target, &train, address_mode)?

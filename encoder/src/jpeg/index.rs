@@ -5,7 +5,7 @@
 
 use std::fmt;
 
-use nmat_core::jpeg::{HuffmanProblem, QUANT_TABLE_LEN, check_huffman_table};
+use nmat_core::internals::{HuffmanProblem, QUANT_TABLE_LEN, check_huffman_table};
 use nmat_core::{HuffmanTableSpec, JpegMap, JpegStreamSpec};
 
 /// Why a JPEG file cannot be indexed.

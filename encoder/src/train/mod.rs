@@ -18,8 +18,6 @@ mod options;
 mod rng;
 
 pub use export::{export_layer, frac_bits_for};
-pub use latents::GridState;
-pub use layers::{Dense, row_scale};
 pub use model::Model;
 pub use options::{DEFAULT_STEPS, Effort, Phase, Progress, TrainOptions, mlp_flops_per_sample};
 
@@ -36,7 +34,8 @@ const CHUNK: usize = 256;
 mod tests {
     use super::*;
     use crate::memhint::huge_vec;
-    use latents::{LATENT_BUCKETS, LatentBuckets, latent_bucket_edges, split_at_edges};
+    use latents::{GridState, LATENT_BUCKETS, LatentBuckets, latent_bucket_edges, split_at_edges};
+    use layers::Dense;
     use nmat_core::Activation;
 
     #[test]

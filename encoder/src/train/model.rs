@@ -14,8 +14,8 @@ use crate::gemm::{Available, Matrix, TrainKernel};
 use crate::memhint::{huge_vec, prefetch};
 use crate::profile::ModelConfig;
 use crate::texset::TextureSet;
-use nmat_core::latents::footprint;
-use nmat_core::posenc::triangle_q;
+use nmat_core::internals::footprint;
+use nmat_core::internals::triangle_q;
 use nmat_core::{AddressMode, TermMode};
 use rayon::prelude::*;
 
