@@ -171,9 +171,11 @@ pub fn mib(bytes: u64) -> f64 {
 /// Decodes of at least this many texels show a progress bar (one 2048² mip chain is 5.6 M).
 const LONG_DECODE_TEXELS: u64 = 4 << 20;
 
-/// Multiply-adds of one texel decode with `outputs` rows in the last layer.
+/// Multiply-adds of one texel decode with `outputs` rows in the last layer (0 for a JPEG
+/// material: no network).
 pub fn macs(m: &Material<'_>, outputs: usize) -> usize {
-    let layers = m.mlp().layers();
+    let Some(n) = m.neural() else { return 0 };
+    let layers = n.mlp().layers();
     let last = layers.len().saturating_sub(1);
     layers
         .iter()

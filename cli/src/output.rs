@@ -1,7 +1,7 @@
 //! What the CLI prints and writes: descriptions, quality tables, decoded maps, atomic files.
 
 use image::ImageFormat;
-use nmat_core::{ChannelMask, DecodeCost, Decoder, Material, SectionKind};
+use nmat_core::{Body, ChannelMask, DecodeCost, Decoder, Material, SectionKind};
 use nmat_encode::ByteBudget;
 use nmat_encode::metrics::{ChainQuality, unit_of};
 use nmat_encode::source_maps;
@@ -672,12 +672,15 @@ pub fn describe(path: &Path, m: &Material<'_>) -> String {
     if let Some(maps) = source_maps(m) {
         s.push_str(&map_lines(&maps));
     }
-    if let Some(jpeg) = m.jpeg() {
-        s.push_str(&jpeg_lines(m, jpeg));
-        return s;
-    }
+    let n = match m.body() {
+        Body::Jpeg(jpeg) => {
+            s.push_str(&jpeg_lines(m, jpeg));
+            return s;
+        }
+        Body::Neural(n) => n,
+    };
     let _ = writeln!(s, "\nlatent grids:");
-    for (i, g) in m.grids().iter().enumerate() {
+    for (i, g) in n.grids().iter().enumerate() {
         let _ = writeln!(
             s,
             "  {i:2} {:5}×{:<5} {:2} channels × {} bits  {:8} bytes",
@@ -688,16 +691,16 @@ pub fn describe(path: &Path, m: &Material<'_>) -> String {
             g.packed_data().len()
         );
     }
-    for (l, level) in m.levels().iter().enumerate() {
+    for (l, level) in n.levels().iter().enumerate() {
         let mips: Vec<String> = (0..m.mip_count())
-            .filter(|&k| m.level_for_mip(k) == l)
+            .filter(|&k| n.level_for_mip(k) == l)
             .map(|k| k.to_string())
             .collect();
         let terms: Vec<String> =
             level.terms.iter().map(|t| format!("{:?}{:?}", t.mode, t.grids.as_slice())).collect();
         let _ = writeln!(s, "  level {l} (mips {}): {}", mips.join(","), terms.join(" + "));
     }
-    let mlp = m.mlp();
+    let mlp = n.mlp();
     let shape: Vec<String> =
         mlp.layers().iter().map(|l| format!("{}→{}", l.inputs(), l.outputs())).collect();
     let _ = writeln!(

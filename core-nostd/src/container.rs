@@ -2,30 +2,21 @@
 //! (docs/FORMAT.md §1–§5, limits in §7). `parse` runs once; what it returns is trusted.
 
 use crate::bytes::{align4, f32_at, i16_at, i32_at, slice, u8_at, u16_at, u32_at};
+use crate::channel::{
+    AddressMode, Channel, ColorSpace, Semantic, channel_codes, channel_name_bytes, channel_range,
+    mip_size,
+};
 use crate::checksum::file_checksum;
 use crate::error::{Error, Field, at_most, malformed, unsupported};
 use crate::jpeg::Jpeg;
 use crate::latents::{LatentGrid, packed_len};
 use crate::limits::*;
-use crate::material::{
-    AddressMode, Channel, ColorSpace, FeatureLevel, Material, Mlp, Semantic, Term, TermMode,
-    channel_codes, channel_name_bytes, channel_range,
-};
+use crate::material::{Body, FeatureLevel, Material, Mlp, Neural, Term, TermMode};
 use crate::mlp::{Activation, Layer, Requant};
 
-/// First four bytes of every file.
-pub const MAGIC: [u8; 4] = *b"NMAT";
-/// Major version written by this crate. A reader reads this major and [`LEGACY_VERSION_MAJOR`]
-/// and rejects any other (FORMAT.md §1.3).
-pub const VERSION_MAJOR: u16 = 2;
-/// The previous major version, still read: its layer blocks carry a second, f16 copy of the
-/// network, which is validated and skipped (FORMAT.md §10).
-pub const LEGACY_VERSION_MAJOR: u16 = 1;
-/// Minor version written by this crate for neural materials; a reader accepts every minor of its
-/// major (§1.3).
-pub const VERSION_MINOR: u16 = 0;
-/// Minor version of files with a JPEG section (2.1 added it, §11).
-pub const JPEG_VERSION_MINOR: u16 = 1;
+pub use crate::version::{
+    JPEG_VERSION_MINOR, LEGACY_VERSION_MAJOR, MAGIC, VERSION_MAJOR, VERSION_MINOR,
+};
 pub const HEADER_LEN: usize = 32;
 pub const SECTION_ENTRY_LEN: usize = 16;
 /// Section flag: a reader that does not know the section's kind must reject the file.
@@ -121,7 +112,34 @@ impl Container {
         let sections = read_section_table(bytes, &header)?;
         let material = sections.material;
         let (width, height, mip_count, address_mode, channels) = parse_material(material)?;
-        let mut found = Material {
+        let (body, section_lens) = match sections.body {
+            BodySections::Jpeg(jpeg) => {
+                let sizes = core::array::from_fn(|m| mip_size(width, height, mip_count, m as u32));
+                let body = Body::Jpeg(Jpeg::parse(jpeg, &channels, sizes, mip_count)?);
+                (body, [material.len(), 0, 0, 0, jpeg.len()])
+            }
+            BodySections::Neural([levels_bytes, mlp_bytes, latents]) => {
+                let levels = parse_levels(levels_bytes, latents, mip_count)?;
+                let mlp = parse_mlp(mlp_bytes, channels.len(), header.version_major)?;
+                for (l, width_of_level) in levels.widths.iter().enumerate() {
+                    let expected = width_of_level
+                        + 4 * usize::from(mlp.pe_frequencies)
+                        + usize::from(mlp.lod_input);
+                    if expected != mlp.input_width() {
+                        return Err(malformed(Field::LevelFeatureWidth, l, expected as i64));
+                    }
+                }
+                let body = Body::Neural(Neural {
+                    mip_count,
+                    mip_to_level: levels.mip_to_level,
+                    grids: levels.grids,
+                    levels: levels.levels,
+                    mlp,
+                });
+                (body, [material, levels_bytes, mlp_bytes, latents, &[]].map(<[u8]>::len))
+            }
+        };
+        Ok(Material {
             version_major: header.version_major,
             version_minor: header.version_minor,
             width,
@@ -129,40 +147,11 @@ impl Container {
             mip_count,
             address_mode,
             channels,
-            mip_to_level: [0; MAX_MIPS],
-            grids: heapless::Vec::new(),
-            levels: heapless::Vec::new(),
-            mlp: Mlp::empty(),
-            jpeg: None,
+            body,
             file_len: bytes.len(),
-            section_lens: [0; 5],
+            section_lens,
             optional_sections: sections.optional,
-        };
-        let neural = match sections.codec {
-            Codec::Jpeg(jpeg) => {
-                let sizes = core::array::from_fn(|m| found.mip_size(m as u32));
-                found.jpeg = Some(Jpeg::parse(jpeg, &found.channels, sizes, mip_count)?);
-                found.section_lens = [material.len(), 0, 0, 0, jpeg.len()];
-                return Ok(found);
-            }
-            Codec::Neural(neural) => neural,
-        };
-        let [levels_bytes, mlp_bytes, latents] = neural;
-        let levels = parse_levels(levels_bytes, latents, mip_count)?;
-        let mlp = parse_mlp(mlp_bytes, found.channels.len(), header.version_major)?;
-        for (l, width_of_level) in levels.widths.iter().enumerate() {
-            let expected =
-                width_of_level + 4 * usize::from(mlp.pe_frequencies) + usize::from(mlp.lod_input);
-            if expected != mlp.input_width() {
-                return Err(malformed(Field::LevelFeatureWidth, l, expected as i64));
-            }
-        }
-        found.mip_to_level = levels.mip_to_level;
-        found.grids = levels.grids;
-        found.levels = levels.levels;
-        found.mlp = mlp;
-        found.section_lens = [material, levels_bytes, mlp_bytes, latents, &[]].map(<[u8]>::len);
-        Ok(found)
+        })
     }
 }
 
@@ -217,11 +206,11 @@ fn read_header(bytes: &[u8]) -> Result<Header, Error> {
 struct Sections<'a> {
     optional: heapless::Vec<(SectionKind, &'a [u8]), MAX_SECTIONS>,
     material: &'a [u8],
-    codec: Codec<'a>,
+    body: BodySections<'a>,
 }
 
 /// What a material stores besides MATERIAL: LEVELS, MLP and LATENTS, or a JPEG section.
-enum Codec<'a> {
+enum BodySections<'a> {
     Neural([&'a [u8]; 3]),
     Jpeg(&'a [u8]),
 }
@@ -280,15 +269,15 @@ fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'
             (k + 1) as i64,
         ))
     };
-    let codec = match found.get(4).copied().flatten() {
+    let body = match found.get(4).copied().flatten() {
         // A JPEG material has no network: LEVELS, MLP or LATENTS beside it contradict it.
         Some(jpeg) => match (1..4).find(|&k| found.get(k).is_some_and(Option::is_some)) {
             Some(k) => return Err(malformed(Field::SectionKind, k, (k + 1) as i64)),
-            None => Codec::Jpeg(jpeg),
+            None => BodySections::Jpeg(jpeg),
         },
-        None => Codec::Neural([need(1)?, need(2)?, need(3)?]),
+        None => BodySections::Neural([need(1)?, need(2)?, need(3)?]),
     };
-    Ok(Sections { optional, material: need(0)?, codec })
+    Ok(Sections { optional, material: need(0)?, body })
 }
 
 fn exact_length(

@@ -3,9 +3,10 @@
 //! a parsed material: any coordinate, mip and mask gives a value or a `BadArgument` error.
 
 use crate::error::{Argument, Error};
+use crate::jpeg::Jpeg;
 use crate::latents::{Footprint, LatentGrid, address, footprint};
 use crate::limits::{MAX_CHANNELS, MAX_FRAC_BITS, MAX_GRID_CHANNELS, MAX_GRIDS, MAX_WIDTH};
-use crate::material::{AddressMode, Material, TermMode};
+use crate::material::{AddressMode, Body, Material, Neural, TermMode};
 use crate::mlp::{forward_float, forward_int, saturate_i16};
 use crate::posenc::triangle_q;
 
@@ -76,10 +77,15 @@ impl<'a> Material<'a> {
     /// Input features of texel (x, y) of `mip` (already addressed) in units of 2^-(16+f), passed
     /// to `sink` in input order. The definition; `Decoder` spans have a faster twin
     /// (`decoder/span.rs`).
-    pub(crate) fn gather<T: Feature>(&self, x: u32, y: u32, mip: u32, sink: &mut Inputs<'_, T>) {
+    pub(crate) fn gather<T: Feature>(
+        &self,
+        n: &Neural<'_>,
+        (x, y, mip): (u32, u32, u32),
+        sink: &mut Inputs<'_, T>,
+    ) {
         let mip_size = self.mip_size(mip);
         let mode = self.address_mode;
-        let Some(level) = self.levels.get(self.level_for_mip(mip)) else {
+        let Some(level) = n.levels.get(n.level_for_mip(mip)) else {
             return;
         };
         // The bilinear samples taken so far (a level holds at most MAX_GRIDS grids).
@@ -88,12 +94,12 @@ impl<'a> Material<'a> {
             let channels = term
                 .grids
                 .first()
-                .and_then(|&g| self.grids.get(usize::from(g)))
+                .and_then(|&g| n.grids.get(usize::from(g)))
                 .map_or(0, LatentGrid::channels);
             match term.mode {
                 TermMode::Nearest4 => {
                     let Some(&g) = term.grids.first() else { continue };
-                    let Some(grid) = self.grids.get(usize::from(g)) else { continue };
+                    let Some(grid) = n.grids.get(usize::from(g)) else { continue };
                     let (_, cells) = footprint_cells(grid, x, y, mip_size, mode);
                     for cell in &cells {
                         sink.push_latents(cell.get(..channels).unwrap_or(&[]));
@@ -102,7 +108,7 @@ impl<'a> Material<'a> {
                 TermMode::Bilinear => {
                     let mut sums = [0i64; MAX_GRID_CHANNELS];
                     for &g in &term.grids {
-                        let Some(grid) = self.grids.get(usize::from(g)) else { continue };
+                        let Some(grid) = n.grids.get(usize::from(g)) else { continue };
                         // A grid in several chains (NBC's feature reuse) is sampled once.
                         let known = sampled.iter().find(|(index, _)| *index == g);
                         let values = match known {
@@ -123,8 +129,8 @@ impl<'a> Material<'a> {
                 }
             }
         }
-        let f = self.mlp.input_frac_bits;
-        for k in 0..self.mlp.pe_frequencies {
+        let f = n.mlp.input_frac_bits;
+        for k in 0..n.mlp.pe_frequencies {
             for v in [
                 triangle_q(x, k, 0, f),
                 triangle_q(x, k, 1, f),
@@ -134,7 +140,7 @@ impl<'a> Material<'a> {
                 sink.push(i64::from(v) << RAW_SHIFT);
             }
         }
-        if self.mlp.lod_input {
+        if n.mlp.lod_input {
             // mip / 16 in Q.f (f ≥ 4, mip ≤ 14).
             sink.push(i64::from(mip << (f - 4)) << RAW_SHIFT);
         }
@@ -143,52 +149,50 @@ impl<'a> Material<'a> {
     /// The input vector for texel (x, y) of `mip`: addressed, gathered and converted (for the
     /// integer network: rounded half up onto the input grid and saturated, §6.3). Entries past
     /// the input width are 0.
-    pub(crate) fn inputs<T: Feature>(&self, x: i64, y: i64, mip: u32) -> [T; MAX_WIDTH] {
-        let (x, y, mip) = self.address_texel(x, y, mip);
+    pub(crate) fn inputs<T: Feature>(
+        &self,
+        n: &Neural<'_>,
+        x: i64,
+        y: i64,
+        mip: u32,
+    ) -> [T; MAX_WIDTH] {
+        let texel = self.address_texel(x, y, mip);
         let mut io = [T::default(); MAX_WIDTH];
-        let input_frac_bits = self.mlp.input_frac_bits;
-        self.gather(x, y, mip, &mut Inputs { io: &mut io, next: 0, input_frac_bits });
+        let input_frac_bits = n.mlp.input_frac_bits;
+        self.gather(n, texel, &mut Inputs { io: &mut io, next: 0, input_frac_bits });
         io
     }
 
-    /// The integer network's outputs (Q.`out_frac_bits` of the last layer) for the rows in `rows`.
-    fn run_int(&self, x: i64, y: i64, mip: u32, rows: u16) -> [i16; MAX_WIDTH] {
-        let mut io = self.inputs(x, y, mip);
-        forward_int(&self.mlp.layers, &mut io, rows);
-        io
-    }
-
-    /// The float network's outputs for the rows in `rows`, in unit scale (1.0 = top of range).
+    /// The float decode of an (unaddressed) texel for the rows in `rows`, in unit scale (1.0 =
+    /// top of range): the network's outputs, or a JPEG texel's codes / 255 (FORMAT.md §11.5).
     pub(crate) fn run_float(&self, x: i64, y: i64, mip: u32, rows: u16) -> [f32; MAX_WIDTH] {
-        if let Some(codes) = self.jpeg_codes(x, y, mip, rows) {
-            // A JPEG texel in unit scale: code / 255 (FORMAT.md §11.5).
-            let mut io = [0f32; MAX_WIDTH];
-            for (v, c) in io.iter_mut().zip(codes) {
-                *v = f32::from(c) / 255.0;
+        match &self.body {
+            Body::Neural(n) => {
+                let mut io = self.inputs(n, x, y, mip);
+                forward_float(&n.mlp.layers, &mut io, rows);
+                io
             }
-            return io;
+            Body::Jpeg(j) => {
+                let mut io = [0f32; MAX_WIDTH];
+                for (v, c) in io.iter_mut().zip(self.jpeg_codes(j, x, y, mip, rows)) {
+                    *v = f32::from(c) / 255.0;
+                }
+                io
+            }
         }
-        let mut io = self.inputs(x, y, mip);
-        forward_float(&self.mlp.layers, &mut io, rows);
-        io
     }
 
-    /// A JPEG material's 8-bit codes of an (unaddressed) texel, indexed by channel; `None` for
-    /// a neural material.
+    /// A JPEG material's 8-bit codes of an (unaddressed) texel, indexed by channel.
     pub(crate) fn jpeg_codes(
         &self,
+        j: &Jpeg<'_>,
         x: i64,
         y: i64,
         mip: u32,
         rows: u16,
-    ) -> Option<[u8; MAX_CHANNELS]> {
-        let jpeg = self.jpeg.as_ref()?;
+    ) -> [u8; MAX_CHANNELS] {
         let (x, y, mip) = self.address_texel(x, y, mip);
-        Some(jpeg.texel_codes(x, y, mip, rows))
-    }
-
-    pub(crate) fn last_frac_bits(&self) -> u32 {
-        self.mlp.layers.last().map_or(1, |l| u32::from(l.out_frac_bits))
+        j.texel_codes(x, y, mip, rows)
     }
 
     /// Float reference decode: values in each channel's range (§6.8), for the channels in
@@ -268,15 +272,19 @@ impl<'a> Material<'a> {
         narrow: impl Fn(i32) -> T,
     ) -> Result<usize, Error> {
         let rows = self.check_out(channels, out.len())?;
-        if let Some(codes) = self.jpeg_codes(x, y, mip, rows) {
-            // 8-bit codes, widened exactly (c · 65535 / 255 = c · 257).
-            return Ok(write_selected(rows, &codes, out, |&c| {
-                narrow(i32::from(c) * full_scale / 255)
-            }));
+        match &self.body {
+            Body::Neural(n) => {
+                let mut io = self.inputs(n, x, y, mip);
+                forward_int(&n.mlp.layers, &mut io, rows);
+                let f = n.last_frac_bits();
+                Ok(write_selected(rows, &io, out, |&v| narrow(code(v, f, full_scale))))
+            }
+            Body::Jpeg(j) => {
+                // 8-bit codes, widened exactly (c · 65535 / 255 = c · 257).
+                let codes = self.jpeg_codes(j, x, y, mip, rows);
+                Ok(write_selected(rows, &codes, out, |&c| narrow(i32::from(c) * full_scale / 255)))
+            }
         }
-        let f = self.last_frac_bits();
-        let y_out = self.run_int(x, y, mip, rows);
-        Ok(write_selected(rows, &y_out, out, |&v| narrow(code(v, f, full_scale))))
     }
 }
 

@@ -86,6 +86,7 @@
 pub mod bc;
 mod bytes;
 mod cache;
+mod channel;
 mod checksum;
 mod container;
 mod decode;
@@ -99,6 +100,7 @@ pub mod limits;
 mod material;
 mod mlp;
 mod posenc;
+mod version;
 #[cfg(feature = "alloc")]
 mod writer;
 
@@ -137,8 +139,8 @@ pub use jpeg::{Jpeg, JpegMap};
 pub use latents::LatentGrid;
 #[doc(inline)]
 pub use material::{
-    AddressMode, Channel, Codec, ColorSpace, DecodeCost, FeatureLevel, Material, Mlp, Semantic,
-    Term, TermMode,
+    AddressMode, Body, Channel, Codec, ColorSpace, DecodeCost, FeatureLevel, Material, Mlp, Neural,
+    Semantic, Term, TermMode,
 };
 #[doc(inline)]
 pub use mlp::{Activation, Layer, Requant};

@@ -2,86 +2,13 @@
 //! descriptors. Built only by `Container::parse`, so every value here is within the limits of
 //! docs/FORMAT.md and decoding it cannot fail or panic.
 
-use crate::bytes::{f32_at, u8_at};
+use crate::channel::mip_size;
+pub use crate::channel::{AddressMode, Channel, ColorSpace, Semantic};
 use crate::latents::LatentGrid;
 use crate::limits::{
     MAX_CHAIN, MAX_CHANNELS, MAX_GRIDS, MAX_LAYERS, MAX_LEVELS, MAX_MIPS, MAX_TERMS,
 };
 use crate::mlp::Layer;
-
-/// How texel and grid coordinates outside the image are brought back in (FORMAT.md §6.1).
-#[non_exhaustive]
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum AddressMode {
-    /// `x mod size`: tiling materials.
-    Wrap = 0,
-    /// `min(max(x, 0), size - 1)`: decals, atlases.
-    Clamp = 1,
-}
-
-/// What a channel means. Descriptive only: an unknown value is kept, not rejected.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub struct Semantic(pub u8);
-
-impl Semantic {
-    pub const UNKNOWN: Semantic = Semantic(0);
-    pub const ALBEDO: Semantic = Semantic(1);
-    pub const NORMAL: Semantic = Semantic(2);
-    pub const ROUGHNESS: Semantic = Semantic(3);
-    pub const GLOSS: Semantic = Semantic(4);
-    pub const HEIGHT: Semantic = Semantic(5);
-    pub const AMBIENT_OCCLUSION: Semantic = Semantic(6);
-    pub const METALLIC: Semantic = Semantic(7);
-    pub const EMISSIVE: Semantic = Semantic(8);
-    pub const OPACITY: Semantic = Semantic(9);
-    pub const SPECULAR: Semantic = Semantic(10);
-}
-
-/// Colour space of a channel's values (FORMAT.md §3). Decoding returns stored values; converting
-/// sRGB to linear is the renderer's business, as with any sRGB texture.
-#[non_exhaustive]
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ColorSpace {
-    Linear = 0,
-    Srgb = 1,
-}
-
-/// One output channel of the material.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Channel<'a> {
-    pub name: &'a str,
-    pub semantic: Semantic,
-    /// Which component of a multi-channel map this is (0 = R/X, 1 = G/Y, …).
-    pub component: u8,
-    pub color_space: ColorSpace,
-    /// Decoded value = `range_min + unit · (range_max - range_min)`, unit ∈ [0, 1].
-    pub range_min: f32,
-    pub range_max: f32,
-}
-
-impl Channel<'_> {
-    /// The usual range of this channel's values in image files: [−1, 1] for the X, Y and Z of a
-    /// normal map (stored as `(n + 1)/2`), [0, 1] for everything else.
-    pub fn nominal_range(&self) -> (f32, f32) {
-        if self.semantic == Semantic::NORMAL && self.component < 3 {
-            (-1.0, 1.0)
-        } else {
-            (0.0, 1.0)
-        }
-    }
-
-    /// For a constant channel (`range_min == range_max`, nothing decoded), the 8-bit code of its
-    /// value in [`Channel::nominal_range`] (clamped), as an image or a transcoded texture holds it;
-    /// `None` for a decoded channel, whose 8-bit codes are its units.
-    pub fn constant_code(&self) -> Option<u8> {
-        if self.range_min != self.range_max {
-            return None;
-        }
-        let (lo, hi) = self.nominal_range();
-        let unit = ((self.range_min - lo) / (hi - lo)).clamp(0.0, 1.0);
-        Some(libm::roundf(unit * 255.0) as u8)
-    }
-}
 
 /// How a term of a feature level reads its grids (FORMAT.md §6.3).
 #[non_exhaustive]
@@ -127,16 +54,6 @@ pub struct Mlp<'a> {
 }
 
 impl<'a> Mlp<'a> {
-    /// The network of a material that has none (a JPEG material): no layers, no inputs.
-    pub(crate) fn empty() -> Mlp<'a> {
-        Mlp {
-            input_frac_bits: crate::limits::MIN_INPUT_FRAC_BITS,
-            pe_frequencies: 0,
-            lod_input: false,
-            input_width: 0,
-            layers: heapless::Vec::new(),
-        }
-    }
     /// Fraction bits of the input vector's Q-format (latents, positional encoding, LOD).
     pub fn input_frac_bits(&self) -> u8 {
         self.input_frac_bits
@@ -162,6 +79,60 @@ impl<'a> Mlp<'a> {
     }
 }
 
+/// What a material's texels are stored as: its codec's own data, matched once where a decode
+/// starts.
+#[derive(Clone, Debug)]
+// Inline, not boxed: the core parses without an allocator, and a material is made once per file.
+#[allow(clippy::large_enum_variant)]
+pub enum Body<'a> {
+    /// Latent grids and the network that decodes them (FORMAT.md §2–§6).
+    Neural(Neural<'a>),
+    /// Indexed baseline JPEG streams, one per map and mip (FORMAT.md §11).
+    Jpeg(crate::jpeg::Jpeg<'a>),
+}
+
+impl<'a> Body<'a> {
+    /// The codec of this body.
+    pub fn codec(&self) -> Codec {
+        match self {
+            Body::Neural(_) => Codec::Neural,
+            Body::Jpeg(_) => Codec::Jpeg,
+        }
+    }
+}
+
+/// A neural material's model: its latent grids, the feature levels that sample them, the
+/// network, and the level of each mip.
+#[derive(Clone, Debug)]
+pub struct Neural<'a> {
+    pub(crate) mip_count: u8,
+    pub(crate) mip_to_level: [u8; MAX_MIPS],
+    pub(crate) grids: heapless::Vec<LatentGrid<'a>, MAX_GRIDS>,
+    pub(crate) levels: heapless::Vec<FeatureLevel, MAX_LEVELS>,
+    pub(crate) mlp: Mlp<'a>,
+}
+
+impl<'a> Neural<'a> {
+    /// The feature level that decodes `mip` (clamped to the chain).
+    pub fn level_for_mip(&self, mip: u32) -> usize {
+        let m = mip.min(u32::from(self.mip_count).saturating_sub(1)) as usize;
+        usize::from(self.mip_to_level.get(m).copied().unwrap_or(0))
+    }
+    pub fn levels(&self) -> &[FeatureLevel] {
+        &self.levels
+    }
+    pub fn grids(&self) -> &[LatentGrid<'a>] {
+        &self.grids
+    }
+    pub fn mlp(&self) -> &Mlp<'a> {
+        &self.mlp
+    }
+    /// Fraction bits of the network's outputs (those of its last layer).
+    pub(crate) fn last_frac_bits(&self) -> u32 {
+        self.mlp.layers.last().map_or(1, |l| u32::from(l.out_frac_bits))
+    }
+}
+
 /// What [`Material::decode_cost`] reports.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct DecodeCost {
@@ -183,13 +154,8 @@ pub struct Material<'a> {
     pub(crate) mip_count: u8,
     pub(crate) address_mode: AddressMode,
     pub(crate) channels: heapless::Vec<Channel<'a>, MAX_CHANNELS>,
-    pub(crate) mip_to_level: [u8; MAX_MIPS],
-    pub(crate) grids: heapless::Vec<LatentGrid<'a>, MAX_GRIDS>,
-    pub(crate) levels: heapless::Vec<FeatureLevel, MAX_LEVELS>,
-    pub(crate) mlp: Mlp<'a>,
+    pub(crate) body: Body<'a>,
     pub(crate) file_len: usize,
-    /// The JPEG section of a JPEG material (FORMAT.md §11); `None` for a neural one.
-    pub(crate) jpeg: Option<crate::jpeg::Jpeg<'a>>,
     /// Lengths of the MATERIAL, LEVELS, MLP, LATENTS and JPEG sections (0: absent).
     pub(crate) section_lens: [usize; 5],
     pub(crate) optional_sections:
@@ -219,8 +185,7 @@ impl<'a> Material<'a> {
     }
     /// Size of `mip` (clamped to the chain): `max(1, size >> mip)` on each axis.
     pub fn mip_size(&self, mip: u32) -> (u32, u32) {
-        let m = mip.min(self.mip_count().saturating_sub(1));
-        ((self.width >> m).max(1), (self.height >> m).max(1))
+        mip_size(self.width, self.height, self.mip_count, mip)
     }
     pub fn address_mode(&self) -> AddressMode {
         self.address_mode
@@ -231,28 +196,27 @@ impl<'a> Material<'a> {
     pub fn channels(&self) -> &[Channel<'a>] {
         &self.channels
     }
-    /// The feature level that decodes `mip` (clamped to the chain).
-    pub fn level_for_mip(&self, mip: u32) -> usize {
-        let m = mip.min(self.mip_count().saturating_sub(1)) as usize;
-        usize::from(self.mip_to_level.get(m).copied().unwrap_or(0))
-    }
-    pub fn levels(&self) -> &[FeatureLevel] {
-        &self.levels
-    }
-    pub fn grids(&self) -> &[LatentGrid<'a>] {
-        &self.grids
-    }
-    pub fn mlp(&self) -> &Mlp<'a> {
-        &self.mlp
-    }
-    /// How this material stores its texels. Every decode call works for both codecs; the model
-    /// accessors ([`Material::grids`], [`Material::levels`], [`Material::mlp`]) are empty for JPEG.
+    /// How this material stores its texels. Every decode call works for both codecs.
     pub fn codec(&self) -> Codec {
-        if self.jpeg.is_some() { Codec::Jpeg } else { Codec::Neural }
+        self.body.codec()
+    }
+    /// The codec's data: the model of a neural material, the section of a JPEG one.
+    pub fn body(&self) -> &Body<'a> {
+        &self.body
+    }
+    /// The model of a neural material.
+    pub fn neural(&self) -> Option<&Neural<'a>> {
+        match &self.body {
+            Body::Neural(n) => Some(n),
+            Body::Jpeg(_) => None,
+        }
     }
     /// The JPEG section of a JPEG material.
     pub fn jpeg(&self) -> Option<&crate::jpeg::Jpeg<'a>> {
-        self.jpeg.as_ref()
+        match &self.body {
+            Body::Jpeg(j) => Some(j),
+            Body::Neural(_) => None,
+        }
     }
     /// Size of the file this material was parsed from, in bytes.
     pub fn file_len(&self) -> usize {
@@ -283,7 +247,8 @@ impl<'a> Material<'a> {
     pub fn decode_cost(&self, mip: u32) -> DecodeCost {
         let (w, h) = self.mip_size(mip);
         let texels = u64::from(w) * u64::from(h);
-        DecodeCost { texels, macs: texels * self.mlp.macs_per_texel() as u64 }
+        let per_texel = self.neural().map_or(0, |n| n.mlp.macs_per_texel());
+        DecodeCost { texels, macs: texels * per_texel as u64 }
     }
 
     /// Bits per pixel per channel: file bits / (width · height · channels) of mip 0.
@@ -291,20 +256,4 @@ impl<'a> Material<'a> {
         let denom = f64::from(self.width) * f64::from(self.height) * self.channels.len() as f64;
         (self.file_len as f64 * 8.0) / denom
     }
-}
-
-/// Reads channel `i` of a 32-byte channel record (FORMAT.md §3).
-pub(crate) fn channel_range(rec: &[u8]) -> (f32, f32) {
-    (f32_at(rec, 20), f32_at(rec, 24))
-}
-
-/// The name bytes of a channel record, up to the first NUL.
-pub(crate) fn channel_name_bytes(rec: &[u8]) -> &[u8] {
-    let name = rec.get(..16).unwrap_or(&[]);
-    let end = name.iter().position(|&b| b == 0).unwrap_or(name.len());
-    name.get(..end).unwrap_or(&[])
-}
-
-pub(crate) fn channel_codes(rec: &[u8]) -> (u8, u8, u8, u8) {
-    (u8_at(rec, 16), u8_at(rec, 17), u8_at(rec, 18), u8_at(rec, 19))
 }

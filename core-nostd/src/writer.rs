@@ -319,8 +319,11 @@ impl MaterialSpec {
 }
 
 impl<'a> Material<'a> {
-    /// An owned copy of everything the file holds (the inverse of [`MaterialSpec::to_bytes`]).
-    pub fn to_spec(&self) -> MaterialSpec {
+    /// An owned copy of everything a neural material's file holds (the inverse of
+    /// [`MaterialSpec::to_bytes`]); `None` for a JPEG material (whose section is its own spec,
+    /// `JpegMaterialSpec`).
+    pub fn to_spec(&self) -> Option<MaterialSpec> {
+        let n = self.neural()?;
         let channels = self
             .channels()
             .iter()
@@ -333,7 +336,7 @@ impl<'a> Material<'a> {
                 range_max: c.range_max,
             })
             .collect();
-        let grids = self
+        let grids = n
             .grids()
             .iter()
             .map(|g| GridSpec {
@@ -350,7 +353,7 @@ impl<'a> Material<'a> {
                     .collect(),
             })
             .collect();
-        let levels = self
+        let levels = n
             .levels()
             .iter()
             .map(|l| LevelSpec {
@@ -361,7 +364,7 @@ impl<'a> Material<'a> {
                     .collect(),
             })
             .collect();
-        let layers = self
+        let layers = n
             .mlp()
             .layers()
             .iter()
@@ -379,13 +382,13 @@ impl<'a> Material<'a> {
                 }
             })
             .collect();
-        MaterialSpec {
+        Some(MaterialSpec {
             width: self.width,
             height: self.height,
             mip_count: self.mip_count,
             address_mode: self.address_mode,
             channels,
-            mip_to_level: self
+            mip_to_level: n
                 .mip_to_level
                 .iter()
                 .copied()
@@ -394,9 +397,9 @@ impl<'a> Material<'a> {
             grids,
             levels,
             mlp: MlpSpec {
-                input_frac_bits: self.mlp.input_frac_bits,
-                pe_frequencies: self.mlp.pe_frequencies,
-                lod_input: self.mlp.lod_input,
+                input_frac_bits: n.mlp.input_frac_bits,
+                pe_frequencies: n.mlp.pe_frequencies,
+                lod_input: n.mlp.lod_input,
                 layers,
             },
             optional_sections: self
@@ -404,6 +407,6 @@ impl<'a> Material<'a> {
                 .iter()
                 .map(|(k, d)| (k.0, d.to_vec()))
                 .collect(),
-        }
+        })
     }
 }

@@ -39,7 +39,7 @@ fuzz_target!(|data: &[u8]| {
         requests.extend([corner(0, 0, 0, 0.0), corner(-1, 5, 1, 1.5), corner(i64::MAX, i64::MIN, u32::MAX, 99.0)]);
     }
     let Ok(m) = Container::parse_with(file, ParseOptions { verify_checksum: false }) else { return };
-    let spec = (m.codec() == Codec::Neural).then(|| m.to_spec());
+    let spec = m.to_spec();
     let decoders = [if scalar { Decoder::with_kernel(&m, Kernel::Scalar).expect("always available") } else { Decoder::new(&m) }];
     for r in &requests {
         let mask = ChannelMask(r.mask);

@@ -20,6 +20,7 @@ use crate::layout::{
     ChannelRange, DecodeArgs, DispatchArgs, JpegParams, MAX_MIPS, PAGE_MARK, PageRange, QueueEntry,
     QueueHead, ShaderLayout, words_to_bytes,
 };
+use crate::upload::GpuBody;
 use crate::{Context, GpuError, GpuMaterial, SampleBindings};
 use std::mem::offset_of;
 
@@ -334,7 +335,7 @@ impl Context {
                 let at = size_of::<CacheArgs>() + size_of::<DecodeArgs>() * k;
                 (at + size_of::<DispatchArgs>() * per_tile.ilog2() as usize) as u64
             };
-            let Some(maps) = &m.jpeg else {
+            let GpuBody::Jpeg(maps) = &m.body else {
                 let words =
                     CacheDecodeParams { queue_at, slot_words: slot_words as u32, pad: [0; 2] };
                 let params = uniform(&words.bytes());

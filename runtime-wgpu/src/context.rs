@@ -4,6 +4,7 @@
 use crate::gpu::{WORKGROUP, storage_entry, uniform_buffer, uniform_entry};
 use crate::layout::ShaderLayout;
 use crate::submit::Pool;
+use crate::upload::NetworkPipeline;
 use crate::{GpuError, GpuMaterial, Kernel, jpeg};
 use nmat_core::ChannelMask;
 use std::collections::HashMap;
@@ -150,12 +151,12 @@ impl Context {
         })
     }
 
-    /// The decode pipeline of `gm` and its texels per workgroup.
+    /// The decode pipeline of a neural material's kernel (`tiled`) and its texels per workgroup.
     pub(crate) fn decode_pipeline<'a>(
         &'a self,
-        gm: &'a GpuMaterial,
+        tiled: &'a NetworkPipeline,
     ) -> (&'a wgpu::ComputePipeline, u32) {
-        match &gm.tiled {
+        match tiled {
             Some((pipeline, texels)) => (pipeline, *texels),
             None => (&self.pipeline, WORKGROUP),
         }

@@ -3,6 +3,7 @@
 
 use crate::gpu::{MAX_GROUPS, check_output, check_requests, dispatch};
 use crate::layout::Params;
+use crate::upload::{GpuBody, NetworkPipeline};
 use crate::{Context, GpuError, GpuMaterial, PendingDecode};
 use nmat_core::ChannelMask;
 
@@ -22,10 +23,10 @@ impl Context {
     pub(crate) fn decode_groups(
         &self,
         device: &wgpu::Device,
-        gm: &GpuMaterial,
+        tiled: &NetworkPipeline,
         params: &Params,
     ) -> Result<u64, GpuError> {
-        let texels = u64::from(self.decode_pipeline(gm).1);
+        let texels = u64::from(self.decode_pipeline(tiled).1);
         let count = u64::from(params.count);
         let groups = count.div_ceil(texels);
         let per_texel = u64::from(params.out_channels).max(1);
@@ -92,13 +93,16 @@ impl Context {
         let mut params = self.region_params(gm, mip, rect, channels)?;
         let len = u64::from(params.count) * u64::from(params.out_channels);
         params.out_offset = check_output(device, out, offset, len)?;
-        if gm.jpeg.is_some() {
-            self.record_jpeg(device, encoder, gm, params, None, out)?;
-            return Ok(len);
+        match &gm.body {
+            GpuBody::Jpeg(maps) => {
+                self.record_jpeg(device, encoder, (gm, maps), params, None, out)?
+            }
+            GpuBody::Neural(tiled) => {
+                let groups = self.decode_groups(device, tiled, &params)?;
+                let bind = self.bind(device, Some(gm), None, out, &params);
+                dispatch(encoder, self.decode_pipeline(tiled).0, &bind, groups);
+            }
         }
-        let groups = self.decode_groups(device, gm, &params)?;
-        let bind = self.bind(device, Some(gm), None, out, &params);
-        dispatch(encoder, self.decode_pipeline(gm).0, &bind, groups);
         Ok(len)
     }
 
@@ -125,17 +129,23 @@ impl Context {
             out_channels: n,
             ..Params::default()
         };
-        let groups = self.decode_groups(device, gm, &params)?;
-        params.in_offset =
-            check_requests(device, requests, requests_offset, 12 * u64::from(count))?;
+        let bytes = 12 * u64::from(count);
         let len = u64::from(count) * u64::from(n);
-        params.out_offset = check_output(device, out, offset, len)?;
-        if gm.jpeg.is_some() {
-            self.record_jpeg(device, encoder, gm, params, Some(requests), out)?;
-            return Ok(len);
+        match &gm.body {
+            GpuBody::Neural(tiled) => {
+                let groups = self.decode_groups(device, tiled, &params)?;
+                params.in_offset = check_requests(device, requests, requests_offset, bytes)?;
+                params.out_offset = check_output(device, out, offset, len)?;
+                let bind = self.bind(device, Some(gm), Some(requests), out, &params);
+                dispatch(encoder, self.decode_pipeline(tiled).0, &bind, groups);
+            }
+            GpuBody::Jpeg(maps) => {
+                params.in_offset = check_requests(device, requests, requests_offset, bytes)?;
+                params.out_offset = check_output(device, out, offset, len)?;
+                let requests = Some(requests);
+                self.record_jpeg(device, encoder, (gm, maps), params, requests, out)?;
+            }
         }
-        let bind = self.bind(device, Some(gm), Some(requests), out, &params);
-        dispatch(encoder, self.decode_pipeline(gm).0, &bind, groups);
         Ok(len)
     }
 

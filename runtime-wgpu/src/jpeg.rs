@@ -7,8 +7,8 @@
 
 use std::sync::Arc;
 
-use nmat_core::Material;
 use nmat_core::internals::huffman_decoding;
+use nmat_core::{Jpeg, Material};
 
 use crate::gpu::{MAX_GROUPS, dispatch, try_pipeline};
 use crate::layout::{
@@ -36,8 +36,8 @@ pub(crate) struct JpegMaps {
 pub(crate) fn upload_words(
     device: &wgpu::Device,
     m: &Material<'_>,
+    j: &Jpeg<'_>,
 ) -> Result<(Vec<u32>, Vec<u32>, JpegMaps), GpuError> {
-    let j = m.jpeg().ok_or(GpuError::Codec)?;
     let section = j.section();
     // The section is one storage binding; bit positions must stay below 2^32.
     let limits = device.limits();
@@ -149,12 +149,11 @@ impl Context {
         &self,
         device: &wgpu::Device,
         encoder: &mut wgpu::CommandEncoder,
-        gm: &GpuMaterial,
+        (gm, maps): (&GpuMaterial, &JpegMaps),
         params: Params,
         requests: Option<&wgpu::Buffer>,
         out: &wgpu::Buffer,
     ) -> Result<(), GpuError> {
-        let maps = gm.jpeg.as_ref().ok_or(GpuError::Codec)?;
         let pipelines = self.jpeg_pipelines(device)?;
         let len = u64::from(params.count) * u64::from(params.out_channels);
         let max_binding = device.limits().max_storage_buffer_binding_size;

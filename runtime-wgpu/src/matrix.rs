@@ -1,7 +1,7 @@
 //! The matrix kernel (matrix.wgsl): layers as 16×16×16 cooperative matrix multiply-adds (tensor
 //! cores), a pipeline per material shape. docs/GPU.md ("The matrix kernel") argues exactness.
 
-use nmat_core::Material;
+use nmat_core::{Material, Neural};
 use std::fmt::Write as _;
 
 /// The wgpu features the matrix kernel needs on the device.
@@ -61,7 +61,10 @@ pub(crate) struct Shape {
 
 impl Shape {
     /// The shape of `m`'s network on `device`, or why the matrix kernel cannot decode it there.
-    pub fn new(m: &Material<'_>, device: &wgpu::Device) -> Result<Shape, &'static str> {
+    pub fn new(
+        m: (&Material<'_>, &Neural<'_>),
+        device: &wgpu::Device,
+    ) -> Result<Shape, &'static str> {
         if !device.features().contains(FEATURES) {
             return Err("the device has no cooperative matrices (wgpu features SHADER_F16, \
                         SUBGROUP and EXPERIMENTAL_COOPERATIVE_MATRIX; default_device asks for \
@@ -90,7 +93,7 @@ impl Shape {
     /// The shape of `m`'s network for `layout` with subgroups of `subgroup` invocations and
     /// `limit` bytes of workgroup memory (fewer subgroups where the memory is short).
     fn sized(
-        m: &Material<'_>,
+        (m, n): (&Material<'_>, &Neural<'_>),
         subgroup: u32,
         (warps, blocks, batches): (u32, u32, u32),
         pads: (u32, u32, u32),
@@ -99,7 +102,7 @@ impl Shape {
         let pad = |n: usize| n.next_multiple_of(16) as u32;
         let mut layers = Vec::new();
         let mut total = 0;
-        for l in m.mlp().layers() {
+        for l in n.mlp().layers() {
             let (kpad, opad) = (pad(l.inputs()), pad(l.outputs()));
             layers.push((kpad, opad, total));
             total += (kpad + pads.1) * opad;
@@ -116,7 +119,7 @@ impl Shape {
             .rev()
             .find(|&w| bytes(w) <= limit)
             .ok_or("the network is too large for the device's workgroup memory")?;
-        let fracs = m.mlp().layers().iter().map(|l| u32::from(l.out_frac_bits())).collect();
+        let fracs = n.mlp().layers().iter().map(|l| u32::from(l.out_frac_bits())).collect();
         Ok(Shape { warps, blocks, batches, subgroup, pads, wmax, channels, layers, total, fracs })
     }
 
@@ -264,12 +267,17 @@ mod tests {
         for cfg in configs {
             let bytes = generate(&cfg).to_bytes().unwrap();
             let m = Container::parse(&bytes).unwrap();
-            let shape = match Shape::sized(&m, 32, LAYOUT, PADS, 49152) {
+            let n = m.neural().expect("a neural fixture");
+            let shape = match Shape::sized((&m, n), 32, LAYOUT, PADS, 49152) {
                 Ok(shape) => shape,
                 Err(reason) => {
                     assert_eq!(cfg.name, "widest", "{reason}");
                     // 4 layers of 128 × 128 f16 weights are 128 KiB.
-                    assert!(Shape::sized(&m, 32, LAYOUT, PADS, 1 << 18).is_ok(), "{}", cfg.name);
+                    assert!(
+                        Shape::sized((&m, n), 32, LAYOUT, PADS, 1 << 18).is_ok(),
+                        "{}",
+                        cfg.name
+                    );
                     refused += 1;
                     continue;
                 }

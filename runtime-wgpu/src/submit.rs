@@ -3,6 +3,7 @@
 
 use crate::gpu::{dispatch, read_back};
 use crate::layout::{Params, ShaderLayout};
+use crate::upload::GpuBody;
 use crate::{Context, GpuError, GpuMaterial};
 use std::sync::{Arc, Mutex};
 
@@ -49,9 +50,9 @@ impl Context {
         requests: &[u8],
     ) -> Result<PendingDecode, GpuError> {
         // A JPEG material records its own passes (no uniform or bind group to reuse).
-        let groups = match gm.jpeg {
-            Some(_) => None,
-            None => Some(self.decode_groups(device, gm, &params)?),
+        let neural = match &gm.body {
+            GpuBody::Neural(tiled) => Ok((tiled, self.decode_groups(device, tiled, &params)?)),
+            GpuBody::Jpeg(maps) => Err(maps),
         };
         let len = u64::from(params.count) * u64::from(params.out_channels);
         let copy = len.next_multiple_of(4).max(4);
@@ -61,10 +62,13 @@ impl Context {
         }
         let mut encoder = device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nmat decode") });
-        let Some(groups) = groups else {
-            let requests = Some(&scratch.requests);
-            self.record_jpeg(device, &mut encoder, gm, params, requests, &scratch.out)?;
-            return Ok(self.finish(queue, encoder, scratch, len));
+        let (tiled, groups) = match neural {
+            Ok(neural) => neural,
+            Err(maps) => {
+                let requests = Some(&scratch.requests);
+                self.record_jpeg(device, &mut encoder, (gm, maps), params, requests, &scratch.out)?;
+                return Ok(self.finish(queue, encoder, scratch, len));
+            }
         };
         queue.write_buffer(&scratch.uniform, 0, &params.bytes());
         if scratch.bind.as_ref().is_none_or(|(id, _)| *id != gm.id) {
@@ -78,7 +82,7 @@ impl Context {
             scratch.bind = Some((gm.id, bind));
         }
         if let Some((_, bind)) = &scratch.bind {
-            dispatch(&mut encoder, self.decode_pipeline(gm).0, bind, groups);
+            dispatch(&mut encoder, self.decode_pipeline(tiled).0, bind, groups);
         }
         Ok(self.finish(queue, encoder, scratch, len))
     }

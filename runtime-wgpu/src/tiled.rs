@@ -2,7 +2,7 @@
 //! tables it reads. docs/GPU.md ("The tiled kernel") argues the arithmetic.
 
 use crate::layout::{self, LayerRecord, NeuralHeader, RequantRow, ShaderLayout};
-use nmat_core::{Layer, Material};
+use nmat_core::{Layer, Material, Neural};
 use std::fmt::Write as _;
 
 /// Which kernel decodes a material's regions and requests. Every kernel gives the same codes
@@ -61,8 +61,12 @@ pub(crate) struct Shape {
 impl Shape {
     /// The shape of `m`'s network for `kernel` (tiled ones only), with as many texels per
     /// workgroup as `workgroup_bytes` of workgroup memory allow.
-    pub fn new(m: &Material<'_>, kernel: Kernel, workgroup_bytes: u32) -> Option<Shape> {
-        let layers = m.mlp().layers();
+    pub fn new(
+        (m, n): (&Material<'_>, &Neural<'_>),
+        kernel: Kernel,
+        workgroup_bytes: u32,
+    ) -> Option<Shape> {
+        let layers = n.mlp().layers();
         let wmax =
             layers.iter().flat_map(|l| [l.inputs(), l.outputs()]).max()?.next_multiple_of(4) as u32;
         let channels = m.channel_count() as u32;
@@ -111,9 +115,9 @@ impl Shape {
 
 /// Appends the tiled kernel's tables of every layer to `desc` (a neural descriptor without
 /// them) and sets the layer records' `packed_at` and `requant_at`.
-pub(crate) fn append_tables(desc: &mut Vec<u32>, m: &Material<'_>, dot4: bool) {
+pub(crate) fn append_tables(desc: &mut Vec<u32>, n: &Neural<'_>, dot4: bool) {
     let head: NeuralHeader = layout::read(desc, 0);
-    for (l, layer) in m.mlp().layers().iter().enumerate() {
+    for (l, layer) in n.mlp().layers().iter().enumerate() {
         let rows = layer.outputs().next_multiple_of(4);
         let kw = layer.inputs().div_ceil(4);
         let packed_at = desc.len() as u32;
@@ -200,7 +204,8 @@ mod tests {
             let bytes = generate(&cfg).to_bytes().unwrap();
             let m = Container::parse(&bytes).unwrap();
             for kernel in [Kernel::Int32, Kernel::Dot4] {
-                let shape = Shape::new(&m, kernel, 16384).expect("a shape in 16 KiB");
+                let n = m.neural().expect("a neural fixture");
+                let shape = Shape::new((&m, n), kernel, 16384).expect("a shape in 16 KiB");
                 let source = shape.source(kernel);
                 let module = naga::front::wgsl::parse_str(&source)
                     .unwrap_or_else(|e| panic!("{}: {}", cfg.name, e.emit_to_string(&source)));

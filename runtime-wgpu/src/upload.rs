@@ -9,7 +9,7 @@ use crate::layout::{
     RowConstants, ShaderLayout,
 };
 use crate::{Context, GpuError, Kernel, TexelRequest, jpeg, matrix, measure, tiled};
-use nmat_core::{ChannelMask, Material, TermMode};
+use nmat_core::{Body, ChannelMask, Material, Neural, TermMode};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use wgpu::util::DeviceExt;
@@ -44,35 +44,39 @@ impl Context {
         m: &Material<'_>,
         kernel: Option<Kernel>,
     ) -> Result<GpuMaterial, GpuError> {
-        if m.codec() == nmat_core::Codec::Jpeg {
-            // One kernel decodes JPEG materials; asking for a network kernel is an error.
-            if let Some(k) = kernel.filter(|&k| k != Kernel::Reference) {
-                return Err(GpuError::Kernel {
-                    kernel: k,
-                    reason: "a JPEG material has no network",
-                });
+        let n = match m.body() {
+            Body::Neural(n) => n,
+            Body::Jpeg(j) => {
+                // One kernel decodes JPEG materials; asking for a network kernel is an error.
+                if let Some(k) = kernel.filter(|&k| k != Kernel::Reference) {
+                    return Err(GpuError::Kernel {
+                        kernel: k,
+                        reason: "a JPEG material has no network",
+                    });
+                }
+                let (desc, section, maps) = jpeg::upload_words(device, m, j)?;
+                let desc = storage_init(device, "nmat jpeg desc", &desc);
+                let section = storage_init(device, "nmat jpeg section", &section);
+                let body = GpuBody::Jpeg(maps);
+                return Ok(GpuMaterial::new(m, desc, section, Kernel::Reference, body));
             }
-            let (desc, section, maps) = jpeg::upload_words(device, m)?;
-            let desc = storage_init(device, "nmat jpeg desc", &desc);
-            let section = storage_init(device, "nmat jpeg section", &section);
-            return Ok(GpuMaterial::new(m, desc, section, Kernel::Reference, None, Some(maps)));
-        }
-        let (desc, latents) = network_words(m)?;
+        };
+        let (desc, latents) = network_words(m, n)?;
         let latents = storage_init(device, "nmat latents", &latents);
         let probe = Probe::new(m);
         let mut rejected = Vec::new();
         // `kernel`, prepared and checked against the CPU on the probe.
         let mut exact = |kernel: Kernel| -> Result<GpuMaterial, &'static str> {
-            let tiled = self.prepare(device, m, kernel)?;
+            let tiled = self.prepare(device, (m, n), kernel)?;
             let mut desc = desc.clone();
             if kernel != Kernel::Reference {
-                tiled::append_tables(&mut desc, m, kernel == Kernel::Dot4);
+                tiled::append_tables(&mut desc, n, kernel == Kernel::Dot4);
             }
             if *self.fault.lock().unwrap_or_else(|e| e.into_inner()) == Some(kernel) {
                 break_last_row(&mut desc);
             }
             let desc = storage_init(device, "nmat desc", &desc);
-            let gm = GpuMaterial::new(m, desc, latents.clone(), kernel, tiled, None);
+            let gm = GpuMaterial::new(m, desc, latents.clone(), kernel, GpuBody::Neural(tiled));
             let codes = self.decode_requests(device, queue, &gm, &probe.requests, ChannelMask::ALL);
             match codes {
                 Ok(codes) if codes == probe.codes => Ok(gm),
@@ -89,7 +93,7 @@ impl Context {
             return exact(kernel).map_err(|reason| GpuError::Kernel { kernel, reason });
         }
         let software = device.adapter_info().device_type == wgpu::DeviceType::Cpu;
-        let key = shape_key(m);
+        let key = shape_key(m, n);
         let known = self.choices.lock().unwrap_or_else(|e| e.into_inner()).get(&key).copied();
         // The kernel measured fastest for this shape first, the others only where it fails
         // this material's probe; without a measurement, all that pass, to measure.
@@ -149,18 +153,18 @@ impl Context {
     fn prepare(
         &self,
         device: &wgpu::Device,
-        m: &Material<'_>,
+        (m, n): (&Material<'_>, &Neural<'_>),
         kernel: Kernel,
     ) -> Result<Option<(Arc<wgpu::ComputePipeline>, u32)>, &'static str> {
         let (source, entry, texels) = match kernel {
             Kernel::Reference => return Ok(None),
             Kernel::Matrix => {
-                let shape = matrix::Shape::new(m, device)?;
+                let shape = matrix::Shape::new((m, n), device)?;
                 (shape.source(), "matrix", shape.texels())
             }
             Kernel::Dot4 | Kernel::Int32 => {
                 let bytes = device.limits().max_compute_workgroup_storage_size;
-                let shape = tiled::Shape::new(m, kernel, bytes)
+                let shape = tiled::Shape::new((m, n), kernel, bytes)
                     .ok_or("the network is too wide for the device's workgroup memory")?;
                 (shape.source(kernel), "tiled", shape.texels)
             }
@@ -187,8 +191,8 @@ impl Context {
 /// A neural material's descriptor words (layout.rs: a [`NeuralHeader`], then the channels'
 /// ranges, the grids' records and quantizers, the levels' and layers' records, the weights and
 /// row constants; without the tiled and matrix kernels' tables) and its latent words.
-fn network_words(m: &Material<'_>) -> Result<(Vec<u32>, Vec<u32>), GpuError> {
-    let mlp = m.mlp();
+fn network_words(m: &Material<'_>, n: &Neural<'_>) -> Result<(Vec<u32>, Vec<u32>), GpuError> {
+    let mlp = n.mlp();
     let mut head = NeuralHeader {
         width: m.width(),
         height: m.height(),
@@ -199,12 +203,12 @@ fn network_words(m: &Material<'_>) -> Result<(Vec<u32>, Vec<u32>), GpuError> {
         pe_frequencies: u32::from(mlp.pe_frequencies()),
         lod_input: u32::from(mlp.lod_input()),
         layer_count: mlp.layers().len() as u32,
-        level_count: m.levels().len() as u32,
-        grid_count: m.grids().len() as u32,
+        level_count: n.levels().len() as u32,
+        grid_count: n.grids().len() as u32,
         ..NeuralHeader::default()
     };
     for mip in 0..m.mip_count() {
-        head.level_of_mip[mip as usize] = m.level_for_mip(mip) as u32;
+        head.level_of_mip[mip as usize] = n.level_for_mip(mip) as u32;
     }
     let mut desc = vec![0u32; NeuralHeader::WORDS];
     // Channel ranges (for `nmat_sample`).
@@ -217,8 +221,8 @@ fn network_words(m: &Material<'_>) -> Result<(Vec<u32>, Vec<u32>), GpuError> {
     let mut latents: Vec<u32> = Vec::new();
     head.grids_at = desc.len() as u32;
     let grids_at = desc.len();
-    desc.resize(grids_at + GridRecord::WORDS * m.grids().len(), 0);
-    for (g, grid) in m.grids().iter().enumerate() {
+    desc.resize(grids_at + GridRecord::WORDS * n.grids().len(), 0);
+    for (g, grid) in n.grids().iter().enumerate() {
         let bits = u64::from(grid.width())
             * u64::from(grid.height())
             * grid.channels() as u64
@@ -251,7 +255,7 @@ fn network_words(m: &Material<'_>) -> Result<(Vec<u32>, Vec<u32>), GpuError> {
         latents.extend(words);
     }
     head.levels_at = desc.len() as u32;
-    for level in m.levels() {
+    for level in n.levels() {
         let mut record = LevelRecord { term_count: level.terms.len() as u32, ..Default::default() };
         for (term, out) in level.terms.iter().zip(&mut record.terms) {
             out.bilinear = u32::from(term.mode != TermMode::Nearest4);
@@ -377,9 +381,9 @@ fn break_last_row(desc: &mut [u32]) {
 }
 
 /// What the kernel measured fastest is remembered by: the network's widths and channels.
-fn shape_key(m: &Material<'_>) -> String {
+fn shape_key(m: &Material<'_>, n: &Neural<'_>) -> String {
     let widths: Vec<(usize, usize)> =
-        m.mlp().layers().iter().map(|l| (l.inputs(), l.outputs())).collect();
+        n.mlp().layers().iter().map(|l| (l.inputs(), l.outputs())).collect();
     format!("{widths:?} {}", m.channel_count())
 }
 
@@ -407,8 +411,7 @@ impl GpuMaterial {
         desc: wgpu::Buffer,
         latents: wgpu::Buffer,
         kernel: Kernel,
-        tiled: Option<(Arc<wgpu::ComputePipeline>, u32)>,
-        jpeg: Option<jpeg::JpegMaps>,
+        body: GpuBody,
     ) -> GpuMaterial {
         GpuMaterial {
             id: next_id(),
@@ -421,8 +424,7 @@ impl GpuMaterial {
             constant_codes: m.channels().iter().map(|c| c.constant_code()).collect(),
             kernel,
             rejected: Vec::new(),
-            tiled,
-            jpeg,
+            body,
         }
     }
 }
@@ -444,11 +446,19 @@ pub struct GpuMaterial {
     pub(crate) kernel: Kernel,
     /// Kernels whose codes on the upload's probe differed from the CPU's, and why.
     pub(crate) rejected: Vec<(Kernel, &'static str)>,
-    /// The tiled or matrix kernel's pipeline and texels per workgroup (`None`: the reference
-    /// kernel).
-    pub(crate) tiled: Option<(Arc<wgpu::ComputePipeline>, u32)>,
+    pub(crate) body: GpuBody,
+}
+
+/// The tiled or matrix kernel's pipeline and texels per workgroup (`None`: the reference
+/// kernel).
+pub(crate) type NetworkPipeline = Option<(Arc<wgpu::ComputePipeline>, u32)>;
+
+/// What decodes a material's texels on the GPU, by codec: matched where a decode starts.
+pub(crate) enum GpuBody {
+    /// A neural material: the pipeline of its kernel.
+    Neural(NetworkPipeline),
     /// A JPEG material's maps (`desc` and `latents` then hold its descriptor and section).
-    pub(crate) jpeg: Option<jpeg::JpegMaps>,
+    Jpeg(jpeg::JpegMaps),
 }
 
 impl GpuMaterial {
@@ -471,10 +481,16 @@ impl GpuMaterial {
     /// The material's codec. A JPEG material decodes through regions and requests (submitted or
     /// recorded); `nmat_sample`, textures and BC transcoding refuse it with [`GpuError::Codec`].
     pub fn codec(&self) -> nmat_core::Codec {
-        if self.jpeg.is_some() { nmat_core::Codec::Jpeg } else { nmat_core::Codec::Neural }
+        match self.body {
+            GpuBody::Neural(_) => nmat_core::Codec::Neural,
+            GpuBody::Jpeg(_) => nmat_core::Codec::Jpeg,
+        }
     }
     /// [`GpuError::Codec`] for a JPEG material (paths that decode neural materials only).
     pub(crate) fn neural(&self) -> Result<(), GpuError> {
-        if self.jpeg.is_some() { Err(GpuError::Codec) } else { Ok(()) }
+        match self.body {
+            GpuBody::Neural(_) => Ok(()),
+            GpuBody::Jpeg(_) => Err(GpuError::Codec),
+        }
     }
 }

@@ -12,7 +12,7 @@ fn texel_decoding(c: &mut Criterion) {
         let cfg = golden_configs().into_iter().find(|c| c.name == name).expect("golden fixture");
         let bytes = generate(&cfg).to_bytes().expect("valid");
         let m = Container::parse(&bytes).expect("valid");
-        let macs = m.mlp().macs_per_texel();
+        let macs = m.neural().expect("a neural material").mlp().macs_per_texel();
         let mut group = c.benchmark_group(format!("{name} ({macs} MACs/texel)"));
         let (w, h) = (i64::from(m.width()), i64::from(m.height()));
         let mut i = 0i64;

@@ -143,7 +143,7 @@ fn extreme_latent_patterns_decode_like_the_reference() {
             with_codes(&mut spec, pattern);
             let bytes = spec.to_bytes().unwrap();
             let m = Container::parse(&bytes).unwrap();
-            let back = m.to_spec();
+            let back = m.to_spec().expect("a neural material");
             assert_eq!(back.grids, spec.grids, "codes survive packing at {bits} bits");
             let mut out = [0u8; 2];
             for (x, y, mip) in nmat_tests::texels(&m) {

@@ -48,7 +48,11 @@ fn version_one_files_decode_like_their_version_two_twins() {
             assert_eq!(a[..n], b[..n], "{name} float at ({x},{y}) mip {mip}");
         }
         // Re-writing a version-1 material gives today's format and the same network.
-        assert_eq!(old_m.to_spec().to_bytes().unwrap(), new, "{name}: to_spec round trip");
+        assert_eq!(
+            old_m.to_spec().expect("a neural material").to_bytes().unwrap(),
+            new,
+            "{name}: to_spec round trip"
+        );
     }
 }
 
@@ -62,7 +66,7 @@ fn first_f16_weight(bytes: &[u8]) -> usize {
         .find(|&e| u32::from_le_bytes(bytes[e..e + 4].try_into().unwrap()) == 3)
         .map(|e| u32::from_le_bytes(bytes[e + 8..e + 12].try_into().unwrap()) as usize)
         .unwrap();
-    let layers = m.mlp().layers();
+    let layers = m.neural().expect("a neural material").mlp().layers();
     let l0 = &layers[0];
     let n = l0.inputs() * l0.outputs();
     mlp + 8 + 8 * layers.len() + n.div_ceil(4) * 4 + 8 * l0.outputs()

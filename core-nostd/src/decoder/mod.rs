@@ -28,8 +28,9 @@ use alloc::vec::Vec;
 use crate::decode::{ChannelMask, code, unit, write_selected};
 use crate::error::{Argument, Error};
 use crate::filter::{Precision, SampleRequest};
+use crate::jpeg::Jpeg;
 use crate::limits::MAX_WIDTH;
-use crate::material::Material;
+use crate::material::{Body, Material, Neural};
 
 mod kernel;
 mod packed;
@@ -63,8 +64,9 @@ impl PeriodicSums<'_> {
 
 /// The arguments of [`Decoder::span_codes`].
 struct SpanJob<'j, 'a, T, N> {
-    decoder: &'j Decoder,
+    network: &'j Network,
     material: &'j Material<'a>,
+    neural: &'j Neural<'a>,
     at: (i64, i64, u32),
     count: usize,
     rows: (u16, usize),
@@ -77,15 +79,17 @@ impl<T, N: Fn(i32) -> T> Job for SpanJob<'_, '_, T, N> {
     type Output = ();
     #[inline(always)]
     fn run<K: Layers>(self, kernel: K) {
-        let SpanJob { decoder, material, at, count, rows, out, full_scale, narrow } = self;
-        decoder.span_codes_here(kernel, material, at, count, rows, out, full_scale, narrow);
+        let SpanJob { network, material, neural, at, count, rows, out, full_scale, narrow } = self;
+        let (decode, model) = ((material, neural), (at, count, rows));
+        network.span_codes_here(kernel, decode, model, out, full_scale, narrow);
     }
 }
 
 /// The arguments of [`Decoder::texel_codes`].
 struct TexelJob<'j, 'a, T, N> {
-    decoder: &'j Decoder,
+    network: &'j Network,
     material: &'j Material<'a>,
+    neural: &'j Neural<'a>,
     at: (i64, i64, u32),
     rows: u16,
     out: &'j mut [T],
@@ -97,8 +101,8 @@ impl<T, N: Fn(i32) -> T> Job for TexelJob<'_, '_, T, N> {
     type Output = usize;
     #[inline(always)]
     fn run<K: Layers>(self, kernel: K) -> usize {
-        let TexelJob { decoder, material, at, rows, out, full_scale, narrow } = self;
-        decoder.texel_codes_here(kernel, material, at, rows, out, full_scale, narrow)
+        let TexelJob { network, material, neural, at, rows, out, full_scale, narrow } = self;
+        network.texel_codes_here(kernel, (material, neural), at, rows, out, full_scale, narrow)
     }
 }
 
@@ -108,30 +112,54 @@ impl<T, N: Fn(i32) -> T> Job for TexelJob<'_, '_, T, N> {
 #[derive(Clone, Debug)]
 pub struct Decoder {
     kernel: Available,
-    layers: Vec<PackedLayer>,
-    /// Address and length of the first layer's weights in the file: which material this is.
+    prepared: Prepared,
+    /// Address and length of the first layer's weights (or of the JPEG section) in the file:
+    /// which material this is.
     identity: (usize, usize),
 }
 
+/// What a decoder prepared, by codec.
+#[derive(Clone, Debug)]
+enum Prepared {
+    /// The network's layers, packed for the kernels.
+    Neural(Network),
+    /// Nothing to prepare: the JPEG section is decoded as stored.
+    Jpeg,
+}
+
+/// A neural material's network packed for the kernels.
+#[derive(Clone, Debug)]
+struct Network {
+    layers: Vec<PackedLayer>,
+}
+
+/// A material checked against its decoder, by codec: what each entry point matches on.
+enum Bound<'d, 'm, 'a> {
+    Neural(&'d Network, &'m Neural<'a>),
+    Jpeg(&'m Jpeg<'a>),
+}
+
 fn identity(material: &Material<'_>) -> (usize, usize) {
-    if let Some(jpeg) = material.jpeg() {
-        return (jpeg.section().as_ptr() as usize, jpeg.section().len());
+    match material.body() {
+        Body::Jpeg(jpeg) => (jpeg.section().as_ptr() as usize, jpeg.section().len()),
+        Body::Neural(n) => n
+            .mlp()
+            .layers()
+            .first()
+            .map_or((0, 0), |l| (l.weights_i8.as_ptr() as usize, l.weights_i8.len())),
     }
-    material
-        .mlp
-        .layers
-        .first()
-        .map_or((0, 0), |l| (l.weights_i8.as_ptr() as usize, l.weights_i8.len()))
 }
 
 impl Decoder {
     /// Prepares `material` for the fastest kernel of this CPU.
     pub fn new(material: &Material<'_>) -> Decoder {
-        Decoder {
-            kernel: Available::best(),
-            layers: material.mlp.layers.iter().map(PackedLayer::new).collect(),
-            identity: identity(material),
-        }
+        let prepared = match material.body() {
+            Body::Neural(n) => Prepared::Neural(Network {
+                layers: n.mlp().layers().iter().map(PackedLayer::new).collect(),
+            }),
+            Body::Jpeg(_) => Prepared::Jpeg,
+        };
+        Decoder { kernel: Available::best(), prepared, identity: identity(material) }
     }
 
     /// Prepares `material` for a given kernel; `BadArgument(Kernel)` if this CPU lacks it.
@@ -151,18 +179,31 @@ impl Decoder {
         self.kernel.kernel()
     }
 
-    fn check(&self, material: &Material<'_>) -> Result<(), Error> {
-        if identity(material) == self.identity {
-            Ok(())
-        } else {
-            Err(Error::BadArgument {
-                argument: Argument::Material,
-                value: identity(material).0 as u64,
-                limit: self.identity.0 as u64,
-            })
+    /// `material` with what this decoder prepared of it, or `BadArgument(Material)` if this
+    /// decoder was made from another material.
+    fn bind<'d, 'm, 'a>(&'d self, material: &'m Material<'a>) -> Result<Bound<'d, 'm, 'a>, Error> {
+        let other = Error::BadArgument {
+            argument: Argument::Material,
+            value: identity(material).0 as u64,
+            limit: self.identity.0 as u64,
+        };
+        if identity(material) != self.identity {
+            return Err(other);
+        }
+        match (&self.prepared, material.body()) {
+            (Prepared::Neural(network), Body::Neural(n)) => Ok(Bound::Neural(network, n)),
+            (Prepared::Jpeg, Body::Jpeg(j)) => Ok(Bound::Jpeg(j)),
+            _ => Err(other),
         }
     }
 
+    /// [`Decoder::bind`] for the calls that only check.
+    fn check(&self, material: &Material<'_>) -> Result<(), Error> {
+        self.bind(material).map(|_| ())
+    }
+}
+
+impl Network {
     /// Runs the integer layers on `x` (inputs on entry, outputs on exit).
     #[inline(always)]
     fn forward_int<K: Layers>(&self, kernel: K, x: &mut [i16; MAX_WIDTH], rows: u16) {
@@ -243,54 +284,19 @@ impl Decoder {
         Some(PeriodicSums { pairs, mask: period - 1, table })
     }
 
-    /// The integer codes of `count` texels of a span into `out` (`n` values each), all of it
-    /// compiled for the kernel's instruction set.
-    #[allow(clippy::too_many_arguments)]
-    fn span_codes<T>(
-        &self,
-        material: &Material<'_>,
-        at: (i64, i64, u32),
-        count: usize,
-        rows: (u16, usize),
-        out: &mut [T],
-        full_scale: i32,
-        narrow: impl Fn(i32) -> T,
-    ) {
-        if let Some(jpeg) = material.jpeg() {
-            let (x0, y, mip) = at;
-            let (rows, n) = rows;
-            let texel = |i: usize| {
-                let (x, y, _) = material.address_texel(x0.wrapping_add(i as i64), y, mip);
-                (x, y)
-            };
-            let mip = mip.min(material.mip_count() - 1);
-            jpeg.span_codes(mip, count, rows, texel, |i, slot, _, c| {
-                if let Some(o) = out.get_mut(i * n + slot) {
-                    *o = narrow(i32::from(c) * full_scale / 255);
-                }
-            });
-            return;
-        }
-        let job = SpanJob { decoder: self, material, at, count, rows, out, full_scale, narrow };
-        kernel::run(self.kernel, job);
-    }
-
-    #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn span_codes_here<T, K: Layers>(
+    fn span_codes_here<'a, T, K: Layers>(
         &self,
         kernel: K,
-        material: &Material<'_>,
-        (x0, y, mip): (i64, i64, u32),
-        count: usize,
-        (rows, n): (u16, usize),
+        (material, neural): (&Material<'a>, &Neural<'a>),
+        ((x0, y, mip), count, (rows, n)): ((i64, i64, u32), usize, (u16, usize)),
         out: &mut [T],
         full_scale: i32,
         narrow: impl Fn(i32) -> T,
     ) {
         let mut slots = Slots::new();
-        let mut gather = SpanGather::new(material, y, mip, &mut slots);
-        let f = material.last_frac_bits();
+        let mut gather = SpanGather::new(material, neural, y, mip, &mut slots);
+        let f = neural.last_frac_bits();
         // Rows 0..n: the outputs are the first n values.
         let first_rows = rows & rows.wrapping_add(1) == 0;
         // Room for the table, filled (and zeroed first) only if the span uses it.
@@ -329,6 +335,74 @@ impl Decoder {
         }
     }
 
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn texel_codes_here<'a, T, K: Layers>(
+        &self,
+        kernel: K,
+        (material, neural): (&Material<'a>, &Neural<'a>),
+        (x, y, mip): (i64, i64, u32),
+        rows: u16,
+        out: &mut [T],
+        full_scale: i32,
+        narrow: impl Fn(i32) -> T,
+    ) -> usize {
+        let mut io = material.inputs(neural, x, y, mip);
+        self.forward_int(kernel, &mut io, rows);
+        let f = neural.last_frac_bits();
+        write_selected(rows, &io, out, |&v| narrow(code(v, f, full_scale)))
+    }
+
+    /// The float decode of one texel: its inputs through the f32 layers.
+    fn texel_float<'a>(
+        &self,
+        (material, neural): (&Material<'a>, &Neural<'a>),
+        (x, y, mip): (i64, i64, u32),
+    ) -> [f32; MAX_WIDTH] {
+        let mut io = material.inputs(neural, x, y, mip);
+        self.forward_float(&mut io);
+        io
+    }
+}
+
+impl Decoder {
+    /// The integer codes of `count` texels of a span into `out` (`n` values each), all of it
+    /// compiled for the kernel's instruction set.
+    #[allow(clippy::too_many_arguments)]
+    fn span_codes<T>(
+        &self,
+        material: &Material<'_>,
+        at: (i64, i64, u32),
+        count: usize,
+        rows: (u16, usize),
+        out: &mut [T],
+        full_scale: i32,
+        narrow: impl Fn(i32) -> T,
+    ) -> Result<(), Error> {
+        match self.bind(material)? {
+            Bound::Jpeg(jpeg) => {
+                let (x0, y, mip) = at;
+                let (rows, n) = rows;
+                let texel = |i: usize| {
+                    let (x, y, _) = material.address_texel(x0.wrapping_add(i as i64), y, mip);
+                    (x, y)
+                };
+                let mip = mip.min(material.mip_count() - 1);
+                jpeg.span_codes(mip, count, rows, texel, |i, slot, _, c| {
+                    if let Some(o) = out.get_mut(i * n + slot) {
+                        *o = narrow(i32::from(c) * full_scale / 255);
+                    }
+                });
+            }
+            Bound::Neural(network, neural) => {
+                let job =
+                    SpanJob { network, material, neural, at, count, rows, out, full_scale, narrow };
+                kernel::run(self.kernel, job);
+            }
+        }
+        Ok(())
+    }
+
     /// Integer decode to 8-bit codes, bit-identical to [`Material::decode_texel_u8`].
     pub fn decode_texel_u8(
         &self,
@@ -339,9 +413,8 @@ impl Decoder {
         channels: ChannelMask,
         out: &mut [u8],
     ) -> Result<usize, Error> {
-        self.check(material)?;
         let rows = material.check_out(channels, out.len())?;
-        Ok(self.texel_codes(material, (x, y, mip), rows, out, 255, |c| c as u8))
+        self.texel_codes(material, (x, y, mip), rows, out, 255, |c| c as u8)
     }
 
     /// Integer decode to 16-bit codes, bit-identical to [`Material::decode_texel_u16`].
@@ -354,9 +427,8 @@ impl Decoder {
         channels: ChannelMask,
         out: &mut [u16],
     ) -> Result<usize, Error> {
-        self.check(material)?;
         let rows = material.check_out(channels, out.len())?;
-        Ok(self.texel_codes(material, (x, y, mip), rows, out, 65535, |c| c as u16))
+        self.texel_codes(material, (x, y, mip), rows, out, 65535, |c| c as u16)
     }
 
     /// Float decode (values in channel ranges) with f32 weights, bit-identical to
@@ -370,9 +442,12 @@ impl Decoder {
         channels: ChannelMask,
         out: &mut [f32],
     ) -> Result<usize, Error> {
-        self.check(material)?;
         let rows = material.check_out(channels, out.len())?;
-        Ok(self.texel_float(material, (x, y, mip), rows, out))
+        let io = match self.bind(material)? {
+            Bound::Neural(network, neural) => network.texel_float((material, neural), (x, y, mip)),
+            Bound::Jpeg(_) => material.run_float(x, y, mip, rows),
+        };
+        Ok(material.write_ranged(rows, &io, out))
     }
 
     /// Filtered sample, equal to [`Material::sample`] but decoding its texels with this
@@ -383,23 +458,22 @@ impl Decoder {
         req: &SampleRequest,
         out: &mut [f32],
     ) -> Result<usize, Error> {
-        self.check(material)?;
+        let bound = self.bind(material)?;
         material.sample_with(req, out, &|x, y, mip, channels, precision, out| {
             let rows = material.check_out(channels, out.len())?;
-            Ok(match precision {
-                Precision::Float if material.jpeg().is_some() => {
+            match (precision, &bound) {
+                (Precision::Float, Bound::Neural(network, neural)) => {
+                    let io = network.texel_float((material, neural), (x, y, mip));
+                    Ok(write_selected(rows, &io, out, |v| unit(*v)))
+                }
+                (Precision::Float, Bound::Jpeg(_)) => {
                     let io = material.run_float(x, y, mip, rows);
-                    write_selected(rows, &io, out, |v| unit(*v))
+                    Ok(write_selected(rows, &io, out, |v| unit(*v)))
                 }
-                Precision::Float => {
-                    let mut io = material.inputs(x, y, mip);
-                    self.forward_float(&mut io);
-                    write_selected(rows, &io, out, |v| unit(*v))
-                }
-                Precision::Integer => {
+                (Precision::Integer, _) => {
                     self.texel_codes(material, (x, y, mip), rows, out, 255, |c| c as f32 / 255.0)
                 }
-            })
+            }
         })
     }
 
@@ -417,7 +491,7 @@ impl Decoder {
         out: &mut [u8],
     ) -> Result<usize, Error> {
         let (rows, n) = self.check_span(material, count, channels, out.len())?;
-        self.span_codes(material, (x0, y, mip), count, (rows, n), out, 255, |c| c as u8);
+        self.span_codes(material, (x0, y, mip), count, (rows, n), out, 255, |c| c as u8)?;
         Ok(count * n)
     }
 
@@ -483,17 +557,21 @@ impl Decoder {
                 limit: needed as u64,
             });
         }
-        if let Some(jpeg) = material.jpeg() {
-            jpeg.region_codes(mip, (x0, y0, width, height), rows, |x, y, slot, code| {
-                if let Some(o) = out.get_mut(y as usize * pitch + x as usize * n + slot) {
-                    *o = code;
-                }
-            });
-        } else {
-            for y in 0..height as usize {
-                if let Some(row) = out.get_mut(y * pitch..y * pitch + row_len) {
-                    let at = (i64::from(x0), i64::from(y0) + y as i64, mip);
-                    self.span_codes(material, at, width as usize, (rows, n), row, 255, |c| c as u8);
+        match self.bind(material)? {
+            Bound::Jpeg(jpeg) => {
+                jpeg.region_codes(mip, (x0, y0, width, height), rows, |x, y, slot, code| {
+                    if let Some(o) = out.get_mut(y as usize * pitch + x as usize * n + slot) {
+                        *o = code;
+                    }
+                });
+            }
+            Bound::Neural(..) => {
+                for y in 0..height as usize {
+                    if let Some(row) = out.get_mut(y * pitch..y * pitch + row_len) {
+                        let at = (i64::from(x0), i64::from(y0) + y as i64, mip);
+                        let span = (rows, n);
+                        self.span_codes(material, at, width as usize, span, row, 255, |c| c as u8)?;
+                    }
                 }
             }
         }
@@ -513,7 +591,7 @@ impl Decoder {
         out: &mut [u16],
     ) -> Result<usize, Error> {
         let (rows, n) = self.check_span(material, count, channels, out.len())?;
-        self.span_codes(material, (x0, y, mip), count, (rows, n), out, 65535, |c| c as u16);
+        self.span_codes(material, (x0, y, mip), count, (rows, n), out, 65535, |c| c as u16)?;
         Ok(count * n)
     }
 
@@ -530,28 +608,31 @@ impl Decoder {
         out: &mut [f32],
     ) -> Result<usize, Error> {
         let (rows, n) = self.check_span(material, count, channels, out.len())?;
-        if let Some(jpeg) = material.jpeg() {
-            // Each code in unit scale (c / 255), mapped into its channel's range.
-            let texel = |i: usize| {
-                let (x, y, _) = material.address_texel(x0.wrapping_add(i as i64), y, mip);
-                (x, y)
-            };
-            let mip = mip.min(material.mip_count() - 1);
-            jpeg.span_codes(mip, count, rows, texel, |i, slot, channel, c| {
-                if let (Some(o), Some(ch)) =
-                    (out.get_mut(i * n + slot), material.channels().get(channel))
-                {
-                    *o = crate::decode::ranged(ch, f32::from(c) / 255.0);
-                }
-            });
-            return Ok(count * n);
-        }
+        let (network, neural) = match self.bind(material)? {
+            Bound::Neural(network, neural) => (network, neural),
+            Bound::Jpeg(jpeg) => {
+                // Each code in unit scale (c / 255), mapped into its channel's range.
+                let texel = |i: usize| {
+                    let (x, y, _) = material.address_texel(x0.wrapping_add(i as i64), y, mip);
+                    (x, y)
+                };
+                let mip = mip.min(material.mip_count() - 1);
+                jpeg.span_codes(mip, count, rows, texel, |i, slot, channel, c| {
+                    if let (Some(o), Some(ch)) =
+                        (out.get_mut(i * n + slot), material.channels().get(channel))
+                    {
+                        *o = crate::decode::ranged(ch, f32::from(c) / 255.0);
+                    }
+                });
+                return Ok(count * n);
+            }
+        };
         let mut slots = Slots::new();
-        let mut gather = SpanGather::new(material, y, mip, &mut slots);
+        let mut gather = SpanGather::new(material, neural, y, mip, &mut slots);
         let mut io = [0f32; MAX_WIDTH];
         for (i, texel) in out.chunks_exact_mut(n).take(count).enumerate() {
             gather.inputs(x0.wrapping_add(i as i64), &mut io);
-            self.forward_float(&mut io);
+            network.forward_float(&mut io);
             material.write_ranged(rows, &io, texel);
         }
         Ok(count * n)
@@ -580,7 +661,6 @@ impl Decoder {
 
     /// The integer codes of one texel into `out`, all of it (the gather too) compiled for the
     /// kernel's instruction set. Returns how many values were written.
-    #[allow(clippy::too_many_arguments)]
     fn texel_codes<T>(
         &self,
         material: &Material<'_>,
@@ -589,45 +669,16 @@ impl Decoder {
         out: &mut [T],
         full_scale: i32,
         narrow: impl Fn(i32) -> T,
-    ) -> usize {
-        if let Some(codes) = material.jpeg_codes(at.0, at.1, at.2, rows) {
-            return write_selected(rows, &codes, out, |&c| narrow(i32::from(c) * full_scale / 255));
-        }
-        let job = TexelJob { decoder: self, material, at, rows, out, full_scale, narrow };
-        kernel::run(self.kernel, job)
-    }
-
-    #[allow(clippy::too_many_arguments)]
-    #[inline(always)]
-    fn texel_codes_here<T, K: Layers>(
-        &self,
-        kernel: K,
-        material: &Material<'_>,
-        (x, y, mip): (i64, i64, u32),
-        rows: u16,
-        out: &mut [T],
-        full_scale: i32,
-        narrow: impl Fn(i32) -> T,
-    ) -> usize {
-        let mut io = material.inputs(x, y, mip);
-        self.forward_int(kernel, &mut io, rows);
-        let f = material.last_frac_bits();
-        write_selected(rows, &io, out, |&v| narrow(code(v, f, full_scale)))
-    }
-
-    fn texel_float(
-        &self,
-        material: &Material<'_>,
-        (x, y, mip): (i64, i64, u32),
-        rows: u16,
-        out: &mut [f32],
-    ) -> usize {
-        if material.jpeg().is_some() {
-            let io = material.run_float(x, y, mip, rows);
-            return material.write_ranged(rows, &io, out);
-        }
-        let mut io = material.inputs(x, y, mip);
-        self.forward_float(&mut io);
-        material.write_ranged(rows, &io, out)
+    ) -> Result<usize, Error> {
+        Ok(match self.bind(material)? {
+            Bound::Jpeg(j) => {
+                let codes = material.jpeg_codes(j, at.0, at.1, at.2, rows);
+                write_selected(rows, &codes, out, |&c| narrow(i32::from(c) * full_scale / 255))
+            }
+            Bound::Neural(network, neural) => {
+                let job = TexelJob { network, material, neural, at, rows, out, full_scale, narrow };
+                kernel::run(self.kernel, job)
+            }
+        })
     }
 }

@@ -23,7 +23,7 @@
 use crate::decode::{Feature, RAW_SHIFT};
 use crate::latents::{LatentGrid, address, axis};
 use crate::limits::{MAX_CHAIN, MAX_GRID_CHANNELS, MAX_TERMS, MAX_WIDTH};
-use crate::material::{AddressMode, Material, TermMode};
+use crate::material::{AddressMode, Material, Neural, TermMode};
 use crate::posenc::triangle_q;
 
 type Column = [i32; MAX_GRID_CHANNELS];
@@ -275,9 +275,11 @@ pub(super) const MAX_X_PERIOD: usize = 2 << X_TABLE_FREQUENCIES;
 const X_TABLE: usize = 2 * X_TABLE_FREQUENCIES as usize * MAX_X_PERIOD;
 
 impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
-    /// The gather of row `y` of `mip`, keeping its slots in `slots` (emptied first).
+    /// The gather of row `y` of `mip` of `material`, whose model is `n`, keeping its slots in
+    /// `slots` (emptied first).
     pub(super) fn new(
         material: &Material<'a>,
+        n: &Neural<'a>,
         y: i64,
         mip: u32,
         slots: &'s mut Slots<'a>,
@@ -288,10 +290,10 @@ impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
         let mut terms = heapless::Vec::new();
         slots.clear();
         let mut first = 0;
-        let level = material.levels.get(material.level_for_mip(mip));
+        let level = n.levels.get(n.level_for_mip(mip));
         for term in level.map_or(&[][..], |l| l.terms.as_slice()) {
             let bilinear = term.mode == TermMode::Bilinear;
-            let grid_of = |g: u8| material.grids.get(usize::from(g));
+            let grid_of = |g: u8| n.grids.get(usize::from(g));
             let channels = term.grids.first().and_then(|&g| grid_of(g)).map_or(0, |g| g.channels());
             // Nearest4 reads the first grid only; a bilinear term sums its whole chain.
             let grids =
@@ -316,11 +318,11 @@ impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
             let _ = terms.push(TermPlan { mode: term.mode, chain, channels, first });
             first += width;
         }
-        let f = material.mlp.input_frac_bits;
+        let f = n.mlp.input_frac_bits;
         let mut template = [T::default(); MAX_WIDTH];
         let feature = |v: i64| T::from_raw(v << RAW_SHIFT, f);
         let pe = template.get_mut(first..).unwrap_or(&mut []).chunks_exact_mut(4);
-        for (k, features) in (0..material.mlp.pe_frequencies).zip(pe) {
+        for (k, features) in (0..n.mlp.pe_frequencies).zip(pe) {
             if let [_, _, y0, y1] = features {
                 *y0 = feature(i64::from(triangle_q(y, k, 0, f)));
                 *y1 = feature(i64::from(triangle_q(y, k, 1, f)));
@@ -328,7 +330,7 @@ impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
         }
         // The encoding of x repeats every 2^(K+1) texels (K frequencies, periods 4 … 2^(K+1)):
         // for K ≤ X_TABLE_FREQUENCIES one period is tabulated and looked up by x's low bits.
-        let frequencies = material.mlp.pe_frequencies;
+        let frequencies = n.mlp.pe_frequencies;
         let mut x_table = [T::default(); X_TABLE];
         let x_period = if frequencies <= X_TABLE_FREQUENCIES { 2u32 << frequencies } else { 0 };
         let per_texel = 2 * usize::from(frequencies);
@@ -339,8 +341,8 @@ impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
                 }
             }
         }
-        if material.mlp.lod_input {
-            let lod = first + 4 * usize::from(material.mlp.pe_frequencies);
+        if n.mlp.lod_input {
+            let lod = first + 4 * usize::from(n.mlp.pe_frequencies);
             if let Some(v) = template.get_mut(lod) {
                 // mip / 16 in Q.f (f ≥ 4, mip ≤ 14), as in `Material::gather`.
                 *v = feature(i64::from(mip << (f - 4)));
@@ -351,10 +353,10 @@ impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
             mode,
             terms,
             slots,
-            pe_frequencies: material.mlp.pe_frequencies,
+            pe_frequencies: n.mlp.pe_frequencies,
             input_frac_bits: f,
             pe_first: first,
-            chunks: material.mlp.layers.first().map_or(0, |l| l.inputs()).div_ceil(32),
+            chunks: n.mlp.layers.first().map_or(0, |l| l.inputs()).div_ceil(32),
             template,
             x_table,
             x_period,

@@ -137,7 +137,7 @@ impl Decoder {
                         // Checked above: the material, the channels, and a band row holds
                         // 4·CHUNK texels of n channels.
                         let at = (i64::from(4 * bx), i64::from(4 * by + y), mip);
-                        self.span_codes(material, at, texels, (rows, n), row, 255, |c| c as u8);
+                        self.span_codes(material, at, texels, (rows, n), row, 255, |c| c as u8)?;
                     }
                 }
                 for target in targets.iter_mut() {

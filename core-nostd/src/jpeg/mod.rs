@@ -11,9 +11,9 @@ pub(crate) mod idct;
 pub mod writer;
 
 use crate::bytes::{align4, slice, u8_at, u16_at, u32_at};
+use crate::channel::Channel;
 use crate::error::{Error, Field, at_most, malformed, unsupported};
 use crate::limits::{MAX_CHANNELS, MAX_MIPS};
-use crate::material::Channel;
 use entropy::{Bits, Huffman, block};
 
 /// Version of the JPEG section this crate reads and writes.

@@ -1,0 +1,15 @@
+//! The file's identity: its magic and the versions this crate writes and reads (FORMAT.md §1.3).
+
+/// First four bytes of every file.
+pub const MAGIC: [u8; 4] = *b"NMAT";
+/// Major version written by this crate. A reader reads this major and [`LEGACY_VERSION_MAJOR`]
+/// and rejects any other (FORMAT.md §1.3).
+pub const VERSION_MAJOR: u16 = 2;
+/// The previous major version, still read: its layer blocks carry a second, f16 copy of the
+/// network, which is validated and skipped (FORMAT.md §10).
+pub const LEGACY_VERSION_MAJOR: u16 = 1;
+/// Minor version written by this crate for neural materials; a reader accepts every minor of its
+/// major (§1.3).
+pub const VERSION_MINOR: u16 = 0;
+/// Minor version of files with a JPEG section (2.1 added it, §11).
+pub const JPEG_VERSION_MINOR: u16 = 1;
