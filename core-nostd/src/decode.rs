@@ -4,11 +4,11 @@
 
 use crate::error::{Argument, Error};
 use crate::jpeg::Jpeg;
-use crate::latents::{Footprint, LatentGrid, address, footprint};
 use crate::limits::{MAX_CHANNELS, MAX_FRAC_BITS, MAX_GRID_CHANNELS, MAX_GRIDS, MAX_WIDTH};
 use crate::material::{AddressMode, Body, Material, Neural, TermMode};
-use crate::mlp::{forward_float, forward_int, saturate_i16};
-use crate::posenc::triangle_q;
+use crate::neural::latents::{Footprint, LatentGrid, address, footprint};
+use crate::neural::mlp::{forward_float, forward_int, saturate_i16};
+use crate::neural::posenc::triangle_q;
 
 /// Which output channels to decode: bit `c` selects channel `c`. Only the selected output rows of
 /// the last layer are computed; outputs are written packed, in ascending channel order.

@@ -168,8 +168,8 @@ impl fmt::Display for Error {
                 "unsupported .nmat: format version {value}, this decoder reads versions {} and {} \
                  (a newer nmat wrote the file: decode it with that version, or re-encode the \
                  source maps with this one)",
-                crate::version::LEGACY_VERSION_MAJOR,
-                crate::version::VERSION_MAJOR
+                crate::format::version::LEGACY_VERSION_MAJOR,
+                crate::format::version::VERSION_MAJOR
             ),
             Error::Unsupported { field, index, value } => {
                 write!(f, "unsupported .nmat: field {field}[{index}] has unknown value {value}")

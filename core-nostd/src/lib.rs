@@ -85,22 +85,16 @@
 // crates share with the core beyond that is in `internals`.
 pub mod bc;
 mod bytes;
-mod cache;
-mod channel;
-mod checksum;
-mod container;
 mod decode;
 #[cfg(feature = "alloc")]
 mod decoder;
 mod error;
-mod filter;
+mod format;
 mod jpeg;
-mod latents;
 pub mod limits;
 mod material;
-mod mlp;
-mod posenc;
-mod version;
+mod neural;
+mod sample;
 #[cfg(feature = "alloc")]
 mod writer;
 
@@ -112,16 +106,6 @@ mod writer;
 pub mod spec {}
 
 #[doc(inline)]
-pub use cache::{
-    CacheSize, FrameStats, MAX_CACHE_MATERIALS, MAX_CACHE_TILES, PendingTile, Slot, TILE_SIZE,
-    TileCache, TileKey,
-};
-#[doc(inline)]
-pub use container::{
-    Container, Header, JPEG_VERSION_MINOR, LEGACY_VERSION_MAJOR, MAGIC, ParseOptions, SectionKind,
-    VERSION_MAJOR, VERSION_MINOR,
-};
-#[doc(inline)]
 pub use decode::ChannelMask;
 #[cfg(feature = "alloc")]
 #[doc(inline)]
@@ -129,21 +113,31 @@ pub use decoder::{BcTarget, BlockRegion, Decoder, Kernel};
 #[doc(inline)]
 pub use error::{Argument, Error, Field};
 #[doc(inline)]
-pub use filter::{Filter, Precision, SampleRequest};
+pub use format::container::{
+    Container, Header, JPEG_VERSION_MINOR, LEGACY_VERSION_MAJOR, MAGIC, ParseOptions, SectionKind,
+    VERSION_MAJOR, VERSION_MINOR,
+};
 #[cfg(feature = "alloc")]
 #[doc(inline)]
 pub use jpeg::writer::{HuffmanTableSpec, JpegMaterialSpec, JpegStreamSpec};
 #[doc(inline)]
 pub use jpeg::{Jpeg, JpegMap};
 #[doc(inline)]
-pub use latents::LatentGrid;
-#[doc(inline)]
 pub use material::{
     AddressMode, Body, Channel, Codec, ColorSpace, DecodeCost, FeatureLevel, Material, Mlp, Neural,
     Semantic, Term, TermMode,
 };
 #[doc(inline)]
-pub use mlp::{Activation, Layer, Requant};
+pub use neural::latents::LatentGrid;
+#[doc(inline)]
+pub use neural::mlp::{Activation, Layer, Requant};
+#[doc(inline)]
+pub use sample::cache::{
+    CacheSize, FrameStats, MAX_CACHE_MATERIALS, MAX_CACHE_TILES, PendingTile, Slot, TILE_SIZE,
+    TileCache, TileKey,
+};
+#[doc(inline)]
+pub use sample::filter::{Filter, Precision, SampleRequest};
 #[cfg(feature = "alloc")]
 #[doc(inline)]
 pub use writer::{ChannelSpec, GridSpec, LayerSpec, LevelSpec, MaterialSpec, MlpSpec, TermSpec};
@@ -154,11 +148,11 @@ pub use writer::{ChannelSpec, GridSpec, LayerSpec, LevelSpec, MaterialSpec, MlpS
 /// promise, hidden from the documentation.
 #[doc(hidden)]
 pub mod internals {
-    pub use crate::checksum::file_checksum;
+    pub use crate::format::checksum::file_checksum;
     pub use crate::jpeg::{HuffmanProblem, QUANT_TABLE_LEN, check_huffman_table, huffman_decoding};
-    pub use crate::latents::footprint;
-    pub use crate::mlp::hard_gelu_q;
-    pub use crate::posenc::triangle_q;
+    pub use crate::neural::latents::footprint;
+    pub use crate::neural::mlp::hard_gelu_q;
+    pub use crate::neural::posenc::triangle_q;
     #[cfg(feature = "alloc")]
     pub use crate::writer::pack_codes;
 }

@@ -2,13 +2,13 @@
 //! descriptors. Built only by `Container::parse`, so every value here is within the limits of
 //! docs/FORMAT.md and decoding it cannot fail or panic.
 
-use crate::channel::mip_size;
-pub use crate::channel::{AddressMode, Channel, ColorSpace, Semantic};
-use crate::latents::LatentGrid;
+use crate::format::channel::mip_size;
+pub use crate::format::channel::{AddressMode, Channel, ColorSpace, Semantic};
 use crate::limits::{
     MAX_CHAIN, MAX_CHANNELS, MAX_GRIDS, MAX_LAYERS, MAX_LEVELS, MAX_MIPS, MAX_TERMS,
 };
-use crate::mlp::Layer;
+use crate::neural::latents::LatentGrid;
+use crate::neural::mlp::Layer;
 
 /// How a term of a feature level reads its grids (FORMAT.md §6.3).
 #[non_exhaustive]

@@ -8,12 +8,12 @@ use alloc::string::String;
 use alloc::vec::Vec;
 
 use crate::bytes::align4;
-use crate::checksum::file_checksum;
-use crate::container::*;
 use crate::error::{Argument, Error};
-use crate::latents::packed_len;
+use crate::format::checksum::file_checksum;
+use crate::format::container::*;
 use crate::material::{AddressMode, ColorSpace, Material, Semantic, TermMode};
-use crate::mlp::Activation;
+use crate::neural::latents::packed_len;
+use crate::neural::mlp::Activation;
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct ChannelSpec {

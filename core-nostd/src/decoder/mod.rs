@@ -27,10 +27,10 @@ use alloc::vec::Vec;
 
 use crate::decode::{ChannelMask, code, unit, write_selected};
 use crate::error::{Argument, Error};
-use crate::filter::{Precision, SampleRequest};
 use crate::jpeg::Jpeg;
 use crate::limits::MAX_WIDTH;
 use crate::material::{Body, Material, Neural};
+use crate::sample::filter::{Precision, SampleRequest};
 
 mod kernel;
 mod packed;

@@ -9,7 +9,7 @@ use alloc::vec::Vec;
 
 use super::kernel::Tables;
 use crate::limits::MAX_WIDTH;
-use crate::mlp::{Activation, Layer, Requant, hard_gelu_f32, hard_gelu_q, saturate_i16};
+use crate::neural::mlp::{Activation, Layer, Requant, hard_gelu_f32, hard_gelu_q, saturate_i16};
 
 /// One layer in the prepared layout. Invariants (established by the constructors, the only
 /// way to make one; the SIMD kernels rely on them): `out_pad` is a multiple of 16 and at most

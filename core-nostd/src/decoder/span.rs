@@ -21,10 +21,10 @@
 //! [`Decoder`]: super::Decoder
 
 use crate::decode::{Feature, RAW_SHIFT};
-use crate::latents::{LatentGrid, address, axis};
 use crate::limits::{MAX_CHAIN, MAX_GRID_CHANNELS, MAX_TERMS, MAX_WIDTH};
 use crate::material::{AddressMode, Material, Neural, TermMode};
-use crate::posenc::triangle_q;
+use crate::neural::latents::{LatentGrid, address, axis};
+use crate::neural::posenc::triangle_q;
 
 type Column = [i32; MAX_GRID_CHANNELS];
 

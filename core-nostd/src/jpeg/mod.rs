@@ -11,8 +11,8 @@ pub(crate) mod idct;
 pub mod writer;
 
 use crate::bytes::{align4, slice, u8_at, u16_at, u32_at};
-use crate::channel::Channel;
 use crate::error::{Error, Field, at_most, malformed, unsupported};
+use crate::format::channel::Channel;
 use crate::limits::{MAX_CHANNELS, MAX_MIPS};
 use entropy::{Bits, Huffman, block};
 

@@ -9,8 +9,8 @@ use super::{
     DC_BITS, GROUP_MCUS, JPEG_SECTION_VERSION, JpegMap, QUANT_TABLE_LEN, STREAM_RECORD_LEN,
 };
 use crate::bytes::align4;
-use crate::container::{JPEG_VERSION_MINOR, SectionKind};
 use crate::error::{Error, Field};
+use crate::format::container::{JPEG_VERSION_MINOR, SectionKind};
 use crate::material::AddressMode;
 use crate::writer::{
     ChannelSpec, assemble, len_u8, len_u32, material_section, pad4, put_u16, put_u32, spec_error,

@@ -90,7 +90,7 @@ impl Lanes {
         let (clamp_lo, clamp_hi) = (0..rows)
             .map(|o| {
                 let (m, s) = pick(o);
-                crate::mlp::Requant { multiplier: m as i32, shift: s }.saturation_range()
+                crate::neural::mlp::Requant { multiplier: m as i32, shift: s }.saturation_range()
             })
             .unzip();
         let lift: Vec<u64> = narrow.iter().map(|&s| u64::from(32u32.saturating_sub(s))).collect();
@@ -294,7 +294,7 @@ fn requantize(l: &PackedLayer, acc: __m256i, b: usize) -> __m128i {
     // The high halves: row 2i's from `even` moved down, row 2i + 1's in place.
     let high = _mm256_blend_epi32::<0b1010_1010>(_mm256_srli_epi64::<32>(even), odd);
     let v = _mm256_srav_epi32(high, row(lanes.post_shift.as_ptr().cast()));
-    let z = if l.activation() == crate::mlp::Activation::HardGelu {
+    let z = if l.activation() == crate::neural::mlp::Activation::HardGelu {
         let v = _mm256_min_epi32(
             _mm256_max_epi32(v, _mm256_set1_epi32(i32::from(i16::MIN))),
             _mm256_set1_epi32(i32::from(i16::MAX)),
@@ -374,7 +374,7 @@ mod tests {
                     _mm256_storeu_si256(got.as_mut_ptr().cast(), hard_gelu(v, f));
                 }
                 for k in 0..8 {
-                    let want = crate::mlp::hard_gelu_q(z[k] as i16, f as u8);
+                    let want = crate::neural::mlp::hard_gelu_q(z[k] as i16, f as u8);
                     assert_eq!(got[k], i32::from(want), "z {} f {f}", z[k]);
                 }
             }

@@ -270,7 +270,7 @@ fn requantize(l: &PackedLayer, acc: __m512i, b: usize) -> __m256i {
     let odd = _mm512_srav_epi64(_mm512_add_epi64(odd, load(r, 1)), load(s, 1));
     let (even, odd) = (_mm512_cvtsepi64_epi16(even), _mm512_cvtsepi64_epi16(odd));
     let rows = _mm256_set_m128i(_mm_unpackhi_epi16(even, odd), _mm_unpacklo_epi16(even, odd));
-    if l.activation() != crate::mlp::Activation::HardGelu {
+    if l.activation() != crate::neural::mlp::Activation::HardGelu {
         return rows;
     }
     let z = hard_gelu(_mm512_cvtepi16_epi32(rows), u32::from(l.out_frac_bits().clamp(1, 14)));
@@ -341,7 +341,7 @@ mod tests {
                     _mm512_storeu_si512(got.as_mut_ptr().cast(), hard_gelu(v, f));
                 }
                 for k in 0..16 {
-                    let want = crate::mlp::hard_gelu_q(z[k] as i16, f as u8);
+                    let want = crate::neural::mlp::hard_gelu_q(z[k] as i16, f as u8);
                     assert_eq!(got[k], i32::from(want), "z {} f {f}", z[k]);
                 }
             }

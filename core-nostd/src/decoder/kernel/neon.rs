@@ -242,7 +242,7 @@ pub(super) fn requantize(l: &PackedLayer, acc: [int32x4_t; 2], o: usize) -> int1
         vqmovn_high_s64(vqmovn_s64(low), high)
     };
     let rows = vqmovn_high_s32(vqmovn_s32(narrow(acc[0], o)), narrow(acc[1], o + 4));
-    if l.activation() != crate::mlp::Activation::HardGelu {
+    if l.activation() != crate::neural::mlp::Activation::HardGelu {
         return rows;
     }
     let f = i32::from(l.out_frac_bits().clamp(1, 14));
@@ -311,7 +311,7 @@ mod tests {
                     vst1q_s32(got.as_mut_ptr(), hard_gelu(v, f));
                 }
                 for k in 0..4 {
-                    let want = crate::mlp::hard_gelu_q(z[k] as i16, f as u8);
+                    let want = crate::neural::mlp::hard_gelu_q(z[k] as i16, f as u8);
                     assert_eq!(got[k], i32::from(want), "z {} f {f}", z[k]);
                 }
             }

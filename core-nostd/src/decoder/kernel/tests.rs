@@ -4,7 +4,7 @@ use alloc::vec::Vec;
 
 use super::*;
 use crate::decoder::packed::Parts;
-use crate::mlp::{Activation, Requant};
+use crate::neural::mlp::{Activation, Requant};
 
 /// Whether this AArch64 CPU has the dot-product extension, asked the way the kernel choice does
 /// not (the auxiliary vector through std, or the build's target features without it).

@@ -2,19 +2,19 @@
 //! (docs/FORMAT.md §1–§5, limits in §7). `parse` runs once; what it returns is trusted.
 
 use crate::bytes::{align4, f32_at, i16_at, i32_at, slice, u8_at, u16_at, u32_at};
-use crate::channel::{
+use crate::error::{Error, Field, at_most, malformed, unsupported};
+use crate::format::channel::{
     AddressMode, Channel, ColorSpace, Semantic, channel_codes, channel_name_bytes, channel_range,
     mip_size,
 };
-use crate::checksum::file_checksum;
-use crate::error::{Error, Field, at_most, malformed, unsupported};
+use crate::format::checksum::file_checksum;
 use crate::jpeg::Jpeg;
-use crate::latents::{LatentGrid, packed_len};
 use crate::limits::*;
 use crate::material::{Body, FeatureLevel, Material, Mlp, Neural, Term, TermMode};
-use crate::mlp::{Activation, Layer, Requant};
+use crate::neural::latents::{LatentGrid, packed_len};
+use crate::neural::mlp::{Activation, Layer, Requant};
 
-pub use crate::version::{
+pub use crate::format::version::{
     JPEG_VERSION_MINOR, LEGACY_VERSION_MAJOR, MAGIC, VERSION_MAJOR, VERSION_MINOR,
 };
 pub const HEADER_LEN: usize = 32;

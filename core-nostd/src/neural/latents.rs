@@ -2,7 +2,7 @@
 //! (docs/FORMAT.md §4 and §6.2).
 
 use crate::bytes::{arr, i16_at, u32_at};
-use crate::channel::AddressMode;
+use crate::format::channel::AddressMode;
 
 /// A validated view of one latent grid inside the file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

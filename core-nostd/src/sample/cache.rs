@@ -35,9 +35,9 @@ use core::sync::atomic::{AtomicU32, Ordering};
 
 use crate::decode::ChannelMask;
 use crate::error::{Argument, Error};
-use crate::filter::{Precision, SampleRequest};
 use crate::limits::MAX_CHANNELS;
 use crate::material::Material;
+use crate::sample::filter::{Precision, SampleRequest};
 
 /// Texels along each side of a tile.
 pub const TILE_SIZE: u32 = 16;
