@@ -33,6 +33,7 @@ use crate::material::{Body, Material, Neural};
 use crate::sample::filter::{Precision, SampleRequest};
 
 mod kernel;
+mod lanes;
 mod packed;
 mod span;
 mod transcode;

@@ -7,7 +7,7 @@ extern crate alloc;
 
 use alloc::vec::Vec;
 
-use super::kernel::Tables;
+use super::lanes::Tables;
 use crate::limits::MAX_WIDTH;
 use crate::neural::mlp::{Activation, Layer, Requant, hard_gelu_f32, hard_gelu_q, saturate_i16};
 

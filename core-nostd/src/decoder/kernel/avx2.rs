@@ -1,9 +1,7 @@
 //! The AVX2 integer layer (x86-64): `vpmaddwd` over 8 rows per vector, requantization mostly in
-//! 32-bit lanes (AVX2 has no 64-bit arithmetic shift), and its lane tables ([`Lanes`]).
+//! 32-bit lanes (AVX2 has no 64-bit arithmetic shift), with its lane tables (`Avx2Lanes` in
+//! `decoder/lanes.rs`).
 
-extern crate alloc;
-
-use alloc::vec::Vec;
 use core::arch::x86_64::*;
 
 use super::{GROUP, Job, Kernel, Layers, PackedLayer};
@@ -51,57 +49,6 @@ impl Layers for Avx2 {
     fn probe(self, rounds: u64) -> i64 {
         // SAFETY: as in `forward`.
         unsafe { probe_avx2(rounds) }
-    }
-}
-
-/// The requantization constants of each row (multiplier m, shift s: `(acc·m + 2^(s−1)) >> s`,
-/// then saturated to i16) for [`requantize`], which per 8-row block works in 32-bit lanes where
-/// it can: the accumulator is first clamped to `[clamp_lo, clamp_hi]`, the widest range outside
-/// which the row saturates anyway, so the requantized value fits an i32 (see `Requant::saturation_range`) and
-/// the i16 saturation is a 32-bit one. The 64-bit product plus `round` = 2^(s−1) (lane order
-/// rows 0, 2, 4, 6, 1, 3, 5, 7, as the 64-bit multiply takes the even 32-bit lanes) is shifted
-/// left by `lift` = max(0, 32 − s) (exact: the value fits an i32, so the shifted one fits an
-/// i64), its high half taken, and that shifted right by `post_shift` = max(0, s − 32) (row order).
-#[derive(Clone, Debug)]
-pub(super) struct Lanes {
-    clamp_lo: Vec<i32>,
-    clamp_hi: Vec<i32>,
-    round: Vec<i64>,
-    lift: Vec<u64>,
-    /// Whether any `lift` is non-zero (else the left shift is skipped).
-    lifted: bool,
-    post_shift: Vec<u32>,
-}
-
-impl Lanes {
-    /// From per-row multipliers and shifts (equal lengths, a multiple of 8; multipliers in
-    /// [2^30, 2^31) or 0, shifts in 1..=62, as `PackedLayer` guarantees).
-    pub(super) fn new(multiplier: &[i32], shift: &[u32]) -> Lanes {
-        let rows = multiplier.len().min(shift.len());
-        let pick = |o: usize| {
-            (i64::from(multiplier.get(o).copied().unwrap_or(0)), shift.get(o).copied().unwrap_or(1))
-        };
-        // Lane i of a block of 8 rows holds row 2i (first half) or 2(i − 4) + 1.
-        let order = (0..rows).map(|i| {
-            let (block, lane) = (i / 8, i % 8);
-            8 * block + if lane < 4 { 2 * lane } else { 2 * (lane - 4) + 1 }
-        });
-        let narrow: Vec<u32> = order.map(|o| pick(o).1).collect();
-        let (clamp_lo, clamp_hi) = (0..rows)
-            .map(|o| {
-                let (m, s) = pick(o);
-                crate::neural::mlp::Requant { multiplier: m as i32, shift: s }.saturation_range()
-            })
-            .unzip();
-        let lift: Vec<u64> = narrow.iter().map(|&s| u64::from(32u32.saturating_sub(s))).collect();
-        Lanes {
-            clamp_lo,
-            clamp_hi,
-            round: narrow.iter().map(|&s| 1i64 << (s - 1)).collect(),
-            lifted: lift.iter().any(|&u| u != 0),
-            lift,
-            post_shift: (0..rows).map(|o| pick(o).1.saturating_sub(32)).collect(),
-        }
     }
 }
 
@@ -260,9 +207,9 @@ fn group_block<const G: usize, const B: usize>(
 
 /// Requantization, saturation and activation of the 8 accumulators of block `b`, exactly as
 /// `Requant::apply`, `saturate_i16` and `hard_gelu_q`, mostly in 32-bit lanes (the constants
-/// and why each step is exact: [`Lanes`]). AVX2 has no 64-bit arithmetic shift; here the only
-/// 64-bit steps are the multiply, the rounding add and the left shift, and the high halves hold
-/// the result.
+/// and why each step is exact: `Avx2Lanes` in `decoder/lanes.rs`). AVX2 has no 64-bit
+/// arithmetic shift; here the only 64-bit steps are the multiply, the rounding add and the left
+/// shift, and the high halves hold the result.
 #[target_feature(enable = "avx2")]
 fn requantize(l: &PackedLayer, acc: __m256i, b: usize) -> __m128i {
     let lanes = &l.tables().avx2;

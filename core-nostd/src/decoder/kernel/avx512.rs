@@ -1,10 +1,7 @@
 //! The AVX-512 VNNI integer layer (x86-64): 16 rows per vector, `vpdpwssd` fusing the pair
 //! multiply-add with the accumulation, a native 64-bit arithmetic shift for requantization, and
-//! its lane tables ([`Lanes`]).
+//! its lane tables (`Avx512Lanes` in `decoder/lanes.rs`).
 
-extern crate alloc;
-
-use alloc::vec::Vec;
 use core::arch::x86_64::*;
 
 use super::{GROUP, Job, Kernel, Layers, PackedLayer};
@@ -53,39 +50,6 @@ impl Layers for Avx512 {
     fn probe(self, rounds: u64) -> i64 {
         // SAFETY: as in `forward`.
         unsafe { probe_avx512(rounds) }
-    }
-}
-
-/// The requantization constants of each row for [`requantize`], per 16-row block in the lane
-/// order rows 0, 2, …, 14, 1, 3, …, 15 (the 64-bit multiply takes the even 32-bit lanes):
-/// `wide_multiplier` = m (as i64; the multiply reads its low half), `wide_round` = 2^(s−1),
-/// `wide_shift` = s.
-#[derive(Clone, Debug)]
-pub(super) struct Lanes {
-    wide_multiplier: Vec<i64>,
-    wide_round: Vec<i64>,
-    wide_shift: Vec<u64>,
-}
-
-impl Lanes {
-    /// From per-row multipliers and shifts (equal lengths, a multiple of 16; shifts in 1..=62).
-    pub(super) fn new(multiplier: &[i32], shift: &[u32]) -> Lanes {
-        let rows = multiplier.len().min(shift.len());
-        let pick = |o: usize| {
-            (i64::from(multiplier.get(o).copied().unwrap_or(0)), shift.get(o).copied().unwrap_or(1))
-        };
-        // Lane i of a block of 16 rows holds row 2i (first half) or 2(i − 8) + 1.
-        let wide: Vec<(i64, u32)> = (0..rows)
-            .map(|i| {
-                let (block, lane) = (i / 16, i % 16);
-                pick(16 * block + if lane < 8 { 2 * lane } else { 2 * (lane - 8) + 1 })
-            })
-            .collect();
-        Lanes {
-            wide_multiplier: wide.iter().map(|&(m, _)| m).collect(),
-            wide_round: wide.iter().map(|&(_, s)| 1i64 << (s - 1)).collect(),
-            wide_shift: wide.iter().map(|&(_, s)| u64::from(s)).collect(),
-        }
     }
 }
 
@@ -248,8 +212,8 @@ fn group_block<const G: usize, const B: usize>(
 
 /// Requantization, saturation and activation of the 16 accumulators of block `b`, exactly as
 /// `Requant::apply`, `saturate_i16` and `hard_gelu_q`. The 64-bit products of even and odd rows
-/// are rounded and shifted with per-lane constants ([`Lanes`]), saturated to i16 while narrowing
-/// (`vpmovsqw`) and interleaved back into row order.
+/// are rounded and shifted with per-lane constants (`Avx512Lanes` in `decoder/lanes.rs`),
+/// saturated to i16 while narrowing (`vpmovsqw`) and interleaved back into row order.
 #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
 fn requantize(l: &PackedLayer, acc: __m512i, b: usize) -> __m256i {
     let lanes = &l.tables().avx512;

@@ -254,44 +254,6 @@ pub(super) fn run<J: Job>(kernel: Available, job: J) -> J::Output {
     }
 }
 
-/// The per-row requantization constants in the lane orders of each SIMD kernel this target
-/// has (each kernel's `Lanes` type says what it holds).
-#[derive(Clone, Debug)]
-pub(super) struct Tables {
-    #[cfg(target_arch = "x86_64")]
-    avx2: avx2::Lanes,
-    #[cfg(target_arch = "x86_64")]
-    avx512: avx512::Lanes,
-    #[cfg(target_arch = "aarch64")]
-    neon: neon::Lanes,
-    #[cfg(target_arch = "aarch64")]
-    neon_dot: neon_dot::Lanes,
-}
-
-impl Tables {
-    /// From the prepared `[pair][row][2]` weights of `in_pairs` pairs and per-row multipliers and
-    /// shifts (`out_pad` rows, a multiple of 16; multipliers in [2^30, 2^31) or 0, shifts in
-    /// 1..=62, as `Requant` guarantees).
-    #[allow(unused_variables, reason = "each target's kernels read only some of them")]
-    pub(super) fn new(
-        weights: &[i16],
-        in_pairs: usize,
-        multiplier: &[i32],
-        shift: &[u32],
-    ) -> Tables {
-        Tables {
-            #[cfg(target_arch = "x86_64")]
-            avx2: avx2::Lanes::new(multiplier, shift),
-            #[cfg(target_arch = "x86_64")]
-            avx512: avx512::Lanes::new(multiplier, shift),
-            #[cfg(target_arch = "aarch64")]
-            neon: neon::Lanes::new(shift),
-            #[cfg(target_arch = "aarch64")]
-            neon_dot: neon_dot::Lanes::new(weights, in_pairs, shift.len()),
-        }
-    }
-}
-
 /// The arguments of [`Kernel::probe`].
 struct Probe(u64);
 

@@ -10,9 +10,6 @@
 //! saturation. hardGELU divides by 3 through f32 and rounds down (`fcvtms`), exact for every
 //! input as in `avx512::hard_gelu`.
 
-extern crate alloc;
-
-use alloc::vec::Vec;
 use core::arch::aarch64::*;
 
 use super::{GROUP, Job, Kernel, Layers, PackedLayer};
@@ -60,20 +57,6 @@ impl Layers for Neon {
     fn probe(self, rounds: u64) -> i64 {
         // SAFETY: as in `forward`.
         unsafe { probe_neon(rounds) }
-    }
-}
-
-/// The requantization shifts of each row, negated and widened to the 64-bit lanes of `srshl`
-/// (row order).
-#[derive(Clone, Debug)]
-pub(super) struct Lanes {
-    neg_shift: Vec<i64>,
-}
-
-impl Lanes {
-    /// From per-row shifts (in 1..=62, as `PackedLayer` guarantees).
-    pub(super) fn new(shift: &[u32]) -> Lanes {
-        Lanes { neg_shift: shift.iter().map(|&s| -i64::from(s)).collect() }
     }
 }
 

@@ -11,9 +11,9 @@
 //! two `sdot`s per 4 inputs × 4 rows (8 products of the layer per instruction, twice `smlal`'s
 //! 4) and a per-row constant. Every sum wraps mod 2^32 like the scalar twin's i32 accumulators,
 //! and the identity holds mod 2^32, so the result is the same integer. The constant depends on
-//! which inputs are summed (a group pass may sum only the first ones), so [`Lanes`] keeps it per
-//! 16-input chunk as a prefix sum; inputs a pass leaves out are split as 0 (h = 0, l = −128),
-//! whose −128·w the constant cancels.
+//! which inputs are summed (a group pass may sum only the first ones), so its table
+//! (`NeonDotLanes` in `decoder/lanes.rs`) keeps it per 16-input chunk as a prefix sum; inputs
+//! a pass leaves out are split as 0 (h = 0, l = −128), whose −128·w the constant cancels.
 //!
 //! The weights get their own layout, `[quad][row][4]` (the 4 bytes of inputs 4q..4q + 4 of each
 //! row, quads padded with zeros to whole chunks of 16 inputs), so one 128-bit load holds 4 rows
@@ -22,18 +22,14 @@
 //!
 //! `sdot` is reached through inline assembly: the `vdotq` intrinsics are not stable in Rust yet.
 
-extern crate alloc;
-
-use alloc::vec::Vec;
 use core::arch::aarch64::*;
 use core::arch::asm;
 
+use super::super::lanes::CHUNK;
 use super::neon::requantize;
 use super::{GROUP, Job, Kernel, Layers, PackedLayer};
 use crate::limits::MAX_WIDTH;
 
-/// Inputs per chunk: one 128-bit register of split bytes, four quads.
-const CHUNK: usize = 16;
 /// Chunks of the widest layer.
 const MAX_CHUNKS: usize = MAX_WIDTH / CHUNK;
 
@@ -79,49 +75,6 @@ impl Layers for NeonDot {
     fn probe(self, rounds: u64) -> i64 {
         // SAFETY: as in `forward`.
         unsafe { probe_dot(rounds) }
-    }
-}
-
-/// The weights in the dot-product layout and the per-row constants of the byte split.
-#[derive(Clone, Debug)]
-pub(super) struct Lanes {
-    /// `[quad][row][4]`: the weights of inputs 4q..4q + 4 of each row; `4·chunks` quads.
-    weights: Vec<i8>,
-    /// `[c][row]` for c in 0..=chunks: 128 · the row's weight sum over inputs 0..16c.
-    offset: Vec<i32>,
-    /// Chunks of 16 inputs the layer has (its inputs rounded up).
-    chunks: usize,
-}
-
-impl Lanes {
-    /// From the prepared `[pair][row][2]` weights of `in_pairs` pairs and `out_pad` rows.
-    pub(super) fn new(weights: &[i16], in_pairs: usize, out_pad: usize) -> Lanes {
-        let chunks = (2 * in_pairs).div_ceil(CHUNK);
-        let weight = |row: usize, input: usize| -> i8 {
-            let at = (input / 2 * out_pad + row) * 2 + input % 2;
-            // The prepared weights are int8 values widened to i16.
-            weights.get(at).map_or(0, |&w| w as i8)
-        };
-        let mut dot = alloc::vec![0i8; CHUNK * chunks * out_pad];
-        for (quad, rows) in dot.chunks_exact_mut(4 * out_pad).enumerate() {
-            for (row, w) in rows.chunks_exact_mut(4).enumerate() {
-                for (k, slot) in w.iter_mut().enumerate() {
-                    *slot = weight(row, 4 * quad + k);
-                }
-            }
-        }
-        let mut offset = alloc::vec![0i32; (chunks + 1) * out_pad];
-        for c in 1..=chunks {
-            for row in 0..out_pad {
-                let sum: i32 =
-                    (CHUNK * (c - 1)..CHUNK * c).map(|i| i32::from(weight(row, i))).sum();
-                let before = offset.get((c - 1) * out_pad + row).copied().unwrap_or(0);
-                if let Some(slot) = offset.get_mut(c * out_pad + row) {
-                    *slot = before.wrapping_add(128 * sum);
-                }
-            }
-        }
-        Lanes { weights: dot, offset, chunks }
     }
 }
 
@@ -251,7 +204,7 @@ unsafe fn quad<const K: i32, const R: usize>(
 fn block<const R: usize>(l: &PackedLayer, split: &Split, y: &mut [i16; MAX_WIDTH], first: usize) {
     let lanes = &l.tables().neon_dot;
     // Bounds: 4·(first + R) ≤ out_pad ≤ MAX_WIDTH (caller); the weights hold 4·chunks quads of
-    // out_pad rows × 4 bytes (`Lanes::new`).
+    // out_pad rows × 4 bytes (`NeonDotLanes::new`).
     debug_assert!(
         R.is_multiple_of(2) && 4 * (first + R) <= l.out_pad() && l.out_pad() <= MAX_WIDTH
     );
