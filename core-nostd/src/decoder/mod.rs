@@ -183,19 +183,21 @@ impl Decoder {
     /// `material` with what this decoder prepared of it, or `BadArgument(Material)` if this
     /// decoder was made from another material.
     fn bind<'d, 'm, 'a>(&'d self, material: &'m Material<'a>) -> Result<Bound<'d, 'm, 'a>, Error> {
-        let other = Error::BadArgument {
+        let id = identity(material);
+        if id == self.identity {
+            match (&self.prepared, material.body()) {
+                (Prepared::Neural(network), Body::Neural(n)) => {
+                    return Ok(Bound::Neural(network, n));
+                }
+                (Prepared::Jpeg, Body::Jpeg(j)) => return Ok(Bound::Jpeg(j)),
+                _ => {}
+            }
+        }
+        Err(Error::BadArgument {
             argument: Argument::Material,
-            value: identity(material).0 as u64,
+            value: id.0 as u64,
             limit: self.identity.0 as u64,
-        };
-        if identity(material) != self.identity {
-            return Err(other);
-        }
-        match (&self.prepared, material.body()) {
-            (Prepared::Neural(network), Body::Neural(n)) => Ok(Bound::Neural(network, n)),
-            (Prepared::Jpeg, Body::Jpeg(j)) => Ok(Bound::Jpeg(j)),
-            _ => Err(other),
-        }
+        })
     }
 
     /// [`Decoder::bind`] for the calls that only check.
