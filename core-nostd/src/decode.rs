@@ -3,9 +3,10 @@
 //! a parsed material: any coordinate, mip and mask gives a value or a `BadArgument` error.
 
 use crate::error::{Argument, Error};
+use crate::format::channel::{AddressMode, Channel};
 use crate::jpeg::Jpeg;
 use crate::limits::{MAX_CHANNELS, MAX_FRAC_BITS, MAX_GRID_CHANNELS, MAX_GRIDS, MAX_WIDTH};
-use crate::material::{AddressMode, Body, Material, Neural, TermMode};
+use crate::material::{Body, Material, Neural, TermMode};
 use crate::neural::latents::{Footprint, LatentGrid, address, footprint};
 use crate::neural::mlp::{forward_float, forward_int, saturate_i16};
 use crate::neural::posenc::triangle_q;
@@ -419,7 +420,7 @@ pub(crate) fn unit(v: f32) -> f32 {
 }
 
 /// A unit-scale value (clamped to [0, 1]) mapped into `ch`'s range (§6.8).
-pub(crate) fn ranged(ch: &crate::material::Channel<'_>, v: f32) -> f32 {
+pub(crate) fn ranged(ch: &Channel<'_>, v: f32) -> f32 {
     let u = unit(v);
     ch.range_min * (1.0 - u) + ch.range_max * u
 }

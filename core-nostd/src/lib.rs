@@ -113,6 +113,8 @@ pub use decoder::{BcTarget, BlockRegion, Decoder, Kernel};
 #[doc(inline)]
 pub use error::{Argument, Error, Field};
 #[doc(inline)]
+pub use format::channel::{AddressMode, Channel, ColorSpace, Semantic};
+#[doc(inline)]
 pub use format::container::{
     Container, Header, JPEG_VERSION_MINOR, LEGACY_VERSION_MAJOR, MAGIC, ParseOptions, SectionKind,
     VERSION_MAJOR, VERSION_MINOR,
@@ -123,10 +125,7 @@ pub use jpeg::writer::{HuffmanTableSpec, JpegMaterialSpec, JpegStreamSpec};
 #[doc(inline)]
 pub use jpeg::{Jpeg, JpegMap};
 #[doc(inline)]
-pub use material::{
-    AddressMode, Body, Channel, Codec, ColorSpace, DecodeCost, FeatureLevel, Material, Mlp, Neural,
-    Semantic, Term, TermMode,
-};
+pub use material::{Body, Codec, DecodeCost, FeatureLevel, Material, Mlp, Neural, Term, TermMode};
 #[doc(inline)]
 pub use neural::latents::LatentGrid;
 #[doc(inline)]

@@ -2,8 +2,7 @@
 //! descriptors. Built only by `Container::parse`, so every value here is within the limits of
 //! docs/FORMAT.md and decoding it cannot fail or panic.
 
-use crate::format::channel::mip_size;
-pub use crate::format::channel::{AddressMode, Channel, ColorSpace, Semantic};
+use crate::format::channel::{AddressMode, Channel, mip_size};
 use crate::limits::{
     MAX_CHAIN, MAX_CHANNELS, MAX_GRIDS, MAX_LAYERS, MAX_LEVELS, MAX_MIPS, MAX_TERMS,
 };

@@ -9,9 +9,10 @@ use alloc::vec::Vec;
 
 use crate::bytes::align4;
 use crate::error::{Argument, Error};
+use crate::format::channel::{AddressMode, ColorSpace, Semantic};
 use crate::format::checksum::file_checksum;
 use crate::format::container::*;
-use crate::material::{AddressMode, ColorSpace, Material, Semantic, TermMode};
+use crate::material::{Material, TermMode};
 use crate::neural::latents::packed_len;
 use crate::neural::mlp::Activation;
 

@@ -1,8 +1,9 @@
 //! Which channels of a material go into which BC texture ([`BcTexture`]), and the default choice
 //! from the channels' meanings ([`default_layout`]).
 
+use crate::format::channel::{Channel, ColorSpace, Semantic};
 use crate::limits::MAX_CHANNELS;
-use crate::material::{Channel, ColorSpace, Material, Semantic};
+use crate::material::Material;
 
 /// A BC format the core encodes.
 #[non_exhaustive]

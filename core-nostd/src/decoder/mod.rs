@@ -81,8 +81,8 @@ impl<T, N: Fn(i32) -> T> Job for SpanJob<'_, '_, T, N> {
     #[inline(always)]
     fn run<K: Layers>(self, kernel: K) {
         let SpanJob { network, material, neural, at, count, rows, out, full_scale, narrow } = self;
-        let (decode, model) = ((material, neural), (at, count, rows));
-        network.span_codes_here(kernel, decode, model, out, full_scale, narrow);
+        let span = (at, count, rows);
+        network.span_codes_here(kernel, (material, neural), span, out, full_scale, narrow);
     }
 }
 

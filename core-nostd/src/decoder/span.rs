@@ -21,8 +21,9 @@
 //! [`Decoder`]: super::Decoder
 
 use crate::decode::{Feature, RAW_SHIFT};
+use crate::format::channel::AddressMode;
 use crate::limits::{MAX_CHAIN, MAX_GRID_CHANNELS, MAX_TERMS, MAX_WIDTH};
-use crate::material::{AddressMode, Material, Neural, TermMode};
+use crate::material::{Material, Neural, TermMode};
 use crate::neural::latents::{LatentGrid, address, axis};
 use crate::neural::posenc::triangle_q;
 

@@ -10,8 +10,8 @@ use super::{
 };
 use crate::bytes::align4;
 use crate::error::{Error, Field};
+use crate::format::channel::AddressMode;
 use crate::format::container::{JPEG_VERSION_MINOR, SectionKind};
-use crate::material::AddressMode;
 use crate::writer::{
     ChannelSpec, assemble, len_u8, len_u32, material_section, pad4, put_u16, put_u32, spec_error,
 };
