@@ -6,7 +6,7 @@
 #![no_main]
 use arbitrary::{Arbitrary, Unstructured};
 use libfuzzer_sys::fuzz_target;
-use nmat_core::{ChannelMask, Codec, Container, Decoder, Filter, Kernel, ParseOptions, Precision, SampleRequest};
+use nmat_core::{ChannelMask, Container, Decoder, Filter, Kernel, ParseOptions, Precision, SampleRequest};
 
 #[derive(Arbitrary, Debug)]
 struct Request {
