@@ -135,6 +135,7 @@ struct Network {
 }
 
 /// A material checked against its decoder, by codec: what each entry point matches on.
+#[derive(Clone, Copy)]
 enum Bound<'d, 'm, 'a> {
     Neural(&'d Network, &'m Neural<'a>),
     Jpeg(&'m Jpeg<'a>),
@@ -198,11 +199,6 @@ impl Decoder {
             value: id.0 as u64,
             limit: self.identity.0 as u64,
         })
-    }
-
-    /// [`Decoder::bind`] for the calls that only check.
-    fn check(&self, material: &Material<'_>) -> Result<(), Error> {
-        self.bind(material).map(|_| ())
     }
 }
 
@@ -369,20 +365,21 @@ impl Network {
 }
 
 impl Decoder {
-    /// The integer codes of `count` texels of a span into `out` (`n` values each), all of it
-    /// compiled for the kernel's instruction set.
+    /// The integer codes of `count` texels of a span of `material` (`bound`: bound to this
+    /// decoder once by the caller) into `out` (`n` values each), all of it compiled for the
+    /// kernel's instruction set.
     #[allow(clippy::too_many_arguments)]
     fn span_codes<T>(
         &self,
-        material: &Material<'_>,
+        (material, bound): (&Material<'_>, Bound<'_, '_, '_>),
         at: (i64, i64, u32),
         count: usize,
         rows: (u16, usize),
         out: &mut [T],
         full_scale: i32,
         narrow: impl Fn(i32) -> T,
-    ) -> Result<(), Error> {
-        match self.bind(material)? {
+    ) {
+        match bound {
             Bound::Jpeg(jpeg) => {
                 let (x0, y, mip) = at;
                 let (rows, n) = rows;
@@ -403,7 +400,6 @@ impl Decoder {
                 kernel::run(self.kernel, job);
             }
         }
-        Ok(())
     }
 
     /// Integer decode to 8-bit codes, bit-identical to [`Material::decode_texel_u8`].
@@ -493,8 +489,9 @@ impl Decoder {
         channels: ChannelMask,
         out: &mut [u8],
     ) -> Result<usize, Error> {
-        let (rows, n) = self.check_span(material, count, channels, out.len())?;
-        self.span_codes(material, (x0, y, mip), count, (rows, n), out, 255, |c| c as u8)?;
+        let (bound, rows, n) = self.check_span(material, count, channels, out.len())?;
+        let at = (x0, y, mip);
+        self.span_codes((material, bound), at, count, (rows, n), out, 255, |c| c as u8);
         Ok(count * n)
     }
 
@@ -513,7 +510,7 @@ impl Decoder {
         out: &mut [u8],
         row_pitch: usize,
     ) -> Result<usize, Error> {
-        self.check(material)?;
+        let bound = self.bind(material)?;
         if mip >= material.mip_count() {
             return Err(Error::BadArgument {
                 argument: Argument::Mip,
@@ -560,7 +557,7 @@ impl Decoder {
                 limit: needed as u64,
             });
         }
-        match self.bind(material)? {
+        match bound {
             Bound::Jpeg(jpeg) => {
                 jpeg.region_codes(mip, (x0, y0, width, height), rows, |x, y, slot, code| {
                     if let Some(o) = out.get_mut(y as usize * pitch + x as usize * n + slot) {
@@ -572,8 +569,8 @@ impl Decoder {
                 for y in 0..height as usize {
                     if let Some(row) = out.get_mut(y * pitch..y * pitch + row_len) {
                         let at = (i64::from(x0), i64::from(y0) + y as i64, mip);
-                        let span = (rows, n);
-                        self.span_codes(material, at, width as usize, span, row, 255, |c| c as u8)?;
+                        let (span, texels) = ((rows, n), width as usize);
+                        self.span_codes((material, bound), at, texels, span, row, 255, |c| c as u8);
                     }
                 }
             }
@@ -593,8 +590,9 @@ impl Decoder {
         channels: ChannelMask,
         out: &mut [u16],
     ) -> Result<usize, Error> {
-        let (rows, n) = self.check_span(material, count, channels, out.len())?;
-        self.span_codes(material, (x0, y, mip), count, (rows, n), out, 65535, |c| c as u16)?;
+        let (bound, rows, n) = self.check_span(material, count, channels, out.len())?;
+        let at = (x0, y, mip);
+        self.span_codes((material, bound), at, count, (rows, n), out, 65535, |c| c as u16);
         Ok(count * n)
     }
 
@@ -610,8 +608,8 @@ impl Decoder {
         channels: ChannelMask,
         out: &mut [f32],
     ) -> Result<usize, Error> {
-        let (rows, n) = self.check_span(material, count, channels, out.len())?;
-        let (network, neural) = match self.bind(material)? {
+        let (bound, rows, n) = self.check_span(material, count, channels, out.len())?;
+        let (network, neural) = match bound {
             Bound::Neural(network, neural) => (network, neural),
             Bound::Jpeg(jpeg) => {
                 // Each code in unit scale (c / 255), mapped into its channel's range.
@@ -641,14 +639,16 @@ impl Decoder {
         Ok(count * n)
     }
 
-    fn check_span(
-        &self,
-        material: &Material<'_>,
+    /// `material` bound to this decoder, and the rows and count of the channels of a span of
+    /// `count` texels into `out_len` values, checked.
+    fn check_span<'d, 'm, 'a>(
+        &'d self,
+        material: &'m Material<'a>,
         count: usize,
         channels: ChannelMask,
         out_len: usize,
-    ) -> Result<(u16, usize), Error> {
-        self.check(material)?;
+    ) -> Result<(Bound<'d, 'm, 'a>, u16, usize), Error> {
+        let bound = self.bind(material)?;
         let rows = material.resolve_channels(channels)?;
         let n = rows.count_ones() as usize;
         let needed = count.saturating_mul(n);
@@ -659,7 +659,7 @@ impl Decoder {
                 limit: needed as u64,
             });
         }
-        Ok((rows, n))
+        Ok((bound, rows, n))
     }
 
     /// The integer codes of one texel into `out`, all of it (the gather too) compiled for the

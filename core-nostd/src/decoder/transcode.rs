@@ -83,7 +83,7 @@ impl Decoder {
         region: BlockRegion,
         targets: &mut [BcTarget<'_>],
     ) -> Result<(), Error> {
-        self.check(material)?;
+        let bound = self.bind(material)?;
         if mip >= material.mip_count() {
             return Err(bad(Argument::Mip, mip, material.mip_count().saturating_sub(1)));
         }
@@ -137,7 +137,8 @@ impl Decoder {
                         // Checked above: the material, the channels, and a band row holds
                         // 4·CHUNK texels of n channels.
                         let at = (i64::from(4 * bx), i64::from(4 * by + y), mip);
-                        self.span_codes(material, at, texels, (rows, n), row, 255, |c| c as u8)?;
+                        let span = (rows, n);
+                        self.span_codes((material, bound), at, texels, span, row, 255, |c| c as u8);
                     }
                 }
                 for target in targets.iter_mut() {
