@@ -92,6 +92,16 @@ pub enum Field {
     JpegTableRef,
     /// An MCU's bit offset goes backwards or past the stream's entropy data.
     JpegIndex,
+    /// The file's latents are entropy-coded (PACKED_LATENTS, FORMAT.md §12): `Container::parse`
+    /// reads fixed-rate files only; `unpack` first (value = the unpacked file's length).
+    PackedLatents,
+    /// PACKED_LATENTS: the length of the LATENTS section it stands for.
+    PackedLength,
+    /// PACKED_LATENTS: the entropy coder's code.
+    PackedCoder,
+    PackedReserved,
+    /// PACKED_LATENTS: the coded stream ends before the last latent, or bytes are left after it.
+    PackedStream,
 }
 
 /// An argument of a decode call.
@@ -118,6 +128,9 @@ pub enum Argument {
     Precision,
     /// Memory given to a tile cache: no slot, too many, or too few texel bytes for them.
     CacheMemory,
+    /// A file `pack` cannot entropy-code without loss: a JPEG material (value 0), or a layout
+    /// other than the one this crate writes (value 1).
+    Layout,
 }
 
 /// Everything that can go wrong, split by cause.
@@ -170,6 +183,12 @@ impl fmt::Display for Error {
                  source maps with this one)",
                 crate::format::version::LEGACY_VERSION_MAJOR,
                 crate::format::version::VERSION_MAJOR
+            ),
+            Error::Unsupported { field: Field::PackedLatents, value, .. } => write!(
+                f,
+                "packed .nmat: its latents are entropy-coded (format 2.2); unpack it first into \
+                 {value} bytes (nmat_core::unpack or unpack_into; nmat and the C API do this when \
+                 they open a file)"
             ),
             Error::Unsupported { field, index, value } => {
                 write!(f, "unsupported .nmat: field {field}[{index}] has unknown value {value}")

@@ -116,9 +116,14 @@ pub use error::{Argument, Error, Field};
 pub use format::channel::{AddressMode, Channel, ColorSpace, Semantic};
 #[doc(inline)]
 pub use format::container::{
-    Container, Header, JPEG_VERSION_MINOR, LEGACY_VERSION_MAJOR, MAGIC, ParseOptions, SectionKind,
-    VERSION_MAJOR, VERSION_MINOR,
+    Container, Header, JPEG_VERSION_MINOR, LEGACY_VERSION_MAJOR, MAGIC, PACKED_VERSION_MINOR,
+    ParseOptions, SectionKind, VERSION_MAJOR, VERSION_MINOR,
 };
+#[cfg(feature = "alloc")]
+#[doc(inline)]
+pub use format::packed::{pack, unpack};
+#[doc(inline)]
+pub use format::packed::{unpack_into, unpacked_len};
 #[cfg(feature = "alloc")]
 #[doc(inline)]
 pub use jpeg::writer::{HuffmanTableSpec, JpegMaterialSpec, JpegStreamSpec};

@@ -386,3 +386,45 @@ pub fn wide_constant_material(input: i16, weight: i8, bias: i32) -> MaterialSpec
     layer.scales = vec![1.0 / 65536.0];
     spec
 }
+
+/// A random but valid configuration: sizes, layouts, bit depths, Q-formats, widths.
+pub fn random_config(seed: u64) -> FixtureConfig {
+    let mut r = Rng::new(seed);
+    let pick = |r: &mut Rng, lo: i64, hi: i64| r.range(lo, hi);
+    let width = pick(&mut r, 1, 70) as u32;
+    let height = pick(&mut r, 1, 70) as u32;
+    let channels = pick(&mut r, 1, 16) as u8;
+    let input_frac_bits = pick(&mut r, 6, 14) as u8;
+    let layout = if r.unit() < 0.5 {
+        Layout::Ntc {
+            hi_channels: pick(&mut r, 1, 12) as u8,
+            lo_channels: pick(&mut r, 1, 12) as u8,
+            hi_bits: pick(&mut r, 1, 8) as u8,
+            lo_bits: pick(&mut r, 1, 8) as u8,
+        }
+    } else {
+        let levels = pick(&mut r, 1, 5) as usize;
+        Layout::Nbc {
+            channels: pick(&mut r, 1, 16) as u8,
+            bits_coarse_to_fine: (0..levels).map(|_| pick(&mut r, 1, 8) as u8).collect(),
+        }
+    };
+    let hidden = (0..pick(&mut r, 0, 3)).map(|_| pick(&mut r, 1, 64) as u16).collect();
+    let full = (32 - width.max(height).leading_zeros()) as i64;
+    FixtureConfig {
+        name: "random",
+        seed,
+        width,
+        height,
+        mip_count: pick(&mut r, 1, full) as u8,
+        channels,
+        layout,
+        address_mode: if r.unit() < 0.5 { AddressMode::Wrap } else { AddressMode::Clamp },
+        hidden,
+        pe_frequencies: pick(&mut r, 0, i64::from(input_frac_bits - 2).min(4)) as u8,
+        lod_input: r.unit() < 0.5,
+        input_frac_bits,
+        hidden_frac_bits: pick(&mut r, 8, 13) as u8,
+        output_frac_bits: pick(&mut r, 8, 14) as u8,
+    }
+}

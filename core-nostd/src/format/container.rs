@@ -15,7 +15,8 @@ use crate::neural::latents::{LatentGrid, packed_len};
 use crate::neural::mlp::{Activation, Layer, Requant};
 
 pub use crate::format::version::{
-    JPEG_VERSION_MINOR, LEGACY_VERSION_MAJOR, MAGIC, VERSION_MAJOR, VERSION_MINOR,
+    JPEG_VERSION_MINOR, LEGACY_VERSION_MAJOR, MAGIC, PACKED_VERSION_MINOR, VERSION_MAJOR,
+    VERSION_MINOR,
 };
 pub const HEADER_LEN: usize = 32;
 pub const SECTION_ENTRY_LEN: usize = 16;
@@ -45,8 +46,10 @@ impl SectionKind {
     pub const LATENTS: SectionKind = SectionKind(4);
     /// Indexed JPEG streams (FORMAT.md §11), in place of LEVELS, MLP and LATENTS.
     pub const JPEG: SectionKind = SectionKind(5);
-    pub(crate) const KNOWN: [SectionKind; 5] =
-        [Self::MATERIAL, Self::LEVELS, Self::MLP, Self::LATENTS, Self::JPEG];
+    /// Entropy-coded latents (FORMAT.md §12), in place of LATENTS: `unpack` restores LATENTS.
+    pub const PACKED_LATENTS: SectionKind = SectionKind(6);
+    pub(crate) const KNOWN: [SectionKind; 6] =
+        [Self::MATERIAL, Self::LEVELS, Self::MLP, Self::LATENTS, Self::JPEG, Self::PACKED_LATENTS];
 }
 
 /// The fixed 32-byte file header (§1).
@@ -118,6 +121,16 @@ impl Container {
                 let body = Body::Jpeg(Jpeg::parse(jpeg, &channels, sizes, mip_count)?);
                 (body, [material.len(), 0, 0, 0, jpeg.len()])
             }
+            BodySections::Packed => {
+                // Decoding needs the fixed-rate latents: `unpack` makes them (with memory).
+                let unpacked =
+                    crate::format::packed::unpacked_len(bytes).ok().flatten().unwrap_or(0);
+                return Err(Error::Unsupported {
+                    field: Field::PackedLatents,
+                    index: 0,
+                    value: unpacked as u64,
+                });
+            }
             BodySections::Neural([levels_bytes, mlp_bytes, latents]) => {
                 let levels = parse_levels(levels_bytes, latents, mip_count)?;
                 let mlp = parse_mlp(mlp_bytes, channels.len(), header.version_major)?;
@@ -155,7 +168,7 @@ impl Container {
     }
 }
 
-fn read_header(bytes: &[u8]) -> Result<Header, Error> {
+pub(crate) fn read_header(bytes: &[u8]) -> Result<Header, Error> {
     let Some(head) = bytes.get(..HEADER_LEN).and_then(|h| <&[u8; HEADER_LEN]>::try_from(h).ok())
     else {
         let prefix = bytes.len().min(MAGIC.len());
@@ -209,13 +222,28 @@ struct Sections<'a> {
     body: BodySections<'a>,
 }
 
-/// What a material stores besides MATERIAL: LEVELS, MLP and LATENTS, or a JPEG section.
+/// What a material stores besides MATERIAL: LEVELS, MLP and LATENTS, or a JPEG section, or
+/// LEVELS, MLP and PACKED_LATENTS (§12).
 enum BodySections<'a> {
     Neural([&'a [u8]; 3]),
     Jpeg(&'a [u8]),
+    Packed,
 }
 
-fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'a>, Error> {
+/// One entry of the section table with the bytes it points at (§1.2).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct SectionEntry<'a> {
+    pub(crate) kind: SectionKind,
+    pub(crate) flags: u32,
+    pub(crate) data: &'a [u8],
+}
+
+/// The section table in file order, every entry's flags, offset and extent checked (§1.2) but
+/// not its kind.
+pub(crate) fn section_entries<'a>(
+    bytes: &'a [u8],
+    header: &Header,
+) -> Result<heapless::Vec<SectionEntry<'a>, MAX_SECTIONS>, Error> {
     let count = header.section_count as usize;
     if count == 0 {
         return Err(malformed(Field::SectionCount, 0, 0));
@@ -224,8 +252,7 @@ fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'
     let table_end = HEADER_LEN + SECTION_ENTRY_LEN * count;
     need_bytes(bytes, 0, table_end, Field::SectionCount, 0)?;
     let mut ranges = [(0usize, 0usize); MAX_SECTIONS];
-    let mut found: [Option<&'a [u8]>; 5] = [None; 5];
-    let mut optional = heapless::Vec::new();
+    let mut entries = heapless::Vec::new();
     for i in 0..count {
         let e = HEADER_LEN + SECTION_ENTRY_LEN * i;
         let kind = SectionKind(u32_at(bytes, e));
@@ -248,6 +275,18 @@ fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'
         if let Some(r) = ranges.get_mut(i) {
             *r = (offset, end);
         }
+        entries
+            .push(SectionEntry { kind, flags, data })
+            .map_err(|_| malformed(Field::SectionCount, i, 0))?;
+    }
+    Ok(entries)
+}
+
+fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'a>, Error> {
+    let mut found: [Option<&'a [u8]>; SectionKind::KNOWN.len()] = [None; SectionKind::KNOWN.len()];
+    let mut optional = heapless::Vec::new();
+    for (i, entry) in section_entries(bytes, header)?.into_iter().enumerate() {
+        let SectionEntry { kind, flags, data } = entry;
         match SectionKind::KNOWN.iter().position(|&k| k == kind) {
             Some(k) => match found.get_mut(k) {
                 Some(slot @ None) => *slot = Some(data),
@@ -262,6 +301,7 @@ fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'
             }
         }
     }
+    let has = |k: usize| found.get(k).is_some_and(Option::is_some);
     let need = |k: usize| {
         found.get(k).copied().flatten().ok_or(malformed(
             Field::MissingSection,
@@ -269,13 +309,21 @@ fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'
             (k + 1) as i64,
         ))
     };
-    let body = match found.get(4).copied().flatten() {
-        // A JPEG material has no network: LEVELS, MLP or LATENTS beside it contradict it.
-        Some(jpeg) => match (1..4).find(|&k| found.get(k).is_some_and(Option::is_some)) {
+    let body = match (found.get(4).copied().flatten(), found.get(5).copied().flatten()) {
+        // A JPEG material has no network: LEVELS, MLP, LATENTS or PACKED_LATENTS beside it
+        // contradict it.
+        (Some(jpeg), _) => match [1, 2, 3, 5].into_iter().find(|&k| has(k)) {
             Some(k) => return Err(malformed(Field::SectionKind, k, (k + 1) as i64)),
             None => BodySections::Jpeg(jpeg),
         },
-        None => BodySections::Neural([need(1)?, need(2)?, need(3)?]),
+        // Entropy-coded latents stand in for LATENTS (§12): one or the other.
+        (None, Some(_)) if has(3) => return Err(malformed(Field::SectionKind, 5, 6)),
+        (None, Some(_)) => {
+            need(1)?;
+            need(2)?;
+            BodySections::Packed
+        }
+        (None, None) => BodySections::Neural([need(1)?, need(2)?, need(3)?]),
     };
     Ok(Sections { optional, material: need(0)?, body })
 }

@@ -5,4 +5,5 @@
 pub(crate) mod channel;
 pub(crate) mod checksum;
 pub(crate) mod container;
+pub(crate) mod packed;
 pub(crate) mod version;

@@ -13,3 +13,5 @@ pub const LEGACY_VERSION_MAJOR: u16 = 1;
 pub const VERSION_MINOR: u16 = 0;
 /// Minor version of files with a JPEG section (2.1 added it, §11).
 pub const JPEG_VERSION_MINOR: u16 = 1;
+/// Minor version of files whose latents are entropy-coded (2.2 added PACKED_LATENTS, §12).
+pub const PACKED_VERSION_MINOR: u16 = 2;

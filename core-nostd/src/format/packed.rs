@@ -1,0 +1,541 @@
+//! Entropy-coded latents (docs/FORMAT.md §12): a PACKED_LATENTS section stands in for LATENTS on
+//! disk and is decoded once, at load, into the fixed-rate layout every decoder reads.
+//!
+//! The coder is a binary adaptive range coder (12-bit probabilities, adaptation shift 5, 32-bit
+//! range renormalized bytewise) over each latent's bits from the most significant, every bit
+//! modelled by its position in the code's binary tree and by the codes of the latent's left and
+//! upper neighbours in the same grid channel. Decoding is `no_std`, allocation-free and bounded:
+//! a stream can stand for at most [`MAX_EXPANSION`] times its length.
+
+use crate::bytes::{slice, u8_at, u16_at, u32_at};
+use crate::error::{Error, Field, malformed, unsupported};
+use crate::format::checksum::file_checksum;
+use crate::format::container::{
+    GRID_RECORD_LEN, HEADER_LEN, Header, LEVELS_HEADER_LEN, ParseOptions, SECTION_ENTRY_LEN,
+    SectionEntry, SectionKind, read_header, section_entries,
+};
+use crate::limits::MAX_GRIDS;
+
+/// Bytes before the coded stream in a PACKED_LATENTS section.
+pub const PACKED_HEADER_LEN: usize = 8;
+/// The one coder defined so far (§12.2).
+pub const CODER_RANGE_NEIGHBOURS: u8 = 1;
+/// A stream of `n` bytes stands for at most `MAX_EXPANSION · (n + 64)` bytes of latents: each
+/// binary decision costs at least 0.011 bits with 12-bit probabilities and shift 5 (§12.3), so a
+/// valid stream is far below this bound, and a hostile one cannot ask for unbounded memory.
+pub const MAX_EXPANSION: usize = 256;
+
+const PROB_BITS: u32 = 12;
+const PROB_ONE: u16 = 1 << PROB_BITS;
+const ADAPT_SHIFT: u32 = 5;
+const TOP: u32 = 1 << 24;
+/// Neighbour classes: a code's two most significant bits (4 values) or "no neighbour".
+const CLASSES: usize = 5;
+/// Probabilities of one grid channel: neighbour class pair × binary-tree node (≤ 255 nodes).
+const CONTEXTS: usize = CLASSES * CLASSES * 256;
+
+/// The fields of a PACKED_LATENTS section's header (§12.1).
+#[derive(Clone, Copy, Debug)]
+struct PackedHeader {
+    latents_length: usize,
+    unpacked_minor: u16,
+}
+
+fn packed_header(section: &[u8]) -> Result<(PackedHeader, &[u8]), Error> {
+    let Some(stream) = section.get(PACKED_HEADER_LEN..) else {
+        return Err(Error::Truncated {
+            field: Field::PackedLength,
+            index: 0,
+            needed: PACKED_HEADER_LEN as u64,
+            available: section.len() as u64,
+        });
+    };
+    let latents_length = u32_at(section, 0) as usize;
+    if !latents_length.is_multiple_of(4) {
+        return Err(malformed(Field::PackedLength, 0, latents_length as i64));
+    }
+    let bound = MAX_EXPANSION.saturating_mul(stream.len().saturating_add(64));
+    if latents_length > bound {
+        return Err(malformed(Field::PackedLength, 0, latents_length as i64));
+    }
+    if u8_at(section, 4) != CODER_RANGE_NEIGHBOURS {
+        return Err(unsupported(Field::PackedCoder, 0, u8_at(section, 4)));
+    }
+    if u8_at(section, 5) != 0 {
+        return Err(malformed(Field::PackedReserved, 0, u8_at(section, 5)));
+    }
+    Ok((PackedHeader { latents_length, unpacked_minor: u16_at(section, 6) }, stream))
+}
+
+/// The unpacked file: its sections in the packed file's order, PACKED_LATENTS replaced by a
+/// LATENTS section of `latents_length` bytes, each section at the next 4-byte boundary.
+fn unpacked_layout(entries: &[SectionEntry<'_>], latents_length: usize) -> Option<usize> {
+    let mut end = HEADER_LEN + SECTION_ENTRY_LEN * entries.len();
+    for e in entries {
+        let len = if e.kind == SectionKind::PACKED_LATENTS { latents_length } else { e.data.len() };
+        end = end.checked_add(len)?.checked_add(3)? & !3;
+    }
+    u32::try_from(end).ok()?;
+    Some(end)
+}
+
+fn packed_entry<'a>(entries: &[SectionEntry<'a>]) -> Option<(usize, &'a [u8])> {
+    entries
+        .iter()
+        .enumerate()
+        .find(|(_, e)| e.kind == SectionKind::PACKED_LATENTS)
+        .map(|(i, e)| (i, e.data))
+}
+
+/// The length of `bytes` once unpacked, or `None` for a file that is not packed (it parses as
+/// it is). Reads the header and section table only; errors name what is wrong with them.
+pub fn unpacked_len(bytes: &[u8]) -> Result<Option<usize>, Error> {
+    let header = read_header(bytes)?;
+    let entries = section_entries(bytes, &header)?;
+    let Some((_, section)) = packed_entry(&entries) else { return Ok(None) };
+    let (packed, _) = packed_header(section)?;
+    unpacked_layout(&entries, packed.latents_length).map(Some).ok_or(malformed(
+        Field::PackedLength,
+        0,
+        packed.latents_length as i64,
+    ))
+}
+
+/// Decodes a packed file into the fixed-rate file it stands for, in `out` (at least
+/// [`unpacked_len`] bytes), and returns that length; `out[..len]` then parses with
+/// `Container::parse`. Checks the packed file's checksum when `options` say so (the
+/// unpacked file gets its own). Never allocates; work is bounded by the stream's length.
+pub fn unpack_into(bytes: &[u8], options: ParseOptions, out: &mut [u8]) -> Result<usize, Error> {
+    let header = read_header(bytes)?;
+    if options.verify_checksum {
+        let computed = file_checksum(bytes);
+        if computed != header.checksum {
+            return Err(Error::ChecksumMismatch { stored: header.checksum, computed });
+        }
+    }
+    let entries = section_entries(bytes, &header)?;
+    let Some((packed_index, section)) = packed_entry(&entries) else {
+        return Err(malformed(Field::MissingSection, 6, 6));
+    };
+    let (packed, stream) = packed_header(section)?;
+    let total = unpacked_layout(&entries, packed.latents_length).ok_or(malformed(
+        Field::PackedLength,
+        0,
+        packed.latents_length as i64,
+    ))?;
+    let available = out.len();
+    let out = out.get_mut(..total).ok_or(Error::BadArgument {
+        argument: crate::Argument::Output,
+        value: available as u64,
+        limit: total as u64,
+    })?;
+    out.fill(0);
+    // Header and table; every section copied but the latents, which are decoded in place.
+    write_header(out, &header, packed.unpacked_minor, total, entries.len());
+    let mut offset = HEADER_LEN + SECTION_ENTRY_LEN * entries.len();
+    let (mut latents_at, mut levels, mut material) = (0, None, None);
+    for (i, e) in entries.iter().enumerate() {
+        let (kind, len) = if i == packed_index {
+            latents_at = offset;
+            (SectionKind::LATENTS, packed.latents_length)
+        } else {
+            copy(out, offset, e.data);
+            (e.kind, e.data.len())
+        };
+        let t = HEADER_LEN + SECTION_ENTRY_LEN * i;
+        put_u32(out, t, kind.0);
+        put_u32(out, t + 4, e.flags);
+        put_u32(out, t + 8, offset as u32);
+        put_u32(out, t + 12, len as u32);
+        if e.kind == SectionKind::LEVELS {
+            levels = Some(e.data);
+        } else if e.kind == SectionKind::MATERIAL {
+            material = Some(e.data);
+        }
+        offset = (offset + len + 3) & !3;
+    }
+    let levels = levels.ok_or(malformed(Field::MissingSection, 2, 2))?;
+    material.ok_or(malformed(Field::MissingSection, 1, 1))?;
+    let latents = out.get_mut(latents_at..latents_at + packed.latents_length).ok_or(malformed(
+        Field::PackedLength,
+        0,
+        packed.latents_length as i64,
+    ))?;
+    let mut decoder = RangeDecoder::new(stream)?;
+    for grid in grid_records(levels)? {
+        let grid = grid?;
+        let data = grid_data(latents, &grid)?;
+        code_grid(&grid, |p, _| decoder.bit(p), data)?;
+    }
+    decoder.finish()?;
+    let crc = file_checksum(out);
+    put_u32(out, 20, crc);
+    Ok(total)
+}
+
+/// Where a grid's codes lie and how they are shaped, read from its LEVELS record.
+#[derive(Clone, Copy, Debug)]
+struct GridRecord {
+    index: usize,
+    width: u32,
+    height: u32,
+    channels: u32,
+    bits: u32,
+    offset: usize,
+    length: usize,
+}
+
+/// The grid records of a LEVELS section, each checked as far as unpacking needs (§5.1): the
+/// whole section is validated again when the unpacked file is parsed.
+fn grid_records(
+    levels: &[u8],
+) -> Result<impl Iterator<Item = Result<GridRecord, Error>> + '_, Error> {
+    let grid_count = usize::from(u8_at(levels, 1));
+    if levels.len() < LEVELS_HEADER_LEN || grid_count == 0 || grid_count > MAX_GRIDS {
+        return Err(malformed(Field::GridCount, 0, grid_count as i64));
+    }
+    let mut pos = LEVELS_HEADER_LEN;
+    Ok((0..grid_count).map(move |index| {
+        let rec = slice(levels, pos, GRID_RECORD_LEN).ok_or(Error::Truncated {
+            field: Field::GridWidth,
+            index: index as u32,
+            needed: (pos + GRID_RECORD_LEN) as u64,
+            available: levels.len() as u64,
+        })?;
+        let grid = GridRecord {
+            index,
+            width: u32::from(u16_at(rec, 0)),
+            height: u32::from(u16_at(rec, 2)),
+            channels: u32::from(u8_at(rec, 4)),
+            bits: u32::from(u8_at(rec, 5)),
+            offset: u32_at(rec, 8) as usize,
+            length: u32_at(rec, 12) as usize,
+        };
+        if grid.channels == 0 || grid.channels > 16 {
+            return Err(malformed(Field::GridChannels, index, grid.channels));
+        }
+        if grid.bits == 0 || grid.bits > 8 {
+            return Err(malformed(Field::GridBits, index, grid.bits));
+        }
+        let expected =
+            crate::neural::latents::packed_len(grid.width, grid.height, grid.channels, grid.bits);
+        if grid.width == 0 || grid.height == 0 || expected != Some(grid.length) {
+            return Err(malformed(Field::GridDataLength, index, grid.length as i64));
+        }
+        pos += GRID_RECORD_LEN + 4 * grid.channels as usize;
+        Ok(grid)
+    }))
+}
+
+fn grid_data<'a>(latents: &'a mut [u8], grid: &GridRecord) -> Result<&'a mut [u8], Error> {
+    let available = latents.len();
+    grid.offset.checked_add(grid.length).and_then(|end| latents.get_mut(grid.offset..end)).ok_or(
+        Error::Truncated {
+            field: Field::GridDataOffset,
+            index: grid.index as u32,
+            needed: grid.offset as u64 + grid.length as u64,
+            available: available as u64,
+        },
+    )
+}
+
+/// Runs the context model over one grid: channel by channel, rows top to bottom, cells left to
+/// right, each code's bits from the most significant. `coder(p, bit)` codes `bit` (the encoder)
+/// or decodes one (the decoder, whose `data` is zero and so offers 0) with the adaptive
+/// probability `p`, and returns the bit; the codes come from or go to `data`, bit-packed as §4.1
+/// lays them out.
+fn code_grid(
+    grid: &GridRecord,
+    mut coder: impl FnMut(&mut u16, u32) -> Result<u32, Error>,
+    data: &mut [u8],
+) -> Result<(), Error> {
+    let (w, h, c, b) =
+        (grid.width as usize, grid.height as usize, grid.channels as usize, grid.bits);
+    let top = 1u32 << b;
+    let mut probs = [PROB_ONE / 2; CONTEXTS];
+    for j in 0..c {
+        probs.fill(PROB_ONE / 2);
+        for y in 0..h {
+            for x in 0..w {
+                let index = (y * w + x) * c + j;
+                let left = if x > 0 { class(get_code(data, index - c, b), b) } else { 4 };
+                let up = if y > 0 { class(get_code(data, index - w * c, b), b) } else { 4 };
+                let base = (left * CLASSES + up) * 256;
+                let known = get_code(data, index, b);
+                let mut node = 1u32;
+                for k in (0..b).rev() {
+                    let Some(p) = probs.get_mut(base + node as usize) else { break };
+                    node = 2 * node + coder(p, (known >> k) & 1)?;
+                }
+                set_code(data, index, b, node - top);
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The neighbour class of a code: its two most significant bits.
+fn class(code: u32, bits: u32) -> usize {
+    (if bits > 2 { code >> (bits - 2) } else { code }) as usize
+}
+
+/// Code `index` of a bit-packed grid (§4.1); bits past the end read as 0.
+fn get_code(data: &[u8], index: usize, bits: u32) -> u32 {
+    let bit = index * bits as usize;
+    let word =
+        u64::from(u32_at(data, bit / 32 * 4)) | (u64::from(u32_at(data, bit / 32 * 4 + 4)) << 32);
+    ((word >> (bit % 32)) & ((1 << bits) - 1)) as u32
+}
+
+/// Writes code `index` of a bit-packed grid, clearing what was there.
+fn set_code(data: &mut [u8], index: usize, bits: u32, code: u32) {
+    let bit = index * bits as usize;
+    for k in 0..bits as usize {
+        let at = bit + k;
+        if let Some(byte) = data.get_mut(at / 8) {
+            let mask = 1u8 << (at % 8);
+            *byte = if (code >> k) & 1 == 1 { *byte | mask } else { *byte & !mask };
+        }
+    }
+}
+
+fn put_u32(out: &mut [u8], at: usize, v: u32) {
+    copy(out, at, &v.to_le_bytes());
+}
+
+fn copy(out: &mut [u8], at: usize, src: &[u8]) {
+    if let Some(dst) = at.checked_add(src.len()).and_then(|end| out.get_mut(at..end)) {
+        dst.copy_from_slice(src);
+    }
+}
+
+fn write_header(out: &mut [u8], header: &Header, minor: u16, total: usize, sections: usize) {
+    copy(out, 0, &header.magic);
+    copy(out, 4, &header.version_major.to_le_bytes());
+    copy(out, 6, &minor.to_le_bytes());
+    put_u32(out, 12, total as u32);
+    put_u32(out, 16, sections as u32);
+}
+
+/// Adapts a probability (of a 0) towards the bit just coded.
+fn adapt(p: &mut u16, bit: u32) {
+    if bit == 0 {
+        *p += (PROB_ONE - *p) >> ADAPT_SHIFT;
+    } else {
+        *p -= *p >> ADAPT_SHIFT;
+    }
+}
+
+/// The decoding half of the range coder (§12.3).
+struct RangeDecoder<'a> {
+    range: u32,
+    code: u32,
+    stream: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> RangeDecoder<'a> {
+    fn new(stream: &'a [u8]) -> Result<Self, Error> {
+        let mut d = RangeDecoder { range: u32::MAX, code: 0, stream, pos: 0 };
+        for _ in 0..4 {
+            d.code = (d.code << 8) | d.next()?;
+        }
+        Ok(d)
+    }
+
+    fn next(&mut self) -> Result<u32, Error> {
+        let byte = self.stream.get(self.pos).ok_or(Error::Truncated {
+            field: Field::PackedStream,
+            index: 0,
+            needed: self.pos as u64 + 1,
+            available: self.stream.len() as u64,
+        })?;
+        self.pos += 1;
+        Ok(u32::from(*byte))
+    }
+
+    fn bit(&mut self, p: &mut u16) -> Result<u32, Error> {
+        let bound = (self.range >> PROB_BITS) * u32::from(*p);
+        let bit = if self.code < bound {
+            self.range = bound;
+            0
+        } else {
+            self.code -= bound;
+            self.range -= bound;
+            1
+        };
+        adapt(p, bit);
+        while self.range < TOP {
+            self.range <<= 8;
+            self.code = (self.code << 8) | self.next()?;
+        }
+        Ok(bit)
+    }
+
+    /// A valid stream ends exactly where its last decision's bytes end.
+    fn finish(self) -> Result<(), Error> {
+        if self.pos != self.stream.len() {
+            return Err(malformed(Field::PackedStream, 0, self.pos as i64));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(feature = "alloc")]
+mod write {
+    extern crate alloc;
+
+    use super::*;
+    use alloc::borrow::Cow;
+    use alloc::vec::Vec;
+
+    /// The encoding half of the range coder: carries propagate through a run of pending 0xFF
+    /// bytes; the first byte, always 0, is not written.
+    struct RangeEncoder {
+        low: u64,
+        range: u32,
+        cache: u8,
+        pending: u64,
+        started: bool,
+        out: Vec<u8>,
+    }
+
+    impl RangeEncoder {
+        fn new() -> Self {
+            RangeEncoder {
+                low: 0,
+                range: u32::MAX,
+                cache: 0,
+                pending: 0,
+                started: false,
+                out: Vec::new(),
+            }
+        }
+
+        fn bit(&mut self, p: &mut u16, bit: u32) -> u32 {
+            let bound = (self.range >> PROB_BITS) * u32::from(*p);
+            if bit == 0 {
+                self.range = bound;
+            } else {
+                self.low += u64::from(bound);
+                self.range -= bound;
+            }
+            adapt(p, bit);
+            while self.range < TOP {
+                self.range <<= 8;
+                self.shift_low();
+            }
+            bit
+        }
+
+        fn shift_low(&mut self) {
+            if self.low < 0xFF00_0000 || self.low >= 1 << 32 {
+                let carry = (self.low >> 32) as u8;
+                if self.started {
+                    self.out.push(self.cache.wrapping_add(carry));
+                }
+                self.started = true;
+                for _ in 0..self.pending {
+                    self.out.push(0xFFu8.wrapping_add(carry));
+                }
+                self.pending = 0;
+                self.cache = (self.low >> 24) as u8;
+            } else {
+                self.pending += 1;
+            }
+            self.low = (self.low & 0x00FF_FFFF) << 8;
+        }
+
+        fn finish(mut self) -> Vec<u8> {
+            for _ in 0..5 {
+                self.shift_low();
+            }
+            self.out
+        }
+    }
+
+    /// Decodes a packed file into the fixed-rate file it stands for; a file that is not packed
+    /// is returned as it is, borrowed (zero-copy). Then `Container::parse` the result.
+    pub fn unpack(bytes: &[u8], options: ParseOptions) -> Result<Cow<'_, [u8]>, Error> {
+        let Some(len) = unpacked_len(bytes)? else { return Ok(Cow::Borrowed(bytes)) };
+        let mut out = Vec::new();
+        out.try_reserve_exact(len).map_err(|_| Error::OutOfMemory { bytes: len as u64 })?;
+        out.resize(len, 0);
+        unpack_into(bytes, options, &mut out)?;
+        Ok(Cow::Owned(out))
+    }
+
+    /// Entropy-codes the latents of a fixed-rate neural file (§12): the result unpacks to
+    /// exactly `bytes` (checked before it is returned). A file that is already packed is
+    /// returned as it is; a JPEG material, or a file whose layout is not the one this crate
+    /// writes (sections in table order at 4-byte boundaries, grids back to back, unused bits
+    /// zero), is refused.
+    pub fn pack(bytes: &[u8]) -> Result<Vec<u8>, Error> {
+        if unpacked_len(bytes)?.is_some() {
+            let mut out = Vec::new();
+            out.extend_from_slice(bytes);
+            return Ok(out);
+        }
+        let material = crate::Container::parse(bytes)?;
+        let refuse =
+            |value: u64| Error::BadArgument { argument: crate::Argument::Layout, value, limit: 0 };
+        if material.neural().is_none() {
+            return Err(refuse(0));
+        }
+        let header = read_header(bytes)?;
+        let entries = section_entries(bytes, &header)?;
+        let find = |kind| entries.iter().position(|e: &SectionEntry<'_>| e.kind == kind);
+        let latents_index = find(SectionKind::LATENTS).ok_or(refuse(0))?;
+        let levels = find(SectionKind::LEVELS).and_then(|i| entries.get(i)).ok_or(refuse(0))?.data;
+        let latents = entries.get(latents_index).ok_or(refuse(0))?.data;
+        let mut scratch = Vec::new();
+        scratch.extend_from_slice(latents);
+        let mut encoder = RangeEncoder::new();
+        for grid in grid_records(levels)? {
+            let grid = grid?;
+            let data = grid_data(&mut scratch, &grid)?;
+            code_grid(&grid, |p, bit| Ok(encoder.bit(p, bit)), data)?;
+        }
+        let stream = encoder.finish();
+        let mut section = Vec::with_capacity(PACKED_HEADER_LEN + stream.len());
+        section.extend_from_slice(&(latents.len() as u32).to_le_bytes());
+        section.extend_from_slice(&[CODER_RANGE_NEIGHBOURS, 0]);
+        section.extend_from_slice(&header.version_minor.to_le_bytes());
+        section.extend_from_slice(&stream);
+        let table_end = HEADER_LEN + SECTION_ENTRY_LEN * entries.len();
+        let mut out = alloc::vec![0u8; table_end];
+        write_header(
+            &mut out,
+            &header,
+            crate::format::version::PACKED_VERSION_MINOR,
+            0,
+            entries.len(),
+        );
+        for (i, e) in entries.iter().enumerate() {
+            let (kind, data) = if i == latents_index {
+                (SectionKind::PACKED_LATENTS, section.as_slice())
+            } else {
+                (e.kind, e.data)
+            };
+            let t = HEADER_LEN + SECTION_ENTRY_LEN * i;
+            let offset = out.len();
+            put_u32(&mut out, t, kind.0);
+            put_u32(&mut out, t + 4, e.flags);
+            put_u32(&mut out, t + 8, offset as u32);
+            put_u32(&mut out, t + 12, data.len() as u32);
+            out.extend_from_slice(data);
+            out.resize((out.len() + 3) & !3, 0);
+        }
+        let total = u32::try_from(out.len()).map_err(|_| refuse(out.len() as u64))?;
+        put_u32(&mut out, 12, total);
+        let crc = file_checksum(&out);
+        put_u32(&mut out, 20, crc);
+        // Nothing is lost: the packed file must unpack to the very bytes it came from.
+        if unpack(&out, ParseOptions::default())?.as_ref() != bytes {
+            return Err(refuse(1));
+        }
+        Ok(out)
+    }
+}
+#[cfg(feature = "alloc")]
+pub use write::{pack, unpack};

@@ -1,0 +1,209 @@
+//! Entropy-coded latents (FORMAT.md §12): packing loses nothing, the coder compresses what is
+//! compressible and does not inflate what is not, and hostile packed files end in typed errors.
+// Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
+#![allow(clippy::unwrap_used)]
+
+use nmat_core::internals::file_checksum;
+use nmat_core::{
+    Argument, Container, Error, Field, PACKED_VERSION_MINOR, ParseOptions, SectionKind, pack,
+    unpack, unpack_into, unpacked_len,
+};
+use nmat_tests::generate::{FixtureConfig, Layout, Rng, generate, random_config};
+
+const NO_CHECKSUM: ParseOptions = ParseOptions { verify_checksum: false };
+
+/// The (offset, length) of the first section of `kind` in a file's table.
+fn section(bytes: &[u8], kind: SectionKind) -> (usize, usize) {
+    let count = u32::from_le_bytes(bytes[16..20].try_into().unwrap()) as usize;
+    (0..count)
+        .map(|i| {
+            let e = &bytes[32 + 16 * i..48 + 16 * i];
+            let word = |k: usize| u32::from_le_bytes(e[4 * k..4 * k + 4].try_into().unwrap());
+            (word(0), word(2) as usize, word(3) as usize)
+        })
+        .find(|&(k, _, _)| k == kind.0)
+        .map(|(_, o, l)| (o, l))
+        .expect("section present")
+}
+
+fn refresh_checksum(bytes: &mut [u8]) {
+    bytes[20..24].fill(0);
+    let crc = file_checksum(bytes);
+    bytes[20..24].copy_from_slice(&crc.to_le_bytes());
+}
+
+#[test]
+fn random_materials_pack_and_unpack_to_the_same_bytes() {
+    for seed in 0..300 {
+        let cfg = random_config(seed);
+        let bytes = generate(&cfg).to_bytes().unwrap();
+        let packed = pack(&bytes).unwrap_or_else(|e| panic!("seed {seed}: {e}"));
+        assert_eq!(u16::from_le_bytes([packed[6], packed[7]]), PACKED_VERSION_MINOR);
+        assert_eq!(unpacked_len(&packed).unwrap(), Some(bytes.len()), "seed {seed}");
+        assert_eq!(unpacked_len(&bytes).unwrap(), None);
+        assert_eq!(unpack(&packed, ParseOptions::default()).unwrap().as_ref(), &bytes[..]);
+        // Caller memory: exactly long enough works (dirty memory is overwritten), shorter is
+        // refused by name.
+        let mut out = vec![0xA5u8; bytes.len()];
+        assert_eq!(unpack_into(&packed, ParseOptions::default(), &mut out), Ok(bytes.len()));
+        assert_eq!(out, bytes);
+        assert!(matches!(
+            unpack_into(&packed, ParseOptions::default(), &mut out[..bytes.len() - 1]),
+            Err(Error::BadArgument { argument: Argument::Output, .. })
+        ));
+        // Parsing a packed file says what to do, with the memory it needs.
+        assert_eq!(
+            Container::parse(&packed).err(),
+            Some(Error::Unsupported {
+                field: Field::PackedLatents,
+                index: 0,
+                value: bytes.len() as u64
+            })
+        );
+        // Packing is idempotent; an unpacked file unpacks to itself without a copy.
+        assert_eq!(pack(&packed).unwrap(), packed);
+        assert!(matches!(
+            unpack(&bytes, ParseOptions::default()),
+            Ok(std::borrow::Cow::Borrowed(_))
+        ));
+    }
+}
+
+/// Materials large enough for the coder's fixed costs not to matter, every bit depth.
+fn large_configs() -> Vec<FixtureConfig> {
+    let ntc = |seed, hi_bits, lo_bits| FixtureConfig {
+        layout: Layout::Ntc { hi_channels: 4, lo_channels: 4, hi_bits, lo_bits },
+        ..FixtureConfig::ntc("large", seed, 256, 192, 4)
+    };
+    vec![
+        ntc(1, 2, 4),
+        ntc(2, 4, 4),
+        ntc(3, 8, 8),
+        ntc(4, 3, 5),
+        FixtureConfig::nbc("nbc", 5, 256, 256, 4),
+    ]
+}
+
+/// `cfg` with every grid's codes replaced by `code(rng, bits)`, serialized.
+fn with_codes(cfg: &FixtureConfig, code: impl Fn(&mut Rng, u8) -> u8) -> Vec<u8> {
+    let mut spec = generate(cfg);
+    let mut r = Rng::new(cfg.seed ^ 0x5EED);
+    for g in &mut spec.grids {
+        let bits = g.bits;
+        for c in &mut g.codes {
+            *c = code(&mut r, bits);
+        }
+    }
+    spec.to_bytes().unwrap()
+}
+
+fn latents_ratio(bytes: &[u8]) -> f64 {
+    let packed = pack(bytes).unwrap();
+    let (_, stream) = section(&packed, SectionKind::PACKED_LATENTS);
+    let (_, raw) = section(bytes, SectionKind::LATENTS);
+    stream as f64 / raw as f64
+}
+
+#[test]
+fn skewed_codes_shrink_and_uniform_codes_do_not_grow() {
+    for cfg in large_configs() {
+        let bits: Vec<u8> = generate(&cfg).grids.iter().map(|g| g.bits).collect();
+        // Codes that are 0 nine times in ten carry 0.47 bits each whatever their depth: grids
+        // of 2 bits and more must shrink to well under half (1-bit grids to about 0.5).
+        let skewed = latents_ratio(&with_codes(&cfg, |r, _| u8::from(r.unit() < 0.1)));
+        let limit = if bits.contains(&1) { 0.6 } else { 0.4 };
+        assert!(
+            skewed < limit,
+            "seed {}: skewed codes at {skewed} of the fixed-rate size",
+            cfg.seed
+        );
+        // Uniform codes have nothing to remove: at most 2 % more than the fixed-rate form (what
+        // the adaptive model spends learning that).
+        let uniform =
+            latents_ratio(&with_codes(&cfg, |r, bits| (r.next_u64() % (1u64 << bits)) as u8));
+        assert!(uniform < 1.02, "seed {}: uniform codes grew to {uniform}", cfg.seed);
+        assert!(uniform > 0.97, "seed {}: uniform codes cannot shrink to {uniform}", cfg.seed);
+    }
+}
+
+#[test]
+fn hostile_packed_files_end_in_typed_errors() {
+    let bytes = generate(&random_config(7)).to_bytes().unwrap();
+    let packed = pack(&bytes).unwrap();
+    let (offset, len) = section(&packed, SectionKind::PACKED_LATENTS);
+    // Every single-byte change, checksum ignored: an error or a file that parses or not — never
+    // a panic, never more memory than the bound.
+    let mut r = Rng::new(99);
+    for i in 0..packed.len() {
+        for _ in 0..4 {
+            let mut bad = packed.clone();
+            bad[i] ^= 1 << (r.next_u64() % 8);
+            if let Ok(Some(n)) = unpacked_len(&bad) {
+                assert!(n <= 256 * (packed.len() + 64) + bad.len(), "byte {i}: {n}");
+                let mut out = vec![0; n];
+                if let Ok(n) = unpack_into(&bad, NO_CHECKSUM, &mut out) {
+                    let _ = Container::parse(&out[..n]);
+                }
+            }
+        }
+    }
+    // A flipped bit is caught by the checksum when it is checked.
+    let mut bad = packed.clone();
+    bad[offset + 12] ^= 0x10;
+    assert!(matches!(unpack(&bad, ParseOptions::default()), Err(Error::ChecksumMismatch { .. })));
+
+    let patch = |f: &dyn Fn(&mut Vec<u8>)| {
+        let mut b = packed.clone();
+        f(&mut b);
+        refresh_checksum(&mut b);
+        unpack(&b, ParseOptions::default()).map(|_| ())
+    };
+    let set_len = |b: &mut Vec<u8>, l: u32| {
+        b[32 + 16 * 3 + 12..32 + 16 * 3 + 16].copy_from_slice(&l.to_le_bytes())
+    };
+    // The stream one byte short, and one byte too long (the next section's padding).
+    assert!(matches!(
+        patch(&|b| set_len(b, len as u32 - 1)),
+        Err(Error::Truncated { field: Field::PackedStream, .. })
+    ));
+    if len % 4 != 0 {
+        assert!(matches!(
+            patch(&|b| set_len(b, len as u32 + 1)),
+            Err(Error::Malformed { field: Field::PackedStream, .. })
+        ));
+    }
+    // A LATENTS length the stream cannot stand for: refused before any memory is taken.
+    let huge = patch(&|b| b[offset..offset + 4].copy_from_slice(&0x7FFF_FFF0u32.to_le_bytes()));
+    assert!(matches!(huge, Err(Error::Malformed { field: Field::PackedLength, .. })), "{huge:?}");
+    assert!(matches!(
+        patch(&|b| b[offset..offset + 4].copy_from_slice(&6u32.to_le_bytes())),
+        Err(Error::Malformed { field: Field::PackedLength, value: 6, .. })
+    ));
+    assert!(matches!(
+        patch(&|b| b[offset + 4] = 2),
+        Err(Error::Unsupported { field: Field::PackedCoder, value: 2, .. })
+    ));
+    assert!(matches!(
+        patch(&|b| b[offset + 5] = 1),
+        Err(Error::Malformed { field: Field::PackedReserved, .. })
+    ));
+    // PACKED_LATENTS beside LATENTS: one or the other.
+    // (The MLP entry of the fixed-rate file relabelled PACKED_LATENTS.)
+    let mut both = bytes.clone();
+    both[32 + 16 * 2..32 + 16 * 2 + 4].copy_from_slice(&6u32.to_le_bytes());
+    refresh_checksum(&mut both);
+    assert_eq!(
+        Container::parse(&both).err(),
+        Some(Error::Malformed { field: Field::SectionKind, index: 5, value: 6 })
+    );
+}
+
+#[test]
+fn a_jpeg_material_is_not_packed() {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/jpeg/pattern_420_37x21.nmat");
+    let bytes = std::fs::read(path).unwrap();
+    assert!(matches!(
+        pack(&bytes),
+        Err(Error::BadArgument { argument: Argument::Layout, value: 0, .. })
+    ));
+}
