@@ -1,8 +1,10 @@
 //! Shared helpers of the nmat test suite: the deterministic material generator, an independent
-//! reference decoder, fixture I/O and hashing. The tests themselves live in `tests/tests/`.
+//! reference decoder, an independent packer/unpacker of FORMAT.md §12 (`reference_packed`), fixture
+//! I/O and hashing. The tests themselves live in `tests/tests/`.
 
 pub mod generate;
 pub mod reference;
+pub mod reference_packed;
 
 use nmat_core::{ChannelMask, Material};
 use std::path::PathBuf;
