@@ -146,12 +146,13 @@ typedef struct {
   uint32_t channel_count;
   // 0 wrap, 1 clamp.
   uint32_t address_mode;
-  // Minor version of the file's format. Files of format 1.x (the legacy layout) and 2.x both
-  // open; this struct does not report which major.
+  // Minor version of the file's format (2: entropy-coded latents). Files of format 1.x (the
+  // legacy layout) and 2.x both open; this struct does not report which major.
   uint32_t format_minor;
-  // Bytes of the file.
+  // Bytes of the file as opened (a packed file is held unpacked: `nmat_material_memory`).
   uint64_t file_size;
-  // Bits per pixel per channel: file bits / (width · height · channels).
+  // Bits per pixel per channel of the file as opened: file bits / (width · height · channels
+  // that carry information; a constant channel is not counted).
   double bppc;
 } nmat_info;
 
@@ -376,12 +377,15 @@ nmat_status nmat_decode_region_f32(const nmat_material *m,
                                    size_t out_len);
 
 // Parses and validates `len` bytes at `data` and returns a handle in `*out` (NULL on error).
-// The bytes are **copied**: the caller may free them as soon as this returns.
+// The bytes are **copied**: the caller may free them as soon as this returns. A packed file
+// (format 2.2, entropy-coded latents) is unpacked into the handle's memory.
 nmat_status nmat_material_open(const uint8_t *data, size_t len, nmat_material **out);
 
 // Like `nmat_material_open` without the copy: the `len` bytes at `data` must stay valid and
 // unchanged until `nmat_material_free` and, if tile caches were made with the handle, until the
-// last of them is freed (e.g. a memory-mapped file). Saves one copy of the file.
+// last of them is freed (e.g. a memory-mapped file). Saves one copy of the file — of a
+// fixed-rate file: a packed one (format 2.2) is unpacked into memory the handle owns, and the
+// caller's bytes are not used after this returns.
 nmat_status nmat_material_open_borrowed(const uint8_t *data, size_t len, nmat_material **out);
 
 // Destroys a handle. NULL is accepted and ignored. Using the handle afterwards is undefined. A
@@ -391,6 +395,10 @@ void nmat_material_free(nmat_material *m);
 
 // Size, mips, channels, addressing and rate of a material.
 nmat_status nmat_material_info(const nmat_material *m, nmat_info *out);
+
+// Bytes the material holds in memory: its fixed-rate form, which a packed file (format 2.2)
+// is unpacked to when opened; for other files, `file_size` of `nmat_material_info`.
+nmat_status nmat_material_memory(const nmat_material *m, uint64_t *out);
 
 // Description of channel `index` (< channel_count).
 nmat_status nmat_material_channel(const nmat_material *m, uint32_t index, nmat_channel_info *out);

@@ -1,7 +1,8 @@
 /* Tests of the nmat C API. Compiled as C99 and as C++17, run under ASan+UBSan and valgrind
- * (see ../Makefile). Usage: test_nmat FIXTURE.nmat EXPECTED.u8
+ * (see ../Makefile). Usage: test_nmat FIXTURE.nmat EXPECTED.u8 [PACKED.nmat]
  * EXPECTED holds the Rust integer decoder's 8-bit codes of every channel of every texel of every
- * mip of FIXTURE (kept equal by tests/tests/golden.rs). */
+ * mip of FIXTURE (kept equal by tests/tests/golden.rs); PACKED is FIXTURE with entropy-coded
+ * latents (format 2.2), which must open and decode the same. */
 #include "nmat.h"
 #include "check.h"
 
@@ -439,12 +440,43 @@ static void test_threads(const nmat_material *m, const uint8_t *expected, size_t
     }
 }
 
+/* A packed file opens both ways, is unpacked into the handle (the caller's bytes are not used
+ * after the open, even by the borrowing one), decodes like its fixed-rate twin and reports its
+ * own size and minor version next to the memory it takes. */
+static void test_packed(const uint8_t *packed, size_t packed_len, size_t fixed_len,
+                        const uint8_t *expected, size_t expected_len) {
+    nmat_material *m = NULL;
+    nmat_info info;
+    uint64_t memory = 0;
+    int borrowed;
+    for (borrowed = 0; borrowed < 2; borrowed++) {
+        uint8_t *temp = (uint8_t *)malloc(packed_len);
+        memcpy(temp, packed, packed_len);
+        if (borrowed) CHECK_STATUS(nmat_material_open_borrowed(temp, packed_len, &m), NMAT_OK);
+        else CHECK_STATUS(nmat_material_open(temp, packed_len, &m), NMAT_OK);
+        memset(temp, 0xAB, packed_len);
+        free(temp);
+        if (!m) continue;
+        CHECK(matches_expected(m, expected, expected_len));
+        CHECK_STATUS(nmat_material_info(m, &info), NMAT_OK);
+        CHECK(info.format_minor == 2);
+        CHECK(info.file_size == packed_len);
+        CHECK_STATUS(nmat_material_memory(m, &memory), NMAT_OK);
+        CHECK(memory == fixed_len);
+        CHECK_STATUS(nmat_material_memory(m, NULL), NMAT_NULL_ARGUMENT);
+        nmat_material_free(m);
+        m = NULL;
+    }
+    /* A packed file cut short fails with a status, never a crash. */
+    CHECK(nmat_material_open(packed, packed_len - 1, &m) != NMAT_OK && m == NULL);
+}
+
 int main(int argc, char **argv) {
     size_t len = 0, expected_len = 0;
     uint8_t *data, *expected;
     nmat_material *copied = NULL, *borrowed = NULL;
-    if (argc != 3) {
-        fprintf(stderr, "usage: %s FIXTURE.nmat EXPECTED.u8\n", argv[0]);
+    if (argc != 3 && argc != 4) {
+        fprintf(stderr, "usage: %s FIXTURE.nmat EXPECTED.u8 [PACKED.nmat]\n", argv[0]);
         return 2;
     }
     data = read_file(argv[1], &len);
@@ -473,6 +505,13 @@ int main(int argc, char **argv) {
         test_transcode(copied);
         CHECK(matches_expected(borrowed, expected, expected_len));
         test_threads(copied, expected, expected_len);
+    }
+    if (argc == 4) {
+        size_t packed_len = 0;
+        uint8_t *packed = read_file(argv[3], &packed_len);
+        CHECK(packed != NULL);
+        if (packed) test_packed(packed, packed_len, len, expected, expected_len);
+        free(packed);
     }
     nmat_material_free(copied);
     nmat_material_free(borrowed);

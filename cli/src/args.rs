@@ -32,6 +32,13 @@ pub enum Command {
     Index(IndexArgs),
     /// Print what a .nmat file holds.
     Info(InfoArgs),
+    /// Entropy-code a .nmat file's latents (format 2.2, docs/FORMAT.md §12): the same material
+    /// in a smaller file, unpacked once when it is opened. Lossless; `nmat unpack` gives back the
+    /// very same bytes.
+    Pack(PackArgs),
+    /// Write a packed .nmat file's latents fixed-rate again: a larger file that opens without
+    /// unpacking (zero-copy, memory-mapped) and that readers of format 2.0 and 2.1 read.
+    Unpack(PackArgs),
     /// Compare a .nmat file with the source maps: PSNR per map and mip, SSIM, BPPC.
     Eval(EvalArgs),
     /// The speed–accuracy table of docs/PERFORMANCE.md for one or more .nmat files: every decode
@@ -60,6 +67,14 @@ pub struct IndexArgs {
     pub output: PathBuf,
     #[command(flatten)]
     pub memory: MemoryArg,
+}
+
+#[derive(Args)]
+pub struct PackArgs {
+    pub input: PathBuf,
+    /// The .nmat file to write (never the input).
+    #[arg(short, long)]
+    pub output: PathBuf,
 }
 
 #[derive(Args)]
@@ -298,6 +313,11 @@ pub struct EncodeArgs {
     /// Texture addressing at the edges.
     #[arg(long, value_enum, default_value = "wrap")]
     pub address: Address,
+    /// Write the latents fixed-rate, as decoders hold them in memory: a larger file that opens
+    /// without unpacking (zero-copy, e.g. memory-mapped) and that format 2.0 readers read. By
+    /// default they are entropy-coded (format 2.2) where that is smaller (neural codec).
+    #[arg(long)]
+    pub fixed_rate: bool,
     /// Solve the layout and print the file's byte budget without training; writes nothing.
     #[arg(long, conflicts_with = "target_psnr")]
     pub dry_run: bool,

@@ -2,11 +2,60 @@
 
 use std::path::Path;
 
-/// Reads a .nmat file without trusting it: only a regular file (opened as every input is, by
-/// [`nmat_encode::input::open_regular`]), whose first bytes carry the magic, read no further than
-/// the length its header declares (≤ 4 GiB by the format), so a huge or endless input is refused
-/// before it is read.
-pub fn read_nmat(path: &Path) -> Result<Vec<u8>, String> {
+/// A .nmat file as read: its fixed-rate bytes (what `Container::parse` reads; a packed file's
+/// latents decoded), and what the file on disk was.
+pub struct Loaded {
+    fixed: Vec<u8>,
+    /// The file as stored.
+    pub stored: Stored,
+}
+
+/// Length and format minor version of a file as stored (a packed file's, before unpacking).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Stored {
+    pub len: usize,
+    pub minor: u16,
+    /// Its latents are entropy-coded (docs/FORMAT.md §12).
+    pub packed: bool,
+}
+
+impl Stored {
+    /// A fixed-rate file of `m`.
+    pub fn fixed(m: &nmat_core::Material<'_>) -> Stored {
+        Stored { len: m.file_len(), minor: m.version_minor(), packed: false }
+    }
+}
+
+impl std::ops::Deref for Loaded {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        &self.fixed
+    }
+}
+
+/// Reads a .nmat file without trusting it ([`read_raw`]) and unpacks it if its latents are
+/// entropy-coded (checksum verified), so that the result parses.
+pub fn read_nmat(path: &Path) -> Result<Loaded, String> {
+    let bytes = read_raw(path)?;
+    let minor = bytes.get(6..8).map_or(0, |m| u16::from_le_bytes([m[0], m[1]]));
+    let len = bytes.len();
+    // A file whose header or table is broken is not packed: parsing it names what is wrong.
+    let packed = nmat_core::unpacked_len(&bytes).ok().flatten().is_some();
+    let fixed = if packed {
+        nmat_core::unpack(&bytes, nmat_core::ParseOptions::default())
+            .map_err(|e| format!("{}: {e}", path.display()))?
+            .into_owned()
+    } else {
+        bytes
+    };
+    Ok(Loaded { fixed, stored: Stored { len, minor, packed } })
+}
+
+/// Reads a .nmat file's bytes as stored without trusting it: only a regular file (opened as
+/// every input is, by [`nmat_encode::input::open_regular`]), whose first bytes carry the magic,
+/// read no further than the length its header declares (≤ 4 GiB by the format), so a huge or
+/// endless input is refused before it is read.
+pub fn read_raw(path: &Path) -> Result<Vec<u8>, String> {
     use std::io::Read as _;
     let shown = path.display();
     let (mut file, len) = nmat_encode::input::open_regular(path).map_err(|e| e.to_string())?;

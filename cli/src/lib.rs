@@ -41,7 +41,7 @@ pub fn exercise_untrusted(data: &[u8]) {
     let _ = input::check_head(data.get(..input::HEAD).unwrap_or(data), data.len() as u64);
     let _ = nmat_encode::source_maps::decode(data);
     if let Ok(m) = Container::parse_with(data, ParseOptions { verify_checksum: false }) {
-        let _ = output::describe(Path::new("fuzz.nmat"), &m);
+        let _ = output::describe(Path::new("fuzz.nmat"), &m, input::Stored::fixed(&m));
         let _ = output::damaged_sections(Path::new("fuzz.nmat"), &m);
         for c in m.channels() {
             let _ =

@@ -26,6 +26,8 @@ fn main() -> ExitCode {
         Command::Transcode(args) => commands::transcode::run(args),
         Command::Index(args) => commands::index::run(args),
         Command::Info(args) => commands::info::run(args),
+        Command::Pack(args) => commands::pack::pack(args),
+        Command::Unpack(args) => commands::pack::unpack(args),
         Command::Eval(args) => commands::eval::run(args),
         Command::Bench(args) => commands::bench::run(args),
         Command::BenchTrain(args) => commands::bench_train::run(args),

@@ -11,6 +11,8 @@ use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
+use crate::input::Stored;
+
 /// Writes `bytes` to `path` through a temporary file in the same folder and a rename, so a reader
 /// never sees a partial file and a failure leaves no output behind. The temporary file has an
 /// unpredictable name and is created exclusively: a file or symlink planted under a name nmat
@@ -631,18 +633,29 @@ fn to_image(w: u32, h: u32, layout: FileLayout, sixteen: bool, p: Vec<u16>) -> i
     }
 }
 
-/// `nmat info`.
-pub fn describe(path: &Path, m: &Material<'_>) -> String {
+/// `nmat info`: `m` read from a file `stored` so (a packed file's sizes and version are the
+/// file's; `m` is its fixed-rate form in memory).
+pub fn describe(path: &Path, m: &Material<'_>, stored: Stored) -> String {
     let mut s = String::new();
-    let _ = writeln!(
+    let _ = write!(
         s,
         "{}: .nmat format {}.{}, {} bytes",
         path.display(),
         m.version_major(),
-        m.version_minor(),
-        m.file_len()
+        stored.minor,
+        stored.len
     );
-    let _ = writeln!(
+    if stored.packed {
+        let _ = write!(
+            s,
+            " (latents entropy-coded: {:.3} of the {} bytes it takes in memory, fixed-rate)",
+            stored.len as f64 / m.file_len() as f64,
+            m.file_len()
+        );
+    }
+    let _ = writeln!(s);
+    let constant = m.channel_count() - m.informative_channels().min(m.channel_count());
+    let _ = write!(
         s,
         "size {}×{}, {} mips, {} channels, {:?} addressing, {:.4} bits per pixel per channel",
         m.width(),
@@ -650,8 +663,19 @@ pub fn describe(path: &Path, m: &Material<'_>) -> String {
         m.mip_count(),
         m.channel_count(),
         m.address_mode(),
-        m.bppc()
+        m.bppc_of(stored.len)
     );
+    if stored.packed {
+        let _ = write!(s, " ({:.4} in memory)", m.bppc());
+    }
+    if constant > 0 {
+        let _ = write!(
+            s,
+            " over the {} channels that vary ({constant} constant, stored as their value)",
+            m.informative_channels()
+        );
+    }
+    let _ = writeln!(s);
     let _ = writeln!(s, "\nchannels:");
     for (i, c) in m.channels().iter().enumerate() {
         let role = Role::from_semantic(c.semantic).map_or("other", |r| r.name());
@@ -837,11 +861,15 @@ pub fn quality_table(set: &TextureSet, q: &ChainQuality, setting: Option<&str>) 
         }
         let _ = writeln!(s);
     }
-    let _ = writeln!(
+    let _ = write!(
         s,
         "overall: PSNR {:.2} dB over all channels and mips, SSIM {:.4} at mip 0, {:.4} bits per pixel per channel",
         q.psnr, q.ssim, q.bppc
     );
+    if q.memory_bppc != q.bppc {
+        let _ = write!(s, " ({:.4} in memory)", q.memory_bppc);
+    }
+    let _ = writeln!(s);
     s
 }
 

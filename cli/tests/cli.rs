@@ -67,14 +67,46 @@ fn encode_info_decode_eval_round_trip() {
         "latent grids",
         "byte budget",
         "network (int8 weights, row scales, biases)",
-        ".nmat format 2.0",
+        ".nmat format 2.2",
+        "latents entropy-coded",
+        "in memory",
     ] {
         assert!(info.contains(needle), "info lacks {needle}: {info}");
     }
-    // The budget's file line is the file's size.
-    let size = std::fs::metadata(&file).unwrap().len();
+    // The same encode with --fixed-rate is the packed file unpacked, byte for byte; the budget's
+    // file line is that file's size (the layout is solved for the fixed-rate form).
+    let fixed = dir.join("fixed.nmat");
+    let o = nmat(&[
+        "encode",
+        src.to_str().unwrap(),
+        "-o",
+        fixed.to_str().unwrap(),
+        "--steps",
+        "200",
+        "--profile",
+        "ntc-1.0",
+        "--fixed-rate",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let unpacked = dir.join("unpacked.nmat");
+    let o = nmat(&["unpack", file.to_str().unwrap(), "-o", unpacked.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    let fixed_bytes = std::fs::read(&fixed).unwrap();
+    assert!(std::fs::read(&unpacked).unwrap() == fixed_bytes, "unpack differs from --fixed-rate");
+    let packed_size = std::fs::metadata(&file).unwrap().len();
+    assert!(packed_size < fixed_bytes.len() as u64, "{packed_size} vs {}", fixed_bytes.len());
+    let fixed_info = text(&nmat(&["info", fixed.to_str().unwrap()]));
+    assert!(fixed_info.contains(".nmat format 2.0") && !fixed_info.contains("entropy-coded"));
+    let size = fixed_bytes.len();
     let file_line = info.lines().find(|l| l.trim_start().starts_with("file ")).unwrap();
     assert!(file_line.contains(&format!(" {size} bytes")), "{file_line} vs {size}");
+    // `nmat pack` of the fixed-rate file is the packed file; neither replaces its input.
+    let repacked = dir.join("repacked.nmat");
+    let o = nmat(&["pack", fixed.to_str().unwrap(), "-o", repacked.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(std::fs::read(&repacked).unwrap() == std::fs::read(&file).unwrap());
+    let o = nmat(&["pack", fixed.to_str().unwrap(), "-o", fixed.to_str().unwrap()]);
+    assert!(!o.status.success() && text(&o).contains("is one of the inputs"), "{}", text(&o));
 
     // --dry-run prints the same budget for the same layout, and writes nothing.
     let planned = dir.join("planned.nmat");
@@ -148,6 +180,19 @@ fn encode_info_decode_eval_round_trip() {
         .unwrap_or_else(|| panic!("{report}"));
     // Plumbing, not quality (the encoder tests judge training): well above a broken pipeline.
     assert!(psnr > 20.0, "{report}");
+    // The rate is the packed file's, with the fixed-rate one beside it; the fixed-rate file
+    // evaluates to the same PSNR at that larger rate.
+    let rate = |report: &str| -> f64 {
+        let head = report.split(" bits per pixel per channel").next().unwrap();
+        head.rsplit(", ").next().unwrap().parse().unwrap()
+    };
+    let pixels_channels = 64.0 * 64.0 * 8.0;
+    assert!((rate(&report) - packed_size as f64 * 8.0 / pixels_channels).abs() < 1e-3, "{report}");
+    assert!(report.contains(" in memory)"), "{report}");
+    let fixed_report =
+        text(&nmat(&["eval", fixed.to_str().unwrap(), "--ref", src.to_str().unwrap()]));
+    assert!((rate(&fixed_report) - size as f64 * 8.0 / pixels_channels).abs() < 1e-3);
+    assert!(fixed_report.contains(&format!("overall: PSNR {psnr:.2} dB")), "{fixed_report}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -193,7 +238,8 @@ fn gray_maps_of_any_role_are_one_channel_and_come_back_in_their_layout() {
     let progress = String::from_utf8_lossy(&o.stderr);
     assert!(progress.contains(": 2/20 steps (10 %)"), "{progress}");
     assert!(progress.contains(": 20/20 steps (100 %)"), "{progress}");
-    let bytes = std::fs::read(&file).unwrap();
+    let stored = std::fs::read(&file).unwrap();
+    let bytes = nmat_core::unpack(&stored, Default::default()).unwrap();
     let m = nmat_core::Container::parse(&bytes).unwrap();
     let names: Vec<&str> = m.channels().iter().map(|c| c.name).collect();
     assert_eq!(
@@ -304,8 +350,11 @@ fn a_map_over_the_memory_budget_is_refused_before_it_is_decoded() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// `bytes` with its SOURCE_MAPS section changed by `patch` and the checksum refreshed.
+/// `bytes` (unpacked if packed) with its SOURCE_MAPS section changed by `patch` and the checksum
+/// refreshed.
 fn with_source_maps(bytes: &[u8], patch: impl FnOnce(&mut [u8])) -> Vec<u8> {
+    let unpacked = nmat_core::unpack(bytes, Default::default()).unwrap();
+    let bytes: &[u8] = &unpacked;
     let m = nmat_core::Container::parse(bytes).unwrap();
     let kind = nmat_core::SectionKind(nmat_encode::source_maps::SECTION_KIND);
     let section = m.optional_section(kind).expect("a SOURCE_MAPS section");

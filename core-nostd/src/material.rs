@@ -250,9 +250,23 @@ impl<'a> Material<'a> {
         DecodeCost { texels, macs: texels * per_texel as u64 }
     }
 
-    /// Bits per pixel per channel: file bits / (width · height · channels) of mip 0.
+    /// Channels that carry information: all but those whose range is one value (a constant
+    /// map costs nothing and decodes to that value whatever the network says); at least 1.
+    pub fn informative_channels(&self) -> usize {
+        self.channels.iter().filter(|c| c.range_min < c.range_max).count().max(1)
+    }
+
+    /// Bits per pixel per channel of this (fixed-rate) file: [`Material::bppc_of`] its length.
     pub fn bppc(&self) -> f64 {
-        let denom = f64::from(self.width) * f64::from(self.height) * self.channels.len() as f64;
-        (self.file_len as f64 * 8.0) / denom
+        self.bppc_of(self.file_len)
+    }
+
+    /// Bits per pixel per channel of a file of `file_bytes` bytes holding this material (e.g.
+    /// the packed file it was unpacked from): file bits / (width · height · informative
+    /// channels) of mip 0.
+    pub fn bppc_of(&self, file_bytes: usize) -> f64 {
+        let denom =
+            f64::from(self.width) * f64::from(self.height) * self.informative_channels() as f64;
+        (file_bytes as f64 * 8.0) / denom
     }
 }

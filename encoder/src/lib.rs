@@ -7,7 +7,7 @@
 //! let roles = texset::assign_roles(&files, &[])?;
 //! let set = texset::load(&roles, &Default::default())?;
 //! let out = encode(&set, &EncodeOptions::default(), &mut |_| {})?;
-//! std::fs::write("brick.nmat", &out.bytes)?;
+//! std::fs::write("brick.nmat", out.file())?; // latents entropy-coded where that is smaller
 //! # Ok(()) }
 //! ```
 
@@ -44,6 +44,20 @@ pub struct EncodeOptions {
     pub profile: Profile,
     pub train: TrainOptions,
     pub address_mode: AddressMode,
+    /// How the file stores its latents (default [`Storage::Packed`]).
+    pub storage: Storage,
+}
+
+/// How a file stores its latents (docs/FORMAT.md §12).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Storage {
+    /// Entropy-coded where that is smaller (it is for trained latents): the smaller file,
+    /// unpacked once when it is opened.
+    #[default]
+    Packed,
+    /// Fixed-rate, as decoders hold it in memory: the larger file, parsed in place (zero-copy,
+    /// e.g. memory-mapped), readable by format 2.0 readers.
+    FixedRate,
 }
 
 impl Default for EncodeOptions {
@@ -52,16 +66,29 @@ impl Default for EncodeOptions {
             profile: Profile::by_name(DEFAULT_PROFILE).unwrap_or(PROFILES[0]),
             train: TrainOptions::default(),
             address_mode: AddressMode::Wrap,
+            storage: Storage::default(),
         }
     }
 }
 
 /// The result of an encode.
 pub struct Encoded {
+    /// The fixed-rate file: what decoders hold in memory, and what `Container::parse` reads.
     pub bytes: Vec<u8>,
+    /// The same file with its latents entropy-coded, when [`Storage::Packed`] was asked for and
+    /// it is smaller.
+    pub packed: Option<Vec<u8>>,
     pub config: ModelConfig,
-    /// Whole-chain quality of the integer decoder against the source mip chain.
+    /// Whole-chain quality of the integer decoder against the source mip chain; its `bppc` is
+    /// the rate of [`Encoded::file`].
     pub quality: metrics::ChainQuality,
+}
+
+impl Encoded {
+    /// The file to write: packed if there is a packed form, else fixed-rate.
+    pub fn file(&self) -> &[u8] {
+        self.packed.as_deref().unwrap_or(&self.bytes)
+    }
 }
 
 /// Trains a model for `set` and writes it. Deterministic: the same set, options and seed give the
@@ -76,8 +103,17 @@ pub fn encode(
     model.train(&options.train, progress);
     let spec = to_spec(set, &model, options)?;
     let bytes = spec.to_bytes()?;
-    let quality = metrics::chain_quality(&Container::parse(&bytes)?, set);
-    Ok(Encoded { bytes, config, quality })
+    let material = Container::parse(&bytes)?;
+    let mut quality = metrics::chain_quality(&material, set);
+    let packed = match options.storage {
+        Storage::Packed => Some(nmat_core::pack(&bytes)?).filter(|p| p.len() < bytes.len()),
+        Storage::FixedRate => None,
+    };
+    if let Some(p) = &packed {
+        quality.bppc = material.bppc_of(p.len());
+    }
+    drop(material);
+    Ok(Encoded { bytes, packed, config, quality })
 }
 
 /// What the rate solver needs to know of `set` (its file carries a SOURCE_MAPS section).

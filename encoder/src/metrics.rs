@@ -69,7 +69,11 @@ pub struct ChainQuality {
     pub mse: Vec<Vec<f64>>,
     /// Mean SSIM over channels at mip 0.
     pub ssim: f64,
+    /// Bits per pixel per channel of the file as stored (packed or not), over the channels that
+    /// carry information.
     pub bppc: f64,
+    /// The same of the fixed-rate form decoders hold in memory.
+    pub memory_bppc: f64,
 }
 
 impl ChainQuality {
@@ -127,7 +131,7 @@ pub fn chain_quality_with(
                 / c as f64;
         }
     }
-    ChainQuality { psnr: psnr(total / count), mse, ssim, bppc: m.bppc() }
+    ChainQuality { psnr: psnr(total / count), mse, ssim, bppc: m.bppc(), memory_bppc: m.bppc() }
 }
 
 /// SSIM (Wang et al. 2004) of one channel: 11×11 Gaussian window (σ = 1.5), K1 = 0.01,

@@ -23,12 +23,13 @@ pub struct nmat_info {
     pub channel_count: u32,
     /// 0 wrap, 1 clamp.
     pub address_mode: u32,
-    /// Minor version of the file's format. Files of format 1.x (the legacy layout) and 2.x both
-    /// open; this struct does not report which major.
+    /// Minor version of the file's format (2: entropy-coded latents). Files of format 1.x (the
+    /// legacy layout) and 2.x both open; this struct does not report which major.
     pub format_minor: u32,
-    /// Bytes of the file.
+    /// Bytes of the file as opened (a packed file is held unpacked: `nmat_material_memory`).
     pub file_size: u64,
-    /// Bits per pixel per channel: file bits / (width · height · channels).
+    /// Bits per pixel per channel of the file as opened: file bits / (width · height · channels
+    /// that carry information; a constant channel is not counted).
     pub bppc: f64,
 }
 
@@ -95,6 +96,8 @@ self_cell::self_cell!(
 pub(crate) struct Handle {
     parsed: Parsed,
     pub(crate) decoder: Decoder,
+    /// Length and format minor of the file as given (a packed file's, before unpacking).
+    opened: (usize, u16),
 }
 
 impl Handle {
@@ -124,7 +127,18 @@ fn open(data: *const u8, len: usize, out: *mut *mut nmat_material, copy: bool) -
         let out = arg_mut(out)?;
         *out = std::ptr::null_mut();
         let bytes = slice(data, len)?;
-        let bytes = if copy {
+        let minor = bytes.get(6..8).map_or(0, |m| u16::from_le_bytes([m[0], m[1]]));
+        let opened = (len, minor);
+        // A file whose header or table is broken is not packed: parsing names what is wrong.
+        let bytes = if let Some(n) = nmat_core::unpacked_len(bytes).ok().flatten() {
+            // Entropy-coded latents: decoded once into memory the handle owns, whatever `copy`.
+            let mut v = Vec::new();
+            v.try_reserve_exact(n).map_err(|_| NMAT_OUT_OF_MEMORY)?;
+            v.resize(n, 0);
+            nmat_core::unpack_into(bytes, nmat_core::ParseOptions::default(), &mut v)
+                .map_err(fail)?;
+            Bytes::Copied(v.into_boxed_slice())
+        } else if copy {
             let mut v = Vec::new();
             v.try_reserve_exact(len).map_err(|_| NMAT_OUT_OF_MEMORY)?;
             v.extend_from_slice(bytes);
@@ -134,13 +148,14 @@ fn open(data: *const u8, len: usize, out: *mut *mut nmat_material, copy: bool) -
         };
         let parsed = Parsed::try_new(bytes, |b| Container::parse(b.as_slice())).map_err(fail)?;
         let decoder = Decoder::new(parsed.borrow_dependent());
-        *out = to_arc_ptr(Handle { parsed, decoder });
+        *out = to_arc_ptr(Handle { parsed, decoder, opened });
         Ok(())
     })
 }
 
 /// Parses and validates `len` bytes at `data` and returns a handle in `*out` (NULL on error).
-/// The bytes are **copied**: the caller may free them as soon as this returns.
+/// The bytes are **copied**: the caller may free them as soon as this returns. A packed file
+/// (format 2.2, entropy-coded latents) is unpacked into the handle's memory.
 #[unsafe(no_mangle)]
 pub extern "C" fn nmat_material_open(
     data: *const u8,
@@ -152,7 +167,9 @@ pub extern "C" fn nmat_material_open(
 
 /// Like `nmat_material_open` without the copy: the `len` bytes at `data` must stay valid and
 /// unchanged until `nmat_material_free` and, if tile caches were made with the handle, until the
-/// last of them is freed (e.g. a memory-mapped file). Saves one copy of the file.
+/// last of them is freed (e.g. a memory-mapped file). Saves one copy of the file — of a
+/// fixed-rate file: a packed one (format 2.2) is unpacked into memory the handle owns, and the
+/// caller's bytes are not used after this returns.
 #[unsafe(no_mangle)]
 pub extern "C" fn nmat_material_open_borrowed(
     data: *const u8,
@@ -174,17 +191,30 @@ pub extern "C" fn nmat_material_free(m: *mut nmat_material) {
 #[unsafe(no_mangle)]
 pub extern "C" fn nmat_material_info(m: *const nmat_material, out: *mut nmat_info) -> nmat_status {
     guard(|| {
-        let (m, out) = (material(m)?, arg_mut(out)?);
+        let (h, out) = (handle(m)?, arg_mut(out)?);
+        let m = h.material();
+        let (file_size, format_minor) = h.opened;
         *out = nmat_info {
             width: m.width(),
             height: m.height(),
             mip_count: m.mip_count(),
             channel_count: m.channel_count() as u32,
             address_mode: m.address_mode() as u32,
-            format_minor: u32::from(m.version_minor()),
-            file_size: m.file_len() as u64,
-            bppc: m.bppc(),
+            format_minor: u32::from(format_minor),
+            file_size: file_size as u64,
+            bppc: m.bppc_of(file_size),
         };
+        Ok(())
+    })
+}
+
+/// Bytes the material holds in memory: its fixed-rate form, which a packed file (format 2.2)
+/// is unpacked to when opened; for other files, `file_size` of `nmat_material_info`.
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_material_memory(m: *const nmat_material, out: *mut u64) -> nmat_status {
+    guard(|| {
+        let (m, out) = (material(m)?, arg_mut(out)?);
+        *out = m.file_len() as u64;
         Ok(())
     })
 }

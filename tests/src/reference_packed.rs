@@ -522,6 +522,9 @@ pub fn unpack(bytes: &[u8]) -> Result<Vec<u8>, String> {
     only_section(&sections, KIND_MLP)?;
     let levels = only_section(&sections, KIND_LEVELS)?;
     let packed = only_section(&sections, KIND_PACKED_LATENTS)?;
+    if sections.iter().any(|s| s.kind == KIND_PACKED_LATENTS && s.flags & REQUIRED == 0) {
+        return Err("PACKED_LATENTS without REQUIRED: Malformed SectionFlags".into());
+    }
 
     if packed.len() < PACKED_HEADER_LEN {
         return Err(format!("PACKED_LATENTS of {} bytes", packed.len()));
@@ -567,7 +570,7 @@ pub fn unpack(bytes: &[u8]) -> Result<Vec<u8>, String> {
 }
 
 /// A fixed-rate neural file (kinds 1–4 present) → a packed file: the same sections in the same
-/// order with the same flags, LATENTS replaced by PACKED_LATENTS (`latents_length` = the LATENTS
+/// order with the same flags, LATENTS replaced by PACKED_LATENTS (flag `REQUIRED`) (`latents_length` = the LATENTS
 /// length, coder 1, `unpacked_minor` = the input's `version_minor`), header `version_minor` 2,
 /// laid out like an unpacked file (see [`write_container`]).
 pub fn pack(bytes: &[u8]) -> Result<Vec<u8>, String> {
@@ -607,7 +610,8 @@ pub fn pack_counting_carries(bytes: &[u8]) -> Result<(Vec<u8>, u64), String> {
         .iter()
         .map(|s| {
             if s.kind == KIND_LATENTS {
-                (KIND_PACKED_LATENTS, s.flags, packed_section.as_slice())
+                // §12.1: PACKED_LATENTS is always REQUIRED.
+                (KIND_PACKED_LATENTS, REQUIRED, packed_section.as_slice())
             } else {
                 (s.kind, s.flags, s.data)
             }

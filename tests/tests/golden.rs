@@ -147,3 +147,24 @@ fn c_test_expectations_match_the_rust_decoder() {
     let committed = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     assert!(committed == decoded, "{} differs from the decoder's output", path.display());
 }
+
+/// Fixtures whose packed form (FORMAT.md §12) is committed beside them: 8-bit latents, and the
+/// 8-4-2-1 bit depths of NBC. The C tests open the first.
+const PACKED_FIXTURES: [&str; 2] = ["ntc_16ch_8bit_32", "nbc_8421_64"];
+
+#[test]
+fn packed_fixtures_are_reproducible_and_unpack_to_their_twins() {
+    for name in PACKED_FIXTURES {
+        let fixed = std::fs::read(fixtures_dir().join(format!("{name}.nmat"))).unwrap();
+        let packed = nmat_core::pack(&fixed).unwrap();
+        let path = fixtures_dir().join(format!("{name}.packed.nmat"));
+        if bless() {
+            std::fs::write(&path, &packed).unwrap();
+        }
+        let committed = std::fs::read(&path)
+            .unwrap_or_else(|e| panic!("{}: {e} (run with NMAT_BLESS=1)", path.display()));
+        assert!(committed == packed, "{name}: packing no longer gives the committed file");
+        let unpacked = nmat_core::unpack(&committed, Default::default()).unwrap();
+        assert!(unpacked.as_ref() == fixed.as_slice(), "{name}: does not unpack to its twin");
+    }
+}

@@ -179,6 +179,11 @@ fn hostile_packed_files_end_in_typed_errors() {
         patch(&|b| b[offset..offset + 4].copy_from_slice(&6u32.to_le_bytes())),
         Err(Error::Malformed { field: Field::PackedLength, value: 6, .. })
     ));
+    // Without REQUIRED a reader before 2.2 would skip the latents: refused.
+    assert_eq!(
+        patch(&|b| b[32 + 16 * 3 + 4] = 0),
+        Err(Error::Malformed { field: Field::SectionFlags, index: 3, value: 0 })
+    );
     assert!(matches!(
         patch(&|b| b[offset + 4] = 2),
         Err(Error::Unsupported { field: Field::PackedCoder, value: 2, .. })

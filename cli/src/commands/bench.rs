@@ -237,15 +237,27 @@ fn bench_one(input: &Path, opts: &Options) -> Result<()> {
     };
     let setup = Setup { m: &m, side, float_units, source };
     println!(
-        "{}: {w}×{h}, {c} channels, {} bytes ({:.3} BPPC), {} MACs/texel, kernel {}{}",
+        "{}: {w}×{h}, {c} channels, {} bytes ({:.3} BPPC{}), {} MACs/texel, kernel {}{}",
         input.display(),
-        bytes.len(),
-        m.bppc(),
+        bytes.stored.len,
+        m.bppc_of(bytes.stored.len),
+        if bytes.stored.packed { format!("; {:.3} in memory", m.bppc()) } else { String::new() },
         macs(&m, c),
         best.kernel().name(),
         chain_psnr.map_or(String::new(), |p| format!(", whole-chain PSNR {p:.2} dB (integer)")),
     );
     println!("  region {}×{} of mip 0, median of {} runs", side.0, side.1, opts.runs);
+    if bytes.stored.packed {
+        let raw = nmat_cli::input::read_raw(input)?;
+        let options = nmat_core::ParseOptions::default();
+        let seconds = nmat_cli::stats::median_seconds(opts.runs, || {
+            nmat_core::unpack(black_box(&raw), options).map(|u| drop(black_box(u)))
+        })?;
+        println!(
+            "  unpacking at load (entropy-coded latents, checksum included): {:.1} ms, once per open",
+            seconds * 1e3
+        );
+    }
     let mut rows = Vec::new();
     let mut notes = Vec::new();
     region_rows(&setup, opts.runs, &mut rows, &mut notes);

@@ -28,15 +28,16 @@ pub fn run(args: DemoArgs) -> Result<()> {
         profile,
         train: train_options(train, DEMO_STEPS)?,
         address_mode: AddressMode::Wrap,
+        storage: Default::default(),
     };
     let encoded = encode_with_progress(&set, &options)?;
     let path = out.join("demo.nmat");
-    output::write_atomic(&path, &encoded.bytes)?;
+    output::write_atomic(&path, encoded.file())?;
     println!(
         "encoded in {:.1} s → {} ({} bytes)",
         start.elapsed().as_secs_f64(),
         path.display(),
-        encoded.bytes.len()
+        encoded.file().len()
     );
     let m = parse(&encoded.bytes, &path)?;
     let plan = output::DecodePlan::new(&m, &[0], false)?;

@@ -7,7 +7,7 @@ use nmat_core::AddressMode;
 use nmat_encode::texset::TextureSet;
 use nmat_encode::texset::{self, LoadOptions};
 use nmat_encode::{
-    EncodeError, EncodeOption, EncodeOptions, Encoded, PROFILES, Profile, TrainOptions,
+    EncodeError, EncodeOption, EncodeOptions, Encoded, PROFILES, Profile, Storage, TrainOptions,
 };
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -49,9 +49,10 @@ pub fn run(args: EncodeArgs) -> Result<()> {
         return Err("--subsampling belongs to the JPEG codec; pass --codec jpeg".into());
     }
     let train = train_options(&args.train, nmat_encode::DEFAULT_STEPS)?;
+    let storage = if args.fixed_rate { Storage::FixedRate } else { Storage::Packed };
     let start = Instant::now();
     let encoded = if let Some(target) = args.target_psnr {
-        search_target(&set, target, &train, address_mode)?
+        search_target(&set, target, &train, address_mode, storage)?
     } else {
         let profile = match (&args.profile, args.bppc) {
             (Some(name), _) => profile_named(name)?,
@@ -69,12 +70,20 @@ pub fn run(args: EncodeArgs) -> Result<()> {
             print!("{}", plan(&set, profile));
             return Ok(());
         }
-        encode_with_progress(&set, &EncodeOptions { profile, train, address_mode })?
+        encode_with_progress(&set, &EncodeOptions { profile, train, address_mode, storage })?
     };
     if let Some(note) = rate_note(&encoded) {
         eprintln!("{note}");
     }
-    write_encoded(&args.output, &encoded.bytes, start)?;
+    write_encoded(&args.output, encoded.file(), start)?;
+    if let Some(packed) = &encoded.packed {
+        println!(
+            "latents entropy-coded: {} bytes on disk, {} in memory (fixed-rate; {:.3} of that)",
+            packed.len(),
+            encoded.bytes.len(),
+            packed.len() as f64 / encoded.bytes.len() as f64
+        );
+    }
     print!(
         "{}",
         output::quality_table(
@@ -176,12 +185,12 @@ fn plan(set: &TextureSet, profile: Profile) -> String {
     s
 }
 
-/// A note when the file lands more than 5 % away from its profile's nominal rate: the material is
-/// too small for the rate (the smallest network and grids exceed it) or the layout's largest
-/// grids fall short of it.
+/// A note when the fixed-rate file lands more than 5 % away from its profile's nominal rate (the
+/// rate the layout is solved for): the material is too small for the rate (the smallest network
+/// and grids exceed it) or the layout's largest grids fall short of it.
 fn rate_note(e: &Encoded) -> Option<String> {
     let nominal = Profile::by_name(e.config.profile)?.bppc();
-    let off = e.quality.bppc / nominal - 1.0;
+    let off = e.quality.memory_bppc / nominal - 1.0;
     let why = if off > 0.0 {
         "the material is too small for that rate: its smallest network and grids are this file"
     } else {
@@ -189,8 +198,8 @@ fn rate_note(e: &Encoded) -> Option<String> {
     };
     (off.abs() > 0.05).then(|| {
         format!(
-            "note: {:.3} BPPC is {:+.0} % from {}'s nominal {nominal}: {why}",
-            e.quality.bppc,
+            "note: {:.3} BPPC (fixed-rate) is {:+.0} % from {}'s nominal {nominal}: {why}",
+            e.quality.memory_bppc,
             100.0 * off,
             e.config.profile
         )
@@ -203,6 +212,7 @@ fn search_target(
     target: f64,
     train: &TrainOptions,
     address_mode: AddressMode,
+    storage: Storage,
 ) -> Result<Encoded> {
     if !target.is_finite() || target <= 0.0 {
         return Err(Box::new(EncodeError::BadOption {
@@ -217,7 +227,7 @@ fn search_target(
     for profile in order {
         let e = encode_with_progress(
             set,
-            &EncodeOptions { profile, train: train.clone(), address_mode },
+            &EncodeOptions { profile, train: train.clone(), address_mode, storage },
         )?;
         eprintln!("  {:9} {:.3} BPPC  {:.2} dB", profile.name(), e.quality.bppc, e.quality.psnr);
         if e.quality.psnr >= target {

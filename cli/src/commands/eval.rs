@@ -13,7 +13,8 @@ pub fn run(args: EvalArgs) -> Result<()> {
     let bytes = read_nmat(input)?;
     let m = parse(&bytes, input)?;
     let set = load_reference(&m, reference, args.force, args.memory.bytes())?;
-    let q = chain_quality_shown(&m, &set);
+    let mut q = chain_quality_shown(&m, &set);
+    q.bppc = m.bppc_of(bytes.stored.len);
     warn_if_decoded(&q, reference);
     print!("{}", output::quality_table(&set, &q, None));
     println!("evaluated in {:.1} s", start.elapsed().as_secs_f64());

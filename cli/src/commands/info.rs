@@ -8,6 +8,6 @@ use nmat_cli::output;
 pub fn run(args: InfoArgs) -> Result<()> {
     let bytes = read_nmat(&args.input)?;
     let m = parse(&bytes, &args.input)?;
-    print!("{}", output::describe(&args.input, &m));
+    print!("{}", output::describe(&args.input, &m, bytes.stored));
     Ok(())
 }

@@ -10,5 +10,6 @@ pub mod encode;
 pub mod eval;
 pub mod index;
 pub mod info;
+pub mod pack;
 pub mod transcode;
 pub mod walk;

@@ -61,7 +61,7 @@ pub fn run(args: WalkArgs) -> Result<()> {
 
 /// Every walk `opts` asks for, reported as a table (and the CSV and PNG).
 fn walk_all(opts: &Options) -> Result<()> {
-    let files: Vec<Vec<u8>> = opts
+    let files: Vec<nmat_cli::input::Loaded> = opts
         .inputs
         .iter()
         .map(|p| nmat_cli::input::read_nmat(p).map_err(Into::into))

@@ -12,7 +12,7 @@ use crate::error::{Error, Field, malformed, unsupported};
 use crate::format::checksum::file_checksum;
 use crate::format::container::{
     GRID_RECORD_LEN, HEADER_LEN, Header, LEVELS_HEADER_LEN, ParseOptions, SECTION_ENTRY_LEN,
-    SectionEntry, SectionKind, read_header, section_entries,
+    SECTION_REQUIRED, SectionEntry, SectionKind, read_header, section_entries,
 };
 use crate::limits::MAX_GRIDS;
 
@@ -79,12 +79,15 @@ fn unpacked_layout(entries: &[SectionEntry<'_>], latents_length: usize) -> Optio
     Some(end)
 }
 
-fn packed_entry<'a>(entries: &[SectionEntry<'a>]) -> Option<(usize, &'a [u8])> {
-    entries
-        .iter()
-        .enumerate()
-        .find(|(_, e)| e.kind == SectionKind::PACKED_LATENTS)
-        .map(|(i, e)| (i, e.data))
+/// The PACKED_LATENTS entry and its index, if there is one. It must be `REQUIRED` (§12.1): a
+/// reader before 2.2 would skip it otherwise, and then miss the latents.
+fn packed_entry<'a>(entries: &[SectionEntry<'a>]) -> Result<Option<(usize, &'a [u8])>, Error> {
+    match entries.iter().enumerate().find(|(_, e)| e.kind == SectionKind::PACKED_LATENTS) {
+        Some((i, e)) if e.flags & SECTION_REQUIRED == 0 => {
+            Err(malformed(Field::SectionFlags, i, e.flags))
+        }
+        found => Ok(found.map(|(i, e)| (i, e.data))),
+    }
 }
 
 /// The length of `bytes` once unpacked, or `None` for a file that is not packed (it parses as
@@ -92,7 +95,7 @@ fn packed_entry<'a>(entries: &[SectionEntry<'a>]) -> Option<(usize, &'a [u8])> {
 pub fn unpacked_len(bytes: &[u8]) -> Result<Option<usize>, Error> {
     let header = read_header(bytes)?;
     let entries = section_entries(bytes, &header)?;
-    let Some((_, section)) = packed_entry(&entries) else { return Ok(None) };
+    let Some((_, section)) = packed_entry(&entries)? else { return Ok(None) };
     let (packed, _) = packed_header(section)?;
     unpacked_layout(&entries, packed.latents_length).map(Some).ok_or(malformed(
         Field::PackedLength,
@@ -114,7 +117,7 @@ pub fn unpack_into(bytes: &[u8], options: ParseOptions, out: &mut [u8]) -> Resul
         }
     }
     let entries = section_entries(bytes, &header)?;
-    let Some((packed_index, section)) = packed_entry(&entries) else {
+    let Some((packed_index, section)) = packed_entry(&entries)? else {
         return Err(malformed(Field::MissingSection, 6, 6));
     };
     let (packed, stream) = packed_header(section)?;
@@ -520,7 +523,10 @@ mod write {
             let t = HEADER_LEN + SECTION_ENTRY_LEN * i;
             let offset = out.len();
             put_u32(&mut out, t, kind.0);
-            put_u32(&mut out, t + 4, e.flags);
+            // PACKED_LATENTS is always REQUIRED; unpacking gives LATENTS that flag, so a file
+            // whose LATENTS lacks it does not round-trip and is refused below.
+            let flags = if i == latents_index { SECTION_REQUIRED } else { e.flags };
+            put_u32(&mut out, t + 4, flags);
             put_u32(&mut out, t + 8, offset as u32);
             put_u32(&mut out, t + 12, data.len() as u32);
             out.extend_from_slice(data);
