@@ -1,7 +1,7 @@
 # Sourced by .ci/fuzz (the bounded CI run) and .ci/fuzz-long (the long measured run): the target
 # list, the tools and each target's seed folders, in one place.
 
-fuzz_targets=(parse decode roundtrip ffi cli jpeg)
+fuzz_targets=(parse decode roundtrip ffi cli jpeg unpack)
 
 # One thread per fuzzer: `cli` transcodes small materials through rayon, whose worker threads
 # would take the other fuzzers' cores (the jobs are already one per core) and add a hand-off per

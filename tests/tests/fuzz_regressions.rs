@@ -1,6 +1,6 @@
 //! Every input under `fuzz/regressions/` (inputs that once crashed a fuzz target, or that probe a
-//! corner worth keeping) runs in the normal suite: parse with and without the checksum, then
-//! decode a few texels through every entry point. None may panic.
+//! corner worth keeping) runs in the normal suite: unpack (a packed file), parse with and without
+//! the checksum, then decode a few texels through every entry point. None may panic.
 
 use nmat_core::{ChannelMask, Container, Filter, ParseOptions, Precision, SampleRequest};
 use std::path::PathBuf;
@@ -21,6 +21,9 @@ fn fuzz_regression_inputs_never_panic() {
             }
             let data = std::fs::read(&path).unwrap();
             count += 1;
+            // A packed input is unpacked first, as every reader does.
+            let unpacked = nmat_core::unpack(&data, ParseOptions { verify_checksum: false });
+            let data = unpacked.map_or(data.clone(), |u| u.into_owned());
             let _ = Container::parse(&data);
             let Ok(m) = Container::parse_with(&data, ParseOptions { verify_checksum: false })
             else {
