@@ -259,9 +259,9 @@ fn code_grid(
     for j in 0..c {
         probs.fill(PROB_ONE / 2);
         for y in 0..h {
+            let mut left = 4; // no neighbour at x = 0
             for x in 0..w {
                 let index = (y * w + x) * c + j;
-                let left = if x > 0 { class(get_code(data, index - c, b), b) } else { 4 };
                 let up = if y > 0 { class(get_code(data, index - w * c, b), b) } else { 4 };
                 let base = (left * CLASSES + up) * 256;
                 let known = get_code(data, index, b);
@@ -270,7 +270,9 @@ fn code_grid(
                     let Some(p) = probs.get_mut(base + node as usize) else { break };
                     node = 2 * node + coder(p, (known >> k) & 1)?;
                 }
-                set_code(data, index, b, node - top);
+                let code = node - top;
+                set_code(data, index, b, code);
+                left = class(code, b);
             }
         }
     }
@@ -290,15 +292,18 @@ fn get_code(data: &[u8], index: usize, bits: u32) -> u32 {
     ((word >> (bit % 32)) & ((1 << bits) - 1)) as u32
 }
 
-/// Writes code `index` of a bit-packed grid, clearing what was there.
+/// Writes code `index` of a bit-packed grid, clearing what was there (bits past the end of
+/// `data` are dropped).
 fn set_code(data: &mut [u8], index: usize, bits: u32, code: u32) {
     let bit = index * bits as usize;
-    for k in 0..bits as usize {
-        let at = bit + k;
-        if let Some(byte) = data.get_mut(at / 8) {
-            let mask = 1u8 << (at % 8);
-            *byte = if (code >> k) & 1 == 1 { *byte | mask } else { *byte & !mask };
-        }
+    let at = bit / 32 * 4;
+    let shift = bit % 32;
+    let mask = ((1u64 << bits) - 1) << shift;
+    let old = u64::from(u32_at(data, at)) | (u64::from(u32_at(data, at + 4)) << 32);
+    let new = (old & !mask) | (u64::from(code) << shift);
+    copy(data, at, &(new as u32).to_le_bytes());
+    if shift + bits as usize > 32 {
+        copy(data, at + 4, &((new >> 32) as u32).to_le_bytes());
     }
 }
 
