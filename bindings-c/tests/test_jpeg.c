@@ -20,7 +20,8 @@ static void test_texels(const nmat_material *m, const uint8_t *expected) {
     int x, y, c, same = 1, subset = 1, wraps = 1;
     CHECK(nmat_material_info(m, &info) == NMAT_OK);
     CHECK(info.width == W && info.height == H && info.mip_count == 1 && info.channel_count == C);
-    CHECK(info.format_minor == 1 && info.bppc > 0.0);
+    /* 2.1 as written by `nmat index --fixed-rate`, 2.2 packed. */
+    CHECK((info.format_minor == 1 || info.format_minor == 2) && info.bppc > 0.0);
     for (y = 0; y < H; y++) {
         for (x = 0; x < W; x++) {
             const uint8_t *e = expected + (size_t)(y * W + x) * C;
@@ -88,8 +89,8 @@ int main(int argc, char **argv) {
     size_t len = 0, expected_len = 0;
     uint8_t *data, *expected;
     nmat_material *m = NULL;
-    if (argc != 3) {
-        fprintf(stderr, "usage: %s FIXTURE.nmat EXPECTED.u8\n", argv[0]);
+    if (argc != 3 && argc != 4) {
+        fprintf(stderr, "usage: %s FIXTURE.nmat EXPECTED.u8 [PACKED.nmat]\n", argv[0]);
         return 2;
     }
     data = read_file(argv[1], &len);
@@ -105,6 +106,23 @@ int main(int argc, char **argv) {
     }
     test_damaged(data, len);
     nmat_material_free(m);
+    if (argc == 4) {
+        /* The same material packed (format 2.2, streams without their index): the index is
+         * rebuilt when it is opened, and every texel decodes the same. */
+        size_t packed_len = 0;
+        uint8_t *packed = read_file(argv[3], &packed_len);
+        nmat_material *p = NULL;
+        nmat_info info;
+        CHECK(packed != NULL && packed_len < len);
+        if (packed) CHECK(nmat_material_open_borrowed(packed, packed_len, &p) == NMAT_OK);
+        free(packed); /* the handle owns the unpacked file */
+        if (p) {
+            test_texels(p, expected);
+            test_regions(p, expected);
+            CHECK(nmat_material_info(p, &info) == NMAT_OK && info.format_minor == 2);
+        }
+        nmat_material_free(p);
+    }
     free(data);
     free(expected);
     if (failures) {

@@ -32,12 +32,14 @@ pub enum Command {
     Index(IndexArgs),
     /// Print what a .nmat file holds.
     Info(InfoArgs),
-    /// Entropy-code a .nmat file's latents (format 2.2, docs/FORMAT.md §12): the same material
-    /// in a smaller file, unpacked once when it is opened. Lossless; `nmat unpack` gives back the
+    /// Pack a .nmat file (format 2.2, docs/FORMAT.md §12): a neural material's latents
+    /// entropy-coded, a JPEG material's streams without their MCU index: the same material in a
+    /// smaller file, unpacked once when it is opened. Lossless; `nmat unpack` gives back the
     /// very same bytes.
     Pack(PackArgs),
-    /// Write a packed .nmat file's latents fixed-rate again: a larger file that opens without
-    /// unpacking (zero-copy, memory-mapped) and that readers of format 2.0 and 2.1 read.
+    /// Write a packed .nmat file fixed-rate again (latents as codes, JPEG streams with their
+    /// index): a larger file that opens without unpacking (zero-copy, memory-mapped) and that
+    /// readers of format 2.0 and 2.1 read.
     Unpack(PackArgs),
     /// Compare a .nmat file with the source maps: PSNR per map and mip, SSIM, BPPC.
     Eval(EvalArgs),
@@ -65,6 +67,10 @@ pub struct IndexArgs {
     /// The .nmat file to write.
     #[arg(short, long)]
     pub output: PathBuf,
+    /// Keep the MCU index in the file (fixed-rate, format 2.1: opens without a scan, zero-copy);
+    /// by default it is rebuilt when the file is opened (format 2.2, a smaller file).
+    #[arg(long)]
+    pub fixed_rate: bool,
     #[command(flatten)]
     pub memory: MemoryArg,
 }
@@ -313,9 +319,11 @@ pub struct EncodeArgs {
     /// Texture addressing at the edges.
     #[arg(long, value_enum, default_value = "wrap")]
     pub address: Address,
-    /// Write the latents fixed-rate, as decoders hold them in memory: a larger file that opens
-    /// without unpacking (zero-copy, e.g. memory-mapped) and that format 2.0 readers read. By
-    /// default they are entropy-coded (format 2.2) where that is smaller (neural codec).
+    /// Write the file fixed-rate, as decoders hold it in memory (latents as codes, JPEG streams
+    /// with their index): a larger file that opens without unpacking (zero-copy, e.g.
+    /// memory-mapped) and that readers of format 2.0 (neural) and 2.1 (JPEG) read. By default
+    /// latents are entropy-coded and the index left to be rebuilt on opening (format 2.2), where
+    /// that is smaller.
     #[arg(long)]
     pub fixed_rate: bool,
     /// Solve the layout and print the file's byte budget without training; writes nothing.

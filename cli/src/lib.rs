@@ -29,7 +29,7 @@ const IMAGE_BUDGET: u64 = 16 << 10;
 
 /// The command's input paths that need no training, on any bytes (the body of the fuzz target
 /// `cli`, and of the test that replays `fuzz/regressions/cli/`): the header checks of `nmat
-/// info/decode/eval/bench`, the SOURCE_MAPS section (and the warning for a damaged one), the
+/// info/decode/eval/bench`, unpacking a packed file, the SOURCE_MAPS section (and the warning for a damaged one), the
 /// channel names made safe, `nmat info`'s description and `nmat
 /// decode`'s plan (and, for a material of at most [`SMALL_TEXELS`] texels, its maps written to a
 /// scratch folder), `nmat transcode`'s textures and file names (and, for such a small material,
@@ -40,8 +40,21 @@ pub fn exercise_untrusted(data: &[u8]) {
     use nmat_core::{Container, ParseOptions};
     let _ = input::check_head(data.get(..input::HEAD).unwrap_or(data), data.len() as u64);
     let _ = nmat_encode::source_maps::decode(data);
-    if let Ok(m) = Container::parse_with(data, ParseOptions { verify_checksum: false }) {
-        let _ = output::describe(Path::new("fuzz.nmat"), &m, input::Stored::fixed(&m));
+    let options = ParseOptions { verify_checksum: false };
+    // A packed file is unpacked first, as `input::read_nmat` does (up to 1 MiB here).
+    let unpacked = match nmat_core::unpacked_len(data) {
+        Ok(Some(n)) if n <= 1 << 20 => nmat_core::unpack(data, options).ok(),
+        _ => None,
+    };
+    let stored = input::Stored {
+        len: data.len(),
+        minor: data.get(6).copied().unwrap_or(0).into(),
+        packed: unpacked.is_some(),
+    };
+    let data = unpacked.as_deref().unwrap_or(data);
+    if let Ok(m) = Container::parse_with(data, options) {
+        let stored = if stored.packed { stored } else { input::Stored::fixed(&m) };
+        let _ = output::describe(Path::new("fuzz.nmat"), &m, stored);
         let _ = output::damaged_sections(Path::new("fuzz.nmat"), &m);
         for c in m.channels() {
             let _ =

@@ -648,7 +648,12 @@ pub fn describe(path: &Path, m: &Material<'_>, stored: Stored) -> String {
     if stored.packed {
         let _ = write!(
             s,
-            " (latents entropy-coded: {:.3} of the {} bytes it takes in memory, fixed-rate)",
+            " ({}: {:.3} of the {} bytes it takes in memory, fixed-rate)",
+            if m.jpeg().is_some() {
+                "streams without their index, rebuilt when opened"
+            } else {
+                "latents entropy-coded"
+            },
             stored.len as f64 / m.file_len() as f64,
             m.file_len()
         );
@@ -698,7 +703,7 @@ pub fn describe(path: &Path, m: &Material<'_>, stored: Stored) -> String {
     }
     let n = match m.body() {
         Body::Jpeg(jpeg) => {
-            s.push_str(&jpeg_lines(m, jpeg));
+            s.push_str(&jpeg_lines(m, jpeg, stored));
             return s;
         }
         Body::Neural(n) => n,
@@ -741,9 +746,10 @@ pub fn describe(path: &Path, m: &Material<'_>, stored: Stored) -> String {
 }
 
 /// The maps of a JPEG material and what its index costs.
-fn jpeg_lines(m: &Material<'_>, jpeg: &nmat_core::Jpeg<'_>) -> String {
+fn jpeg_lines(m: &Material<'_>, jpeg: &nmat_core::Jpeg<'_>, stored: Stored) -> String {
     let mut s = String::from("\nindexed JPEG maps (one stream per mip):\n");
-    for map in jpeg.maps() {
+    let index_kept = if stored.packed { "rebuilt when opened" } else { "in the file" };
+    for (i, map) in jpeg.maps().iter().enumerate() {
         let layout = if map.channel_count == 3 {
             format!("YCbCr, {}×{} luma per chroma sample", map.luma_h, map.luma_v)
         } else {
@@ -752,6 +758,27 @@ fn jpeg_lines(m: &Material<'_>, jpeg: &nmat_core::Jpeg<'_>) -> String {
         let (w, h) = map.mcu_size();
         let last = map.first_channel + map.channel_count - 1;
         let _ = writeln!(s, "  channels {}..{}: {layout}, MCU {w}×{h}", map.first_channel, last);
+        let _ = writeln!(
+            s,
+            "    {:>4} {:>11} {:>7} {:>12} {:>16} {:>14}",
+            "mip", "size", "MCUs", "data bytes", "index+DC bytes", "bits/texel"
+        );
+        for mip in 0..m.mip_count() {
+            let (extra, coded) = jpeg.stream_overhead_bits(i, mip);
+            let (mw, mh) = m.mip_size(mip);
+            let (mx, my) = jpeg.mcu_grid(i, mip);
+            let texels = f64::from(mw) * f64::from(mh);
+            let _ = writeln!(
+                s,
+                "    {mip:>4} {:>11} {:>7} {:>12} {:>16} {:>6.3} + {:.3}",
+                format!("{mw}×{mh}"),
+                mx * my,
+                coded / 8,
+                extra.div_ceil(8),
+                coded as f64 / texels,
+                extra as f64 / texels
+            );
+        }
     }
     let (extra, coded) = jpeg.overhead_bits();
     let texels: f64 = (0..m.mip_count())
@@ -762,7 +789,8 @@ fn jpeg_lines(m: &Material<'_>, jpeg: &nmat_core::Jpeg<'_>) -> String {
         .sum();
     let _ = writeln!(
         s,
-        "  entropy-coded data {} bytes; index and DC values {} bytes ({:.3} bits per texel of the chain)",
+        "  entropy-coded data {} bytes; index and DC values {} bytes, {index_kept} ({:.3} bits per \
+         texel of the chain)",
         coded / 8,
         extra.div_ceil(8),
         extra as f64 / texels
@@ -770,7 +798,7 @@ fn jpeg_lines(m: &Material<'_>, jpeg: &nmat_core::Jpeg<'_>) -> String {
     let section = m.section_len(SectionKind::JPEG).unwrap_or(0);
     let _ = writeln!(
         s,
-        "  JPEG section {section} bytes ({:.4} BPPC) of the file's {}",
+        "  JPEG section {section} bytes in memory ({:.4} BPPC) of the fixed-rate file's {}",
         section as f64 * 8.0 / texel_channels(m),
         m.file_len()
     );

@@ -984,12 +984,22 @@ fn index_turns_a_baseline_jpeg_into_a_material_every_command_reads() {
         "{}",
         text(&o)
     );
+    // Packed by default (the index rebuilt when the file is opened); --fixed-rate keeps it, and
+    // unpacking the packed file gives exactly that file.
     let o = nmat(&["info", out.to_str().unwrap()]);
-    assert!(
-        text(&o).contains("format 2.1") && text(&o).contains("indexed JPEG maps"),
-        "{}",
-        text(&o)
-    );
+    let info = text(&o);
+    assert!(info.contains("format 2.2") && info.contains("indexed JPEG maps"), "{info}");
+    assert!(info.contains("rebuilt when opened"), "{info}");
+    let fixed = dir.join("fixed.nmat");
+    let o =
+        nmat(&["index", input.to_str().unwrap(), "-o", fixed.to_str().unwrap(), "--fixed-rate"]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&nmat(&["info", fixed.to_str().unwrap()])).contains("format 2.1"));
+    let unpacked = dir.join("unpacked.nmat");
+    let o = nmat(&["unpack", out.to_str().unwrap(), "-o", unpacked.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(std::fs::read(&unpacked).unwrap() == std::fs::read(&fixed).unwrap());
+    assert!(std::fs::metadata(&out).unwrap().len() < std::fs::metadata(&fixed).unwrap().len());
     let decoded = dir.join("decoded");
     let o = nmat(&["decode", out.to_str().unwrap(), "-o", decoded.to_str().unwrap()]);
     assert!(o.status.success(), "{}", text(&o));

@@ -92,12 +92,13 @@ pub enum Field {
     JpegTableRef,
     /// An MCU's bit offset goes backwards or past the stream's entropy data.
     JpegIndex,
-    /// The file's latents are entropy-coded (PACKED_LATENTS, FORMAT.md §12): `Container::parse`
-    /// reads fixed-rate files only; `unpack` first (value = the unpacked file's length).
-    PackedLatents,
-    /// PACKED_LATENTS: the length of the LATENTS section it stands for.
+    /// The file is packed (FORMAT.md §12: entropy-coded latents, or JPEG streams without their
+    /// index): `Container::parse` reads fixed-rate files only; `unpack` first (value = the
+    /// unpacked file's length).
+    Packed,
+    /// A packed section: the length of the section it stands for.
     PackedLength,
-    /// PACKED_LATENTS: the entropy coder's code.
+    /// A packed section: its coder's code.
     PackedCoder,
     PackedReserved,
     /// PACKED_LATENTS: the coded stream ends before the last latent, or bytes are left after it.
@@ -128,8 +129,9 @@ pub enum Argument {
     Precision,
     /// Memory given to a tile cache: no slot, too many, or too few texel bytes for them.
     CacheMemory,
-    /// A file `pack` cannot entropy-code without loss: a JPEG material (value 0), or a layout
-    /// other than the one this crate writes (value 1).
+    /// A file `pack` cannot pack without loss: a layout other than the one this crate writes
+    /// (value 1), or a JPEG material whose index a scan of its streams does not rebuild
+    /// (value 2).
     Layout,
 }
 
@@ -184,11 +186,11 @@ impl fmt::Display for Error {
                 crate::format::version::LEGACY_VERSION_MAJOR,
                 crate::format::version::VERSION_MAJOR
             ),
-            Error::Unsupported { field: Field::PackedLatents, value, .. } => write!(
+            Error::Unsupported { field: Field::Packed, value, .. } => write!(
                 f,
-                "packed .nmat: its latents are entropy-coded (format 2.2); unpack it first into \
-                 {value} bytes (nmat_core::unpack or unpack_into; nmat and the C API do this when \
-                 they open a file)"
+                "packed .nmat (format 2.2: entropy-coded latents, or JPEG streams without their \
+                 index); unpack it first into {value} bytes (nmat_core::unpack or unpack_into; \
+                 nmat and the C API do this when they open a file)"
             ),
             Error::Unsupported { field, index, value } => {
                 write!(f, "unsupported .nmat: field {field}[{index}] has unknown value {value}")

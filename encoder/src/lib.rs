@@ -48,11 +48,12 @@ pub struct EncodeOptions {
     pub storage: Storage,
 }
 
-/// How a file stores its latents (docs/FORMAT.md §12).
+/// How a file stores its latents, or its JPEG streams' index (docs/FORMAT.md §12).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Storage {
-    /// Entropy-coded where that is smaller (it is for trained latents): the smaller file,
-    /// unpacked once when it is opened.
+    /// Latents entropy-coded, JPEG streams without their index, where that is smaller (it is
+    /// for trained latents and for every JPEG material): the smaller file, unpacked once when it
+    /// is opened.
     #[default]
     Packed,
     /// Fixed-rate, as decoders hold it in memory: the larger file, parsed in place (zero-copy,
@@ -84,6 +85,15 @@ pub struct Encoded {
     pub quality: metrics::ChainQuality,
 }
 
+/// The packed form of a fixed-rate file (docs/FORMAT.md §12) when `storage` asks for it and it
+/// is smaller; `None` otherwise.
+pub fn packed_form(fixed: &[u8], storage: Storage) -> Result<Option<Vec<u8>>, EncodeError> {
+    Ok(match storage {
+        Storage::Packed => Some(nmat_core::pack(fixed)?).filter(|p| p.len() < fixed.len()),
+        Storage::FixedRate => None,
+    })
+}
+
 impl Encoded {
     /// The file to write: packed if there is a packed form, else fixed-rate.
     pub fn file(&self) -> &[u8] {
@@ -105,10 +115,7 @@ pub fn encode(
     let bytes = spec.to_bytes()?;
     let material = Container::parse(&bytes)?;
     let mut quality = metrics::chain_quality(&material, set);
-    let packed = match options.storage {
-        Storage::Packed => Some(nmat_core::pack(&bytes)?).filter(|p| p.len() < bytes.len()),
-        Storage::FixedRate => None,
-    };
+    let packed = packed_form(&bytes, options.storage)?;
     if let Some(p) = &packed {
         quality.bppc = material.bppc_of(p.len());
     }

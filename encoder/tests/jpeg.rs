@@ -129,6 +129,12 @@ fn indexed_streams_decode_like_djpeg_texel_by_texel_and_row_by_row() {
                 let bytes = material_from_jpeg(&indexed, "test.png").to_bytes().unwrap();
                 let m = Container::parse(&bytes).unwrap();
                 assert_eq!(m.codec(), nmat_core::Codec::Jpeg);
+                // Packed, without the index: smaller, and the index rebuilt to the same bytes
+                // (with and without restart markers; FORMAT.md §12.5).
+                let packed = nmat_core::pack(&bytes).unwrap_or_else(|e| panic!("{what}: {e}"));
+                assert!(packed.len() < bytes.len(), "{what}: {} vs {}", packed.len(), bytes.len());
+                let unpacked = nmat_core::unpack(&packed, Default::default()).unwrap();
+                assert!(unpacked.as_ref() == bytes.as_slice(), "{what}: unpacking differs");
                 // Texel by texel (each MCU decoded on its own, in random order of access).
                 let n = components;
                 let mut texels = vec![0u8; (w * h) as usize * n];
@@ -295,7 +301,11 @@ mod encode {
             let expected = [map(0, 3, 2, 2), map(3, 3, 1, 1), map(6, 1, 1, 1), map(7, 1, 1, 1)];
             assert_eq!(m.jpeg().unwrap().maps(), expected);
             assert_eq!(e.jpeg_quality, q);
-            assert!((e.quality.bppc - m.bppc()).abs() < 1e-12);
+            // The rate is the packed file's (streams without their index), the fixed-rate one
+            // beside it.
+            assert!((e.quality.bppc - m.bppc_of(e.file().len())).abs() < 1e-12);
+            assert!((e.quality.memory_bppc - m.bppc()).abs() < 1e-12);
+            assert!(e.file().len() < e.bytes.len());
             assert!(
                 e.quality.psnr > last.0 && e.quality.bppc > last.1,
                 "quality {q}: {:.2} dB at {:.3} BPPC after {:?}",

@@ -54,11 +54,7 @@ fn random_materials_pack_and_unpack_to_the_same_bytes() {
         // Parsing a packed file says what to do, with the memory it needs.
         assert_eq!(
             Container::parse(&packed).err(),
-            Some(Error::Unsupported {
-                field: Field::PackedLatents,
-                index: 0,
-                value: bytes.len() as u64
-            })
+            Some(Error::Unsupported { field: Field::Packed, index: 0, value: bytes.len() as u64 })
         );
         // Packing is idempotent; an unpacked file unpacks to itself without a copy.
         assert_eq!(pack(&packed).unwrap(), packed);
@@ -203,12 +199,92 @@ fn hostile_packed_files_end_in_typed_errors() {
     );
 }
 
+/// The committed indexed-JPEG fixture (4:2:0, a restart marker after every MCU row) and its
+/// packed twin.
+fn jpeg_fixture(name: &str) -> Vec<u8> {
+    std::fs::read(format!("{}/fixtures/jpeg/{name}", env!("CARGO_MANIFEST_DIR"))).unwrap()
+}
+
 #[test]
-fn a_jpeg_material_is_not_packed() {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/jpeg/pattern_420_37x21.nmat");
-    let bytes = std::fs::read(path).unwrap();
+fn a_jpeg_material_packs_without_its_index_and_unpacks_to_the_same_bytes() {
+    let bytes = jpeg_fixture("pattern_420_37x21.nmat");
+    let packed = pack(&bytes).unwrap();
+    assert!(packed.len() < bytes.len());
+    let (_, body) = section(&packed, SectionKind::PACKED_JPEG);
+    let (_, indexed) = section(&bytes, SectionKind::JPEG);
+    // 6 MCUs: one index group of 20 bytes and 18 DC values of 12 bits (27 bytes, padded to 28)
+    // are gone, 8 header bytes came.
+    assert_eq!(indexed - body, 20 + 28 - 8);
+    assert_eq!(unpack(&packed, ParseOptions::default()).unwrap().as_ref(), &bytes[..]);
+    assert_eq!(packed, jpeg_fixture("pattern_420_37x21.packed.nmat"), "the committed twin");
+    assert_eq!(
+        Container::parse(&packed).err(),
+        Some(Error::Unsupported { field: Field::Packed, index: 0, value: bytes.len() as u64 })
+    );
+}
+
+#[test]
+fn hostile_packed_jpeg_files_end_in_typed_errors() {
+    let packed = jpeg_fixture("pattern_420_37x21.packed.nmat");
+    let (offset, _) = section(&packed, SectionKind::PACKED_JPEG);
+    let mut r = Rng::new(5);
+    for i in 0..packed.len() {
+        for _ in 0..8 {
+            let mut bad = packed.clone();
+            bad[i] ^= 1 << (r.next_u64() % 8);
+            if let Ok(Some(n)) = unpacked_len(&bad) {
+                assert!(n <= 256 * (packed.len() + 64) + bad.len(), "byte {i}: {n}");
+                let mut out = vec![0; n];
+                if let Ok(n) = unpack_into(&bad, NO_CHECKSUM, &mut out) {
+                    let _ = Container::parse(&out[..n]);
+                }
+            }
+        }
+    }
+    let patch = |f: &dyn Fn(&mut Vec<u8>)| {
+        let mut b = packed.clone();
+        f(&mut b);
+        refresh_checksum(&mut b);
+        unpack(&b, ParseOptions::default()).map(|_| ())
+    };
+    // A length other than the streams give, the latents' coder, a restart interval that puts an
+    // MCU past the data.
     assert!(matches!(
-        pack(&bytes),
-        Err(Error::BadArgument { argument: Argument::Layout, value: 0, .. })
+        patch(&|b| {
+            let l = u32::from_le_bytes(b[offset..offset + 4].try_into().unwrap());
+            b[offset..offset + 4].copy_from_slice(&(l + 4).to_le_bytes());
+        }),
+        Err(Error::Malformed { field: Field::PackedLength, .. })
     ));
+    assert!(matches!(
+        patch(&|b| b[offset + 4] = 1),
+        Err(Error::Unsupported { field: Field::PackedCoder, value: 1, .. })
+    ));
+    // Another restart interval walks the stream differently: a different index (or an error),
+    // never the original material's.
+    let restarted = |v: u16| {
+        let mut b = packed.clone();
+        let body = offset + 8;
+        let records = body + find_records(&b[body..]);
+        b[records + 18..records + 20].copy_from_slice(&v.to_le_bytes());
+        refresh_checksum(&mut b);
+        unpack(&b, ParseOptions::default()).map(|u| u.into_owned())
+    };
+    let original = jpeg_fixture("pattern_420_37x21.nmat");
+    assert_eq!(restarted(3).unwrap(), original, "the fixture's own interval");
+    for v in [0, 1, 2, 4, 5, u16::MAX] {
+        assert!(restarted(v).map_or(true, |u| u != original), "restart interval {v}");
+    }
+}
+
+/// Offset of the stream records in a JPEG section body: after the header, map records,
+/// quantization tables and Huffman tables (FORMAT.md §11.1).
+fn find_records(body: &[u8]) -> usize {
+    let (maps, quant, huffman) = (body[2] as usize, body[3] as usize, body[4] as usize);
+    let mut pos = 8 + 4 * maps + 64 * quant;
+    for _ in 0..huffman {
+        let count = u16::from_le_bytes([body[pos + 2], body[pos + 3]]) as usize;
+        pos = (pos + 20 + count + 3) & !3;
+    }
+    pos
 }

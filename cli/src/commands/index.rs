@@ -3,6 +3,7 @@
 use crate::args::IndexArgs;
 use crate::common::{Result, parse};
 use nmat_cli::output;
+use nmat_encode::Storage;
 
 pub fn run(args: IndexArgs) -> Result<()> {
     let (input, out, max_memory) = (&args.input, &args.output, args.memory.bytes());
@@ -17,12 +18,17 @@ pub fn run(args: IndexArgs) -> Result<()> {
     let bytes = nmat_encode::jpeg::material_from_jpeg(&indexed, &format!("{stem}.png"))
         .to_bytes()
         .map_err(|e| format!("{}: cannot index: {e}", input.display()))?;
-    output::write_atomic(out, &bytes)?;
+    let storage = if args.fixed_rate { Storage::FixedRate } else { Storage::Packed };
+    let packed = nmat_encode::packed_form(&bytes, storage)?;
+    let file = packed.as_deref().unwrap_or(&bytes);
+    output::write_atomic(out, file)?;
     let m = parse(&bytes, out)?;
     let (extra, coded) = m.jpeg().map_or((0, 0), |j| j.overhead_bits());
     let texels = f64::from(indexed.width) * f64::from(indexed.height);
+    let kept = if packed.is_some() { "rebuilt when opened, in memory" } else { "in the file" };
     println!(
-        "{}: {}×{} {}, {} bytes ({} bytes of JPEG data; index and DC values {:.3} bits per pixel)",
+        "{}: {}×{} {}, {} bytes ({} bytes of JPEG data; index and DC values {kept}: {:.3} bits \
+         per pixel)",
         out.display(),
         indexed.width,
         indexed.height,
@@ -31,7 +37,7 @@ pub fn run(args: IndexArgs) -> Result<()> {
         } else {
             "gray".to_string()
         },
-        bytes.len(),
+        file.len(),
         coded / 8,
         extra as f64 / texels
     );

@@ -1,12 +1,12 @@
-//! `nmat pack` and `nmat unpack`: a file's latents entropy-coded or fixed-rate (docs/FORMAT.md
-//! §12), losslessly both ways.
+//! `nmat pack` and `nmat unpack`: a file packed (latents entropy-coded, JPEG streams without
+//! their index) or fixed-rate (docs/FORMAT.md §12), losslessly both ways.
 
 use crate::args::PackArgs;
 use crate::common::{Result, parse};
 use nmat_cli::input::read_nmat;
 use nmat_cli::output;
 
-/// Entropy-codes the latents of `args.input` into `args.output`.
+/// Packs `args.input` into `args.output`.
 pub fn pack(args: PackArgs) -> Result<()> {
     let (fixed, written) = convert(&args, |fixed| {
         nmat_core::pack(fixed).map_err(|e| format!("{}: {e}", args.input.display()).into())
@@ -31,15 +31,7 @@ pub fn unpack(args: PackArgs) -> Result<()> {
 fn convert(args: &PackArgs, make: impl Fn(&[u8]) -> Result<Vec<u8>>) -> Result<(usize, usize)> {
     output::check_output(&args.output, std::slice::from_ref(&args.input))?;
     let fixed = read_nmat(&args.input)?;
-    let m = parse(&fixed, &args.input)?;
-    if m.neural().is_none() {
-        return Err(format!(
-            "{}: a JPEG material has no latents to pack or unpack (its streams are entropy-coded \
-             already)",
-            args.input.display()
-        )
-        .into());
-    }
+    parse(&fixed, &args.input)?;
     let bytes = make(&fixed)?;
     output::write_atomic(&args.output, &bytes)?;
     Ok((fixed.len(), bytes.len()))

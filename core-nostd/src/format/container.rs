@@ -48,8 +48,18 @@ impl SectionKind {
     pub const JPEG: SectionKind = SectionKind(5);
     /// Entropy-coded latents (FORMAT.md §12), in place of LATENTS: `unpack` restores LATENTS.
     pub const PACKED_LATENTS: SectionKind = SectionKind(6);
-    pub(crate) const KNOWN: [SectionKind; 6] =
-        [Self::MATERIAL, Self::LEVELS, Self::MLP, Self::LATENTS, Self::JPEG, Self::PACKED_LATENTS];
+    /// JPEG streams without their index (FORMAT.md §12.5), in place of JPEG: `unpack` rebuilds
+    /// the index and restores JPEG.
+    pub const PACKED_JPEG: SectionKind = SectionKind(7);
+    pub(crate) const KNOWN: [SectionKind; 7] = [
+        Self::MATERIAL,
+        Self::LEVELS,
+        Self::MLP,
+        Self::LATENTS,
+        Self::JPEG,
+        Self::PACKED_LATENTS,
+        Self::PACKED_JPEG,
+    ];
 }
 
 /// The fixed 32-byte file header (§1).
@@ -126,7 +136,7 @@ impl Container {
                 let unpacked =
                     crate::format::packed::unpacked_len(bytes).ok().flatten().unwrap_or(0);
                 return Err(Error::Unsupported {
-                    field: Field::PackedLatents,
+                    field: Field::Packed,
                     index: 0,
                     value: unpacked as u64,
                 });
@@ -309,21 +319,30 @@ fn read_section_table<'a>(bytes: &'a [u8], header: &Header) -> Result<Sections<'
             (k + 1) as i64,
         ))
     };
-    let body = match (found.get(4).copied().flatten(), found.get(5).copied().flatten()) {
-        // A JPEG material has no network: LEVELS, MLP, LATENTS or PACKED_LATENTS beside it
-        // contradict it.
-        (Some(jpeg), _) => match [1, 2, 3, 5].into_iter().find(|&k| has(k)) {
-            Some(k) => return Err(malformed(Field::SectionKind, k, (k + 1) as i64)),
-            None => BodySections::Jpeg(jpeg),
-        },
-        // Entropy-coded latents stand in for LATENTS (§12): one or the other.
-        (None, Some(_)) if has(3) => return Err(malformed(Field::SectionKind, 5, 6)),
-        (None, Some(_)) => {
-            need(1)?;
-            need(2)?;
-            BodySections::Packed
+    let body = if has(6) {
+        // JPEG streams without their index (§12.5): nothing of a network beside them, and no
+        // JPEG section (the packed one stands for it).
+        match [1, 2, 3, 4, 5].into_iter().find(|&k| has(k)) {
+            Some(k) => return Err(malformed(Field::SectionKind, 6, (k + 1) as i64)),
+            None => BodySections::Packed,
         }
-        (None, None) => BodySections::Neural([need(1)?, need(2)?, need(3)?]),
+    } else {
+        match (found.get(4).copied().flatten(), found.get(5).copied().flatten()) {
+            // A JPEG material has no network: LEVELS, MLP, LATENTS or PACKED_LATENTS beside it
+            // contradict it.
+            (Some(jpeg), _) => match [1, 2, 3, 5].into_iter().find(|&k| has(k)) {
+                Some(k) => return Err(malformed(Field::SectionKind, k, (k + 1) as i64)),
+                None => BodySections::Jpeg(jpeg),
+            },
+            // Entropy-coded latents stand in for LATENTS (§12): one or the other.
+            (None, Some(_)) if has(3) => return Err(malformed(Field::SectionKind, 5, 6)),
+            (None, Some(_)) => {
+                need(1)?;
+                need(2)?;
+                BodySections::Packed
+            }
+            (None, None) => BodySections::Neural([need(1)?, need(2)?, need(3)?]),
+        }
     };
     Ok(Sections { optional, material: need(0)?, body })
 }
@@ -356,9 +375,10 @@ fn dimension(field: Field, value: u32, limit: u32) -> Result<u32, Error> {
     Ok(value)
 }
 
-type MaterialParts<'a> = (u32, u32, u8, AddressMode, heapless::Vec<Channel<'a>, MAX_CHANNELS>);
+pub(crate) type MaterialParts<'a> =
+    (u32, u32, u8, AddressMode, heapless::Vec<Channel<'a>, MAX_CHANNELS>);
 
-fn parse_material(s: &[u8]) -> Result<MaterialParts<'_>, Error> {
+pub(crate) fn parse_material(s: &[u8]) -> Result<MaterialParts<'_>, Error> {
     need_bytes(s, 0, MATERIAL_HEADER_LEN, Field::Width, 0)?;
     let width = dimension(Field::Width, u32_at(s, 0), MAX_DIMENSION)?;
     let height = dimension(Field::Height, u32_at(s, 4), MAX_DIMENSION)?;

@@ -9,17 +9,21 @@
 
 use crate::bytes::{slice, u8_at, u16_at, u32_at};
 use crate::error::{Error, Field, malformed, unsupported};
+use crate::format::channel::mip_size;
 use crate::format::checksum::file_checksum;
 use crate::format::container::{
     GRID_RECORD_LEN, HEADER_LEN, Header, LEVELS_HEADER_LEN, ParseOptions, SECTION_ENTRY_LEN,
-    SECTION_REQUIRED, SectionEntry, SectionKind, read_header, section_entries,
+    SECTION_REQUIRED, SectionEntry, SectionKind, parse_material, read_header, section_entries,
 };
+use crate::jpeg::{Jpeg, Streams};
 use crate::limits::MAX_GRIDS;
 
 /// Bytes before the coded stream in a PACKED_LATENTS section.
 pub const PACKED_HEADER_LEN: usize = 8;
-/// The one coder defined so far (§12.2).
+/// PACKED_LATENTS' coder: the binary range coder with neighbour contexts (§12.2).
 pub const CODER_RANGE_NEIGHBOURS: u8 = 1;
+/// PACKED_JPEG's "coder": streams without index, the index rebuilt by scanning them (§12.5).
+pub const CODER_JPEG_SCAN: u8 = 2;
 /// A stream of `n` bytes stands for at most `MAX_EXPANSION · (n + 64)` bytes of latents: each
 /// binary decision costs at least 0.011 bits with 12-bit probabilities and shift 5 (§12.3), so a
 /// valid stream is far below this bound, and a hostile one cannot ask for unbounded memory.
@@ -34,15 +38,18 @@ const CLASSES: usize = 5;
 /// Probabilities of one grid channel: neighbour class pair × binary-tree node (≤ 255 nodes).
 const CONTEXTS: usize = CLASSES * CLASSES * 256;
 
-/// The fields of a PACKED_LATENTS section's header (§12.1).
+/// The fields of a packed section's header (§12.1, §12.5).
 #[derive(Clone, Copy, Debug)]
 struct PackedHeader {
-    latents_length: usize,
+    /// Length of the section it stands for (LATENTS or JPEG).
+    length: usize,
     unpacked_minor: u16,
 }
 
-fn packed_header(section: &[u8]) -> Result<(PackedHeader, &[u8]), Error> {
-    let Some(stream) = section.get(PACKED_HEADER_LEN..) else {
+/// The header of a packed section of `kind` and what follows it (the coded stream, or the bare
+/// JPEG body).
+fn packed_header(kind: SectionKind, section: &[u8]) -> Result<(PackedHeader, &[u8]), Error> {
+    let Some(payload) = section.get(PACKED_HEADER_LEN..) else {
         return Err(Error::Truncated {
             field: Field::PackedLength,
             index: 0,
@@ -50,44 +57,64 @@ fn packed_header(section: &[u8]) -> Result<(PackedHeader, &[u8]), Error> {
             available: section.len() as u64,
         });
     };
-    let latents_length = u32_at(section, 0) as usize;
-    if !latents_length.is_multiple_of(4) {
-        return Err(malformed(Field::PackedLength, 0, latents_length as i64));
+    let length = u32_at(section, 0) as usize;
+    if !length.is_multiple_of(4) {
+        return Err(malformed(Field::PackedLength, 0, length as i64));
     }
-    let bound = MAX_EXPANSION.saturating_mul(stream.len().saturating_add(64));
-    if latents_length > bound {
-        return Err(malformed(Field::PackedLength, 0, latents_length as i64));
+    let bound = MAX_EXPANSION.saturating_mul(payload.len().saturating_add(64));
+    if length > bound {
+        return Err(malformed(Field::PackedLength, 0, length as i64));
     }
-    if u8_at(section, 4) != CODER_RANGE_NEIGHBOURS {
+    let coder =
+        if kind == SectionKind::PACKED_JPEG { CODER_JPEG_SCAN } else { CODER_RANGE_NEIGHBOURS };
+    if u8_at(section, 4) != coder {
         return Err(unsupported(Field::PackedCoder, 0, u8_at(section, 4)));
     }
     if u8_at(section, 5) != 0 {
         return Err(malformed(Field::PackedReserved, 0, u8_at(section, 5)));
     }
-    Ok((PackedHeader { latents_length, unpacked_minor: u16_at(section, 6) }, stream))
+    Ok((PackedHeader { length, unpacked_minor: u16_at(section, 6) }, payload))
 }
 
-/// The unpacked file: its sections in the packed file's order, PACKED_LATENTS replaced by a
-/// LATENTS section of `latents_length` bytes, each section at the next 4-byte boundary.
-fn unpacked_layout(entries: &[SectionEntry<'_>], latents_length: usize) -> Option<usize> {
+/// The section kind a packed kind stands for.
+fn unpacked_kind(kind: SectionKind) -> SectionKind {
+    if kind == SectionKind::PACKED_JPEG { SectionKind::JPEG } else { SectionKind::LATENTS }
+}
+
+fn is_packed(kind: SectionKind) -> bool {
+    kind == SectionKind::PACKED_LATENTS || kind == SectionKind::PACKED_JPEG
+}
+
+/// The unpacked file: its sections in the packed file's order, the packed section replaced by
+/// the one it stands for, of `length` bytes, each section at the next 4-byte boundary.
+fn unpacked_layout(entries: &[SectionEntry<'_>], length: usize) -> Option<usize> {
     let mut end = HEADER_LEN + SECTION_ENTRY_LEN * entries.len();
     for e in entries {
-        let len = if e.kind == SectionKind::PACKED_LATENTS { latents_length } else { e.data.len() };
+        let len = if is_packed(e.kind) { length } else { e.data.len() };
         end = end.checked_add(len)?.checked_add(3)? & !3;
     }
     u32::try_from(end).ok()?;
     Some(end)
 }
 
-/// The PACKED_LATENTS entry and its index, if there is one. It must be `REQUIRED` (§12.1): a
-/// reader before 2.2 would skip it otherwise, and then miss the latents.
-fn packed_entry<'a>(entries: &[SectionEntry<'a>]) -> Result<Option<(usize, &'a [u8])>, Error> {
-    match entries.iter().enumerate().find(|(_, e)| e.kind == SectionKind::PACKED_LATENTS) {
-        Some((i, e)) if e.flags & SECTION_REQUIRED == 0 => {
-            Err(malformed(Field::SectionFlags, i, e.flags))
+/// The packed section (PACKED_LATENTS or PACKED_JPEG): its index in the table, kind and bytes,
+/// if there is one (at most one). It must be `REQUIRED` (§12.1): a reader before 2.2 would
+/// skip it otherwise, and then miss the latents or streams.
+/// A packed section: its index in the table, its kind and its bytes.
+type PackedEntry<'a> = (usize, SectionKind, &'a [u8]);
+
+fn packed_entry<'a>(entries: &[SectionEntry<'a>]) -> Result<Option<PackedEntry<'a>>, Error> {
+    let mut found = None;
+    for (i, e) in entries.iter().enumerate().filter(|(_, e)| is_packed(e.kind)) {
+        if e.flags & SECTION_REQUIRED == 0 {
+            return Err(malformed(Field::SectionFlags, i, e.flags));
         }
-        found => Ok(found.map(|(i, e)| (i, e.data))),
+        if found.is_some() {
+            return Err(malformed(Field::SectionKind, i, e.kind.0));
+        }
+        found = Some((i, e.kind, e.data));
     }
+    Ok(found)
 }
 
 /// The length of `bytes` once unpacked, or `None` for a file that is not packed (it parses as
@@ -95,19 +122,19 @@ fn packed_entry<'a>(entries: &[SectionEntry<'a>]) -> Result<Option<(usize, &'a [
 pub fn unpacked_len(bytes: &[u8]) -> Result<Option<usize>, Error> {
     let header = read_header(bytes)?;
     let entries = section_entries(bytes, &header)?;
-    let Some((_, section)) = packed_entry(&entries)? else { return Ok(None) };
-    let (packed, _) = packed_header(section)?;
-    unpacked_layout(&entries, packed.latents_length).map(Some).ok_or(malformed(
+    let Some((_, kind, section)) = packed_entry(&entries)? else { return Ok(None) };
+    let (packed, _) = packed_header(kind, section)?;
+    unpacked_layout(&entries, packed.length).map(Some).ok_or(malformed(
         Field::PackedLength,
         0,
-        packed.latents_length as i64,
+        packed.length as i64,
     ))
 }
 
 /// Decodes a packed file into the fixed-rate file it stands for, in `out` (at least
 /// [`unpacked_len`] bytes), and returns that length; `out[..len]` then parses with
 /// `Container::parse`. Checks the packed file's checksum when `options` say so (the
-/// unpacked file gets its own). Never allocates; work is bounded by the stream's length.
+/// unpacked file gets its own). Never allocates; work is bounded by the packed section's length.
 pub fn unpack_into(bytes: &[u8], options: ParseOptions, out: &mut [u8]) -> Result<usize, Error> {
     let header = read_header(bytes)?;
     if options.verify_checksum {
@@ -117,14 +144,14 @@ pub fn unpack_into(bytes: &[u8], options: ParseOptions, out: &mut [u8]) -> Resul
         }
     }
     let entries = section_entries(bytes, &header)?;
-    let Some((packed_index, section)) = packed_entry(&entries)? else {
+    let Some((packed_index, kind, section)) = packed_entry(&entries)? else {
         return Err(malformed(Field::MissingSection, 6, 6));
     };
-    let (packed, stream) = packed_header(section)?;
-    let total = unpacked_layout(&entries, packed.latents_length).ok_or(malformed(
+    let (packed, payload) = packed_header(kind, section)?;
+    let total = unpacked_layout(&entries, packed.length).ok_or(malformed(
         Field::PackedLength,
         0,
-        packed.latents_length as i64,
+        packed.length as i64,
     ))?;
     let available = out.len();
     let out = out.get_mut(..total).ok_or(Error::BadArgument {
@@ -133,14 +160,14 @@ pub fn unpack_into(bytes: &[u8], options: ParseOptions, out: &mut [u8]) -> Resul
         limit: total as u64,
     })?;
     out.fill(0);
-    // Header and table; every section copied but the latents, which are decoded in place.
+    // Header and table; every section copied but the packed one, which is decoded in place.
     write_header(out, &header, packed.unpacked_minor, total, entries.len());
     let mut offset = HEADER_LEN + SECTION_ENTRY_LEN * entries.len();
-    let (mut latents_at, mut levels, mut material) = (0, None, None);
+    let (mut unpacked_at, mut levels, mut material) = (0, None, None);
     for (i, e) in entries.iter().enumerate() {
         let (kind, len) = if i == packed_index {
-            latents_at = offset;
-            (SectionKind::LATENTS, packed.latents_length)
+            unpacked_at = offset;
+            (unpacked_kind(kind), packed.length)
         } else {
             copy(out, offset, e.data);
             (e.kind, e.data.len())
@@ -157,20 +184,30 @@ pub fn unpack_into(bytes: &[u8], options: ParseOptions, out: &mut [u8]) -> Resul
         }
         offset = (offset + len + 3) & !3;
     }
-    let levels = levels.ok_or(malformed(Field::MissingSection, 2, 2))?;
-    material.ok_or(malformed(Field::MissingSection, 1, 1))?;
-    let latents = out.get_mut(latents_at..latents_at + packed.latents_length).ok_or(malformed(
+    let material = material.ok_or(malformed(Field::MissingSection, 1, 1))?;
+    let target = out.get_mut(unpacked_at..unpacked_at + packed.length).ok_or(malformed(
         Field::PackedLength,
         0,
-        packed.latents_length as i64,
+        packed.length as i64,
     ))?;
-    let mut decoder = RangeDecoder::new(stream)?;
-    for grid in grid_records(levels)? {
-        let grid = grid?;
-        let data = grid_data(latents, &grid)?;
-        code_grid(&grid, |p, _| decoder.bit(p), data)?;
+    if kind == SectionKind::PACKED_JPEG {
+        let (width, height, mip_count, _, channels) = parse_material(material)?;
+        let sizes = core::array::from_fn(|m| mip_size(width, height, mip_count, m as u32));
+        let body = Jpeg::parse_streams(payload, &channels, sizes, mip_count, Streams::Bare)?;
+        if body.indexed_len() != packed.length {
+            return Err(malformed(Field::PackedLength, 0, packed.length as i64));
+        }
+        body.write_indexed(target)?;
+    } else {
+        let levels = levels.ok_or(malformed(Field::MissingSection, 2, 2))?;
+        let mut decoder = RangeDecoder::new(payload)?;
+        for grid in grid_records(levels)? {
+            let grid = grid?;
+            let data = grid_data(target, &grid)?;
+            code_grid(&grid, |p, _| decoder.bit(p), data)?;
+        }
+        decoder.finish()?;
     }
-    decoder.finish()?;
     let crc = file_checksum(out);
     put_u32(out, 20, crc);
     Ok(total)
@@ -473,11 +510,12 @@ mod write {
         Ok(Cow::Owned(out))
     }
 
-    /// Entropy-codes the latents of a fixed-rate neural file (§12): the result unpacks to
-    /// exactly `bytes` (checked before it is returned). A file that is already packed is
-    /// returned as it is; a JPEG material, or a file whose layout is not the one this crate
-    /// writes (sections in table order at 4-byte boundaries, grids back to back, unused bits
-    /// zero), is refused.
+    /// Packs a fixed-rate file (§12): a neural material's latents entropy-coded, a JPEG
+    /// material's streams without their index. The result unpacks to exactly `bytes` (checked
+    /// before it is returned). A file that is already packed is returned as it is; a file whose
+    /// layout is not the one this crate writes (sections in table order at 4-byte boundaries,
+    /// grids back to back, unused bits zero), or a JPEG material whose index a scan of its
+    /// streams does not rebuild, is refused (`BadArgument Layout`).
     pub fn pack(bytes: &[u8]) -> Result<Vec<u8>, Error> {
         if unpacked_len(bytes)?.is_some() {
             let mut out = Vec::new();
@@ -487,29 +525,32 @@ mod write {
         let material = crate::Container::parse(bytes)?;
         let refuse =
             |value: u64| Error::BadArgument { argument: crate::Argument::Layout, value, limit: 0 };
-        if material.neural().is_none() {
-            return Err(refuse(0));
-        }
         let header = read_header(bytes)?;
         let entries = section_entries(bytes, &header)?;
         let find = |kind| entries.iter().position(|e: &SectionEntry<'_>| e.kind == kind);
-        let latents_index = find(SectionKind::LATENTS).ok_or(refuse(0))?;
-        let levels = find(SectionKind::LEVELS).and_then(|i| entries.get(i)).ok_or(refuse(0))?.data;
-        let latents = entries.get(latents_index).ok_or(refuse(0))?.data;
-        let mut scratch = Vec::new();
-        scratch.extend_from_slice(latents);
-        let mut encoder = RangeEncoder::new();
-        for grid in grid_records(levels)? {
-            let grid = grid?;
-            let data = grid_data(&mut scratch, &grid)?;
-            code_grid(&grid, |p, bit| Ok(encoder.bit(p, bit)), data)?;
-        }
-        let stream = encoder.finish();
-        let mut section = Vec::with_capacity(PACKED_HEADER_LEN + stream.len());
-        section.extend_from_slice(&(latents.len() as u32).to_le_bytes());
-        section.extend_from_slice(&[CODER_RANGE_NEIGHBOURS, 0]);
+        let (replaced, kind, coder, payload) = match material.jpeg() {
+            Some(jpeg) => {
+                let bare = jpeg.bare_section().ok_or(refuse(2))?;
+                (find(SectionKind::JPEG), SectionKind::PACKED_JPEG, CODER_JPEG_SCAN, bare)
+            }
+            None => {
+                let at = find(SectionKind::LATENTS);
+                let levels = find(SectionKind::LEVELS).and_then(|i| entries.get(i));
+                let latents = at.and_then(|i| entries.get(i));
+                let (Some(levels), Some(latents)) = (levels, latents) else {
+                    return Err(refuse(1));
+                };
+                let stream = encode_latents(levels.data, latents.data)?;
+                (at, SectionKind::PACKED_LATENTS, CODER_RANGE_NEIGHBOURS, stream)
+            }
+        };
+        let replaced = replaced.ok_or(refuse(1))?;
+        let original = entries.get(replaced).ok_or(refuse(1))?.data;
+        let mut section = Vec::with_capacity(PACKED_HEADER_LEN + payload.len());
+        section.extend_from_slice(&(original.len() as u32).to_le_bytes());
+        section.extend_from_slice(&[coder, 0]);
         section.extend_from_slice(&header.version_minor.to_le_bytes());
-        section.extend_from_slice(&stream);
+        section.extend_from_slice(&payload);
         let table_end = HEADER_LEN + SECTION_ENTRY_LEN * entries.len();
         let mut out = alloc::vec![0u8; table_end];
         write_header(
@@ -520,17 +561,15 @@ mod write {
             entries.len(),
         );
         for (i, e) in entries.iter().enumerate() {
-            let (kind, data) = if i == latents_index {
-                (SectionKind::PACKED_LATENTS, section.as_slice())
-            } else {
-                (e.kind, e.data)
-            };
+            let (kind, data) =
+                if i == replaced { (kind, section.as_slice()) } else { (e.kind, e.data) };
             let t = HEADER_LEN + SECTION_ENTRY_LEN * i;
             let offset = out.len();
             put_u32(&mut out, t, kind.0);
-            // PACKED_LATENTS is always REQUIRED; unpacking gives LATENTS that flag, so a file
-            // whose LATENTS lacks it does not round-trip and is refused below.
-            let flags = if i == latents_index { SECTION_REQUIRED } else { e.flags };
+            // A packed section is always REQUIRED; unpacking gives the section it stands for
+            // that flag, so a file whose LATENTS or JPEG lacks it does not round-trip and is
+            // refused below.
+            let flags = if i == replaced { SECTION_REQUIRED } else { e.flags };
             put_u32(&mut out, t + 4, flags);
             put_u32(&mut out, t + 8, offset as u32);
             put_u32(&mut out, t + 12, data.len() as u32);
@@ -546,6 +585,19 @@ mod write {
             return Err(refuse(1));
         }
         Ok(out)
+    }
+
+    /// The coded stream of a LATENTS section whose grids LEVELS describes (§12.2–12.3).
+    fn encode_latents(levels: &[u8], latents: &[u8]) -> Result<Vec<u8>, Error> {
+        let mut scratch = Vec::new();
+        scratch.extend_from_slice(latents);
+        let mut encoder = RangeEncoder::new();
+        for grid in grid_records(levels)? {
+            let grid = grid?;
+            let data = grid_data(&mut scratch, &grid)?;
+            code_grid(&grid, |p, bit| Ok(encoder.bit(p, bit)), data)?;
+        }
+        Ok(encoder.finish())
     }
 }
 #[cfg(feature = "alloc")]

@@ -7,6 +7,7 @@
 pub(crate) mod entropy;
 pub use entropy::huffman_decoding;
 pub(crate) mod idct;
+pub(crate) mod packing;
 #[cfg(feature = "alloc")]
 pub mod writer;
 
@@ -119,10 +120,20 @@ impl JpegMap {
     }
 }
 
+/// What a section's streams hold: their index, DC values and entropy-coded data (the JPEG
+/// section, FORMAT.md §11), or the entropy-coded data alone, the index to be rebuilt (the body of
+/// a PACKED_JPEG section, §12.5).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Streams {
+    Indexed,
+    Bare,
+}
+
 /// The JPEG section of a material, validated.
 #[derive(Clone, Debug)]
 pub struct Jpeg<'a> {
     section: &'a [u8],
+    streams: Streams,
     maps: heapless::Vec<JpegMap, MAX_CHANNELS>,
     quant_at: usize,
     huffman_at: heapless::Vec<u32, MAX_HUFFMAN_TABLES>,
@@ -143,10 +154,14 @@ pub(crate) struct Stream<'a> {
     tables: [(&'a [u8], Huffman<'a>, Huffman<'a>); 3],
 }
 
-/// Where each part of a stream lies: index bytes, DC bytes (padded), MCU count.
-fn stream_layout(map: &JpegMap, (w, h): (u32, u32)) -> (usize, usize, usize) {
+/// Where each part of a stream lies: index bytes, DC bytes (padded), MCU count (a bare stream
+/// has neither index nor DC values).
+fn stream_layout(map: &JpegMap, (w, h): (u32, u32), streams: Streams) -> (usize, usize, usize) {
     let (mw, mh) = map.mcu_size();
     let mcus = w.div_ceil(mw) as usize * h.div_ceil(mh) as usize;
+    if streams == Streams::Bare {
+        return (0, 0, mcus);
+    }
     let values = if map.channel_count == 3 { 3 } else { 1 };
     let index = mcus.div_ceil(GROUP_MCUS) * GROUP_LEN;
     let dc = align4((mcus * values * DC_BITS).div_ceil(8));
@@ -160,6 +175,18 @@ impl<'a> Jpeg<'a> {
         channels: &[Channel<'_>],
         mip_sizes: [(u32, u32); MAX_MIPS],
         mip_count: u8,
+    ) -> Result<Jpeg<'a>, Error> {
+        Self::parse_streams(s, channels, mip_sizes, mip_count, Streams::Indexed)
+    }
+
+    /// [`Jpeg::parse`] of a section whose streams are `streams`: a bare stream's record may hold
+    /// its restart interval in bytes 18..20 (§12.5).
+    pub(crate) fn parse_streams(
+        s: &'a [u8],
+        channels: &[Channel<'_>],
+        mip_sizes: [(u32, u32); MAX_MIPS],
+        mip_count: u8,
+        streams: Streams,
     ) -> Result<Jpeg<'a>, Error> {
         need(s, 0, JPEG_HEADER_LEN, Field::JpegVersion, 0)?;
         let version = u16_at(s, 0);
@@ -280,20 +307,32 @@ impl<'a> Jpeg<'a> {
                         return Err(malformed(Field::JpegTableRef, i, t));
                     }
                 }
-                if let Some(k) = (17..20).find(|&k| u8_at(r, k) != 0) {
+                let reserved = if streams == Streams::Bare { 17..18 } else { 17..20 };
+                if let Some(k) = reserved.into_iter().find(|&k| u8_at(r, k) != 0) {
                     return Err(malformed(Field::JpegReserved, i, u8_at(r, k)));
                 }
-                let (index_len, dc_len, mcus) = stream_layout(map, size);
+                let (index_len, dc_len, mcus) = stream_layout(map, size, streams);
                 let total = index_len + dc_len + entropy;
                 let body = take(s, offset, total, Field::JpegStreamLength, i)?;
-                check_index(body.get(..index_len).unwrap_or(&[]), mcus, entropy, i)?;
+                if streams == Streams::Indexed {
+                    check_index(body.get(..index_len).unwrap_or(&[]), mcus, entropy, i)?;
+                }
                 data_start = align4(offset + total);
             }
         }
         if align4(data_start) < s.len() {
             return Err(malformed(Field::SectionContent, 5, s.len() as i64));
         }
-        Ok(Jpeg { section: s, maps, quant_at, huffman_at, streams_at, mip_count, mip_sizes })
+        Ok(Jpeg {
+            section: s,
+            streams,
+            maps,
+            quant_at,
+            huffman_at,
+            streams_at,
+            mip_count,
+            mip_sizes,
+        })
     }
 
     /// The maps, in channel order.
@@ -320,7 +359,7 @@ impl<'a> Jpeg<'a> {
             + (map * usize::from(self.mip_count) + mip as usize) * STREAM_RECORD_LEN;
         let rec = slice(self.section, r, STREAM_RECORD_LEN)?;
         let (offset, entropy) = (u32_at(rec, 0) as usize, u32_at(rec, 4) as usize);
-        let (index_len, dc_len, _) = stream_layout(&m, size);
+        let (index_len, dc_len, _) = stream_layout(&m, size, self.streams);
         let (mw, mh) = m.mcu_size();
         Some(StreamParts {
             index_at: offset,
@@ -360,19 +399,27 @@ impl<'a> Jpeg<'a> {
     /// Bits spent on index and DC values (the random-access overhead) and on entropy-coded
     /// data, over every stream.
     pub fn overhead_bits(&self) -> (u64, u64) {
-        let (mut extra, mut coded) = (0u64, 0u64);
-        for (m, map) in self.maps.iter().enumerate() {
-            for mip in 0..u32::from(self.mip_count) {
-                let size = self.mip_sizes.get(mip as usize).copied().unwrap_or((1, 1));
-                let (index, _, mcus) = stream_layout(map, size);
-                let values = if map.channel_count == 3 { 3 } else { 1 };
-                extra += 8 * index as u64 + (mcus * values * DC_BITS) as u64;
-                let r = self.streams_at
-                    + (m * usize::from(self.mip_count) + mip as usize) * STREAM_RECORD_LEN;
-                coded += 8 * u64::from(u32_at(self.section, r + 4));
-            }
+        (0..self.maps.len())
+            .flat_map(|m| (0..u32::from(self.mip_count)).map(move |mip| (m, mip)))
+            .map(|(m, mip)| self.stream_overhead_bits(m, mip))
+            .fold((0, 0), |(a, b), (x, y)| (a + x, b + y))
+    }
+
+    /// [`Jpeg::overhead_bits`] of the stream of `map` at `mip` ((0, 0) for one the material
+    /// lacks).
+    pub fn stream_overhead_bits(&self, map: usize, mip: u32) -> (u64, u64) {
+        let (Some(m), Some(&size)) = (self.maps.get(map), self.mip_sizes.get(mip as usize)) else {
+            return (0, 0);
+        };
+        if mip >= u32::from(self.mip_count) {
+            return (0, 0);
         }
-        (extra, coded)
+        let (index, _, mcus) = stream_layout(m, size, self.streams);
+        let values = if m.channel_count == 3 { 3 } else { 1 };
+        let dc = if self.streams == Streams::Bare { 0 } else { mcus * values * DC_BITS };
+        let r = self.streams_at
+            + (map * usize::from(self.mip_count) + mip as usize) * STREAM_RECORD_LEN;
+        (8 * index as u64 + dc as u64, 8 * u64::from(u32_at(self.section, r + 4)))
     }
 
     fn huffman(&self, t: u8) -> Huffman<'a> {

@@ -9,7 +9,7 @@ use nmat_core::{AddressMode, ColorSpace, Container, Error, Field, JpegMap, JpegM
 use super::index::{IndexedJpeg, index_jpeg, position_or_push};
 use crate::error::{EncodeError, EncodeOption};
 use crate::metrics::{self, ChainQuality};
-use crate::{TextureSet, channel_specs, source_maps};
+use crate::{Storage, TextureSet, channel_specs, packed_form, source_maps};
 
 /// The quality `nmat encode --codec jpeg` uses when given neither a quality nor a rate.
 pub const DEFAULT_QUALITY: u8 = 85;
@@ -50,6 +50,9 @@ pub struct JpegOptions {
     /// their channels are data, not colour the eye sees at half resolution.
     pub subsampling: Subsampling,
     pub address_mode: AddressMode,
+    /// Whether the file keeps its streams' index (fixed-rate) or leaves it to be rebuilt when
+    /// the file is opened (packed, the default: smaller by the index and DC values).
+    pub storage: Storage,
 }
 
 impl Default for JpegOptions {
@@ -58,13 +61,17 @@ impl Default for JpegOptions {
             quality: DEFAULT_QUALITY,
             subsampling: Subsampling::default(),
             address_mode: AddressMode::Wrap,
+            storage: Storage::default(),
         }
     }
 }
 
 /// The result of a JPEG encode.
 pub struct JpegEncoded {
+    /// The fixed-rate file (streams with their index): what decoders hold in memory.
     pub bytes: Vec<u8>,
+    /// The same without the index, when [`Storage::Packed`] was asked for.
+    pub packed: Option<Vec<u8>>,
     /// The quality the streams were coded at (the one searched for by [`encode_jpeg_to_rate`]).
     pub jpeg_quality: u8,
     /// Whole-chain quality of the decode against the source mip chain.
@@ -122,13 +129,27 @@ pub fn encode_jpeg(set: &TextureSet, options: &JpegOptions) -> Result<JpegEncode
         });
     }
     let bytes = jpeg_bytes(set, options)?;
-    let quality = metrics::chain_quality(&Container::parse(&bytes)?, set);
-    Ok(JpegEncoded { bytes, jpeg_quality: options.quality, quality })
+    let material = Container::parse(&bytes)?;
+    let mut quality = metrics::chain_quality(&material, set);
+    let packed = packed_form(&bytes, options.storage)?;
+    if let Some(p) = &packed {
+        quality.bppc = material.bppc_of(p.len());
+    }
+    drop(material);
+    Ok(JpegEncoded { bytes, packed, jpeg_quality: options.quality, quality })
 }
 
-/// [`encode_jpeg`] at the highest quality whose file is at most `bppc` bits per pixel per
-/// channel (bisected over 1 ..= 100; quality 1 if even that is larger: the index and DC values
-/// alone cost 0.21 bits per pixel of a 4:2:0 map and 0.47 of a gray one).
+impl JpegEncoded {
+    /// The file to write: packed if there is a packed form, else fixed-rate.
+    pub fn file(&self) -> &[u8] {
+        self.packed.as_deref().unwrap_or(&self.bytes)
+    }
+}
+
+/// [`encode_jpeg`] at the highest quality whose file, as stored (`options.storage`), is at most
+/// `bppc` bits per pixel per channel of the channels that vary (bisected over 1 ..= 100;
+/// quality 1 if even that is larger: a fixed-rate file's index and DC values alone cost 0.21
+/// bits per pixel of a 4:2:0 map and 0.47 of a gray one).
 pub fn encode_jpeg_to_rate(
     set: &TextureSet,
     bppc: f64,
@@ -141,10 +162,12 @@ pub fn encode_jpeg_to_rate(
             reason: "must be a positive number",
         });
     }
-    let texel_channels = f64::from(set.width) * f64::from(set.height) * set.channel_count() as f64;
     let fits = |quality: u8| -> Result<bool, EncodeError> {
         match jpeg_bytes(set, &JpegOptions { quality, ..options.clone() }) {
-            Ok(bytes) => Ok(bytes.len() as f64 * 8.0 / texel_channels <= bppc),
+            Ok(bytes) => {
+                let stored = packed_form(&bytes, options.storage)?.map_or(bytes.len(), |p| p.len());
+                Ok(Container::parse(&bytes)?.bppc_of(stored) <= bppc)
+            }
             // Too many bits between two indexed MCUs: a lower quality is needed anyway.
             Err(EncodeError::BadOption { option: EncodeOption::Quality, .. }) => Ok(false),
             Err(e) => Err(e),
