@@ -1,10 +1,12 @@
 //! Shared helpers of the nmat test suite: the deterministic material generator, an independent
-//! reference decoder, an independent packer/unpacker of FORMAT.md §12 (`reference_packed`), fixture
-//! I/O and hashing. The tests themselves live in `tests/tests/`.
+//! reference decoder, independent packers/unpackers of FORMAT.md §12 (`reference_packed` for
+//! neural materials, `reference_packed_jpeg` for JPEG materials, §12.5), fixture I/O and hashing.
+//! The tests themselves live in `tests/tests/`.
 
 pub mod generate;
 pub mod reference;
 pub mod reference_packed;
+pub mod reference_packed_jpeg;
 
 use nmat_core::{ChannelMask, Material};
 use std::path::PathBuf;
