@@ -113,14 +113,24 @@ pub fn encode(
     model.train(&options.train, progress);
     let spec = to_spec(set, &model, options)?;
     let bytes = spec.to_bytes()?;
-    let material = Container::parse(&bytes)?;
+    let (packed, quality) = as_stored(&bytes, set, options.storage)?;
+    Ok(Encoded { bytes, packed, config, quality })
+}
+
+/// A fixed-rate file as it will be stored: its packed form where `storage` asks for one and it
+/// is smaller, and the quality of its decode against `set`, at the rate of the stored file.
+pub(crate) fn as_stored(
+    fixed: &[u8],
+    set: &TextureSet,
+    storage: Storage,
+) -> Result<(Option<Vec<u8>>, metrics::ChainQuality), EncodeError> {
+    let material = Container::parse(fixed)?;
     let mut quality = metrics::chain_quality(&material, set);
-    let packed = packed_form(&bytes, options.storage)?;
+    let packed = packed_form(fixed, storage)?;
     if let Some(p) = &packed {
         quality.bppc = material.bppc_of(p.len());
     }
-    drop(material);
-    Ok(Encoded { bytes, packed, config, quality })
+    Ok((packed, quality))
 }
 
 /// What the rate solver needs to know of `set` (its file carries a SOURCE_MAPS section).

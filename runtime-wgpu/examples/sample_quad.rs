@@ -309,6 +309,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .map_err(|e| format!("reading {}: {e}", std::path::Path::new(&path).display()))?,
         None => FIXTURE.to_vec(),
     };
+    // `nmat encode` writes packed files by default: unpack once (a no-op for fixed-rate ones).
+    let bytes = nmat_core::unpack(&bytes, Default::default())?;
     let material = Container::parse(&bytes)?;
     let (device, queue, info) =
         pollster::block_on(nmat_wgpu::default_device()).ok_or("no GPU adapter found")?;

@@ -12,7 +12,10 @@
 //! # async fn demo(bytes: &[u8]) -> Result<(), Box<dyn std::error::Error>> {
 //! use nmat_core::{ChannelMask, Container};
 //! use nmat_wgpu::{Context, TexelRequest};
-//! let material = Container::parse(bytes)?;
+//! // A packed file (format 2.2) is unpacked once into the fixed-rate form the GPU reads;
+//! // a fixed-rate file is used in place.
+//! let bytes = nmat_core::unpack(bytes, Default::default())?;
+//! let material = Container::parse(&bytes)?;
 //! // An engine passes its own device; tools can ask for the first adapter wgpu finds.
 //! let (device, queue, _info) = nmat_wgpu::default_device().await.ok_or("no GPU adapter")?;
 //! let context = Context::new(&device); // once per device

@@ -117,10 +117,7 @@ impl Container {
     pub fn parse_with(bytes: &[u8], options: ParseOptions) -> Result<Material<'_>, Error> {
         let header = read_header(bytes)?;
         if options.verify_checksum {
-            let computed = file_checksum(bytes);
-            if computed != header.checksum {
-                return Err(Error::ChecksumMismatch { stored: header.checksum, computed });
-            }
+            check_checksum(bytes, &header)?;
         }
         let sections = read_section_table(bytes, &header)?;
         let material = sections.material;
@@ -176,6 +173,15 @@ impl Container {
             optional_sections: sections.optional,
         })
     }
+}
+
+/// The file's CRC-32 against the one its header stores (§1.4).
+pub(crate) fn check_checksum(bytes: &[u8], header: &Header) -> Result<(), Error> {
+    let computed = file_checksum(bytes);
+    if computed != header.checksum {
+        return Err(Error::ChecksumMismatch { stored: header.checksum, computed });
+    }
+    Ok(())
 }
 
 pub(crate) fn read_header(bytes: &[u8]) -> Result<Header, Error> {

@@ -13,7 +13,8 @@ use crate::format::channel::mip_size;
 use crate::format::checksum::file_checksum;
 use crate::format::container::{
     GRID_RECORD_LEN, HEADER_LEN, Header, LEVELS_HEADER_LEN, ParseOptions, SECTION_ENTRY_LEN,
-    SECTION_REQUIRED, SectionEntry, SectionKind, parse_material, read_header, section_entries,
+    SECTION_REQUIRED, SectionEntry, SectionKind, check_checksum, parse_material, read_header,
+    section_entries,
 };
 use crate::jpeg::{Jpeg, Streams};
 use crate::limits::MAX_GRIDS;
@@ -98,8 +99,9 @@ fn unpacked_layout(entries: &[SectionEntry<'_>], length: usize) -> Option<usize>
 }
 
 /// The packed section (PACKED_LATENTS or PACKED_JPEG): its index in the table, kind and bytes,
-/// if there is one (at most one). It must be `REQUIRED` (§12.1): a reader before 2.2 would
-/// skip it otherwise, and then miss the latents or streams.
+/// if there is one (at most one, and not beside the section it stands for). It must be
+/// `REQUIRED` (§12.1): a reader before 2.2 would skip it otherwise, and then miss the latents or
+/// streams.
 /// A packed section: its index in the table, its kind and its bytes.
 type PackedEntry<'a> = (usize, SectionKind, &'a [u8]);
 
@@ -113,6 +115,12 @@ fn packed_entry<'a>(entries: &[SectionEntry<'a>]) -> Result<Option<PackedEntry<'
             return Err(malformed(Field::SectionKind, i, e.kind.0));
         }
         found = Some((i, e.kind, e.data));
+    }
+    // A packed section stands in for LATENTS or JPEG: never beside it.
+    if let Some((i, kind, _)) = found
+        && entries.iter().any(|e| e.kind == unpacked_kind(kind))
+    {
+        return Err(malformed(Field::SectionKind, i, kind.0));
     }
     Ok(found)
 }
@@ -138,10 +146,7 @@ pub fn unpacked_len(bytes: &[u8]) -> Result<Option<usize>, Error> {
 pub fn unpack_into(bytes: &[u8], options: ParseOptions, out: &mut [u8]) -> Result<usize, Error> {
     let header = read_header(bytes)?;
     if options.verify_checksum {
-        let computed = file_checksum(bytes);
-        if computed != header.checksum {
-            return Err(Error::ChecksumMismatch { stored: header.checksum, computed });
-        }
+        check_checksum(bytes, &header)?;
     }
     let entries = section_entries(bytes, &header)?;
     let Some((packed_index, kind, section)) = packed_entry(&entries)? else {

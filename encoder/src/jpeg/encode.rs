@@ -8,8 +8,8 @@ use nmat_core::{AddressMode, ColorSpace, Container, Error, Field, JpegMap, JpegM
 
 use super::index::{IndexedJpeg, index_jpeg, position_or_push};
 use crate::error::{EncodeError, EncodeOption};
-use crate::metrics::{self, ChainQuality};
-use crate::{Storage, TextureSet, channel_specs, packed_form, source_maps};
+use crate::metrics::ChainQuality;
+use crate::{Storage, TextureSet, as_stored, channel_specs, packed_form, source_maps};
 
 /// The quality `nmat encode --codec jpeg` uses when given neither a quality nor a rate.
 pub const DEFAULT_QUALITY: u8 = 85;
@@ -129,13 +129,7 @@ pub fn encode_jpeg(set: &TextureSet, options: &JpegOptions) -> Result<JpegEncode
         });
     }
     let bytes = jpeg_bytes(set, options)?;
-    let material = Container::parse(&bytes)?;
-    let mut quality = metrics::chain_quality(&material, set);
-    let packed = packed_form(&bytes, options.storage)?;
-    if let Some(p) = &packed {
-        quality.bppc = material.bppc_of(p.len());
-    }
-    drop(material);
+    let (packed, quality) = as_stored(&bytes, set, options.storage)?;
     Ok(JpegEncoded { bytes, packed, jpeg_quality: options.quality, quality })
 }
 

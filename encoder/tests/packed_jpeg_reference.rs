@@ -60,7 +60,7 @@ fn compare(what: &str, fixed: &[u8]) -> Vec<u8> {
 }
 
 fn jpeg_fixture(name: &str) -> Vec<u8> {
-    std::fs::read(format!("{}/fixtures/jpeg/{name}", env!("CARGO_MANIFEST_DIR"))).unwrap()
+    std::fs::read(nmat_tests::fixtures_dir().join("jpeg").join(name)).unwrap()
 }
 
 #[test]
