@@ -805,8 +805,9 @@ fn jpeg_lines(m: &Material<'_>, jpeg: &nmat_core::Jpeg<'_>, stored: Stored) -> S
     s
 }
 
+/// BPPC's denominator: width · height · channels that vary, of mip 0.
 pub fn texel_channels(m: &Material<'_>) -> f64 {
-    f64::from(m.width()) * f64::from(m.height()) * m.channel_count() as f64
+    f64::from(m.width()) * f64::from(m.height()) * m.informative_channels() as f64
 }
 
 /// The source maps and the channels each one occupies, as `info` and `encode --dry-run` print them.

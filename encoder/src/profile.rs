@@ -89,18 +89,20 @@ pub struct MaterialShape {
     pub width: u32,
     pub height: u32,
     pub mip_count: u32,
-    /// Channels of the material (BPPC's denominator), constant ones included.
+    /// Channels of the material, constant ones included.
     pub channels: usize,
-    /// Channels the network learns (not constant).
+    /// Channels the network learns: those that vary (BPPC's denominator; a constant channel
+    /// costs nothing and is not counted).
     pub learned: usize,
     /// Bytes of the optional sections the file will carry (SOURCE_MAPS), each padded to 4.
     pub optional_bytes: usize,
 }
 
 impl MaterialShape {
-    /// The bits a file of `bppc` bits per pixel per channel has for this material.
+    /// The bits a file of `bppc` bits per pixel per channel has for this material, counted over
+    /// the channels that vary (as `Material::bppc` counts them).
     pub fn budget_bits(&self, bppc: f64) -> f64 {
-        bppc * f64::from(self.width) * f64::from(self.height) * self.channels as f64
+        bppc * f64::from(self.width) * f64::from(self.height) * self.learned.max(1) as f64
     }
 }
 

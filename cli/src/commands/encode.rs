@@ -166,7 +166,7 @@ fn plan(set: &TextureSet, profile: Profile) -> String {
     let shape = nmat_encode::shape_of(set);
     let cfg = nmat_encode::configure(profile, &shape);
     let budget = cfg.byte_budget(&shape);
-    // BPPC's denominator: width · height · channels of mip 0.
+    // BPPC's denominator: width · height · channels that vary, of mip 0.
     let texel_channels = shape.budget_bits(1.0);
     let mut s = format!(
         "{}: {}×{}, {} channels ({} learned), nominal {} BPPC, this file {:.4} BPPC ({:+.1} %)\n",
