@@ -5,6 +5,7 @@
 
 extern crate alloc;
 
+#[cfg(any(target_arch = "x86_64", target_arch = "aarch64"))]
 use alloc::vec::Vec;
 
 /// The per-row requantization constants in the lane orders of each SIMD kernel this target

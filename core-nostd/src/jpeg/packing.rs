@@ -62,6 +62,7 @@ impl Stream<'_> {
     }
 
     /// MCU `i`'s bit offset and stored DC values, from the index (an indexed stream).
+    #[cfg(feature = "alloc")]
     fn indexed(&self, i: usize) -> (u64, [i32; 3]) {
         let values = if self.map.channel_count == 3 { 3 } else { 1 };
         let dcs = core::array::from_fn(|c| if c < values { self.dc(i * values + c) } else { 0 });
@@ -189,6 +190,7 @@ impl Jpeg<'_> {
     /// The restart interval (in MCUs, 0: none) under which scanning stream `i` from its data
     /// reproduces its stored index and DC values, or `None` if none does (an index a scan cannot
     /// rebuild: such a file cannot drop it).
+    #[cfg(feature = "alloc")]
     fn restart_interval(&self, i: usize, m: usize, mip: u32) -> Option<u16> {
         let stream = self.stream(m, mip)?;
         let (_, _, mcus) = self.maps.get(m).map(|map| {
