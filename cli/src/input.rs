@@ -20,6 +20,12 @@ pub struct Stored {
 }
 
 impl Stored {
+    /// What `bytes` (a whole file as read) say of themselves; `packed` if they unpack.
+    pub fn of(bytes: &[u8], packed: bool) -> Stored {
+        let minor = bytes.get(6..8).map_or(0, |m| u16::from_le_bytes([m[0], m[1]]));
+        Stored { len: bytes.len(), minor, packed }
+    }
+
     /// A fixed-rate file of `m`.
     pub fn fixed(m: &nmat_core::Material<'_>) -> Stored {
         Stored { len: m.file_len(), minor: m.version_minor(), packed: false }
@@ -37,10 +43,9 @@ impl std::ops::Deref for Loaded {
 /// entropy-coded (checksum verified), so that the result parses.
 pub fn read_nmat(path: &Path) -> Result<Loaded, String> {
     let bytes = read_raw(path)?;
-    let minor = bytes.get(6..8).map_or(0, |m| u16::from_le_bytes([m[0], m[1]]));
-    let len = bytes.len();
     // A file whose header or table is broken is not packed: parsing it names what is wrong.
     let packed = nmat_core::unpacked_len(&bytes).ok().flatten().is_some();
+    let stored = Stored::of(&bytes, packed);
     let fixed = if packed {
         nmat_core::unpack(&bytes, nmat_core::ParseOptions::default())
             .map_err(|e| format!("{}: {e}", path.display()))?
@@ -48,7 +53,7 @@ pub fn read_nmat(path: &Path) -> Result<Loaded, String> {
     } else {
         bytes
     };
-    Ok(Loaded { fixed, stored: Stored { len, minor, packed } })
+    Ok(Loaded { fixed, stored })
 }
 
 /// Reads a .nmat file's bytes as stored without trusting it: only a regular file (opened as

@@ -46,11 +46,7 @@ pub fn exercise_untrusted(data: &[u8]) {
         Ok(Some(n)) if n <= 1 << 20 => nmat_core::unpack(data, options).ok(),
         _ => None,
     };
-    let stored = input::Stored {
-        len: data.len(),
-        minor: data.get(6).copied().unwrap_or(0).into(),
-        packed: unpacked.is_some(),
-    };
+    let stored = input::Stored::of(data, unpacked.is_some());
     let data = unpacked.as_deref().unwrap_or(data);
     if let Ok(m) = Container::parse_with(data, options) {
         let stored = if stored.packed { stored } else { input::Stored::fixed(&m) };
