@@ -30,6 +30,11 @@ pub enum Command {
     /// it: an index of its MCUs and their DC values makes every texel decodable on its own
     /// (docs/FORMAT.md §11). Progressive or arithmetic-coded files are refused.
     Index(IndexArgs),
+    /// Build every material of a TOML manifest (folders or patterns of folders, each with its
+    /// options and output): several at a time, each by its own `nmat encode`; outputs whose
+    /// inputs, options and encoder are unchanged are kept; one failure does not stop the others;
+    /// a CSV or JSON summary at the end (docs/ENCODING.md, "Building a library").
+    Build(BuildArgs),
     /// Print what a .nmat file holds.
     Info(InfoArgs),
     /// Pack a .nmat file (format 2.2, docs/FORMAT.md §12): a neural material's latents
@@ -73,6 +78,26 @@ pub struct IndexArgs {
     pub fixed_rate: bool,
     #[command(flatten)]
     pub memory: MemoryArg,
+}
+
+#[derive(Args)]
+pub struct BuildArgs {
+    /// The manifest (TOML); paths in it are relative to its folder.
+    pub manifest: PathBuf,
+    /// Materials encoded at a time [default: this machine's cores]; the cores are shared
+    /// between them (`--threads` of each encode).
+    #[arg(long)]
+    pub jobs: Option<usize>,
+    /// Rebuild every output, up to date or not.
+    #[arg(long)]
+    pub force: bool,
+    /// Build only shard K of N (e.g. 2/8): the same split on every machine, by output path.
+    #[arg(long, value_name = "K/N")]
+    pub shard: Option<String>,
+    /// Where to write the summary (.csv, or .json) [default: MANIFEST with extension
+    /// summary.csv].
+    #[arg(long)]
+    pub summary: Option<PathBuf>,
 }
 
 #[derive(Args)]

@@ -4,6 +4,7 @@
 
 pub mod gpu_files;
 pub mod input;
+pub mod manifest;
 pub mod output;
 pub mod progress;
 pub mod stats;

@@ -25,6 +25,7 @@ fn main() -> ExitCode {
         Command::Decode(args) => commands::decode::run(args),
         Command::Transcode(args) => commands::transcode::run(args),
         Command::Index(args) => commands::index::run(args),
+        Command::Build(args) => commands::build::run(args),
         Command::Info(args) => commands::info::run(args),
         Command::Pack(args) => commands::pack::pack(args),
         Command::Unpack(args) => commands::pack::unpack(args),

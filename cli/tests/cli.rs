@@ -1433,3 +1433,119 @@ fn bench_gpu_row_on_a_software_adapter_decodes_the_region_only() {
         assert!(gpu_row.contains("whole mip 0"), "{gpu_row}");
     }
 }
+
+/// `nmat build`: a manifest of three materials built, kept when nothing changed, rebuilt where a
+/// map changed or with --force; the outputs byte-identical whether built whole or in shards;
+/// one failing material does not stop the others; bad manifests refused before any work.
+#[test]
+fn build_caches_shards_and_isolates_failures() {
+    let dir = temp_dir("build");
+    for (name, size) in [("brick", 16), ("wall", 24), ("floor", 32)] {
+        let d = dir.join("textures").join(name);
+        std::fs::create_dir_all(&d).unwrap();
+        write_maps(&d, size);
+    }
+    let manifest = |out: &str, extra: &str| {
+        let path = dir.join(format!("{out}.toml"));
+        std::fs::write(
+            &path,
+            format!(
+                "[defaults]\nprofile = \"ntc-0.5\"\nsteps = 10\n{extra}\n[[material]]\n\
+                 input = \"textures/*\"\noutput = \"{out}/{{name}}.nmat\"\n"
+            ),
+        )
+        .unwrap();
+        path
+    };
+    let whole = manifest("whole", "");
+    let build = |m: &Path, extra: &[&str]| {
+        let mut args = vec!["build", m.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        nmat(&args)
+    };
+    let o = build(&whole, &[]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("3 built, 0 up to date, 0 failed"), "{}", text(&o));
+    let csv = std::fs::read_to_string(dir.join("whole.summary.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 4, "{csv}");
+    assert!(csv.lines().skip(1).all(|l| l.contains(",built,")), "{csv}");
+    // The summary's numbers are those `nmat eval` gives the file.
+    let eval = text(&nmat(&[
+        "eval",
+        dir.join("whole/brick.nmat").to_str().unwrap(),
+        "--ref",
+        dir.join("textures/brick").to_str().unwrap(),
+    ]));
+    let psnr = eval.split("overall: PSNR ").nth(1).unwrap().split(' ').next().unwrap();
+    let brick = csv.lines().find(|l| l.starts_with("\"brick\"")).unwrap();
+    assert!(brick.contains(&format!(",{psnr},")), "{brick} vs eval {psnr}");
+
+    // Nothing changed: nothing rebuilt. One map changed: that material only. --force: all.
+    let o = build(&whole, &[]);
+    assert!(text(&o).contains("0 built, 3 up to date"), "{}", text(&o));
+    write_maps(&dir.join("textures/wall"), 20);
+    let o = build(&whole, &["--jobs", "1"]);
+    assert!(text(&o).contains("1 built, 2 up to date"), "{}", text(&o));
+    assert!(text(&o).contains("wall: built"), "{}", text(&o));
+    let o = build(&whole, &["--force", "--summary", dir.join("s.json").to_str().unwrap()]);
+    assert!(text(&o).contains("3 built, 0 up to date"), "{}", text(&o));
+    let json = std::fs::read_to_string(dir.join("s.json")).unwrap();
+    assert_eq!(json.matches("\"status\": \"built\"").count(), 3, "{json}");
+
+    // Two shards on "two machines" give the files of the whole build, byte for byte.
+    let sharded = manifest("sharded", "");
+    for k in ["1/2", "2/2"] {
+        let o = build(
+            &sharded,
+            &["--shard", k, "--summary", dir.join(format!("s{}.csv", &k[..1])).to_str().unwrap()],
+        );
+        assert!(o.status.success(), "{}", text(&o));
+    }
+    for name in ["brick", "wall", "floor"] {
+        let a = std::fs::read(dir.join(format!("whole/{name}.nmat"))).unwrap();
+        let b = std::fs::read(dir.join(format!("sharded/{name}.nmat"))).unwrap();
+        assert!(a == b, "{name}: sharded build differs");
+    }
+
+    // A folder without maps fails; the others are built and the exit status says so.
+    std::fs::create_dir_all(dir.join("textures/empty")).unwrap();
+    let o = build(&manifest("failing", ""), &[]);
+    assert!(!o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("3 built, 0 up to date, 1 failed"), "{}", text(&o));
+    assert!(text(&o).contains("empty: FAILED"), "{}", text(&o));
+    assert!(!dir.join("failing/empty.nmat").exists());
+    std::fs::remove_dir(dir.join("textures/empty")).unwrap();
+
+    // Refused before any work, naming the problem.
+    let refused = |body: &str, needle: &str| {
+        let path = dir.join("bad.toml");
+        std::fs::write(&path, body).unwrap();
+        let o = build(&path, &[]);
+        assert!(!o.status.success() && text(&o).contains(needle), "{needle}: {}", text(&o));
+        assert!(!dir.join("bad").exists(), "{needle}: work started");
+    };
+    let entry = |input: &str, output: &str| {
+        format!("[[material]]\ninput = \"{input}\"\noutput = \"{output}\"\n")
+    };
+    refused(&entry("textures/missing", "bad/x.nmat"), "is not a folder");
+    refused(&entry("nothing/*", "bad/{name}.nmat"), "nothing");
+    refused(&entry("textures/x*", "bad/{name}.nmat"), "matches no folder");
+    refused(&entry("textures/*", "bad/all.nmat"), "has no {name}");
+    refused(
+        &format!(
+            "{}{}",
+            entry("textures/brick", "bad/x.nmat"),
+            entry("textures/wall", "bad/x.nmat")
+        ),
+        "both write",
+    );
+    refused(&entry("textures/*", "textures/{name}/out.nmat"), "inside the input folder");
+    refused(
+        "[defaults]\nprofil = \"ntc-0.2\"\n[[material]]\ninput = \"a\"\noutput = \"b\"\n",
+        "profil",
+    );
+    refused("", "no [[material]]");
+    let o = build(&whole, &["--shard", "3/2"]);
+    assert!(!o.status.success() && text(&o).contains("--shard 3/2"), "{}", text(&o));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -4,6 +4,7 @@
 
 pub mod bench;
 pub mod bench_train;
+pub mod build;
 pub mod decode;
 pub mod demo;
 pub mod encode;
