@@ -2,16 +2,17 @@
 # The test suite, as a newcomer and CI run it: installs what the tests need that cargo cannot
 # (the lavapipe software Vulkan driver for the GPU tests, NVIDIA Texture Tools' nvdecompress as an
 # independent reader of the DDS files `nmat transcode` writes, libjpeg-turbo's djpeg as the one of
-# indexed JPEG streams; idempotent, skipped when present),
+# indexed JPEG streams, Ninja to run the build files `nmat build --emit ninja` writes; idempotent,
+# skipped when present),
 # then runs every test.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-packages=(mesa-vulkan-drivers libvulkan1 libnvtt-bin libjpeg-turbo-progs)
+packages=(mesa-vulkan-drivers libvulkan1 libnvtt-bin libjpeg-turbo-progs ninja-build)
 if ! dpkg -s "${packages[@]}" >/dev/null 2>&1; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
     echo "installing ${packages[*]} (apt): the GPU tests run on lavapipe, a Vulkan driver on" \
       "the CPU, when the machine has no GPU; nvdecompress reads the DDS files of the transcode test," \
-      "djpeg the JPEG files of the indexed-JPEG test" >&2
+      "djpeg the JPEG files of the indexed-JPEG test, ninja runs the build file of the build test" >&2
     apt-get update -qq && apt-get install -y -qq "${packages[@]}" >/dev/null
   else
     echo "some tests need: sudo apt-get install ${packages[*]}" >&2

@@ -98,6 +98,19 @@ pub struct BuildArgs {
     /// summary.csv].
     #[arg(long)]
     pub summary: Option<PathBuf>,
+    /// Build nothing: write a build file with one edge per material (of the shard) calling
+    /// `nmat encode`, for Ninja, Make or a distributed executor to schedule (-o names it).
+    #[arg(long, requires = "output")]
+    pub emit: Option<EmitArg>,
+    /// The build file --emit writes.
+    #[arg(short, long, requires = "emit")]
+    pub output: Option<PathBuf>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum EmitArg {
+    Ninja,
+    Make,
 }
 
 #[derive(Args)]

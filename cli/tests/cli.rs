@@ -1507,6 +1507,29 @@ fn build_caches_shards_and_isolates_failures() {
         assert!(a == b, "{name}: sharded build differs");
     }
 
+    // Through an emitted build file, run by Ninja (installed by scripts/test.sh) and by Make:
+    // the same files again.
+    for (kind, tool, flag) in [("ninja", "ninja", "-f"), ("make", "make", "-f")] {
+        let m = manifest(kind, "");
+        let file = dir.join(format!("{kind}.build"));
+        let o = build(&m, &["--emit", kind, "-o", file.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", text(&o));
+        assert!(!dir.join(kind).exists(), "--emit built something");
+        let ran = Command::new(tool).args([flag, file.to_str().unwrap()]).output();
+        let Ok(ran) = ran else {
+            eprintln!(
+                "{tool} is not installed: the {kind} file is not run (scripts/test.sh installs it)"
+            );
+            continue;
+        };
+        assert!(ran.status.success(), "{kind}: {}", text(&ran));
+        for name in ["brick", "wall", "floor"] {
+            let a = std::fs::read(dir.join(format!("whole/{name}.nmat"))).unwrap();
+            let b = std::fs::read(dir.join(format!("{kind}/{name}.nmat"))).unwrap();
+            assert!(a == b, "{name}: the {kind} build differs");
+        }
+    }
+
     // A folder without maps fails; the others are built and the exit status says so.
     std::fs::create_dir_all(dir.join("textures/empty")).unwrap();
     let o = build(&manifest("failing", ""), &[]);
@@ -1547,5 +1570,7 @@ fn build_caches_shards_and_isolates_failures() {
     refused("", "no [[material]]");
     let o = build(&whole, &["--shard", "3/2"]);
     assert!(!o.status.success() && text(&o).contains("--shard 3/2"), "{}", text(&o));
+    let o = build(&whole, &["--emit", "ninja"]);
+    assert!(!o.status.success() && text(&o).contains("--output"), "{}", text(&o));
     std::fs::remove_dir_all(&dir).unwrap();
 }

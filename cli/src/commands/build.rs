@@ -3,7 +3,7 @@
 //! outputs whose inputs, options and encoder are unchanged are kept; one failure does not stop
 //! the others; a summary (CSV or JSON) of every material at the end.
 
-use crate::args::BuildArgs;
+use crate::args::{BuildArgs, EmitArg};
 use crate::common::Result;
 use nmat_cli::manifest::{self, Job};
 use nmat_cli::output;
@@ -57,6 +57,9 @@ pub fn run(args: BuildArgs) -> Result<()> {
         None => (1, 1),
     };
     let jobs: Vec<Job> = all.into_iter().filter(|j| manifest::in_shard(j, k, n)).collect();
+    if let (Some(kind), Some(path)) = (args.emit, &args.output) {
+        return emit(kind, path, &args.manifest, &jobs);
+    }
     let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
     let workers = args.jobs.unwrap_or(cores);
     if workers == 0 || workers > 4 * cores {
@@ -293,4 +296,101 @@ fn write_summary(path: &Path, outcomes: &[Outcome]) -> Result<()> {
     };
     output::write_atomic(path, &bytes)?;
     Ok(())
+}
+
+/// Writes a build file with one edge per job: `nmat encode` (this binary, by absolute path)
+/// with the job's arguments, depending on every file of its input folder, after creating the
+/// output's folder. Paths are made absolute, so the file runs from any directory of a machine
+/// that sees the same files (a shared file system).
+fn emit(kind: EmitArg, path: &Path, manifest: &Path, jobs: &[Job]) -> Result<()> {
+    let exe = std::env::current_exe().map_err(|e| format!("this program's path: {e}"))?;
+    output::check_output(path, &[manifest.to_path_buf()])?;
+    let absolute = |p: &Path| -> Result<PathBuf> {
+        Ok(std::path::absolute(p).map_err(|e| format!("{}: {e}", p.display()))?)
+    };
+    let mut edges = Vec::new();
+    for job in jobs {
+        let mut inputs: Vec<PathBuf> = std::fs::read_dir(&job.input)
+            .map_err(|e| format!("{}: {e}", job.input.display()))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.is_file())
+            .map(|p| absolute(&p))
+            .collect::<Result<_>>()?;
+        inputs.sort();
+        let out = absolute(&job.output)?;
+        let mut args = job.args.clone();
+        // The input folder and the output are the first and third arguments.
+        args[0] = absolute(&job.input)?.display().to_string();
+        args[2] = out.display().to_string();
+        let dir = out.parent().map(|d| d.display().to_string()).unwrap_or_default();
+        let words: Vec<String> = std::iter::once(exe.display().to_string())
+            .chain(std::iter::once("encode".to_string()))
+            .chain(args)
+            .map(|w| shell_quote(&w))
+            .collect();
+        let command = format!("mkdir -p {} && {}", shell_quote(&dir), words.join(" "));
+        edges.push((out, inputs, command));
+    }
+    let text = match kind {
+        EmitArg::Ninja => ninja(manifest, &edges)?,
+        EmitArg::Make => make(manifest, &edges)?,
+    };
+    output::write_atomic(path, text.as_bytes())?;
+    println!("wrote {} ({} materials)", path.display(), edges.len());
+    Ok(())
+}
+
+type Edge = (PathBuf, Vec<PathBuf>, String);
+
+fn shell_quote(word: &str) -> String {
+    format!("'{}'", word.replace('\'', "'\\''"))
+}
+
+fn ninja(manifest: &Path, edges: &[Edge]) -> Result<String> {
+    // In a build line `$`, space and `:` are escaped with `$`; in a variable only `$` is.
+    let path = |p: &Path| -> Result<String> {
+        let s = p.display().to_string();
+        if s.contains('\n') {
+            return Err(format!("{s}: a path with a line break cannot go into a Ninja file").into());
+        }
+        Ok(s.replace('$', "$$").replace(' ', "$ ").replace(':', "$:"))
+    };
+    let mut s = format!(
+        "# Written by `nmat build {} --emit ninja`: one edge per material.\n\
+         rule encode\n  command = $command\n  description = nmat encode $out\n\n",
+        manifest.display()
+    );
+    for (out, inputs, command) in edges {
+        let deps: Vec<String> = inputs.iter().map(|p| path(p)).collect::<Result<_>>()?;
+        s.push_str(&format!("build {}: encode {}\n", path(out)?, deps.join(" ")));
+        s.push_str(&format!("  command = {}\n", command.replace('$', "$$")));
+    }
+    Ok(s)
+}
+
+fn make(manifest: &Path, edges: &[Edge]) -> Result<String> {
+    // Make cannot name a file with a space, a colon, `#`, `%` or `$` in a rule.
+    let path = |p: &Path| -> Result<String> {
+        let s = p.display().to_string();
+        if s.contains([' ', '\t', ':', '#', '%', '$', '\n', '\\']) {
+            return Err(format!(
+                "{s}: Make cannot name this file in a rule (a space, ':', '#', '%' or '$'); \
+                 use --emit ninja"
+            )
+            .into());
+        }
+        Ok(s)
+    };
+    let outs: Vec<String> = edges.iter().map(|(o, _, _)| path(o)).collect::<Result<_>>()?;
+    let mut s = format!(
+        "# Written by `nmat build {} --emit make`: one rule per material.\n\
+         .PHONY: all\nall: {}\n\n",
+        manifest.display(),
+        outs.join(" ")
+    );
+    for ((_, inputs, command), out) in edges.iter().zip(&outs) {
+        let deps: Vec<String> = inputs.iter().map(|p| path(p)).collect::<Result<_>>()?;
+        s.push_str(&format!("{out}: {}\n\t{}\n\n", deps.join(" "), command.replace('$', "$$")));
+    }
+    Ok(s)
 }
