@@ -136,6 +136,10 @@ pub struct EvalArgs {
     /// (by default that is refused: the numbers would compare different maps).
     #[arg(long)]
     pub force: bool,
+    /// Also write a self-contained HTML report: per map and mip the source, the decode and an
+    /// error heat map, PSNR and SSIM per map, the rate and the decode cost.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
     #[command(flatten)]
     pub memory: MemoryArg,
 }

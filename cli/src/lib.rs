@@ -7,6 +7,7 @@ pub mod input;
 pub mod manifest;
 pub mod output;
 pub mod progress;
+pub mod report;
 pub mod stats;
 pub mod transcode;
 

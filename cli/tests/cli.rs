@@ -1574,3 +1574,92 @@ fn build_caches_shards_and_isolates_failures() {
     assert!(!o.status.success() && text(&o).contains("--output"), "{}", text(&o));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Standard base64 decoding (RFC 4648), independent of the report writer's encoder.
+fn unbase64(s: &str) -> Vec<u8> {
+    let value = |c: u8| match c {
+        b'A'..=b'Z' => c - b'A',
+        b'a'..=b'z' => c - b'a' + 26,
+        b'0'..=b'9' => c - b'0' + 52,
+        b'+' => 62,
+        b'/' => 63,
+        _ => panic!("not base64: {c}"),
+    };
+    let mut out = Vec::new();
+    for chunk in s.as_bytes().chunks(4) {
+        let n =
+            chunk.iter().filter(|&&c| c != b'=').fold(0u32, |n, &c| n << 6 | u32::from(value(c)));
+        let pad = chunk.iter().filter(|&&c| c == b'=').count();
+        let n = n << (6 * pad);
+        out.extend_from_slice(&n.to_be_bytes()[1..4 - pad]);
+    }
+    out
+}
+
+/// `nmat eval --report`: one HTML file whose every picture decodes (source, decode and heat map
+/// for every map at every mip) and whose numbers are those `nmat eval` prints.
+#[test]
+fn eval_report_is_one_html_file_whose_pictures_and_numbers_hold() {
+    let dir = temp_dir("report");
+    let src = dir.join("src");
+    std::fs::create_dir_all(&src).unwrap();
+    write_maps(&src, 40);
+    let file = dir.join("m.nmat");
+    let o = nmat(&["encode", src.to_str().unwrap(), "-o", file.to_str().unwrap(), "--steps", "30"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let report = dir.join("report.html");
+    let o = nmat(&[
+        "eval",
+        file.to_str().unwrap(),
+        "--ref",
+        src.to_str().unwrap(),
+        "--report",
+        report.to_str().unwrap(),
+    ]);
+    let eval = text(&o);
+    assert!(o.status.success(), "{eval}");
+    let html = std::fs::read_to_string(&report).unwrap();
+    assert!(html.starts_with("<!DOCTYPE html>") && html.trim_end().ends_with("</html>"));
+    // Self-contained: every picture is inline, nothing is fetched.
+    assert!(!html.contains("src=\"http") && !html.contains("href="), "external reference");
+    let images: Vec<&str> = html
+        .split("src=\"data:image/png;base64,")
+        .skip(1)
+        .map(|r| r.split('"').next().unwrap())
+        .collect();
+    // 4 maps (albedo, normal, roughness, height) × 6 mips (40² … 1²) × source, decode, heat map.
+    assert_eq!(images.len(), 4 * 6 * 3);
+    for (i, b64) in images.iter().enumerate() {
+        let img =
+            image::load_from_memory(&unbase64(b64)).unwrap_or_else(|e| panic!("image {i}: {e}"));
+        let side = 40 >> (i / 3 % 6);
+        assert_eq!((img.width(), img.height()), (side.max(1), side.max(1)), "image {i}");
+    }
+    // The numbers: eval's overall PSNR and SSIM, and each map's chain PSNR as eval's table has it.
+    let overall = eval.lines().find(|l| l.starts_with("overall: PSNR ")).unwrap();
+    let psnr = overall.split("PSNR ").nth(1).unwrap().split(' ').next().unwrap();
+    let ssim = overall.split("SSIM ").nth(1).unwrap().split(' ').next().unwrap();
+    assert!(html.contains(&format!("class=\"psnr\">{psnr}<")), "PSNR {psnr}");
+    assert!(html.contains(&format!("class=\"ssim\">{ssim}<")), "SSIM {ssim}");
+    let map_lines: Vec<&str> = eval.lines().filter(|l| l.starts_with("bricks_")).collect();
+    assert_eq!(map_lines.len(), 4, "{eval}");
+    for line in map_lines {
+        let mut words = line.split_whitespace();
+        let (name, chain) = (words.next().unwrap(), words.next().unwrap());
+        let at = html
+            .find(&format!("<h2 class=\"map\">{name}</h2>"))
+            .unwrap_or_else(|| panic!("{name}"));
+        assert!(html[at..].contains(&format!("class=\"map-psnr\">{chain}<")), "{name}: {chain}");
+    }
+    // Refused before any work: the report over an input.
+    let o = nmat(&[
+        "eval",
+        file.to_str().unwrap(),
+        "--ref",
+        src.to_str().unwrap(),
+        "--report",
+        file.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success() && text(&o).contains("--report"), "{}", text(&o));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -9,6 +9,9 @@ use std::time::Instant;
 
 pub fn run(args: EvalArgs) -> Result<()> {
     let (input, reference) = (&args.input, &args.reference);
+    if let Some(report) = &args.report {
+        output::check_output_file("--report", report, std::slice::from_ref(input))?;
+    }
     let start = Instant::now();
     let bytes = read_nmat(input)?;
     let m = parse(&bytes, input)?;
@@ -17,6 +20,11 @@ pub fn run(args: EvalArgs) -> Result<()> {
     q.bppc = m.bppc_of(bytes.stored.len);
     warn_if_decoded(&q, reference);
     print!("{}", output::quality_table(&set, &q, None));
+    if let Some(report) = &args.report {
+        let html = nmat_cli::report::html(input, &m, bytes.stored, &set, &q);
+        output::write_atomic(report, html.as_bytes())?;
+        println!("wrote {} ({} bytes)", report.display(), html.len());
+    }
     println!("evaluated in {:.1} s", start.elapsed().as_secs_f64());
     Ok(())
 }
