@@ -39,10 +39,25 @@ pub struct Options {
 }
 
 impl Options {
-    /// `self` where set, else `defaults`.
+    /// `self` where set, else `defaults` — but a JPEG entry does not inherit the neural
+    /// codec's options (`profile`, `target_psnr`, `steps`, `effort`, `seed`) from the defaults,
+    /// nor a neural one JPEG's (`quality`, `subsampling`): `[defaults]` may hold both.
     fn over(&self, defaults: &Options) -> Options {
+        let codec = self.codec.clone().or_else(|| defaults.codec.clone());
+        let jpeg = codec.as_deref() == Some("jpeg");
+        let defaults = Options {
+            profile: defaults.profile.clone().filter(|_| !jpeg),
+            target_psnr: defaults.target_psnr.filter(|_| !jpeg),
+            steps: defaults.steps.filter(|_| !jpeg),
+            effort: defaults.effort.clone().filter(|_| !jpeg),
+            seed: defaults.seed.filter(|_| !jpeg),
+            quality: defaults.quality.filter(|_| jpeg),
+            subsampling: defaults.subsampling.clone().filter(|_| jpeg),
+            ..defaults.clone()
+        };
+        let defaults = &defaults;
         Options {
-            codec: self.codec.clone().or_else(|| defaults.codec.clone()),
+            codec,
             profile: self.profile.clone().or_else(|| defaults.profile.clone()),
             bppc: self.bppc.or(defaults.bppc),
             quality: self.quality.or(defaults.quality),
@@ -333,6 +348,29 @@ mod tests {
         ] {
             assert_eq!(matches(p, n), want, "{p} vs {n}");
         }
+    }
+
+    #[test]
+    fn entries_inherit_only_their_codecs_defaults() {
+        let dir = std::env::temp_dir().join(format!("nmat-manifest-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("a")).unwrap();
+        let jobs = expand(
+            "[defaults]\nprofile = \"ntc-1.0\"\nquality = 70\nsteps = 9\n\
+             [[material]]\ninput = \"a\"\noutput = \"n.nmat\"\n\
+             [[material]]\ninput = \"a\"\noutput = \"j.nmat\"\ncodec = \"jpeg\"\n\
+             [[material]]\ninput = \"a\"\noutput = \"k.nmat\"\ncodec = \"jpeg\"\nsteps = 3\n",
+            &dir,
+        )
+        .unwrap();
+        let args = |name: &str| {
+            let job = jobs.iter().find(|j| j.output.ends_with(name)).unwrap();
+            job.args[3..].join(" ")
+        };
+        assert_eq!(args("n.nmat"), "--profile ntc-1.0 --steps 9");
+        assert_eq!(args("j.nmat"), "--codec jpeg --quality 70");
+        // Set on the entry itself: passed on (and `nmat encode` names the conflict).
+        assert_eq!(args("k.nmat"), "--codec jpeg --quality 70 --steps 3");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -1,7 +1,8 @@
-//! Entropy-coded latents (docs/FORMAT.md §12): a PACKED_LATENTS section stands in for LATENTS on
-//! disk and is decoded once, at load, into the fixed-rate layout every decoder reads.
+//! Packed files (docs/FORMAT.md §12): on disk a PACKED_LATENTS section stands in for LATENTS (the
+//! latents entropy-coded) and a PACKED_JPEG section for JPEG (the streams without their index);
+//! either is unpacked once, at load, into the fixed-rate file every decoder reads.
 //!
-//! The coder is a binary adaptive range coder (12-bit probabilities, adaptation shift 5, 32-bit
+//! The latents' coder is a binary adaptive range coder (12-bit probabilities, adaptation shift 5, 32-bit
 //! range renormalized bytewise) over each latent's bits from the most significant, every bit
 //! modelled by its position in the code's binary tree and by the codes of the latent's left and
 //! upper neighbours in the same grid channel. Decoding is `no_std`, allocation-free and bounded:
@@ -19,15 +20,16 @@ use crate::format::container::{
 use crate::jpeg::{Jpeg, Streams};
 use crate::limits::MAX_GRIDS;
 
-/// Bytes before the coded stream in a PACKED_LATENTS section.
+/// Bytes before the payload of a packed section (the coded stream, or the bare JPEG body).
 pub const PACKED_HEADER_LEN: usize = 8;
 /// PACKED_LATENTS' coder: the binary range coder with neighbour contexts (§12.2).
 pub const CODER_RANGE_NEIGHBOURS: u8 = 1;
 /// PACKED_JPEG's "coder": streams without index, the index rebuilt by scanning them (§12.5).
 pub const CODER_JPEG_SCAN: u8 = 2;
-/// A stream of `n` bytes stands for at most `MAX_EXPANSION · (n + 64)` bytes of latents: each
-/// binary decision costs at least 0.011 bits with 12-bit probabilities and shift 5 (§12.3), so a
-/// valid stream is far below this bound, and a hostile one cannot ask for unbounded memory.
+/// A payload of `n` bytes stands for at most `MAX_EXPANSION · (n + 64)` bytes: each binary
+/// decision of the latents' coder costs at least 0.011 bits with 12-bit probabilities and shift 5
+/// (§12.3), and a JPEG MCU at least 2 bits for its 3.7–6.7 bytes of index and DC values, so a
+/// valid file is far below this bound, and a hostile one cannot ask for unbounded memory.
 pub const MAX_EXPANSION: usize = 256;
 
 const PROB_BITS: u32 = 12;
