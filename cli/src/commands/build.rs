@@ -24,8 +24,14 @@ struct Record {
     psnr_db: f64,
     ssim: f64,
     /// Whole-chain PSNR per source map.
-    maps: Vec<(String, f64)>,
+    maps: Vec<MapQuality>,
     seconds: f64,
+}
+
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
+struct MapQuality {
+    map: String,
+    psnr_db: f64,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -226,8 +232,8 @@ fn parse_report(text: &str) -> Option<Record> {
             let tokens: Vec<&str> = l.split_whitespace().collect();
             let numeric = tokens.iter().rev().take_while(|t| t.parse::<f64>().is_ok()).count();
             let name = tokens.get(..tokens.len().checked_sub(numeric)?)?.join(" ");
-            let chain = tokens.get(tokens.len() - numeric)?.parse().ok()?;
-            Some((name, chain))
+            let psnr_db = tokens.get(tokens.len() - numeric)?.parse().ok()?;
+            Some(MapQuality { map: name, psnr_db })
         })
         .collect();
     let o = lines[overall];
@@ -274,7 +280,8 @@ fn write_summary(path: &Path, outcomes: &[Outcome]) -> Result<()> {
             String::from("material,input,output,status,seconds,bppc,psnr_db,ssim,maps,error\n");
         let quote = |v: &str| format!("\"{}\"", v.replace('"', "\"\""));
         for o in outcomes {
-            let maps: Vec<String> = o.record.maps.iter().map(|(n, p)| format!("{n}={p}")).collect();
+            let maps: Vec<String> =
+                o.record.maps.iter().map(|m| format!("{}={}", m.map, m.psnr_db)).collect();
             s.push_str(&format!(
                 "{},{},{},{},{:.1},{},{},{},{},{}\n",
                 quote(&o.material),
