@@ -5,6 +5,7 @@
 
 pub mod generate;
 pub mod reference;
+pub(crate) mod reference_container;
 pub mod reference_packed;
 pub mod reference_packed_jpeg;
 
