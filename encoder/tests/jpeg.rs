@@ -10,7 +10,7 @@ use std::process::Command;
 mod common;
 
 use common::{jpeg, pattern};
-use jpeg_encoder::SamplingFactor;
+use jpeg_encoder::{ColorType, Encoder, SamplingFactor};
 use nmat_core::{ChannelMask, Container, Decoder};
 use nmat_encode::jpeg::{JpegError, index_jpeg, material_from_jpeg};
 
