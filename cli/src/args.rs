@@ -98,6 +98,10 @@ pub struct BuildArgs {
     /// summary.csv].
     #[arg(long)]
     pub summary: Option<PathBuf>,
+    /// Also write `OUTPUT.html` for every material, `nmat eval --report` of it against its
+    /// folder (remade when the output is newer).
+    #[arg(long)]
+    pub report: bool,
     /// Build nothing: write a build file with one edge per material (of the shard) calling
     /// `nmat encode`, for Ninja, Make or a distributed executor to schedule (-o names it).
     #[arg(long, requires = "output")]

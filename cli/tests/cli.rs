@@ -1480,9 +1480,14 @@ fn build_caches_shards_and_isolates_failures() {
     let brick = csv.lines().find(|l| l.starts_with("\"brick\"")).unwrap();
     assert!(brick.contains(&format!(",{psnr},")), "{brick} vs eval {psnr}");
 
-    // Nothing changed: nothing rebuilt. One map changed: that material only. --force: all.
-    let o = build(&whole, &[]);
+    // Nothing changed: nothing rebuilt (--report adds each material's HTML report). One map
+    // changed: that material only. --force: all.
+    let o = build(&whole, &["--report"]);
     assert!(text(&o).contains("0 built, 3 up to date"), "{}", text(&o));
+    for name in ["brick", "wall", "floor"] {
+        let html = std::fs::read_to_string(dir.join(format!("whole/{name}.nmat.html"))).unwrap();
+        assert!(html.contains("class=\"psnr\"") && html.contains("data:image/png"), "{name}");
+    }
     write_maps(&dir.join("textures/wall"), 20);
     let o = build(&whole, &["--jobs", "1"]);
     assert!(text(&o).contains("1 built, 2 up to date"), "{}", text(&o));

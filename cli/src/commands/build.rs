@@ -98,7 +98,14 @@ pub fn run(args: BuildArgs) -> Result<()> {
         for _ in 0..workers {
             s.spawn(|| {
                 while let Some(job) = queue.lock().ok().and_then(|mut q| q.pop_front()) {
-                    let outcome = build_one(&job, &exe, &version, threads, args.force);
+                    let mut outcome = build_one(&job, &exe, &version, threads, args.force);
+                    if args.report
+                        && outcome.status != Status::Failed
+                        && let Err(e) = report(&job, &exe)
+                    {
+                        outcome.status = Status::Failed;
+                        outcome.error = e;
+                    }
                     let mut done = match outcomes.lock() {
                         Ok(d) => d,
                         Err(poisoned) => poisoned.into_inner(),
@@ -185,6 +192,35 @@ fn build_one(job: &Job, exe: &Path, version: &str, threads: usize, force: bool) 
         Err(e) => outcome.error = e,
     }
     outcome
+}
+
+/// `OUTPUT.html`: `nmat eval --report` of the output against its folder (made again only when
+/// the output is newer than it); the eval's console goes to `OUTPUT.report.log`.
+fn report(job: &Job, exe: &Path) -> std::result::Result<(), String> {
+    let html = beside(&job.output, ".html");
+    let modified = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
+    if modified(&html).is_some_and(|h| modified(&job.output).is_some_and(|o| h >= o)) {
+        return Ok(());
+    }
+    let log = beside(&job.output, ".report.log");
+    let file = std::fs::File::create(&log).map_err(|e| format!("{}: {e}", log.display()))?;
+    let err = file.try_clone().map_err(|e| format!("{}: {e}", log.display()))?;
+    let status = Command::new(exe)
+        .arg("eval")
+        .arg(&job.output)
+        .arg("--ref")
+        .arg(&job.input)
+        .arg("--report")
+        .arg(&html)
+        .stdin(Stdio::null())
+        .stdout(file)
+        .stderr(err)
+        .status()
+        .map_err(|e| format!("{}: {e}", exe.display()))?;
+    if !status.success() {
+        return Err(format!("nmat eval --report exited with {status} (log {})", log.display()));
+    }
+    Ok(())
 }
 
 /// Runs `nmat encode` for `job` with its output into `log`; the quality it reports.
