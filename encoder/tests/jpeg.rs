@@ -9,7 +9,7 @@ use std::process::Command;
 
 mod common;
 
-use common::{jpeg, pattern};
+use common::{MODES, jpeg, pattern};
 use jpeg_encoder::{ColorType, Encoder, SamplingFactor};
 use nmat_core::{ChannelMask, Container, Decoder};
 use nmat_encode::jpeg::{JpegError, index_jpeg, material_from_jpeg};
@@ -72,13 +72,6 @@ fn have_djpeg() -> bool {
 }
 
 const SIZES: [(u32, u32); 6] = [(1, 1), (17, 9), (8, 8), (33, 47), (64, 64), (100, 37)];
-const MODES: [(usize, SamplingFactor, &str); 5] = [
-    (1, SamplingFactor::F_1_1, "gray"),
-    (3, SamplingFactor::R_4_4_4, "4:4:4"),
-    (3, SamplingFactor::R_4_2_0, "4:2:0"),
-    (3, SamplingFactor::R_4_2_2, "4:2:2"),
-    (3, SamplingFactor::R_4_4_0, "4:4:0"),
-];
 
 #[test]
 fn indexed_streams_decode_like_djpeg_texel_by_texel_and_row_by_row() {

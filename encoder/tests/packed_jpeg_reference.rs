@@ -7,28 +7,15 @@
 
 mod common;
 
+use common::MODES;
+
 use jpeg_encoder::SamplingFactor;
-use nmat_core::internals::file_checksum;
 use nmat_core::{Container, ParseOptions};
 use nmat_encode::Storage;
 use nmat_encode::jpeg::{JpegOptions, Subsampling, encode_jpeg, index_jpeg, material_from_jpeg};
+use nmat_tests::files::{assert_same_bytes, jpeg_stream_records, refresh_checksum, section};
 use nmat_tests::generate::Rng;
 use nmat_tests::reference_packed_jpeg;
-
-/// Panics naming the first differing byte (the vectors are too long for `assert_eq!`'s dump).
-fn assert_same_bytes(what: &str, actual: &[u8], expected: &[u8]) {
-    if actual == expected {
-        return;
-    }
-    let first = actual.iter().zip(expected).position(|(a, b)| a != b);
-    panic!(
-        "{what}: {} bytes vs {} expected; first difference at {first:?} ({:?} vs {:?})",
-        actual.len(),
-        expected.len(),
-        first.map(|i| actual[i]),
-        first.map(|i| expected[i]),
-    );
-}
 
 fn core_unpack(bytes: &[u8]) -> Result<Vec<u8>, nmat_core::Error> {
     nmat_core::unpack(bytes, ParseOptions::default()).map(|u| u.into_owned())
@@ -109,13 +96,6 @@ fn indexed_material(file: &[u8]) -> Vec<u8> {
 
 const SIZES: [(u32, u32); 9] =
     [(1, 1), (7, 5), (8, 8), (17, 9), (16, 48), (33, 47), (64, 64), (100, 37), (130, 71)];
-const MODES: [(usize, SamplingFactor, &str); 5] = [
-    (1, SamplingFactor::F_1_1, "gray"),
-    (3, SamplingFactor::R_4_4_4, "4:4:4"),
-    (3, SamplingFactor::R_4_2_0, "4:2:0"),
-    (3, SamplingFactor::R_4_2_2, "4:2:2"),
-    (3, SamplingFactor::R_4_4_0, "4:4:0"),
-];
 
 #[test]
 fn indexed_jpeg_files_pack_identically() {
@@ -163,42 +143,11 @@ fn encoded_multi_map_materials_pack_identically() {
 // Edited packed files
 // ---------------------------------------------------------------------------------------------
 
-fn refresh_checksum(bytes: &mut [u8]) {
-    bytes[20..24].fill(0);
-    let crc = file_checksum(bytes);
-    bytes[20..24].copy_from_slice(&crc.to_le_bytes());
-}
-
-/// (offset, length) of the first section of `kind` in the table.
-fn section(bytes: &[u8], kind: u32) -> (usize, usize) {
-    let count = u32::from_le_bytes(bytes[16..20].try_into().unwrap()) as usize;
-    (0..count)
-        .map(|i| 32 + 16 * i)
-        .find(|&e| u32::from_le_bytes(bytes[e..e + 4].try_into().unwrap()) == kind)
-        .map(|e| {
-            let word = |k: usize| u32::from_le_bytes(bytes[e + k..e + k + 4].try_into().unwrap());
-            (word(8) as usize, word(12) as usize)
-        })
-        .unwrap()
-}
-
-/// Offset of the stream records in a JPEG section body: after the header, map records,
-/// quantization tables and Huffman tables (FORMAT.md §11.1).
-fn find_records(body: &[u8]) -> usize {
-    let (maps, quant, huffman) = (body[2] as usize, body[3] as usize, body[4] as usize);
-    let mut pos = 8 + 4 * maps + 64 * quant;
-    for _ in 0..huffman {
-        let count = u16::from_le_bytes([body[pos + 2], body[pos + 3]]) as usize;
-        pos = (pos + 20 + count + 3) & !3;
-    }
-    pos
-}
-
 /// Where the stream records of a packed file are, and how many there are.
 fn stream_records(packed: &[u8]) -> (usize, usize) {
     let (offset, _) = section(packed, 7);
     let body = offset + 8;
-    let records = body + find_records(&packed[body..]);
+    let records = body + jpeg_stream_records(&packed[body..]);
     let first_stream =
         u32::from_le_bytes(packed[records..records + 4].try_into().unwrap()) as usize;
     (records, (body + first_stream - records) / 20)
@@ -624,7 +573,7 @@ fn packed_with_span(span: u32) -> Vec<u8> {
     let mut sections = sections_of(&packed);
     let section = sections.iter_mut().find(|s| s.0 == 7).unwrap();
     let body = &section.2[8..];
-    let records = find_records(body);
+    let records = jpeg_stream_records(body);
     assert_eq!(
         records + 20,
         u32::from_le_bytes(body[records..records + 4].try_into().unwrap()) as usize
@@ -687,7 +636,8 @@ fn an_mcu_65535_bits_after_its_group_start_is_the_limit() {
     drop(m);
     let (jpeg, _) = section(&unpacked, 5);
     let body = &unpacked[jpeg..];
-    let stream = u32::from_le_bytes(body[find_records(body)..][..4].try_into().unwrap()) as usize;
+    let stream =
+        u32::from_le_bytes(body[jpeg_stream_records(body)..][..4].try_into().unwrap()) as usize;
     let group = &body[stream..stream + 20];
     assert_eq!(u32::from_le_bytes(group[0..4].try_into().unwrap()), 0);
     assert_eq!(u16::from_le_bytes([group[18], group[19]]), 65535, "MCU 8's relative offset");

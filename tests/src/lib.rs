@@ -3,6 +3,7 @@
 //! neural materials, `reference_packed_jpeg` for JPEG materials, §12.5), fixture I/O and hashing.
 //! The tests themselves live in `tests/tests/`.
 
+pub mod files;
 pub mod generate;
 pub mod reference;
 pub(crate) mod reference_container;

@@ -3,10 +3,10 @@
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
 
-use nmat_core::internals::file_checksum;
 use nmat_core::{
     ChannelMask, Container, Error, Field, Filter, Material, ParseOptions, Precision, SampleRequest,
 };
+use nmat_tests::files::refresh_checksum;
 use nmat_tests::generate::{generate, golden_configs};
 use nmat_tests::reference;
 
@@ -33,11 +33,6 @@ fn exercise(m: &Material<'_>) {
         channels: ChannelMask::ALL,
     };
     m.sample(&req, &mut f).unwrap();
-}
-
-fn refresh_checksum(bytes: &mut [u8]) {
-    let crc = file_checksum(bytes);
-    bytes[20..24].copy_from_slice(&crc.to_le_bytes());
 }
 
 #[test]

@@ -3,34 +3,14 @@
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
 
-use nmat_core::internals::file_checksum;
 use nmat_core::{
     Argument, Container, Error, Field, PACKED_VERSION_MINOR, ParseOptions, SectionKind, pack,
     unpack, unpack_into, unpacked_len,
 };
+use nmat_tests::files::{jpeg_stream_records, refresh_checksum, section};
 use nmat_tests::generate::{FixtureConfig, Layout, Rng, generate, random_config};
 
 const NO_CHECKSUM: ParseOptions = ParseOptions { verify_checksum: false };
-
-/// The (offset, length) of the first section of `kind` in a file's table.
-fn section(bytes: &[u8], kind: SectionKind) -> (usize, usize) {
-    let count = u32::from_le_bytes(bytes[16..20].try_into().unwrap()) as usize;
-    (0..count)
-        .map(|i| {
-            let e = &bytes[32 + 16 * i..48 + 16 * i];
-            let word = |k: usize| u32::from_le_bytes(e[4 * k..4 * k + 4].try_into().unwrap());
-            (word(0), word(2) as usize, word(3) as usize)
-        })
-        .find(|&(k, _, _)| k == kind.0)
-        .map(|(_, o, l)| (o, l))
-        .expect("section present")
-}
-
-fn refresh_checksum(bytes: &mut [u8]) {
-    bytes[20..24].fill(0);
-    let crc = file_checksum(bytes);
-    bytes[20..24].copy_from_slice(&crc.to_le_bytes());
-}
 
 #[test]
 fn random_materials_pack_and_unpack_to_the_same_bytes() {
@@ -95,8 +75,8 @@ fn with_codes(cfg: &FixtureConfig, code: impl Fn(&mut Rng, u8) -> u8) -> Vec<u8>
 
 fn latents_ratio(bytes: &[u8]) -> f64 {
     let packed = pack(bytes).unwrap();
-    let (_, stream) = section(&packed, SectionKind::PACKED_LATENTS);
-    let (_, raw) = section(bytes, SectionKind::LATENTS);
+    let (_, stream) = section(&packed, SectionKind::PACKED_LATENTS.0);
+    let (_, raw) = section(bytes, SectionKind::LATENTS.0);
     stream as f64 / raw as f64
 }
 
@@ -146,7 +126,7 @@ fn flip_every_byte(packed: &[u8], flips: usize, seed: u64) {
 fn hostile_packed_files_end_in_typed_errors() {
     let bytes = generate(&random_config(7)).to_bytes().unwrap();
     let packed = pack(&bytes).unwrap();
-    let (offset, len) = section(&packed, SectionKind::PACKED_LATENTS);
+    let (offset, len) = section(&packed, SectionKind::PACKED_LATENTS.0);
     // Every single-byte change, checksum ignored: an error or a file that parses or not — never
     // a panic, never more memory than the bound.
     flip_every_byte(&packed, 4, 99);
@@ -217,8 +197,8 @@ fn a_jpeg_material_packs_without_its_index_and_unpacks_to_the_same_bytes() {
     let bytes = jpeg_fixture("pattern_420_37x21.nmat");
     let packed = pack(&bytes).unwrap();
     assert!(packed.len() < bytes.len());
-    let (_, body) = section(&packed, SectionKind::PACKED_JPEG);
-    let (_, indexed) = section(&bytes, SectionKind::JPEG);
+    let (_, body) = section(&packed, SectionKind::PACKED_JPEG.0);
+    let (_, indexed) = section(&bytes, SectionKind::JPEG.0);
     // 6 MCUs: one index group of 20 bytes and 18 DC values of 12 bits (27 bytes, padded to 28)
     // are gone, 8 header bytes came.
     assert_eq!(indexed - body, 20 + 28 - 8);
@@ -233,7 +213,7 @@ fn a_jpeg_material_packs_without_its_index_and_unpacks_to_the_same_bytes() {
 #[test]
 fn hostile_packed_jpeg_files_end_in_typed_errors() {
     let packed = jpeg_fixture("pattern_420_37x21.packed.nmat");
-    let (offset, _) = section(&packed, SectionKind::PACKED_JPEG);
+    let (offset, _) = section(&packed, SectionKind::PACKED_JPEG.0);
     flip_every_byte(&packed, 8, 5);
     let patch = |f: &dyn Fn(&mut Vec<u8>)| {
         let mut b = packed.clone();
@@ -259,7 +239,7 @@ fn hostile_packed_jpeg_files_end_in_typed_errors() {
     let restarted = |v: u16| {
         let mut b = packed.clone();
         let body = offset + 8;
-        let records = body + find_records(&b[body..]);
+        let records = body + jpeg_stream_records(&b[body..]);
         b[records + 18..records + 20].copy_from_slice(&v.to_le_bytes());
         refresh_checksum(&mut b);
         unpack(&b, ParseOptions::default()).map(|u| u.into_owned())
@@ -269,16 +249,4 @@ fn hostile_packed_jpeg_files_end_in_typed_errors() {
     for v in [0, 1, 2, 4, 5, u16::MAX] {
         assert!(restarted(v).map_or(true, |u| u != original), "restart interval {v}");
     }
-}
-
-/// Offset of the stream records in a JPEG section body: after the header, map records,
-/// quantization tables and Huffman tables (FORMAT.md §11.1).
-fn find_records(body: &[u8]) -> usize {
-    let (maps, quant, huffman) = (body[2] as usize, body[3] as usize, body[4] as usize);
-    let mut pos = 8 + 4 * maps + 64 * quant;
-    for _ in 0..huffman {
-        let count = u16::from_le_bytes([body[pos + 2], body[pos + 3]]) as usize;
-        pos = (pos + 20 + count + 3) & !3;
-    }
-    pos
 }

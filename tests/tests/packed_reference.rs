@@ -4,23 +4,9 @@
 #![allow(clippy::unwrap_used)]
 
 use nmat_core::{MaterialSpec, ParseOptions};
+use nmat_tests::files::{assert_same_bytes, refresh_checksum};
 use nmat_tests::generate::{FixtureConfig, Layout, Rng, generate, random_config};
 use nmat_tests::reference_packed;
-
-/// Panics naming the first differing byte (the vectors are too long for `assert_eq!`'s dump).
-fn assert_same_bytes(what: &str, actual: &[u8], expected: &[u8]) {
-    if actual == expected {
-        return;
-    }
-    let first = actual.iter().zip(expected).position(|(a, b)| a != b);
-    panic!(
-        "{what}: {} bytes vs {} expected; first difference at {first:?} ({:?} vs {:?})",
-        actual.len(),
-        expected.len(),
-        first.map(|i| actual[i]),
-        first.map(|i| expected[i]),
-    );
-}
 
 /// On one fixed-rate file: both packers write the same bytes, the reference unpacks nmat-core's
 /// packed file and nmat-core the reference's, each to the input. Returns the packed file.
@@ -322,12 +308,6 @@ fn edited_packed_files_agree() {
             "unpacked_minor 7"
         ]
     );
-}
-
-fn refresh_checksum(bytes: &mut [u8]) {
-    bytes[20..24].fill(0);
-    let crc = nmat_core::internals::file_checksum(bytes);
-    bytes[20..24].copy_from_slice(&crc.to_le_bytes());
 }
 
 /// Fixed-rate files off the writer's beaten path: both packers accept the same ones (with the same

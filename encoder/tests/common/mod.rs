@@ -42,3 +42,12 @@ pub fn jpeg(
     e.encode(&pattern(w, h, components, w * 31 + h), w as u16, h as u16, color).unwrap();
     out
 }
+
+/// Every component layout the JPEG tests cover: gray and each chroma subsampling.
+pub const MODES: [(usize, SamplingFactor, &str); 5] = [
+    (1, SamplingFactor::F_1_1, "gray"),
+    (3, SamplingFactor::R_4_4_4, "4:4:4"),
+    (3, SamplingFactor::R_4_2_0, "4:2:0"),
+    (3, SamplingFactor::R_4_2_2, "4:2:2"),
+    (3, SamplingFactor::R_4_4_0, "4:4:0"),
+];
