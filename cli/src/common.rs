@@ -155,9 +155,18 @@ pub fn with_decode_progress<T>(
 
 /// Whole-chain quality of `m` against `set`, with progress when the decode is long.
 pub fn chain_quality_shown(m: &Material<'_>, set: &TextureSet) -> ChainQuality {
+    chain_quality_shown_keeping(m, set, &mut |_, _| {})
+}
+
+/// [`chain_quality_shown`], handing each mip's decode to `keep` (`metrics::chain_quality_keeping`).
+pub fn chain_quality_shown_keeping(
+    m: &Material<'_>,
+    set: &TextureSet,
+    keep: &mut dyn FnMut(usize, Vec<f32>),
+) -> ChainQuality {
     let cost = output::cost_of_mips(m, 0..m.mip_count());
     with_decode_progress("eval", cost, |progress| {
-        nmat_encode::metrics::chain_quality_with(m, set, progress)
+        nmat_encode::metrics::chain_quality_keeping(m, set, progress, keep)
     })
 }
 

@@ -5,7 +5,7 @@
 use crate::input::Stored;
 use image::{ImageBuffer, Rgb};
 use nmat_core::Material;
-use nmat_encode::metrics::{ChainQuality, decode_mip, ssim_channel, unit_of};
+use nmat_encode::metrics::{ChainQuality, ssim_channel, unit_of};
 use nmat_encode::texset::TextureSet;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -18,13 +18,15 @@ pub const MAX_SIDE: u32 = 512;
 pub const HEAT_FULL_SCALE: f32 = 0.1;
 
 /// The report of `m` (read from `path`, stored as `stored`) against its source maps `set`, with
-/// the quality `q` measured on them.
+/// the quality `q` measured on them and the decode of each mip it was measured on (`decode_mip`'s
+/// values, as `metrics::chain_quality_keeping` hands them over).
 pub fn html(
     path: &Path,
     m: &Material<'_>,
     stored: Stored,
     set: &TextureSet,
     q: &ChainQuality,
+    decoded: &[Vec<f32>],
 ) -> String {
     let title = escape(&path.display().to_string());
     let mut s = String::new();
@@ -68,14 +70,9 @@ pub fn html(
          top-left {MAX_SIDE}×{MAX_SIDE}.</p>"
     );
     let c = set.channel_count();
-    let decoded: Vec<Vec<f32>> = (0..set.mips.len())
-        .map(|mip| {
-            decode_mip(m, mip as u32)
-                .iter()
-                .enumerate()
-                .map(|(i, &d)| unit_of(m, i % c, d))
-                .collect()
-        })
+    let decoded: Vec<Vec<f32>> = decoded
+        .iter()
+        .map(|mip| mip.iter().enumerate().map(|(i, &d)| unit_of(m, i % c, d)).collect())
         .collect();
     for map in &set.maps {
         let chans: Vec<usize> =

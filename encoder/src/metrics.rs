@@ -106,6 +106,18 @@ pub fn chain_quality_with(
     set: &TextureSet,
     progress: &mut dyn FnMut(u64),
 ) -> ChainQuality {
+    chain_quality_keeping(m, set, progress, &mut |_, _| {})
+}
+
+/// [`chain_quality_with`], handing each mip's decode ([`decode_mip`]'s values, mip by mip) to
+/// `keep` once it is measured, for a caller that shows them (`nmat eval --report`) without
+/// decoding the chain again.
+pub fn chain_quality_keeping(
+    m: &Material<'_>,
+    set: &TextureSet,
+    progress: &mut dyn FnMut(u64),
+    keep: &mut dyn FnMut(usize, Vec<f32>),
+) -> ChainQuality {
     let c = set.channel_count();
     let (mut total, mut count) = (0.0f64, 0.0f64);
     let mut mse = Vec::new();
@@ -130,6 +142,7 @@ pub fn chain_quality_with(
                 .sum::<f64>()
                 / c as f64;
         }
+        keep(mip, decoded);
     }
     ChainQuality { psnr: psnr(total / count), mse, ssim, bppc: m.bppc(), memory_bppc: m.bppc() }
 }
