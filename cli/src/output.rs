@@ -659,7 +659,7 @@ pub fn describe(path: &Path, m: &Material<'_>, stored: Stored) -> String {
         );
     }
     let _ = writeln!(s);
-    let constant = m.channel_count() - m.informative_channels().min(m.channel_count());
+    let constant = m.channels().iter().filter(|c| c.range_min == c.range_max).count();
     let _ = write!(
         s,
         "size {}×{}, {} mips, {} channels, {:?} addressing, {:.4} bits per pixel per channel",
@@ -799,7 +799,7 @@ fn jpeg_lines(m: &Material<'_>, jpeg: &nmat_core::Jpeg<'_>, stored: Stored) -> S
     let _ = writeln!(
         s,
         "  JPEG section {section} bytes in memory ({:.4} BPPC) of the fixed-rate file's {}",
-        section as f64 * 8.0 / texel_channels(m),
+        m.bppc_of(section),
         m.file_len()
     );
     s
