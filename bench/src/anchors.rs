@@ -8,8 +8,10 @@
 //! their whole files. For JPEG XL and AVIF the quality is searched (one setting for the whole
 //! material) so the BPPC is the largest not above each `--match` target.
 //!
-//! Usage: nmat-anchors MATERIAL_DIR [--match LABEL=BPPC]... [--matched-only] > rows.csv
-//! (`--matched-only` skips BC1/BC4 and ASTC, whose rates do not depend on nmat's.)
+//! Usage: nmat-anchors MATERIAL_DIR [--match LABEL=BPPC]... [--sweep] [--matched-only] > rows.csv
+//! (`--matched-only` skips BC1/BC4 and ASTC, whose rates do not depend on nmat's; `--sweep` adds
+//! JPEG XL and AVIF at seven settings each, from about 0.05 to 2 BPPC: the curves `nmat eval
+//! --report --anchors rows.csv` draws.)
 //! Rows: material,codec,setting,bppc,psnr_db,seconds; matched rows are named `jpegxl@LABEL`. Needs nvcompress/nvdecompress (libnvtt-bin),
 //! astcenc, cjxl/djxl (libjxl-tools), avifenc/avifdec (libavif-bin) on PATH.
 
@@ -257,6 +259,7 @@ fn main() {
         PathBuf::from(args.next().expect("usage: nmat-anchors MATERIAL_DIR [--match BPPC]..."));
     let mut targets = Vec::new();
     let mut fixed_rate = true;
+    let mut sweep = false;
     while let Some(a) = args.next() {
         match a.as_str() {
             "--match" => {
@@ -265,6 +268,7 @@ fn main() {
                 targets.push((label.to_string(), bppc.parse::<f64>().expect("--match LABEL=BPPC")));
             }
             "--matched-only" => fixed_rate = false,
+            "--sweep" => sweep = true,
             other => panic!("nmat-anchors: unknown argument {other:?}"),
         }
     }
@@ -288,6 +292,14 @@ fn main() {
     for &codec in fixed {
         let t = Instant::now();
         report(codec, "", t, measure(codec, &work, &set, &parts));
+    }
+    if sweep {
+        let jxl = [20, 40, 60, 75, 85, 92, 97].map(Codec::Jxl);
+        let avif = [56, 48, 40, 32, 24, 16, 8].map(Codec::Avif);
+        for codec in jxl.into_iter().chain(avif) {
+            let t = Instant::now();
+            report(codec, "", t, measure(codec, &work, &set, &parts));
+        }
     }
     for (label, target) in &targets {
         let (label, target) = (format!("@{label}"), *target);

@@ -46,7 +46,8 @@ pub enum Command {
     /// index): a larger file that opens without unpacking (zero-copy, memory-mapped) and that
     /// readers of format 2.0 and 2.1 read.
     Unpack(PackArgs),
-    /// Compare a .nmat file with the source maps: PSNR per map and mip, SSIM, BPPC.
+    /// Compare .nmat files with their source maps: PSNR per map and mip, SSIM, BPPC; with
+    /// `--report`, one HTML page to look at them (with a rate–quality plot for several files).
     Eval(EvalArgs),
     /// The speed–accuracy table of docs/PERFORMANCE.md for one or more .nmat files: every decode
     /// mode (kernels, float, channel subsets, filters, random access, threads) over one region of
@@ -99,9 +100,15 @@ pub struct BuildArgs {
     #[arg(long)]
     pub summary: Option<PathBuf>,
     /// Also write `OUTPUT.html` for every material, `nmat eval --report` of it against its
-    /// folder (remade when the output is newer).
+    /// folder (remade when the output is newer), and a page for the whole build beside the
+    /// summary (SUMMARY with extension html): every material linked, and a rate–quality plot
+    /// for each folder built more than once (profiles, codecs) or with `--anchors` points.
     #[arg(long)]
     pub report: bool,
+    /// Other codecs' rate–quality points for the build's page, as `nmat eval --anchors` takes
+    /// them: the rows of each folder's name are drawn beside its outputs.
+    #[arg(long, requires = "report")]
+    pub anchors: Option<PathBuf>,
     /// Build nothing: write a build file with one edge per material (of the shard) calling
     /// `nmat encode`, for Ninja, Make or a distributed executor to schedule (-o names it).
     #[arg(long, requires = "output")]
@@ -132,7 +139,9 @@ pub struct InfoArgs {
 
 #[derive(Args)]
 pub struct EvalArgs {
-    pub input: PathBuf,
+    /// One or more .nmat files of the same source (profiles, rates or codecs to compare).
+    #[arg(required = true)]
+    pub inputs: Vec<PathBuf>,
     /// Folder with the reference maps.
     #[arg(long = "ref")]
     pub reference: PathBuf,
@@ -141,9 +150,16 @@ pub struct EvalArgs {
     #[arg(long)]
     pub force: bool,
     /// Also write a self-contained HTML report: per map and mip the source, the decode and an
-    /// error heat map, PSNR and SSIM per map, the rate and the decode cost.
+    /// error heat map, PSNR and SSIM per map, the rate and the decode cost; with several files
+    /// or `--anchors`, a rate–quality plot (SVG) of them all first.
     #[arg(long)]
     pub report: Option<PathBuf>,
+    /// Other codecs' rate–quality points for the report's plot: a CSV of
+    /// `material,codec,setting,bppc,psnr_db[,…]` rows (what `nmat-anchors MATERIAL --sweep`
+    /// and `bench/quality.sh` write); the rows of the `--ref` folder's name are drawn, one
+    /// curve per codec (`jpegxl@ntc-0.2` counts as `jpegxl`).
+    #[arg(long, requires = "report")]
+    pub anchors: Option<PathBuf>,
     #[command(flatten)]
     pub memory: MemoryArg,
 }

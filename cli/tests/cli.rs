@@ -1482,12 +1482,28 @@ fn build_caches_shards_and_isolates_failures() {
 
     // Nothing changed: nothing rebuilt (--report adds each material's HTML report). One map
     // changed: that material only. --force: all.
-    let o = build(&whole, &["--report"]);
+    // The build's page beside the summary links every report and plots brick (its output and
+    // the anchors' rows for "brick"), with the summary's numbers.
+    let anchors = dir.join("anchors.csv");
+    std::fs::write(&anchors, "brick,avif,quantizer40,0.3,30\nbrick,avif,quantizer20,0.9,36\n")
+        .unwrap();
+    let o = build(&whole, &["--report", "--anchors", anchors.to_str().unwrap()]);
     assert!(text(&o).contains("0 built, 3 up to date"), "{}", text(&o));
+    let page = std::fs::read_to_string(dir.join("whole.summary.html")).unwrap();
+    assert_eq!(page.matches("<tr class=\"material\">").count(), 3, "{page}");
     for name in ["brick", "wall", "floor"] {
         let html = std::fs::read_to_string(dir.join(format!("whole/{name}.nmat.html"))).unwrap();
         assert!(html.contains("class=\"psnr\"") && html.contains("data:image/png"), "{name}");
+        assert!(page.contains(&format!("href=\"whole/{name}.nmat.html\"")), "{name}: {page}");
     }
+    let fields: Vec<&str> = brick.split(',').collect();
+    let number = |i: usize| fields[i].parse::<f64>().unwrap();
+    let (bppc, chain_psnr) = (number(5), number(6));
+    assert_eq!(page.matches("<svg class=\"rate-quality\"").count(), 1, "{page}");
+    let point =
+        format!("data-series=\"nmat\" data-bppc=\"{bppc:.4}\" data-psnr=\"{chain_psnr:.2}\"");
+    assert!(page.contains(&point), "{point}: {page}");
+    assert_eq!(page.matches("data-series=\"avif\"").count(), 2, "{page}");
     write_maps(&dir.join("textures/wall"), 20);
     let o = build(&whole, &["--jobs", "1"]);
     assert!(text(&o).contains("1 built, 2 up to date"), "{}", text(&o));
@@ -1497,9 +1513,9 @@ fn build_caches_shards_and_isolates_failures() {
     let json = std::fs::read_to_string(dir.join("s.json")).unwrap();
     assert_eq!(json.matches("\"status\": \"built\"").count(), 3, "{json}");
 
-    // Two shards on "two machines" give the files of the whole build, byte for byte.
+    // Three shards on "three machines" give the files of the whole build, byte for byte.
     let sharded = manifest("sharded", "");
-    for k in ["1/2", "2/2"] {
+    for k in ["1/3", "2/3", "3/3"] {
         let o = build(
             &sharded,
             &["--shard", k, "--summary", dir.join(format!("s{}.csv", &k[..1])).to_str().unwrap()],
@@ -1601,62 +1617,138 @@ fn unbase64(s: &str) -> Vec<u8> {
     out
 }
 
-/// `nmat eval --report`: one HTML file whose every picture decodes (source, decode and heat map
-/// for every map at every mip) and whose numbers are those `nmat eval` prints.
+/// `nmat eval --report` of two files of one source (neural and JPEG) with anchors: one HTML file
+/// whose every picture decodes (source, decode and heat map for every map at every mip of each
+/// file), whose numbers are those `nmat eval` prints, and whose plot puts every point where its
+/// numbers say.
 #[test]
 fn eval_report_is_one_html_file_whose_pictures_and_numbers_hold() {
     let dir = temp_dir("report");
     let src = dir.join("src");
     std::fs::create_dir_all(&src).unwrap();
     write_maps(&src, 40);
-    let file = dir.join("m.nmat");
+    let (file, jpeg) = (dir.join("m.nmat"), dir.join("j.nmat"));
     let o = nmat(&["encode", src.to_str().unwrap(), "-o", file.to_str().unwrap(), "--steps", "30"]);
     assert!(o.status.success(), "{}", text(&o));
-    let report = dir.join("report.html");
     let o = nmat(&[
-        "eval",
-        file.to_str().unwrap(),
-        "--ref",
+        "encode",
         src.to_str().unwrap(),
-        "--report",
-        report.to_str().unwrap(),
+        "-o",
+        jpeg.to_str().unwrap(),
+        "--codec",
+        "jpeg",
+        "--quality",
+        "80",
     ]);
+    assert!(o.status.success(), "{}", text(&o));
+    // Two codecs' curves for this source ("src") and a row of another material, left out.
+    let anchors = dir.join("anchors.csv");
+    std::fs::write(
+        &anchors,
+        "material,codec,setting,bppc,psnr_db,seconds\n\
+         src,jpegxl,q40,0.2500,30.000,1.0\nsrc,jpegxl@ntc-0.2,q60,0.5000,33.500,1.0\n\
+         src,avif,quantizer40,0.2000,31.000,1.0\nother,avif,quantizer8,3.0000,50.000,1.0\n",
+    )
+    .unwrap();
+    let report = dir.join("report.html");
+    let eval_args = |extra: &[&str]| {
+        let mut args = vec!["eval", file.to_str().unwrap(), jpeg.to_str().unwrap()];
+        args.extend(["--ref", src.to_str().unwrap(), "--report", report.to_str().unwrap()]);
+        args.extend(extra);
+        args.into_iter().map(String::from).collect::<Vec<_>>()
+    };
+    let args = eval_args(&["--anchors", anchors.to_str().unwrap()]);
+    let o = nmat(&args.iter().map(String::as_str).collect::<Vec<_>>());
     let eval = text(&o);
     assert!(o.status.success(), "{eval}");
     let html = std::fs::read_to_string(&report).unwrap();
     assert!(html.starts_with("<!DOCTYPE html>") && html.trim_end().ends_with("</html>"));
     // Self-contained: every picture is inline, nothing is fetched.
     assert!(!html.contains("src=\"http") && !html.contains("href="), "external reference");
-    let images: Vec<&str> = html
-        .split("src=\"data:image/png;base64,")
+    let sections: Vec<&str> = html.split("<section class=\"file\">").skip(1).collect();
+    let evals: Vec<&str> = eval.split("== ").skip(1).collect();
+    assert_eq!((sections.len(), evals.len()), (2, 2), "{eval}");
+    let mut file_points = Vec::new();
+    for (section, eval) in sections.iter().zip(&evals) {
+        let images: Vec<&str> = section
+            .split("src=\"data:image/png;base64,")
+            .skip(1)
+            .map(|r| r.split('"').next().unwrap())
+            .collect();
+        // 4 maps (albedo, normal, roughness, height) × 6 mips (40² … 1²) × source, decode, heat.
+        assert_eq!(images.len(), 4 * 6 * 3);
+        for (i, b64) in images.iter().enumerate() {
+            let img = image::load_from_memory(&unbase64(b64))
+                .unwrap_or_else(|e| panic!("image {i}: {e}"));
+            let side = 40 >> (i / 3 % 6);
+            assert_eq!((img.width(), img.height()), (side.max(1), side.max(1)), "image {i}");
+        }
+        // The numbers: eval's overall PSNR, SSIM and rate, and each map's chain PSNR.
+        let overall = eval.lines().find(|l| l.starts_with("overall: PSNR ")).unwrap();
+        let word_after = |key: &str| overall.split(key).nth(1).unwrap().split(' ').next().unwrap();
+        let (psnr, ssim) = (word_after("PSNR "), word_after("SSIM "));
+        let bppc = overall.split(", ").last().unwrap().split(' ').next().unwrap();
+        for (class, value) in [("psnr", psnr), ("ssim", ssim), ("bppc", bppc)] {
+            assert!(section.contains(&format!("class=\"{class}\">{value}<")), "{class} {value}");
+        }
+        file_points.push((bppc.to_string(), psnr.to_string()));
+        let map_lines: Vec<&str> = eval.lines().filter(|l| l.starts_with("bricks_")).collect();
+        assert_eq!(map_lines.len(), 4, "{eval}");
+        for line in map_lines {
+            let mut words = line.split_whitespace();
+            let (name, chain) = (words.next().unwrap(), words.next().unwrap());
+            let at = section
+                .find(&format!("<h3 class=\"map\">{name}</h3>"))
+                .unwrap_or_else(|| panic!("{name}"));
+            assert!(section[at..].contains(&format!("class=\"map-psnr\">{chain}<")), "{name}");
+        }
+    }
+    // The plot: one point per file and per anchor row of this material, with eval's numbers.
+    let attr = |point: &str, name: &str| -> String {
+        point.split(&format!("{name}=\"")).nth(1).unwrap().split('"').next().unwrap().to_string()
+    };
+    let points: Vec<(String, String, String, f64, f64)> = html
+        .split("<circle class=\"point\"")
         .skip(1)
-        .map(|r| r.split('"').next().unwrap())
+        .map(|p| {
+            let at = |name| attr(p, name).parse::<f64>().unwrap();
+            (attr(p, "data-series"), attr(p, "data-bppc"), attr(p, "data-psnr"), at("cx"), at("cy"))
+        })
         .collect();
-    // 4 maps (albedo, normal, roughness, height) × 6 mips (40² … 1²) × source, decode, heat map.
-    assert_eq!(images.len(), 4 * 6 * 3);
-    for (i, b64) in images.iter().enumerate() {
-        let img =
-            image::load_from_memory(&unbase64(b64)).unwrap_or_else(|e| panic!("image {i}: {e}"));
-        let side = 40 >> (i / 3 % 6);
-        assert_eq!((img.width(), img.height()), (side.max(1), side.max(1)), "image {i}");
+    let mut seen: Vec<(&str, &str, &str)> =
+        points.iter().map(|(s, b, p, ..)| (s.as_str(), b.as_str(), p.as_str())).collect();
+    seen.sort();
+    let mut expected = vec![
+        ("avif", "0.2000", "31.00"),
+        ("jpegxl", "0.2500", "30.00"),
+        ("jpegxl", "0.5000", "33.50"),
+        ("nmat JPEG", file_points[1].0.as_str(), file_points[1].1.as_str()),
+        ("nmat neural", file_points[0].0.as_str(), file_points[0].1.as_str()),
+    ];
+    expected.sort();
+    assert_eq!(seen, expected);
+    // Placed as the axes say: a larger rate further right, a higher PSNR further up.
+    for a in &points {
+        for b in &points {
+            let (ra, rb) = (a.1.parse::<f64>().unwrap(), b.1.parse::<f64>().unwrap());
+            let (qa, qb) = (a.2.parse::<f64>().unwrap(), b.2.parse::<f64>().unwrap());
+            assert!(ra <= rb || a.3 > b.3, "x of {a:?} and {b:?}");
+            assert!(qa <= qb || a.4 < b.4, "y of {a:?} and {b:?}");
+        }
     }
-    // The numbers: eval's overall PSNR and SSIM, and each map's chain PSNR as eval's table has it.
-    let overall = eval.lines().find(|l| l.starts_with("overall: PSNR ")).unwrap();
-    let psnr = overall.split("PSNR ").nth(1).unwrap().split(' ').next().unwrap();
-    let ssim = overall.split("SSIM ").nth(1).unwrap().split(' ').next().unwrap();
-    assert!(html.contains(&format!("class=\"psnr\">{psnr}<")), "PSNR {psnr}");
-    assert!(html.contains(&format!("class=\"ssim\">{ssim}<")), "SSIM {ssim}");
-    let map_lines: Vec<&str> = eval.lines().filter(|l| l.starts_with("bricks_")).collect();
-    assert_eq!(map_lines.len(), 4, "{eval}");
-    for line in map_lines {
-        let mut words = line.split_whitespace();
-        let (name, chain) = (words.next().unwrap(), words.next().unwrap());
-        let at = html
-            .find(&format!("<h2 class=\"map\">{name}</h2>"))
-            .unwrap_or_else(|| panic!("{name}"));
-        assert!(html[at..].contains(&format!("class=\"map-psnr\">{chain}<")), "{name}: {chain}");
-    }
-    // Refused before any work: the report over an input.
+    // Refused before any work: anchors of no row for this material, a malformed number, the
+    // report over an input, anchors without a report.
+    std::fs::write(&anchors, "other,avif,q,0.1,30\n").unwrap();
+    let args = eval_args(&["--anchors", anchors.to_str().unwrap()]);
+    let o = nmat(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(
+        !o.status.success() && text(&o).contains("no row for material \"src\""),
+        "{}",
+        text(&o)
+    );
+    std::fs::write(&anchors, "src,avif,q,fast,30\n").unwrap();
+    let o = nmat(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(!o.status.success() && text(&o).contains("line 1: bppc \"fast\""), "{}", text(&o));
     let o = nmat(&[
         "eval",
         file.to_str().unwrap(),
@@ -1664,6 +1756,15 @@ fn eval_report_is_one_html_file_whose_pictures_and_numbers_hold() {
         src.to_str().unwrap(),
         "--report",
         file.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success() && text(&o).contains("--report"), "{}", text(&o));
+    let o = nmat(&[
+        "eval",
+        file.to_str().unwrap(),
+        "--ref",
+        src.to_str().unwrap(),
+        "--anchors",
+        anchors.to_str().unwrap(),
     ]);
     assert!(!o.status.success() && text(&o).contains("--report"), "{}", text(&o));
     std::fs::remove_dir_all(&dir).unwrap();

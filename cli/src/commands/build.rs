@@ -7,6 +7,7 @@ use crate::args::{BuildArgs, EmitArg};
 use crate::common::Result;
 use nmat_cli::manifest::{self, Job};
 use nmat_cli::output;
+use nmat_cli::report::{self, LibraryRow, PlotPoint};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
@@ -78,6 +79,15 @@ pub fn run(args: BuildArgs) -> Result<()> {
     let summary =
         args.summary.clone().unwrap_or_else(|| args.manifest.with_extension("summary.csv"));
     output::check_output_file("--summary", &summary, std::slice::from_ref(&args.manifest))?;
+    let page = summary.with_extension("html");
+    if args.report {
+        output::check_output_file("--report", &page, std::slice::from_ref(&args.manifest))?;
+    }
+    // Read before any work: a bad anchors file is an error before the first encode.
+    let anchors = match &args.anchors {
+        Some(path) => report::read_anchor_rows(path)?,
+        None => Vec::new(),
+    };
     let exe = std::env::current_exe().map_err(|e| format!("this program's path: {e}"))?;
     // The encoder's identity: this very binary (a rebuilt nmat may encode differently).
     let version = format!(
@@ -119,6 +129,11 @@ pub fn run(args: BuildArgs) -> Result<()> {
     let mut outcomes = outcomes.into_inner().unwrap_or_else(|p| p.into_inner());
     outcomes.sort_by(|a, b| a.output.cmp(&b.output));
     write_summary(&summary, &outcomes)?;
+    if args.report {
+        let html = library_page(&args.manifest, &page, &outcomes, &anchors);
+        output::write_atomic(&page, html.as_bytes())?;
+        eprintln!("nmat build: report {}", page.display());
+    }
     let count = |s: Status| outcomes.iter().filter(|o| o.status == s).count();
     println!(
         "nmat build: {} built, {} up to date, {} failed in {:.1} s; summary {}",
@@ -137,6 +152,61 @@ pub fn run(args: BuildArgs) -> Result<()> {
         return Err(format!("{} material(s) failed: {}", failed.len(), failed.join(", ")).into());
     }
     Ok(())
+}
+
+/// The build's page ([`report::library_page`]) at `page`: every material, and a plot for each
+/// folder with more than one output built or with rows in `anchors`.
+fn library_page(
+    manifest: &Path,
+    page: &Path,
+    outcomes: &[Outcome],
+    anchors: &[(String, PlotPoint)],
+) -> String {
+    let from = page.parent().unwrap_or(Path::new("."));
+    let from = if from.as_os_str().is_empty() { Path::new(".") } else { from };
+    let rows: Vec<LibraryRow> = outcomes
+        .iter()
+        .map(|o| {
+            let html = beside(&o.output, ".html");
+            let failed = o.status == Status::Failed;
+            LibraryRow {
+                material: o.material.clone(),
+                output: o.output.display().to_string(),
+                report: (!failed && html.is_file()).then(|| report::link(&html, from)),
+                status: format!("{:?}", o.status).to_lowercase(),
+                bppc: o.record.bppc,
+                psnr: o.record.psnr_db,
+                ssim: o.record.ssim,
+                seconds: o.record.seconds,
+            }
+        })
+        .collect();
+    let mut folders: Vec<&Path> = outcomes.iter().map(|o| o.input.as_path()).collect();
+    folders.sort_unstable();
+    folders.dedup();
+    let mut plots = Vec::new();
+    for folder in folders {
+        let mut points: Vec<PlotPoint> = outcomes
+            .iter()
+            .filter(|o| o.input == folder && o.status != Status::Failed)
+            .map(|o| PlotPoint {
+                series: "nmat".into(),
+                label: o
+                    .output
+                    .file_name()
+                    .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+                bppc: o.record.bppc,
+                psnr: o.record.psnr_db,
+            })
+            .collect();
+        let theirs = report::anchors_of(anchors, &report::material_name(folder));
+        if points.is_empty() || points.len() + theirs.len() < 2 {
+            continue;
+        }
+        points.extend(theirs);
+        plots.push((format!("Rate and quality: {}", folder.display()), points));
+    }
+    report::library_page(&manifest.display().to_string(), &rows, &plots)
 }
 
 /// The file next to `output` with `suffix` appended to its name.
