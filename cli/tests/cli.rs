@@ -1508,6 +1508,11 @@ fn build_caches_shards_and_isolates_failures() {
     let o = build(&whole, &["--jobs", "1"]);
     assert!(text(&o).contains("1 built, 2 up to date"), "{}", text(&o));
     assert!(text(&o).contains("wall: built"), "{}", text(&o));
+    // A build interrupted after writing an output but before its record: that one again.
+    std::fs::remove_file(dir.join("whole/floor.nmat.build")).unwrap();
+    let o = build(&whole, &[]);
+    assert!(text(&o).contains("1 built, 2 up to date"), "{}", text(&o));
+    assert!(text(&o).contains("floor: built"), "{}", text(&o));
     let o = build(&whole, &["--force", "--summary", dir.join("s.json").to_str().unwrap()]);
     assert!(text(&o).contains("3 built, 0 up to date"), "{}", text(&o));
     let json = std::fs::read_to_string(dir.join("s.json")).unwrap();
