@@ -388,6 +388,12 @@ pub struct EncodeArgs {
     /// that is smaller.
     #[arg(long)]
     pub fixed_rate: bool,
+    /// Neural, packed: the in-memory (fixed-rate) layout may be this many times the profile's
+    /// nominal size, 1–2: larger latent grids, kept to the nominal rate on disk by training
+    /// (docs/ENCODING.md, "Rate control"); 1: the nominal layout, whose packed file lands below
+    /// the nominal rate [default: 1.5].
+    #[arg(long, conflicts_with = "fixed_rate")]
+    pub memory_factor: Option<f64>,
     /// Solve the layout and print the file's byte budget without training; writes nothing.
     #[arg(long, conflicts_with = "target_psnr")]
     pub dry_run: bool,

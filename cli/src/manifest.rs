@@ -36,6 +36,7 @@ pub struct Options {
     pub subsampling: Option<String>,
     pub resize: Option<bool>,
     pub fixed_rate: Option<bool>,
+    pub memory_factor: Option<f64>,
 }
 
 impl Options {
@@ -51,6 +52,7 @@ impl Options {
             steps: defaults.steps.filter(|_| !jpeg),
             effort: defaults.effort.clone().filter(|_| !jpeg),
             seed: defaults.seed.filter(|_| !jpeg),
+            memory_factor: defaults.memory_factor.filter(|_| !jpeg),
             quality: defaults.quality.filter(|_| jpeg),
             subsampling: defaults.subsampling.clone().filter(|_| jpeg),
             ..defaults.clone()
@@ -69,6 +71,7 @@ impl Options {
             subsampling: self.subsampling.clone().or_else(|| defaults.subsampling.clone()),
             resize: self.resize.or(defaults.resize),
             fixed_rate: self.fixed_rate.or(defaults.fixed_rate),
+            memory_factor: self.memory_factor.or(defaults.memory_factor),
         }
     }
 
@@ -91,6 +94,7 @@ impl Options {
         push("seed", self.seed.map(|v| v.to_string()));
         push("address", self.address.clone());
         push("subsampling", self.subsampling.clone());
+        push("memory-factor", self.memory_factor.map(|v| v.to_string()));
         if self.resize == Some(true) {
             f.push("--resize".into());
         }

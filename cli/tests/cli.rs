@@ -73,38 +73,45 @@ fn encode_info_decode_eval_round_trip() {
     ] {
         assert!(info.contains(needle), "info lacks {needle}: {info}");
     }
-    // The same encode with --fixed-rate is the packed file unpacked, byte for byte; the budget's
-    // file line is that file's size (the layout is solved for the fixed-rate form).
-    let fixed = dir.join("fixed.nmat");
-    let o = nmat(&[
-        "encode",
-        src.to_str().unwrap(),
-        "-o",
-        fixed.to_str().unwrap(),
-        "--steps",
-        "200",
-        "--profile",
-        "ntc-1.0",
-        "--fixed-rate",
-    ]);
-    assert!(o.status.success(), "{}", text(&o));
+    // Unpacked, the packed file is its in-memory (fixed-rate) form: the layout the budget's
+    // file line sizes, larger than the nominal one --fixed-rate trains (the memory factor).
     let unpacked = dir.join("unpacked.nmat");
     let o = nmat(&["unpack", file.to_str().unwrap(), "-o", unpacked.to_str().unwrap()]);
     assert!(o.status.success(), "{}", text(&o));
+    let unpacked_size = std::fs::metadata(&unpacked).unwrap().len();
+    let file_line = info.lines().find(|l| l.trim_start().starts_with("file ")).unwrap();
+    assert!(file_line.contains(&format!(" {unpacked_size} bytes")), "{file_line}");
+    let o =
+        nmat(&["pack", unpacked.to_str().unwrap(), "-o", dir.join("re.nmat").to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(std::fs::read(dir.join("re.nmat")).unwrap() == std::fs::read(&file).unwrap());
+    // The same encode with --fixed-rate is that of --memory-factor 1 unpacked, byte for byte.
+    let encode = |out: &Path, extra: &str| {
+        let mut args = vec!["encode", src.to_str().unwrap(), "-o", out.to_str().unwrap()];
+        args.extend(["--steps", "200", "--profile", "ntc-1.0", extra]);
+        nmat(&args)
+    };
+    let (fixed, nominal) = (dir.join("fixed.nmat"), dir.join("nominal.nmat"));
+    let o = encode(&fixed, "--fixed-rate");
+    assert!(o.status.success(), "{}", text(&o));
+    let o = encode(&nominal, "--memory-factor=1");
+    assert!(o.status.success(), "{}", text(&o));
+    let o = nmat(&["unpack", nominal.to_str().unwrap(), "-o", unpacked.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
     let fixed_bytes = std::fs::read(&fixed).unwrap();
     assert!(std::fs::read(&unpacked).unwrap() == fixed_bytes, "unpack differs from --fixed-rate");
-    let packed_size = std::fs::metadata(&file).unwrap().len();
+    assert!((fixed_bytes.len() as u64) < unpacked_size, "the memory factor gave no room");
+    let packed_size = std::fs::metadata(&nominal).unwrap().len();
     assert!(packed_size < fixed_bytes.len() as u64, "{packed_size} vs {}", fixed_bytes.len());
     let fixed_info = text(&nmat(&["info", fixed.to_str().unwrap()]));
     assert!(fixed_info.contains(".nmat format 2.0") && !fixed_info.contains("entropy-coded"));
-    let size = fixed_bytes.len();
-    let file_line = info.lines().find(|l| l.trim_start().starts_with("file ")).unwrap();
-    assert!(file_line.contains(&format!(" {size} bytes")), "{file_line} vs {size}");
+    let o = encode(&dir.join("no.nmat"), "--memory-factor=2.5");
+    assert!(!o.status.success() && text(&o).contains("memory_factor"), "{}", text(&o));
     // `nmat pack` of the fixed-rate file is the packed file; neither replaces its input.
     let repacked = dir.join("repacked.nmat");
     let o = nmat(&["pack", fixed.to_str().unwrap(), "-o", repacked.to_str().unwrap()]);
     assert!(o.status.success(), "{}", text(&o));
-    assert!(std::fs::read(&repacked).unwrap() == std::fs::read(&file).unwrap());
+    assert!(std::fs::read(&repacked).unwrap() == std::fs::read(&nominal).unwrap());
     let o = nmat(&["pack", fixed.to_str().unwrap(), "-o", fixed.to_str().unwrap()]);
     assert!(!o.status.success() && text(&o).contains("is one of the inputs"), "{}", text(&o));
 
@@ -180,19 +187,24 @@ fn encode_info_decode_eval_round_trip() {
         .unwrap_or_else(|| panic!("{report}"));
     // Plumbing, not quality (the encoder tests judge training): well above a broken pipeline.
     assert!(psnr > 20.0, "{report}");
-    // The rate is the packed file's, with the fixed-rate one beside it; the fixed-rate file
-    // evaluates to the same PSNR at that larger rate.
+    // The rate is the packed file's, with the fixed-rate one beside it; a fixed-rate file
+    // evaluates to the PSNR of its packed twin at its larger rate.
     let rate = |report: &str| -> f64 {
         let head = report.split(" bits per pixel per channel").next().unwrap();
         head.rsplit(", ").next().unwrap().parse().unwrap()
     };
     let pixels_channels = 64.0 * 64.0 * 8.0;
-    assert!((rate(&report) - packed_size as f64 * 8.0 / pixels_channels).abs() < 1e-3, "{report}");
+    let file_size = std::fs::metadata(&file).unwrap().len();
+    assert!((rate(&report) - file_size as f64 * 8.0 / pixels_channels).abs() < 1e-3, "{report}");
     assert!(report.contains(" in memory)"), "{report}");
-    let fixed_report =
-        text(&nmat(&["eval", fixed.to_str().unwrap(), "--ref", src.to_str().unwrap()]));
+    let eval =
+        |f: &Path| text(&nmat(&["eval", f.to_str().unwrap(), "--ref", src.to_str().unwrap()]));
+    let (nominal_report, fixed_report) = (eval(&nominal), eval(&fixed));
+    let size = fixed_bytes.len();
+    assert!((rate(&nominal_report) - packed_size as f64 * 8.0 / pixels_channels).abs() < 1e-3);
     assert!((rate(&fixed_report) - size as f64 * 8.0 / pixels_channels).abs() < 1e-3);
-    assert!(fixed_report.contains(&format!("overall: PSNR {psnr:.2} dB")), "{fixed_report}");
+    let nominal_psnr = nominal_report.split("overall: PSNR ").nth(1).unwrap().split(' ').next();
+    assert!(fixed_report.contains(&format!("overall: PSNR {} dB", nominal_psnr.unwrap())));
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -1450,7 +1462,7 @@ fn build_caches_shards_and_isolates_failures() {
         std::fs::write(
             &path,
             format!(
-                "[defaults]\nprofile = \"ntc-0.5\"\nsteps = 10\n{extra}\n[[material]]\n\
+                "[defaults]\nprofile = \"ntc-0.5\"\nsteps = 10\nmemory_factor = 1.2\n{extra}\n[[material]]\n\
                  input = \"textures/*\"\noutput = \"{out}/{{name}}.nmat\"\n"
             ),
         )
@@ -1541,7 +1553,11 @@ fn build_caches_shards_and_isolates_failures() {
         let o = build(&m, &["--emit", kind, "-o", file.to_str().unwrap()]);
         assert!(o.status.success(), "{}", text(&o));
         assert!(!dir.join(kind).exists(), "--emit built something");
-        let ran = Command::new(tool).args([flag, file.to_str().unwrap()]).output();
+        let edges = std::fs::read_to_string(&file).unwrap();
+        assert!(edges.contains("--memory-factor' '1.2'"), "{edges}");
+        // Run in the test's folder: Ninja keeps its log (.ninja_log) in the current one.
+        let ran =
+            Command::new(tool).args([flag, file.to_str().unwrap()]).current_dir(&dir).output();
         let Ok(ran) = ran else {
             eprintln!(
                 "{tool} is not installed: the {kind} file is not run (scripts/test.sh installs it)"

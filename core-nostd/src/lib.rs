@@ -153,6 +153,8 @@ pub use writer::{ChannelSpec, GridSpec, LayerSpec, LevelSpec, MaterialSpec, MlpS
 #[doc(hidden)]
 pub mod internals {
     pub use crate::format::checksum::file_checksum;
+    #[cfg(feature = "alloc")]
+    pub use crate::format::packed::coded_latents_len;
     pub use crate::jpeg::{HuffmanProblem, QUANT_TABLE_LEN, check_huffman_table, huffman_decoding};
     pub use crate::neural::latents::footprint;
     pub use crate::neural::mlp::hard_gelu_q;

@@ -60,6 +60,9 @@ pub enum EncodeOption {
     Steps,
     /// The whole-chain PSNR a search for the smallest profile aims at, in dB.
     TargetPsnr,
+    /// How much larger than the nominal rate a packed file's in-memory layout may be:
+    /// `EncodeOptions::memory_factor`.
+    MemoryFactor,
 }
 
 impl EncodeOption {
@@ -73,6 +76,7 @@ impl EncodeOption {
             EncodeOption::Bppc => "bppc",
             EncodeOption::Steps => "TrainOptions::steps",
             EncodeOption::TargetPsnr => "target PSNR",
+            EncodeOption::MemoryFactor => "EncodeOptions::memory_factor",
         }
     }
 }

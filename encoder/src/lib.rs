@@ -27,6 +27,7 @@ mod train;
 
 pub use error::{EncodeError, EncodeOption};
 pub use gemm::TrainKernel;
+use profile::RATE_TOLERANCE;
 pub use profile::{
     ByteBudget, DEFAULT_PROFILE, MaterialShape, ModelConfig, PROFILES, Profile, configure,
 };
@@ -46,6 +47,85 @@ pub struct EncodeOptions {
     pub address_mode: AddressMode,
     /// How the file stores its latents (default [`Storage::Packed`]).
     pub storage: Storage,
+    /// A packed file's in-memory (fixed-rate) layout may be this many times the profile's
+    /// nominal size, 1 to [`MAX_MEMORY_FACTOR`] (default [`DEFAULT_MEMORY_FACTOR`]): larger grids
+    /// whose latents the trainer keeps to the nominal size once entropy-coded, so the file on
+    /// disk has the nominal rate (docs/ENCODING.md, "Rate control"). Fixed-rate files ignore it
+    /// (their layout is the nominal size).
+    pub memory_factor: f64,
+}
+
+/// The default [`EncodeOptions::memory_factor`] (docs/ENCODING.md, "Rate control").
+pub const DEFAULT_MEMORY_FACTOR: f64 = 1.5;
+/// The largest [`EncodeOptions::memory_factor`].
+pub const MAX_MEMORY_FACTOR: f64 = 2.0;
+
+/// Rate control is used only where the target coded size of the latents is at least this many
+/// times what they code in when every latent sits on its grid's middle code.
+const MIN_STEERING_ROOM: f64 = 4.0;
+
+/// The coded size of `config`'s latents (docs/FORMAT.md §12.3) when every latent is its grid's
+/// middle code (the rate control's pull draws them there).
+fn floor_bytes(config: &ModelConfig) -> usize {
+    let codes: Vec<Vec<u8>> = config
+        .grids
+        .iter()
+        .map(|g| vec![1u8 << (g.bits - 1); (g.width * g.height) as usize * g.channels])
+        .collect();
+    let grids: Vec<(u32, u32, u32, u32, &[u8])> = config
+        .grids
+        .iter()
+        .zip(&codes)
+        .map(|(g, c)| (g.width, g.height, g.channels as u32, u32::from(g.bits), c.as_slice()))
+        .collect();
+    nmat_core::internals::coded_latents_len(&grids)
+}
+
+/// The model of a profile for a material and how its latents are steered while they train.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Layout {
+    pub config: ModelConfig,
+    /// The coded size (bytes) the trainer keeps the latents to, for a packed file of the
+    /// nominal size; `None` for a fixed-rate file (or a factor of 1).
+    pub latent_bytes: Option<f64>,
+}
+
+/// The layout of `profile` for a material of `shape` stored as `storage`: fixed-rate, the
+/// nominal-size model ([`configure`]); packed, the same latent channels and network with grids
+/// solved for `memory_factor` × the nominal size, and the coded size of latents that makes the
+/// packed file nominal.
+pub fn layout(
+    profile: Profile,
+    shape: &MaterialShape,
+    storage: Storage,
+    memory_factor: f64,
+) -> Result<Layout, EncodeError> {
+    if !(1.0..=MAX_MEMORY_FACTOR).contains(&memory_factor) {
+        return Err(EncodeError::BadOption {
+            option: EncodeOption::MemoryFactor,
+            value: memory_factor.to_string(),
+            reason: "must be from 1 (the nominal layout) to 2",
+        });
+    }
+    let nominal = configure(profile, shape);
+    let bytes = shape.budget_bits(profile.bppc()) / 8.0;
+    // A material too small for the rate (its smallest model is above it) has no latent bytes to
+    // steer: it keeps the nominal model.
+    let too_small = nominal.byte_budget(shape).total() as f64 > bytes * (1.0 + RATE_TOLERANCE);
+    if storage == Storage::FixedRate || memory_factor == 1.0 || too_small {
+        return Ok(Layout { config: nominal, latent_bytes: None });
+    }
+    let config = profile::configure_like(profile, shape, bytes * memory_factor, &nominal);
+    let budget = config.byte_budget(shape);
+    // All but the latents are stored as they are; a packed section starts with an 8-byte
+    // header (docs/FORMAT.md §12.1).
+    let target = bytes - (budget.total() - budget.latents + 8) as f64;
+    // Latents that all sit on their middle code still cost what the coder needs to learn that;
+    // where that is a large share of the target (small grids), steering would crush them.
+    if target < MIN_STEERING_ROOM * floor_bytes(&config) as f64 {
+        return Ok(Layout { config: nominal, latent_bytes: None });
+    }
+    Ok(Layout { config, latent_bytes: Some(target) })
 }
 
 /// How a file stores its latents, or its JPEG streams' index (docs/FORMAT.md §12).
@@ -68,6 +148,7 @@ impl Default for EncodeOptions {
             train: TrainOptions::default(),
             address_mode: AddressMode::Wrap,
             storage: Storage::default(),
+            memory_factor: DEFAULT_MEMORY_FACTOR,
         }
     }
 }
@@ -108,9 +189,12 @@ pub fn encode(
     options: &EncodeOptions,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Encoded, EncodeError> {
-    let config = configure(options.profile, &shape_of(set));
-    let mut model = train::Model::new(set, &config, options.address_mode, &options.train);
-    model.train(&options.train, progress);
+    let shape = shape_of(set);
+    let Layout { config, latent_bytes } =
+        layout(options.profile, &shape, options.storage, options.memory_factor)?;
+    let train_options = TrainOptions { latent_bytes, ..options.train.clone() };
+    let mut model = train::Model::new(set, &config, options.address_mode, &train_options);
+    model.train(&train_options, progress);
     let spec = to_spec(set, &model, options)?;
     let bytes = spec.to_bytes()?;
     let (packed, quality) = as_stored(&bytes, set, options.storage)?;

@@ -187,7 +187,7 @@ const HIDDEN_WIDTHS: [usize; 4] = [64, 48, 32, 16];
 const MAX_NETWORK_SHARE: f64 = 0.25;
 /// How far from the nominal rate the solver lets a file land. File sizes are exact (no entropy
 /// coding), so this is what a file gets; docs/ENCODING.md promises ±5 %.
-const RATE_TOLERANCE: f64 = 0.02;
+pub(crate) const RATE_TOLERANCE: f64 = 0.02;
 /// Share of the latent bits an NTC layout gives its high-resolution grids (the 4-nearest features
 /// carry the detail; the low-resolution grid is a smooth base).
 const NTC_HI_SHARE: f64 = 0.8;
@@ -232,6 +232,54 @@ pub fn configure(profile: Profile, shape: &MaterialShape) -> ModelConfig {
         }
     }
     closest.map(|(_, cfg)| cfg).expect("every width has candidates")
+}
+
+/// `like` (a [`configure`] result for `profile`) with the same latent channels and network, its
+/// fixed-rate file grown toward `target` bytes: first the grids' resolution (the NTC layouts'
+/// smooth grids up to the high-resolution grids' own, the NBC layouts' up to one cell per texel),
+/// then, where that is not enough, one or two more bits per latent.
+pub fn configure_like(
+    profile: Profile,
+    shape: &MaterialShape,
+    target: f64,
+    like: &ModelConfig,
+) -> ModelConfig {
+    let hidden = like.hidden[0];
+    let with_bits = |extra: u8| match profile {
+        Profile::Ntc { hi_divisor, hi_bits, lo_bits, .. } => {
+            let (c_hi, c_lo) = (like.grids[0].channels, like.grids[1].channels);
+            let bits = |b: u8| (b + extra).min(8);
+            solve_scale(shape, target, (0.5, 8.0), |s| {
+                ntc_layout(
+                    profile.name(),
+                    shape,
+                    hidden,
+                    (hi_divisor, c_hi, bits(hi_bits)),
+                    (c_lo, bits(lo_bits), s),
+                )
+            })
+        }
+        Profile::Nbc { .. } => {
+            let c = like.grids[0].channels;
+            solve_scale(shape, target, (1.0, 64.0), |d| {
+                let mut cfg = nbc_layout(profile.name(), shape, hidden, c, d);
+                cfg.grids.iter_mut().for_each(|g| g.bits = (g.bits + extra).min(8));
+                cfg
+            })
+        }
+    };
+    let size = |cfg: &ModelConfig| cfg.byte_budget(shape).total() as f64;
+    let mut best = with_bits(0);
+    for extra in 1..=2 {
+        if size(&best) >= target * (1.0 - RATE_TOLERANCE) {
+            break;
+        }
+        let more = with_bits(extra);
+        if (size(&more) - target).abs() < (size(&best) - target).abs() {
+            best = more;
+        }
+    }
+    best
 }
 
 /// The resolution factor of a continuous grid knob that brings the file closest to `target`

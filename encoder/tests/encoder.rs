@@ -86,6 +86,47 @@ fn predicted_file_sizes_are_the_written_ones() {
     }
 }
 
+/// Rate control (docs/ENCODING.md): a packed file lands within ±5 % of its profile's nominal
+/// rate on disk, with a larger layout in memory; the nominal layout alone (memory factor 1)
+/// lands further below. The trainer's measure of the coded latents is what packing writes.
+#[test]
+fn packed_files_land_at_the_nominal_rate_on_disk() {
+    let set = demo::bricks(256);
+    for profile in ["ntc-0.5", "nbc-0.5"] {
+        let nominal = Profile::by_name(profile).unwrap().bppc();
+        let steered = encode(&set, &options(profile, 800, 2), &mut |_| {}).unwrap();
+        let q = &steered.quality;
+        eprintln!("{profile}: {:.4} BPPC on disk, {:.4} in memory", q.bppc, q.memory_bppc);
+        assert!((q.bppc / nominal - 1.0).abs() <= 0.05, "{profile}: {} on disk", q.bppc);
+        assert!(q.memory_bppc > 1.3 * nominal, "{profile}: {} in memory", q.memory_bppc);
+        let plain = EncodeOptions { memory_factor: 1.0, ..options(profile, 800, 2) };
+        let plain = encode(&set, &plain, &mut |_| {}).unwrap().quality;
+        assert!(plain.bppc < q.bppc, "{profile}: {} unsteered", plain.bppc);
+        assert!((plain.memory_bppc / nominal - 1.0).abs() <= 0.02, "{profile}: nominal layout");
+
+        // The coded size the trainer steers by is the packed section's, less its 8-byte header.
+        let m = Container::parse(&steered.bytes).unwrap();
+        let grids: Vec<(u32, u32, u32, u32, Vec<u8>)> = m
+            .neural()
+            .unwrap()
+            .grids()
+            .iter()
+            .map(|g| {
+                let codes = (0..g.height())
+                    .flat_map(|y| (0..g.width()).map(move |x| (x, y)))
+                    .flat_map(|(x, y)| (0..g.channels()).map(move |c| g.code(x, y, c)))
+                    .collect();
+                (g.width(), g.height(), g.channels() as u32, g.bits_per_latent(), codes)
+            })
+            .collect();
+        let views: Vec<(u32, u32, u32, u32, &[u8])> =
+            grids.iter().map(|(w, h, c, b, codes)| (*w, *h, *c, *b, codes.as_slice())).collect();
+        let packed = steered.packed.as_deref().unwrap();
+        let (_, length) = nmat_tests::files::section(packed, 6); // PACKED_LATENTS
+        assert_eq!(nmat_core::internals::coded_latents_len(&views) + 8, length, "{profile}");
+    }
+}
+
 #[test]
 fn roles_are_detected_from_common_names() {
     let cases = [

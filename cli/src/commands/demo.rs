@@ -29,6 +29,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         train: train_options(train, DEMO_STEPS)?,
         address_mode: AddressMode::Wrap,
         storage: Default::default(),
+        memory_factor: nmat_encode::DEFAULT_MEMORY_FACTOR,
     };
     let encoded = encode_with_progress(&set, &options)?;
     let path = out.join("demo.nmat");

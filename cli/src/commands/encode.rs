@@ -50,9 +50,10 @@ pub fn run(args: EncodeArgs) -> Result<()> {
     }
     let train = train_options(&args.train, nmat_encode::DEFAULT_STEPS)?;
     let storage = if args.fixed_rate { Storage::FixedRate } else { Storage::Packed };
+    let memory_factor = args.memory_factor.unwrap_or(nmat_encode::DEFAULT_MEMORY_FACTOR);
     let start = Instant::now();
     let encoded = if let Some(target) = args.target_psnr {
-        search_target(&set, target, &train, address_mode, storage)?
+        search_target(&set, target, &train, address_mode, (storage, memory_factor))?
     } else {
         let profile = match (&args.profile, args.bppc) {
             (Some(name), _) => profile_named(name)?,
@@ -67,10 +68,11 @@ pub fn run(args: EncodeArgs) -> Result<()> {
             (None, None) => profile_named(nmat_encode::DEFAULT_PROFILE)?,
         };
         if args.dry_run {
-            print!("{}", plan(&set, profile));
+            print!("{}", plan(&set, profile, storage, memory_factor)?);
             return Ok(());
         }
-        encode_with_progress(&set, &EncodeOptions { profile, train, address_mode, storage })?
+        let options = EncodeOptions { profile, train, address_mode, storage, memory_factor };
+        encode_with_progress(&set, &options)?
     };
     if let Some(note) = rate_note(&encoded) {
         eprintln!("{note}");
@@ -110,6 +112,7 @@ fn encode_jpeg(args: &EncodeArgs, set: &TextureSet, address_mode: AddressMode) -
         ("--profile", args.profile.is_some()),
         ("--target-psnr", args.target_psnr.is_some()),
         ("--dry-run", args.dry_run),
+        ("--memory-factor", args.memory_factor.is_some()),
         ("--steps", args.train.steps.is_some()),
         ("--effort", args.train.effort != EffortArg::Default),
         ("--seed", args.train.seed != TrainOptions::default().seed),
@@ -162,23 +165,43 @@ fn encode_jpeg(args: &EncodeArgs, set: &TextureSet, address_mode: AddressMode) -
 }
 
 /// What `encode --dry-run` prints: the solved layout of `profile` for `set` and its byte budget.
-fn plan(set: &TextureSet, profile: Profile) -> String {
+fn plan(
+    set: &TextureSet,
+    profile: Profile,
+    storage: Storage,
+    memory_factor: f64,
+) -> Result<String> {
     let shape = nmat_encode::shape_of(set);
-    let cfg = nmat_encode::configure(profile, &shape);
+    let layout = nmat_encode::layout(profile, &shape, storage, memory_factor)?;
+    let cfg = &layout.config;
     let budget = cfg.byte_budget(&shape);
     // BPPC's denominator: width · height · channels that vary, of mip 0.
     let texel_channels = shape.budget_bits(1.0);
+    let rate = |bytes: f64| bytes * 8.0 / texel_channels;
     let mut s = format!(
-        "{}: {}×{}, {} channels ({} learned), nominal {} BPPC, this file {:.4} BPPC ({:+.1} %)\n",
+        "{}: {}×{}, {} channels ({} learned), nominal {} BPPC\n",
         profile.name(),
         set.width,
         set.height,
         set.channel_count(),
         shape.learned,
         profile.bppc(),
-        budget.total() as f64 * 8.0 / texel_channels,
-        100.0 * (budget.total() as f64 * 8.0 / shape.budget_bits(profile.bppc()) - 1.0)
     );
+    let fixed = budget.total() as f64;
+    match layout.latent_bytes {
+        Some(latents) => s.push_str(&format!(
+            "packed: latents trained to code in {latents:.0} bytes, the file {:.4} BPPC on disk; \
+             in memory {:.4} BPPC ({memory_factor} × nominal at most)\n",
+            rate(fixed - budget.latents as f64 + 8.0 + latents),
+            rate(fixed)
+        )),
+        None => s.push_str(&format!(
+            "this file {:.4} BPPC ({:+.1} %){}\n",
+            rate(fixed),
+            100.0 * (fixed * 8.0 / shape.budget_bits(profile.bppc()) - 1.0),
+            if storage == Storage::Packed { ", less on disk once packed" } else { "" }
+        )),
+    }
     s.push_str(&output::map_lines(&set.maps));
     s.push_str(&format!(
         "\nnetwork {} → {:?} → {}\n",
@@ -197,24 +220,30 @@ fn plan(set: &TextureSet, profile: Profile) -> String {
         ));
     }
     s.push_str(&output::budget_table(&budget, texel_channels));
-    s
+    Ok(s)
 }
 
-/// A note when the fixed-rate file lands more than 5 % away from its profile's nominal rate (the
-/// rate the layout is solved for): the material is too small for the rate (the smallest network
-/// and grids exceed it) or the layout's largest grids fall short of it.
+/// A note when the file lands more than 5 % away from its profile's nominal rate (on disk; a
+/// fixed-rate file's layout is solved for it, a packed file's latents are trained to it): the
+/// material is too small for the rate (the smallest network and grids exceed it), the layout's
+/// largest grids fall short of it, or a packed file's latents code smaller than it.
 fn rate_note(e: &Encoded) -> Option<String> {
     let nominal = Profile::by_name(e.config.profile)?.bppc();
-    let off = e.quality.memory_bppc / nominal - 1.0;
+    let packed = e.packed.is_some();
+    let off = e.quality.bppc / nominal - 1.0;
     let why = if off > 0.0 {
         "the material is too small for that rate: its smallest network and grids are this file"
+    } else if packed {
+        "its latents code smaller than that even unsteered (--memory-factor 2 gives them the \
+         most room)"
     } else {
         "the layout's largest grids do not reach that rate on this material"
     };
     (off.abs() > 0.05).then(|| {
         format!(
-            "note: {:.3} BPPC (fixed-rate) is {:+.0} % from {}'s nominal {nominal}: {why}",
-            e.quality.memory_bppc,
+            "note: {:.3} BPPC ({}) is {:+.0} % from {}'s nominal {nominal}: {why}",
+            e.quality.bppc,
+            if packed { "on disk" } else { "fixed-rate" },
             100.0 * off,
             e.config.profile
         )
@@ -227,7 +256,7 @@ fn search_target(
     target: f64,
     train: &TrainOptions,
     address_mode: AddressMode,
-    storage: Storage,
+    (storage, memory_factor): (Storage, f64),
 ) -> Result<Encoded> {
     if !target.is_finite() || target <= 0.0 {
         return Err(Box::new(EncodeError::BadOption {
@@ -242,7 +271,7 @@ fn search_target(
     for profile in order {
         let e = encode_with_progress(
             set,
-            &EncodeOptions { profile, train: train.clone(), address_mode, storage },
+            &EncodeOptions { profile, train: train.clone(), address_mode, storage, memory_factor },
         )?;
         eprintln!("  {:9} {:.3} BPPC  {:.2} dB", profile.name(), e.quality.bppc, e.quality.psnr);
         if e.quality.psnr >= target {

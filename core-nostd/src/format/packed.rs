@@ -594,6 +594,23 @@ mod write {
         Ok(out)
     }
 
+    /// The length in bytes of the coded stream (§12.3) of latent grids given as one code per
+    /// latent — `(width, height, channels, bits, codes)`, codes in §4.1's order (cell by cell,
+    /// channels innermost) — without writing a file: what packing such a LATENTS section
+    /// makes of it, for an encoder that steers its rate while it trains.
+    pub fn coded_latents_len(grids: &[(u32, u32, u32, u32, &[u8])]) -> usize {
+        let mut encoder = RangeEncoder::new();
+        for (index, &(width, height, channels, bits, codes)) in grids.iter().enumerate() {
+            let bits = bits.clamp(1, 8);
+            let mut data = crate::writer::pack_codes(codes, bits as u8);
+            let grid =
+                GridRecord { index, width, height, channels, bits, offset: 0, length: data.len() };
+            // Codes that do not fill the grid code as zeros (the encoder's coder never fails).
+            let _ = code_grid(&grid, |p, bit| Ok(encoder.bit(p, bit)), &mut data);
+        }
+        encoder.finish().len()
+    }
+
     /// The coded stream of a LATENTS section whose grids LEVELS describes (§12.2–12.3).
     fn encode_latents(levels: &[u8], latents: &[u8]) -> Result<Vec<u8>, Error> {
         let mut scratch = Vec::new();
@@ -608,4 +625,4 @@ mod write {
     }
 }
 #[cfg(feature = "alloc")]
-pub use write::{pack, unpack};
+pub use write::{coded_latents_len, pack, unpack};

@@ -466,7 +466,26 @@ impl<'a> Model<'a> {
         // The kernel is chosen once (a kernel this CPU lacks falls back to the scalar one).
         let kernel = Available::or_scalar(opts.kernel());
         let (tap_count, latent_reads) = self.taps_per_sample;
+        // Rate control: every `every` steps of the joint phase the latents' coded size is
+        // measured and the pull toward the middle codes (`pull`, in units of the latents'
+        // learning rate) moves by the relative error.
+        let centers: Vec<(usize, f32)> = self
+            .grids
+            .iter()
+            .map(|g| (g.base, f32::from(1u8 << (g.bits - 1)) / g.qmax()))
+            .collect();
+        let every = (joint_end / 150).max(1);
+        let mut pull = 0f32;
         for step in 0..steps {
+            if let Some(target) = opts.latent_bytes
+                && step < joint_end
+                && step % every == 0
+                && step > 0
+            {
+                let now = self.coded_latent_bytes() as f64;
+                let error = (now / target - 1.0) as f32;
+                pull = (pull + RATE_GAIN * error).clamp(0.0, MAX_PULL);
+            }
             let phase = opts.phase(step);
             let layers = eval_layers(&self.layers, phase == Phase::QuantizationAware);
             let mode =
@@ -525,7 +544,8 @@ impl<'a> Model<'a> {
             }
             if train_latents {
                 let adam_latents = AdamStep::new(cosine(opts.lr_latents, step, joint_end), t);
-                let update = LatentUpdate { inv, adam: adam_latents };
+                let shrink = pull * adam_latents.lr;
+                let update = LatentUpdate { inv, adam: adam_latents, shrink, centers: &centers };
                 let edges = &self.buckets.edges;
                 latent_state.split(&mut self.latents, edges).into_par_iter().enumerate().for_each(
                     |(bucket, range)| {
@@ -573,6 +593,18 @@ impl<'a> Model<'a> {
         max
     }
 
+    /// The bytes the latents' codes take entropy-coded (docs/FORMAT.md §12.3), as they are now.
+    pub fn coded_latent_bytes(&self) -> usize {
+        let codes: Vec<Vec<u8>> = self.grids.iter().map(|g| self.codes(g)).collect();
+        let grids: Vec<(u32, u32, u32, u32, &[u8])> = self
+            .grids
+            .iter()
+            .zip(&codes)
+            .map(|(g, c)| (g.width, g.height, g.channels as u32, u32::from(g.bits), c.as_slice()))
+            .collect();
+        nmat_core::internals::coded_latents_len(&grids)
+    }
+
     /// The stored code of every latent (round to the nearest level).
     pub fn codes(&self, g: &GridState) -> Vec<u8> {
         let n = (g.width * g.height) as usize * g.channels;
@@ -583,14 +615,26 @@ impl<'a> Model<'a> {
     }
 }
 
+/// How fast the rate control's pull follows the coded size's relative error (per measurement).
+const RATE_GAIN: f32 = 0.5;
+
+/// The strongest pull: each update may move a latent at most this many learning rates toward
+/// its middle code (a target the latents cannot reach must not flatten them all).
+const MAX_PULL: f32 = 4.0;
+
 /// One step's sparse Adam update of the latents: only those a sample read move.
-pub(super) struct LatentUpdate {
+pub(super) struct LatentUpdate<'c> {
     /// 1 / batch.
     pub(super) inv: f32,
     pub(super) adam: AdamStep,
+    /// How far an updated latent moves toward its grid's middle code after its Adam step (a
+    /// soft threshold: the rate control's pull; 0: none).
+    pub(super) shrink: f32,
+    /// Each grid's first latent and its middle code in unit scale, in order.
+    pub(super) centers: &'c [(usize, f32)],
 }
 
-impl LatentUpdate {
+impl LatentUpdate<'_> {
     /// Sums the gradients of `bucket` over `results` (in chunk order) and updates the latent
     /// cells it touched; `range` is that bucket's, which starts at latent `base`. Inlined into
     /// [`Available::run`], so its loops run in the kernel's SIMD lanes.
@@ -643,9 +687,18 @@ impl LatentUpdate {
             let (m, rest) = state[S * first..S * (first + channels)].split_at_mut(channels);
             let (v, grad) = rest.split_at_mut(channels);
             let cell = m.iter_mut().zip(v).zip(&*grad);
-            for (p, ((m, v), &g)) in latents[first..first + channels].iter_mut().zip(cell) {
+            let cell_latents = &mut latents[first..first + channels];
+            for (p, ((m, v), &g)) in cell_latents.iter_mut().zip(cell) {
                 adam(m, v, p, g * self.inv, self.adam);
                 *p = p.clamp(0.0, 1.0);
+            }
+            if self.shrink > 0.0 {
+                let grid = self.centers.partition_point(|&(start, _)| start <= base + first);
+                let center = self.centers[grid.saturating_sub(1)].1;
+                for p in cell_latents {
+                    let d = *p - center;
+                    *p = center + d.signum() * (d.abs() - self.shrink).max(0.0);
+                }
             }
         }
     }

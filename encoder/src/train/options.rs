@@ -55,6 +55,9 @@ pub struct TrainOptions {
     pub latent_init_spread: f32,
     /// Matrix-product kernel; `None` picks [`TrainKernel::best`]. The file does not depend on it.
     pub kernel: Option<TrainKernel>,
+    /// Steer the latents' coded size (docs/FORMAT.md §12) toward this many bytes while they
+    /// train: a pull toward each grid's middle code, as strong as it must be (`None`: no pull).
+    pub latent_bytes: Option<f64>,
 }
 
 impl TrainOptions {
@@ -94,6 +97,7 @@ impl Default for TrainOptions {
             mip_uniform_share: 0.1,
             latent_init_spread: 0.05,
             kernel: None,
+            latent_bytes: None,
         }
     }
 }
