@@ -1,6 +1,6 @@
 //! Measures the reference codecs on a material exactly the way `nmat eval` measures nmat: every map
 //! of every mip of the chain `nmat_encode::texset::load` builds, PSNR over all channels and mips,
-//! BPPC = all compressed bits / (width · height · channels of mip 0).
+//! BPPC = all compressed bits / (width · height · channels of mip 0 that vary).
 //!
 //! Maps are handed to the codecs as an engine would: the colour part (3 channels) as RGB, every
 //! other channel (gray maps, alphas) as its own gray image. Fixed-rate formats count their block
@@ -248,8 +248,10 @@ fn measure(codec: Codec, dir: &Path, set: &TextureSet, parts: &[Part]) -> (f64, 
         sq += part_sq;
         n += decoded.len() as f64;
     }
-    let bppc =
-        bits as f64 / (f64::from(set.width) * f64::from(set.height) * set.channel_count() as f64);
+    // Over the channels that vary, as nmat's BPPC counts them (a constant channel carries no
+    // information; what a codec spends on it still counts in `bits`).
+    let channels = set.learned_channels().len().max(1) as f64;
+    let bppc = bits as f64 / (f64::from(set.width) * f64::from(set.height) * channels);
     (bppc, -10.0 * (sq / n).log10())
 }
 

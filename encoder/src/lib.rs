@@ -72,13 +72,8 @@ fn floor_bytes(config: &ModelConfig) -> usize {
         .iter()
         .map(|g| vec![1u8 << (g.bits - 1); (g.width * g.height) as usize * g.channels])
         .collect();
-    let grids: Vec<(u32, u32, u32, u32, &[u8])> = config
-        .grids
-        .iter()
-        .zip(&codes)
-        .map(|(g, c)| (g.width, g.height, g.channels as u32, u32::from(g.bits), c.as_slice()))
-        .collect();
-    nmat_core::internals::coded_latents_len(&grids)
+    let shapes = config.grids.iter().map(|g| (g.width, g.height, g.channels, g.bits));
+    train::coded_bytes(shapes, &codes)
 }
 
 /// The model of a profile for a material and how its latents are steered while they train.

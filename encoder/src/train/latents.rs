@@ -32,6 +32,19 @@ impl GridState {
     }
 }
 
+/// The coded size in bytes (docs/FORMAT.md §12.3, what `nmat_core::pack` writes) of grids of
+/// these shapes — (width, height, channels, bits) — holding `codes`, one list per grid.
+pub(crate) fn coded_bytes(
+    shapes: impl Iterator<Item = (u32, u32, usize, u8)>,
+    codes: &[Vec<u8>],
+) -> usize {
+    let grids: Vec<(u32, u32, u32, u32, &[u8])> = shapes
+        .zip(codes)
+        .map(|((w, h, c, b), codes)| (w, h, c as u32, u32::from(b), codes.as_slice()))
+        .collect();
+    nmat_core::internals::coded_latents_len(&grids)
+}
+
 /// How latents enter the forward pass.
 #[derive(Clone, Copy, PartialEq)]
 pub(super) enum LatentMode {

@@ -596,13 +596,8 @@ impl<'a> Model<'a> {
     /// The bytes the latents' codes take entropy-coded (docs/FORMAT.md §12.3), as they are now.
     pub fn coded_latent_bytes(&self) -> usize {
         let codes: Vec<Vec<u8>> = self.grids.iter().map(|g| self.codes(g)).collect();
-        let grids: Vec<(u32, u32, u32, u32, &[u8])> = self
-            .grids
-            .iter()
-            .zip(&codes)
-            .map(|(g, c)| (g.width, g.height, g.channels as u32, u32::from(g.bits), c.as_slice()))
-            .collect();
-        nmat_core::internals::coded_latents_len(&grids)
+        let shapes = self.grids.iter().map(|g| (g.width, g.height, g.channels, g.bits));
+        super::latents::coded_bytes(shapes, &codes)
     }
 
     /// The stored code of every latent (round to the nearest level).
