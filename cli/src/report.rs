@@ -18,20 +18,26 @@ pub const MAX_SIDE: u32 = 512;
 /// channels at the texel); larger errors show the same colour.
 pub const HEAT_FULL_SCALE: f32 = 0.1;
 
+/// The start of a page titled `title` (escaped here), up to its heading: the styles both pages
+/// share and `css`.
+fn head(title: &str, css: &str) -> String {
+    let title = escape(title);
+    format!(
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{title}</title>\n\
+         <style>body{{font-family:sans-serif;margin:1.5em}}table{{border-collapse:collapse}}\
+         td,th{{border:1px solid #ccc;padding:2px 6px;text-align:right}}{css}</style></head><body>\n\
+         <h1>{title}</h1>\n"
+    )
+}
+
 /// The HTML page: a title (the source's name), the rate–quality plot if any, then one section
 /// per file ([`section`]).
 pub fn page(title: &str, plot: Option<&str>, sections: &[String]) -> String {
-    let title = escape(title);
-    let mut s = String::new();
-    let _ = write!(
-        s,
-        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>nmat report: {title}</title>\n\
-         <style>body{{font-family:sans-serif;margin:1.5em}}table{{border-collapse:collapse}}\
-         td,th{{border:1px solid #ccc;padding:2px 6px;text-align:right}}\
-         img{{image-rendering:pixelated;max-width:256px;min-width:64px;border:1px solid #888}}\
-         figure{{display:inline-block;margin:4px}}figcaption{{font-size:80%}}\
-         section.file{{border-top:2px solid #444;margin-top:2em}}</style></head><body>\n\
-         <h1>nmat report: {title}</h1>\n"
+    let mut s = head(
+        &format!("nmat report: {title}"),
+        "img{image-rendering:pixelated;max-width:256px;min-width:64px;border:1px solid #888}\
+         figure{display:inline-block;margin:4px}figcaption{font-size:80%}\
+         section.file{border-top:2px solid #444;margin-top:2em}",
     );
     let _ = writeln!(
         s,
@@ -190,10 +196,15 @@ impl PlotPoint {
     /// The point of a .nmat file: its disk rate and its PSNR, labelled with its file name.
     pub fn of_file(path: &Path, m: &Material<'_>, q: &ChainQuality) -> Self {
         let series = if m.jpeg().is_some() { "nmat JPEG" } else { "nmat neural" };
+        PlotPoint::labelled(series, path, q.bppc, q.psnr)
+    }
+
+    /// A point of `series` labelled with the name of the file at `path`.
+    pub fn labelled(series: &str, path: &Path, bppc: f64, psnr: f64) -> Self {
         let label = path
             .file_name()
             .map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
-        PlotPoint { series: series.into(), label, bppc: q.bppc, psnr: q.psnr }
+        PlotPoint { series: series.into(), label, bppc, psnr }
     }
 }
 
@@ -442,15 +453,10 @@ pub fn library_page(
     rows: &[LibraryRow],
     plots: &[(String, Vec<PlotPoint>)],
 ) -> String {
-    let title = escape(title);
-    let mut s = String::new();
-    let _ = writeln!(
-        s,
-        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>nmat build: {title}</title>\n\
-         <style>body{{font-family:sans-serif;margin:1.5em}}table{{border-collapse:collapse}}\
-         td,th{{border:1px solid #ccc;padding:2px 6px;text-align:right}}td:nth-child(-n+2){{text-align:left}}\
-         </style></head><body>\n<h1>nmat build: {title}</h1>\n<table id=\"materials\"><tr><th>material</th>\
-         <th>output</th><th>status</th><th>BPPC</th><th>PSNR dB</th><th>SSIM</th><th>seconds</th></tr>"
+    let mut s = head(&format!("nmat build: {title}"), "td:nth-child(-n+2){text-align:left}");
+    s.push_str(
+        "<table id=\"materials\"><tr><th>material</th><th>output</th><th>status</th>\
+         <th>BPPC</th><th>PSNR dB</th><th>SSIM</th><th>seconds</th></tr>\n",
     );
     for r in rows {
         let output = escape(&r.output);

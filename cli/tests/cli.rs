@@ -1759,34 +1759,18 @@ fn eval_report_is_one_html_file_whose_pictures_and_numbers_hold() {
     }
     // Refused before any work: anchors of no row for this material, a malformed number, the
     // report over an input, anchors without a report.
+    let refused = |args: &[&str], needle: &str| {
+        let o = nmat(args);
+        assert!(!o.status.success() && text(&o).contains(needle), "{needle}: {}", text(&o));
+    };
     std::fs::write(&anchors, "other,avif,q,0.1,30\n").unwrap();
     let args = eval_args(&["--anchors", anchors.to_str().unwrap()]);
-    let o = nmat(&args.iter().map(String::as_str).collect::<Vec<_>>());
-    assert!(
-        !o.status.success() && text(&o).contains("no row for material \"src\""),
-        "{}",
-        text(&o)
-    );
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    refused(&args, "no row for material \"src\"");
     std::fs::write(&anchors, "src,avif,q,fast,30\n").unwrap();
-    let o = nmat(&args.iter().map(String::as_str).collect::<Vec<_>>());
-    assert!(!o.status.success() && text(&o).contains("line 1: bppc \"fast\""), "{}", text(&o));
-    let o = nmat(&[
-        "eval",
-        file.to_str().unwrap(),
-        "--ref",
-        src.to_str().unwrap(),
-        "--report",
-        file.to_str().unwrap(),
-    ]);
-    assert!(!o.status.success() && text(&o).contains("--report"), "{}", text(&o));
-    let o = nmat(&[
-        "eval",
-        file.to_str().unwrap(),
-        "--ref",
-        src.to_str().unwrap(),
-        "--anchors",
-        anchors.to_str().unwrap(),
-    ]);
-    assert!(!o.status.success() && text(&o).contains("--report"), "{}", text(&o));
+    refused(&args, "line 1: bppc \"fast\"");
+    let (file, src) = (file.to_str().unwrap(), src.to_str().unwrap());
+    refused(&["eval", file, "--ref", src, "--report", file], "--report");
+    refused(&["eval", file, "--ref", src, "--anchors", anchors.to_str().unwrap()], "--report");
     std::fs::remove_dir_all(&dir).unwrap();
 }

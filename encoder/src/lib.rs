@@ -81,7 +81,9 @@ fn floor_bytes(config: &ModelConfig) -> usize {
 pub struct Layout {
     pub config: ModelConfig,
     /// The coded size (bytes) the trainer keeps the latents to, for a packed file of the
-    /// nominal size; `None` for a fixed-rate file (or a factor of 1).
+    /// nominal size; `None` where the nominal model is trained unsteered (a fixed-rate file, a
+    /// factor of 1, a material too small for the rate or whose grids would code near their
+    /// floor).
     pub latent_bytes: Option<f64>,
 }
 

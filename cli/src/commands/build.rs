@@ -189,15 +189,7 @@ fn library_page(
         let mut points: Vec<PlotPoint> = outcomes
             .iter()
             .filter(|o| o.input == folder && o.status != Status::Failed)
-            .map(|o| PlotPoint {
-                series: "nmat".into(),
-                label: o
-                    .output
-                    .file_name()
-                    .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
-                bppc: o.record.bppc,
-                psnr: o.record.psnr_db,
-            })
+            .map(|o| PlotPoint::labelled("nmat", &o.output, o.record.bppc, o.record.psnr_db))
             .collect();
         let theirs = report::anchors_of(anchors, &report::material_name(folder));
         if points.is_empty() || points.len() + theirs.len() < 2 {

@@ -15,8 +15,9 @@ pub fn run(args: EvalArgs) -> Result<()> {
         output::check_output_file("--report", path, &args.inputs)?;
     }
     // Read before any decoding: a bad anchors file is an error before the work.
+    let material = report::material_name(reference);
     let anchors = match &args.anchors {
-        Some(path) => report::read_anchors(path, &report::material_name(reference))?,
+        Some(path) => report::read_anchors(path, &material)?,
         None => Vec::new(),
     };
     let start = Instant::now();
@@ -49,8 +50,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
             points.extend(anchors);
             report::plot("Rate and quality", &points)
         });
-        let title = report::material_name(reference);
-        let html = report::page(&title, plot.as_deref(), &sections);
+        let html = report::page(&material, plot.as_deref(), &sections);
         output::write_atomic(path, html.as_bytes())?;
         println!("wrote {} ({} bytes)", path.display(), html.len());
     }
