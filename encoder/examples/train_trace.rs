@@ -27,5 +27,8 @@ fn main() {
             }
         })
         .unwrap_or_else(|e| fail(&e));
-    println!("final (integer decoder, whole chain): {:.2} dB", out.quality.psnr);
+    println!(
+        "final (integer decoder, whole chain): {:.2} dB at {:.4} BPPC on disk",
+        out.quality.psnr, out.quality.bppc
+    );
 }

@@ -2,6 +2,7 @@
 //! the fixed buckets in which a step's sparse latent updates run side by side.
 
 use super::INPUT_FRAC_BITS;
+use super::adam::AdamStep;
 use crate::memhint::huge_vec;
 
 /// A latent grid's place in the flat parameter vector and its exact quantizer.
@@ -69,6 +70,25 @@ pub(super) const STATE_PER_LATENT: usize = 3;
 impl LatentState {
     pub(super) fn new(n: usize) -> LatentState {
         LatentState { state: huge_vec(STATE_PER_LATENT * n, 0.0), touched: vec![false; n] }
+    }
+
+    /// The mean of Adam's √v̂ (`v / step.c2`) over the latents of `grids` that have had a
+    /// gradient: the size of a typical latent's gradient. Summed in latent order (the same
+    /// value for any thread count).
+    pub(super) fn mean_step_scale(&self, grids: &[GridState], step: AdamStep) -> f32 {
+        let (mut sum, mut n) = (0f64, 0usize);
+        for g in grids {
+            let c = g.channels;
+            for cell in 0..(g.width * g.height) as usize {
+                let first = g.base + cell * c;
+                let v = &self.state[STATE_PER_LATENT * first + c..STATE_PER_LATENT * first + 2 * c];
+                for &v in v.iter().filter(|&&v| v > 0.0) {
+                    sum += f64::from((v / step.c2).sqrt());
+                    n += 1;
+                }
+            }
+        }
+        if n > 0 { (sum / n as f64) as f32 } else { 0.0 }
     }
 
     /// The state cut at `edges` (see [`split_at_edges`]), with `latents` cut the same way.

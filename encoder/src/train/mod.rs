@@ -104,6 +104,47 @@ mod tests {
     }
 
     #[test]
+    fn the_rate_pull_takes_the_latents_the_loss_hardly_feels() {
+        // Two cells of a 4-bit grid at 0.8, one with a gradient 1000 times the other's, both
+        // pointing away from the middle code (8/15). Adam's first step moves both by its
+        // learning rate alike; the pull, scaled back by each latent's √v̂ against a typical
+        // 0.01, takes the weak cell to the middle code and hardly slows the strong one.
+        let grids = [GridState { bits: 4, ..grid(2, 1, 2, 0) }];
+        let center = 8.0 / 15.0;
+        let mut state = latents::LatentState::new(4);
+        let mut values = vec![0.8f32; 4];
+        let mut buckets: Vec<Vec<latents::CellGrad>> = vec![Vec::new(); LATENT_BUCKETS];
+        buckets[0] = vec![
+            latents::CellGrad { latent: 0, at: 0, channels: 2 },
+            latents::CellGrad { latent: 2, at: 2, channels: 2 },
+        ];
+        let grads = model::Grads {
+            w: Vec::new(),
+            b: Vec::new(),
+            latents: buckets,
+            latent_grads: vec![-1.0, -1.0, -1e-3, -1e-3],
+            loss: 0.0,
+        };
+        let (lr, edges) = (0.04f32, [0, 4]);
+        let update = model::LatentUpdate {
+            inv: 1.0,
+            adam: adam::AdamStep::new(lr, 1),
+            shrink: lr,
+            scale: 0.01,
+            centers: &[(0, center)],
+        };
+        let range = state.split(&mut values, &edges).pop().unwrap();
+        update.apply(std::slice::from_ref(&grads), (0, 0), range);
+        assert!(values[..2].iter().all(|&v| v > 0.8 + 0.9 * lr), "strong cell: {values:?}");
+        assert!(values[2..].iter().all(|&v| v == center), "weak cell: {values:?}");
+
+        // The typical √v̂ is the mean over the latents that had a gradient (here v = g² / 1000
+        // after one step, c2 = 1/1000: √v̂ = |g|).
+        let mean = state.mean_step_scale(&grids, adam::AdamStep::new(0.0, 1));
+        assert!((mean - (1.0 + 1e-3) / 2.0).abs() < 1e-6, "{mean}");
+    }
+
+    #[test]
     fn huge_vectors_hold_their_values() {
         // Large enough to span several 2 MiB blocks, whatever the allocation's alignment.
         let n = (5 << 20) + 3;

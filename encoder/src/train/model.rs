@@ -468,7 +468,8 @@ impl<'a> Model<'a> {
         let (tap_count, latent_reads) = self.taps_per_sample;
         // Rate control: every `every` steps of the joint phase the latents' coded size is
         // measured and the pull toward the middle codes (`pull`, in units of the latents'
-        // learning rate) moves by the relative error.
+        // learning rate for a latent of typical gradient) moves by the relative error; the
+        // typical gradient (`scale`, the mean of Adam's √v̂ over the latents) is measured then too.
         let centers: Vec<(usize, f32)> = self
             .grids
             .iter()
@@ -476,6 +477,7 @@ impl<'a> Model<'a> {
             .collect();
         let every = (joint_end / 150).max(1);
         let mut pull = 0f32;
+        let mut scale = 0f32;
         for step in 0..steps {
             if let Some(target) = opts.latent_bytes
                 && step < joint_end
@@ -485,6 +487,7 @@ impl<'a> Model<'a> {
                 let now = self.coded_latent_bytes() as f64;
                 let error = (now / target - 1.0) as f32;
                 pull = (pull + RATE_GAIN * error).clamp(0.0, MAX_PULL);
+                scale = latent_state.mean_step_scale(&self.grids, AdamStep::new(0.0, step as i32));
             }
             let phase = opts.phase(step);
             let layers = eval_layers(&self.layers, phase == Phase::QuantizationAware);
@@ -545,7 +548,8 @@ impl<'a> Model<'a> {
             if train_latents {
                 let adam_latents = AdamStep::new(cosine(opts.lr_latents, step, joint_end), t);
                 let shrink = pull * adam_latents.lr;
-                let update = LatentUpdate { inv, adam: adam_latents, shrink, centers: &centers };
+                let update =
+                    LatentUpdate { inv, adam: adam_latents, shrink, scale, centers: &centers };
                 let edges = &self.buckets.edges;
                 latent_state.split(&mut self.latents, edges).into_par_iter().enumerate().for_each(
                     |(bucket, range)| {
@@ -613,8 +617,9 @@ impl<'a> Model<'a> {
 /// How fast the rate control's pull follows the coded size's relative error (per measurement).
 const RATE_GAIN: f32 = 0.5;
 
-/// The strongest pull: each update may move a latent at most this many learning rates toward
-/// its middle code (a target the latents cannot reach must not flatten them all).
+/// The strongest pull: each update may move a latent of typical gradient at most this many
+/// learning rates toward its middle code (a target the latents cannot reach must not flatten
+/// them all).
 const MAX_PULL: f32 = 4.0;
 
 /// One step's sparse Adam update of the latents: only those a sample read move.
@@ -622,9 +627,14 @@ pub(super) struct LatentUpdate<'c> {
     /// 1 / batch.
     pub(super) inv: f32,
     pub(super) adam: AdamStep,
-    /// How far an updated latent moves toward its grid's middle code after its Adam step (a
-    /// soft threshold: the rate control's pull; 0: none).
+    /// How far an updated latent of typical gradient moves toward its grid's middle code after
+    /// its Adam step (a soft threshold: the rate control's pull; 0: none). A latent moves
+    /// `shrink · scale / √v̂`: Adam's steps have the same size whatever the gradient, so the pull
+    /// is scaled back by the gradient's size — latents the loss hardly feels go to the middle
+    /// code first, those it needs keep their value (a proximal step with Adam's preconditioner).
     pub(super) shrink: f32,
+    /// The typical √v̂ of the latents ([`LatentState::mean_step_scale`]).
+    pub(super) scale: f32,
     /// Each grid's first latent and its middle code in unit scale, in order.
     pub(super) centers: &'c [(usize, f32)],
 }
@@ -681,7 +691,7 @@ impl LatentUpdate<'_> {
             // one loop the compiler runs in SIMD lanes.
             let (m, rest) = state[S * first..S * (first + channels)].split_at_mut(channels);
             let (v, grad) = rest.split_at_mut(channels);
-            let cell = m.iter_mut().zip(v).zip(&*grad);
+            let cell = m.iter_mut().zip(v.iter_mut()).zip(&*grad);
             let cell_latents = &mut latents[first..first + channels];
             for (p, ((m, v), &g)) in cell_latents.iter_mut().zip(cell) {
                 adam(m, v, p, g * self.inv, self.adam);
@@ -690,9 +700,10 @@ impl LatentUpdate<'_> {
             if self.shrink > 0.0 {
                 let grid = self.centers.partition_point(|&(start, _)| start <= base + first);
                 let center = self.centers[grid.saturating_sub(1)].1;
-                for p in cell_latents {
+                for (p, &v) in cell_latents.iter_mut().zip(v.iter()) {
+                    let shrink = self.shrink * self.scale / ((v / self.adam.c2).sqrt() + 1e-8);
                     let d = *p - center;
-                    *p = center + d.signum() * (d.abs() - self.shrink).max(0.0);
+                    *p = center + d.signum() * (d.abs() - shrink).max(0.0);
                 }
             }
         }
