@@ -1446,6 +1446,30 @@ fn bench_gpu_row_on_a_software_adapter_decodes_the_region_only() {
     }
 }
 
+/// `nmat bench A B`: after the tables, B's decode speed against A's, timed in alternation (the
+/// machine's drift meets both): one line per file after the first, two positive ratios.
+#[test]
+fn bench_of_several_files_compares_them_in_one_run() {
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/ntc_rgb_64.nmat");
+    let f = fixture.to_str().unwrap();
+    let o = nmat(&["bench", f, f, "--region", "8", "--runs", "3"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let out = text(&o);
+    let at = out.find("same run, runs alternated with").expect("a same-run section");
+    let ratios: Vec<f64> = out[at..]
+        .lines()
+        .nth(1)
+        .unwrap()
+        .split_whitespace()
+        .filter_map(|w| w.strip_suffix('×')?.parse().ok())
+        .collect();
+    assert_eq!(ratios.len(), 2, "{}", &out[at..]);
+    assert!(ratios.iter().all(|r| r.is_finite() && *r > 0.0), "{ratios:?}");
+    // One file alone has nothing to compare with.
+    let o = nmat(&["bench", f, "--region", "8", "--runs", "1"]);
+    assert!(o.status.success() && !text(&o).contains("same run"), "{}", text(&o));
+}
+
 /// `nmat build`: a manifest of three materials built, kept when nothing changed, rebuilt where a
 /// map changed or with --force; the outputs byte-identical whether built whole or in shards;
 /// one failing material does not stop the others; bad manifests refused before any work.

@@ -184,8 +184,102 @@ fn bench_all(opts: &Options) -> Result<()> {
     for input in &opts.inputs {
         bench_one(input, opts)?;
     }
+    if !opts.gpu && opts.inputs.len() > 1 {
+        same_run_ratios(opts)?;
+    }
     println!("benchmarked in {:.1} s", start.elapsed().as_secs_f64());
     Ok(())
+}
+
+/// Each neural file's decode speed against the first file's, timed in alternation (runs of the
+/// two back to back, the median of the ratios): the machine's drift, which moves a table's rows
+/// between one file and the next by more than a layout changes them, meets both alike. Two
+/// modes: the region of mip 0 (1 thread, the best kernel), and random access per texel over
+/// the whole of mip 0, where a larger in-memory form would show in cache misses.
+fn same_run_ratios(opts: &Options) -> Result<()> {
+    let loaded =
+        opts.inputs.iter().map(|p| read_nmat(p).map_err(Into::into)).collect::<Result<Vec<_>>>()?;
+    let mut materials = Vec::new();
+    for (bytes, input) in loaded.iter().zip(&opts.inputs) {
+        let m = parse(bytes, input)?;
+        if m.jpeg().is_some() {
+            println!("same-run ratios: {} is JPEG, left out", input.display());
+            continue;
+        }
+        materials.push((input, m));
+    }
+    let Some(((first_path, first), rest)) = materials.split_first() else { return Ok(()) };
+    if rest.is_empty() {
+        return Ok(());
+    }
+    println!(
+        "same run, runs alternated with {} (median of {} ratios); speed ÷ its speed:",
+        first_path.display(),
+        opts.runs
+    );
+    let region = |m: &Material<'_>| {
+        let (w, h) = m.mip_size(0);
+        (opts.region.min(w).max(1), opts.region.min(h).max(1))
+    };
+    for (path, m) in rest {
+        let mut a = SpeedProbe::new(first, region(first));
+        let mut b = SpeedProbe::new(m, region(m));
+        // interleaved_ratio gives b's seconds ÷ a's; per texel, so regions may differ.
+        let per_texel = a.texels() / b.texels();
+        let slower = interleaved_ratio(opts.runs, &mut || a.region(), &mut || b.region());
+        let region_speed = 1.0 / (slower * per_texel);
+        let slower = interleaved_ratio(opts.runs, &mut || a.random(), &mut || b.random());
+        let random_speed = 1.0 / (slower * per_texel);
+        println!(
+            "  {:40} region, 1 thread: {region_speed:.3}×   random access over mip 0: {random_speed:.3}×",
+            path.display().to_string()
+        );
+    }
+    println!();
+    Ok(())
+}
+
+/// One material's region decode and random access over its whole mip 0, for
+/// [`same_run_ratios`].
+struct SpeedProbe<'m, 'a> {
+    m: &'m Material<'a>,
+    decoder: Decoder,
+    side: (u32, u32),
+    codes: Vec<u8>,
+    /// Texels of mip 0 in a scattered order, as many as the region has.
+    scattered: Vec<(i64, i64)>,
+}
+
+impl<'m, 'a> SpeedProbe<'m, 'a> {
+    fn new(m: &'m Material<'a>, side: (u32, u32)) -> Self {
+        let (w, h) = m.mip_size(0);
+        let n = (side.0 * side.1) as usize;
+        let all = w as usize * h as usize;
+        let scattered = scattered_order(all)
+            .into_iter()
+            .take(n)
+            .map(|t| ((t % w as usize) as i64, (t / w as usize) as i64))
+            .collect();
+        let codes = vec![0u8; n * m.channel_count()];
+        SpeedProbe { m, decoder: Decoder::new(m), side, codes, scattered }
+    }
+    fn texels(&self) -> f64 {
+        f64::from(self.side.0) * f64::from(self.side.1)
+    }
+    fn region(&mut self) {
+        let w = self.side.0 as usize;
+        let row = w * self.m.channel_count();
+        for (y, out) in self.codes.chunks_exact_mut(row).enumerate() {
+            let _ = self.decoder.decode_span_u8(self.m, 0, y as i64, 0, w, ChannelMask::ALL, out);
+        }
+    }
+    fn random(&mut self) {
+        let mut texel = [0u8; 16];
+        for &(x, y) in &self.scattered {
+            let _ = self.decoder.decode_texel_u8(self.m, x, y, 0, ChannelMask::ALL, &mut texel);
+            black_box(&texel);
+        }
+    }
 }
 
 fn cpu_name() -> String {
