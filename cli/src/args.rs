@@ -166,6 +166,8 @@ pub struct EvalArgs {
 
 #[derive(Args)]
 pub struct BenchArgs {
+    /// One or more .nmat files; with several, a last section gives each file's decode speed
+    /// against the first's, timed in alternation (give a file twice to see the noise).
     #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
     /// Folder with the source maps: adds PSNR and PNG decode time.
