@@ -222,11 +222,14 @@ fn same_run_ratios(opts: &Options) -> Result<()> {
         (opts.region.min(w).max(1), opts.region.min(h).max(1))
     };
     for (path, m) in rest {
-        let mut a = SpeedProbe::new(first, region(first));
-        let mut b = SpeedProbe::new(m, region(m));
+        let a = SpeedProbe::over_mip0(first, region(first));
+        let b = SpeedProbe::over_mip0(m, region(m));
+        let (mut codes_a, mut codes_b) = (a.codes(), b.codes());
         // interleaved_ratio gives b's seconds ÷ a's; per texel, so regions may differ.
         let per_texel = a.texels() / b.texels();
-        let slower = interleaved_ratio(opts.runs, &mut || a.region(), &mut || b.region());
+        let slower = interleaved_ratio(opts.runs, &mut || a.region(&mut codes_a), &mut || {
+            b.region(&mut codes_b)
+        });
         let region_speed = 1.0 / (slower * per_texel);
         let slower = interleaved_ratio(opts.runs, &mut || a.random(), &mut || b.random());
         let random_speed = 1.0 / (slower * per_texel);
@@ -239,41 +242,43 @@ fn same_run_ratios(opts: &Options) -> Result<()> {
     Ok(())
 }
 
-/// One material's region decode and random access over its whole mip 0, for
-/// [`same_run_ratios`].
+/// One material's two timed loops with the best kernel, all channels: the region of mip 0 at
+/// the origin, row by row, and random access, one call per texel of `scattered`.
 struct SpeedProbe<'m, 'a> {
     m: &'m Material<'a>,
     decoder: Decoder,
     side: (u32, u32),
-    codes: Vec<u8>,
-    /// Texels of mip 0 in a scattered order, as many as the region has.
+    /// Texels of mip 0 in a scattered order.
     scattered: Vec<(i64, i64)>,
 }
 
 impl<'m, 'a> SpeedProbe<'m, 'a> {
-    fn new(m: &'m Material<'a>, side: (u32, u32)) -> Self {
-        let (w, h) = m.mip_size(0);
+    fn new(m: &'m Material<'a>, side: (u32, u32), scattered: Vec<(i64, i64)>) -> Self {
+        SpeedProbe { m, decoder: Decoder::new(m), side, scattered }
+    }
+    /// Random access scattered over the whole of mip 0, as many texels as the region has.
+    fn over_mip0(m: &'m Material<'a>, side: (u32, u32)) -> Self {
+        let w = m.mip_size(0).0 as usize;
+        let all = w * m.mip_size(0).1 as usize;
         let n = (side.0 * side.1) as usize;
-        let all = w as usize * h as usize;
-        let scattered = scattered_order(all)
-            .into_iter()
-            .take(n)
-            .map(|t| ((t % w as usize) as i64, (t / w as usize) as i64))
-            .collect();
-        let codes = vec![0u8; n * m.channel_count()];
-        SpeedProbe { m, decoder: Decoder::new(m), side, codes, scattered }
+        let at = |t: usize| ((t % w) as i64, (t / w) as i64);
+        Self::new(m, side, scattered_order(all).into_iter().take(n).map(at).collect())
     }
     fn texels(&self) -> f64 {
         f64::from(self.side.0) * f64::from(self.side.1)
     }
-    fn region(&mut self) {
+    /// A buffer for [`SpeedProbe::region`]'s codes.
+    fn codes(&self) -> Vec<u8> {
+        vec![0u8; self.texels() as usize * self.m.channel_count()]
+    }
+    fn region(&self, codes: &mut [u8]) {
         let w = self.side.0 as usize;
         let row = w * self.m.channel_count();
-        for (y, out) in self.codes.chunks_exact_mut(row).enumerate() {
+        for (y, out) in codes.chunks_exact_mut(row).enumerate() {
             let _ = self.decoder.decode_span_u8(self.m, 0, y as i64, 0, w, ChannelMask::ALL, out);
         }
     }
-    fn random(&mut self) {
+    fn random(&self) {
         let mut texel = [0u8; 16];
         for &(x, y) in &self.scattered {
             let _ = self.decoder.decode_texel_u8(self.m, x, y, 0, ChannelMask::ALL, &mut texel);
@@ -518,23 +523,10 @@ fn region_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>, notes: &
     });
     push(format!("integer {kernel} random access per texel, all {c} ch"), secs, c, &units, &all);
     // Random access and region decode, timed in alternation so that both meet the same machine.
-    let mut codes = vec![0u8; setup.texels() * c];
-    let ratio = interleaved_ratio(
-        runs,
-        &mut || {
-            for (y, row) in codes.chunks_exact_mut(w as usize * c).enumerate() {
-                let _ = best.decode_span_u8(m, 0, y as i64, 0, w as usize, ChannelMask::ALL, row);
-            }
-        },
-        &mut || {
-            let mut texel = [0u8; 16];
-            for &t in &order {
-                let (x, y) = ((t % w as usize) as i64, (t / w as usize) as i64);
-                let _ = best.decode_texel_u8(m, x, y, 0, ChannelMask::ALL, &mut texel);
-                black_box(&texel);
-            }
-        },
-    );
+    let at = |t: usize| ((t % w as usize) as i64, (t / w as usize) as i64);
+    let probe = SpeedProbe::new(m, setup.side, order.iter().map(|&t| at(t)).collect());
+    let mut codes = probe.codes();
+    let ratio = interleaved_ratio(runs, &mut || probe.region(&mut codes), &mut || probe.random());
     notes.push(format!(
         "random access ÷ region per texel, {kernel}, runs alternated: {ratio:.2}× (median of {runs})"
     ));
