@@ -7,8 +7,8 @@
 //! The defaults (variant `default`) always run. Rows go to stdout and, with `--csv`, are appended
 //! to PATH; rows already in PATH are not measured again, so a sweep can be resumed. A summary per
 //! variant (mean ΔPSNR against `default`, wins, losses, mean seconds) follows on stdout.
-//! Knobs: steps, batch, lr_mlp, lr_latents, joint_percent, qat_percent, mip_uniform_share,
-//! latent_init_spread (docs/ENCODING.md, "Tuning").
+//! Knobs: steps, batch, lr_mlp, lr_latents, joint_percent, qat_percent, qat_lr,
+//! mip_uniform_share, latent_init_spread (docs/ENCODING.md, "Tuning").
 
 use nmat_encode::texset::{self, LoadOptions};
 use nmat_encode::{EncodeOptions, Profile, TrainOptions, encode};
@@ -19,7 +19,7 @@ use std::time::Instant;
 
 type Result<T> = std::result::Result<T, String>;
 
-const KNOBS: &str = "steps, batch, lr_mlp, lr_latents, joint_percent, qat_percent, \
+const KNOBS: &str = "steps, batch, lr_mlp, lr_latents, joint_percent, qat_percent, qat_lr, \
                      mip_uniform_share, latent_init_spread";
 
 /// Applies `key=value` to `o`.
@@ -34,6 +34,7 @@ fn set_knob(o: &mut TrainOptions, key: &str, value: &str) -> Result<()> {
         "lr_latents" => o.lr_latents = float()?,
         "joint_percent" => o.joint_percent = int()? as u32,
         "qat_percent" => o.qat_percent = int()? as u32,
+        "qat_lr" => o.qat_lr = float()?,
         "mip_uniform_share" => o.mip_uniform_share = float()?,
         "latent_init_spread" => o.latent_init_spread = float()?,
         _ => return Err(format!("--variant: unknown knob {key:?}; knobs: {KNOBS}")),

@@ -104,6 +104,27 @@ mod tests {
     }
 
     #[test]
+    fn the_quantization_aware_phase_has_a_learning_rate_schedule_of_its_own() {
+        let o =
+            TrainOptions { steps: 1000, joint_percent: 90, qat_percent: 10, ..Default::default() };
+        let (lr, start) = (o.lr_mlp, o.qat_start());
+        assert_eq!(
+            (start, o.phase(start - 1), o.phase(start)),
+            (900, Phase::Joint, Phase::QuantizationAware)
+        );
+        // The phase runs its own cosine from qat_lr · lr_mlp down to 1 % of that; the main
+        // schedule never goes below 1 % of lr_mlp.
+        assert_eq!(o.mlp_lr(start), o.qat_lr * lr);
+        let tail = o.mlp_lr(999);
+        assert!(tail < o.mlp_lr(950) && tail < 0.011 * o.qat_lr * lr, "{tail}");
+        assert!((0..start).all(|s| o.mlp_lr(s) >= 0.01 * lr));
+        // A frozen-latents phase between keeps the main schedule.
+        let f = TrainOptions { qat_percent: 3, ..o.clone() };
+        assert_eq!((f.qat_start(), f.phase(950)), (970, Phase::FrozenLatents));
+        assert!(f.mlp_lr(969) >= 0.01 * lr && f.mlp_lr(970) == f.qat_lr * lr);
+    }
+
+    #[test]
     fn the_rate_pull_takes_the_latents_the_loss_hardly_feels() {
         // Two cells of a 4-bit grid at 0.8, one with a gradient 1000 times the other's, both
         // pointing away from the middle code (8/15). Adam's first step moves both by its

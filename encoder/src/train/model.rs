@@ -527,7 +527,7 @@ impl<'a> Model<'a> {
             // Sum in chunk order: the same floating-point result for any thread count.
             let inv = 1.0 / opts.batch as f32;
             let t = step as i32 + 1;
-            let adam_mlp = AdamStep::new(cosine(opts.lr_mlp, step, steps), t);
+            let adam_mlp = AdamStep::new(opts.mlp_lr(step), t);
             let mut mse = 0.0;
             for k in 0..self.layers.len() {
                 let layer = &mut self.layers[k];
