@@ -255,28 +255,49 @@ fn measure(codec: Codec, dir: &Path, set: &TextureSet, parts: &[Part]) -> (f64, 
     (bppc, -10.0 * (sq / n).log10())
 }
 
+const USAGE: &str = "usage: nmat-anchors MATERIAL_DIR [--match LABEL=BPPC]... [--sweep] [--matched-only] > rows.csv";
+
+/// Ends the process with `why` (and the usage line) on stderr, exit status 2.
+fn refuse(why: &str) -> ! {
+    eprintln!("nmat-anchors: {why}\n{USAGE}");
+    std::process::exit(2)
+}
+
 fn main() {
     let mut args = std::env::args().skip(1);
-    let material =
-        PathBuf::from(args.next().expect("usage: nmat-anchors MATERIAL_DIR [--match BPPC]..."));
+    let material = match args.next() {
+        Some(a) if a == "--help" || a == "-h" => {
+            println!("{USAGE}");
+            return;
+        }
+        Some(a) => PathBuf::from(a),
+        None => refuse("no material folder given"),
+    };
     let mut targets = Vec::new();
     let mut fixed_rate = true;
     let mut sweep = false;
     while let Some(a) = args.next() {
         match a.as_str() {
             "--match" => {
-                let v = args.next().expect("--match LABEL=BPPC");
-                let (label, bppc) = v.split_once('=').expect("--match LABEL=BPPC");
-                targets.push((label.to_string(), bppc.parse::<f64>().expect("--match LABEL=BPPC")));
+                let v = args.next().unwrap_or_default();
+                let target = v.split_once('=').and_then(|(label, bppc)| {
+                    bppc.parse::<f64>().ok().filter(|b| *b > 0.0).map(|b| (label.to_string(), b))
+                });
+                targets.push(target.unwrap_or_else(|| {
+                    refuse(&format!("--match {v:?}: expected LABEL=BPPC with BPPC > 0"))
+                }));
             }
             "--matched-only" => fixed_rate = false,
             "--sweep" => sweep = true,
-            other => panic!("nmat-anchors: unknown argument {other:?}"),
+            other => refuse(&format!("unknown argument {other:?}")),
         }
     }
-    let files = texset::collect_inputs(std::slice::from_ref(&material)).expect("maps");
-    let roles = texset::assign_roles(&files, &[]).expect("roles");
-    let set = texset::load(&roles, &LoadOptions::default()).expect("load");
+    // The loader's errors name the file or folder at fault.
+    let fail = |e: &dyn std::fmt::Display| -> ! { refuse(&e.to_string()) };
+    let files =
+        texset::collect_inputs(std::slice::from_ref(&material)).unwrap_or_else(|e| fail(&e));
+    let roles = texset::assign_roles(&files, &[]).unwrap_or_else(|e| fail(&e));
+    let set = texset::load(&roles, &LoadOptions::default()).unwrap_or_else(|e| fail(&e));
     let parts = parts(&set);
     let name = material.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let work = std::env::temp_dir().join(format!("nmat-anchors-{}", std::process::id()));
