@@ -636,7 +636,7 @@ fn bench_train_reports_every_kernel_row_and_refuses_bad_options() {
         }
     }
     assert!(
-        out.contains("f32 FMA peak") && out.contains("(90 % joint, 3 % quantization-aware)"),
+        out.contains("f32 FMA peak") && out.contains("(90 % joint, 10 % quantization-aware)"),
         "{out}"
     );
     let o = nmat(
