@@ -222,8 +222,8 @@ fn same_run_ratios(opts: &Options) -> Result<()> {
         (opts.region.min(w).max(1), opts.region.min(h).max(1))
     };
     for (path, m) in rest {
-        let a = SpeedProbe::over_mip0(first, region(first));
-        let b = SpeedProbe::over_mip0(m, region(m));
+        let a = SpeedProbe::new(first, region(first), first.mip_size(0));
+        let b = SpeedProbe::new(m, region(m), m.mip_size(0));
         let (mut codes_a, mut codes_b) = (a.codes(), b.codes());
         // interleaved_ratio gives b's seconds ÷ a's; per texel, so regions may differ.
         let per_texel = a.texels() / b.texels();
@@ -248,21 +248,19 @@ struct SpeedProbe<'m, 'a> {
     m: &'m Material<'a>,
     decoder: Decoder,
     side: (u32, u32),
-    /// Texels of mip 0 in a scattered order.
+    /// Texels of mip 0 in a scattered order (`scattered_order`).
     scattered: Vec<(i64, i64)>,
 }
 
 impl<'m, 'a> SpeedProbe<'m, 'a> {
-    fn new(m: &'m Material<'a>, side: (u32, u32), scattered: Vec<(i64, i64)>) -> Self {
-        SpeedProbe { m, decoder: Decoder::new(m), side, scattered }
-    }
-    /// Random access scattered over the whole of mip 0, as many texels as the region has.
-    fn over_mip0(m: &'m Material<'a>, side: (u32, u32)) -> Self {
-        let w = m.mip_size(0).0 as usize;
-        let all = w * m.mip_size(0).1 as usize;
-        let n = (side.0 * side.1) as usize;
+    /// Random access scattered over the `area` (width, height) of mip 0 at the origin, as many
+    /// texels as the region of `side` has.
+    fn new(m: &'m Material<'a>, side: (u32, u32), area: (u32, u32)) -> Self {
+        let w = area.0 as usize;
         let at = |t: usize| ((t % w) as i64, (t / w) as i64);
-        Self::new(m, side, scattered_order(all).into_iter().take(n).map(at).collect())
+        let n = (side.0 * side.1) as usize;
+        let scattered = scattered_order(w * area.1 as usize).into_iter().take(n).map(at).collect();
+        SpeedProbe { m, decoder: Decoder::new(m), side, scattered }
     }
     fn texels(&self) -> f64 {
         f64::from(self.side.0) * f64::from(self.side.1)
@@ -523,8 +521,7 @@ fn region_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>, notes: &
     });
     push(format!("integer {kernel} random access per texel, all {c} ch"), secs, c, &units, &all);
     // Random access and region decode, timed in alternation so that both meet the same machine.
-    let at = |t: usize| ((t % w as usize) as i64, (t / w as usize) as i64);
-    let probe = SpeedProbe::new(m, setup.side, order.iter().map(|&t| at(t)).collect());
+    let probe = SpeedProbe::new(m, setup.side, setup.side);
     let mut codes = probe.codes();
     let ratio = interleaved_ratio(runs, &mut || probe.region(&mut codes), &mut || probe.random());
     notes.push(format!(
