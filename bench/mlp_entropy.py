@@ -5,7 +5,11 @@ over all layers; what an entropy coder of the weights alone could save at best w
 per-file table (scales and biases left as they are). Reads fixed-rate and packed files alike (the
 MLP section, docs/FORMAT.md §5.3, is stored as it is in both).
 
-Usage: bench/mlp_entropy.py FILE.nmat...
+With --columns, also where the first layer's int8 range goes: per input feature (column) the mean
+|weight code| over the rows, and how many rows have their largest |code| on each feature (a row
+whose range one feature takes leaves the others few bits: docs/FORMAT.md §6.5).
+
+Usage: bench/mlp_entropy.py [--columns] FILE.nmat...
 """
 import collections
 import math
@@ -32,7 +36,20 @@ def mlp_section(data, path):
     sys.exit(f"{path}: no MLP section (a JPEG material?)")
 
 
-for path in sys.argv[1:]:
+def columns(mlp):
+    inputs, outputs = struct.unpack_from("<HH", mlp, 8)
+    w = struct.unpack_from(f"<{inputs * outputs}b", mlp, 8 + 8 * mlp[0])
+    rows = [w[o * inputs : (o + 1) * inputs] for o in range(outputs)]
+    means = [sum(abs(r[i]) for r in rows) / outputs for i in range(inputs)]
+    tops = collections.Counter(max(range(inputs), key=lambda i: abs(r[i])) for r in rows)
+    print(f"  layer 0, {inputs} inputs x {outputs} rows; mean |code| per input: "
+          + " ".join(f"{m:.0f}" for m in means))
+    print("  rows whose largest |code| is on input i (i: rows): "
+          + ", ".join(f"{i}: {n}" for i, n in sorted(tops.items())))
+
+
+show_columns = "--columns" in sys.argv[1:]
+for path in [a for a in sys.argv[1:] if a != "--columns"]:
     data = open(path, "rb").read()
     mlp = mlp_section(data, path)
     layers = mlp[0]
@@ -52,3 +69,5 @@ for path in sys.argv[1:]:
         f"{len(weights)} int8 weights at {bits:.2f} bits each (layers: {', '.join(parts)}); "
         f"coded: at most {saved:.0f} bytes saved ({100 * saved / len(data):.1f} % of the file)"
     )
+    if show_columns:
+        columns(mlp)

@@ -44,7 +44,8 @@ pub enum Command {
     Pack(PackArgs),
     /// Write a packed .nmat file fixed-rate again (latents as codes, JPEG streams with their
     /// index): a larger file that opens without unpacking (zero-copy, memory-mapped) and that
-    /// readers of format 2.0 and 2.1 read.
+    /// readers without format 2.2's packed sections read (2.3 for neural files encoded since
+    /// its scaled LOD feature, 2.1 for JPEG ones).
     Unpack(PackArgs),
     /// Compare .nmat files with their source maps: PSNR per map and mip, SSIM, BPPC; with
     /// `--report`, one HTML page to look at them (with a rate–quality plot for several files).
@@ -385,11 +386,17 @@ pub struct EncodeArgs {
     pub address: Address,
     /// Write the file fixed-rate, as decoders hold it in memory (latents as codes, JPEG streams
     /// with their index): a larger file that opens without unpacking (zero-copy, e.g.
-    /// memory-mapped) and that readers of format 2.0 (neural) and 2.1 (JPEG) read. By default
-    /// latents are entropy-coded and the index left to be rebuilt on opening (format 2.2), where
-    /// that is smaller.
+    /// memory-mapped), for readers without format 2.2's packed sections (neural files are
+    /// format 2.3 for their LOD feature, JPEG ones 2.1). By default latents are entropy-coded
+    /// and the index left to be rebuilt on opening (format 2.2), where that is smaller.
     #[arg(long)]
     pub fixed_rate: bool,
+    /// Neural: train on the LOD feature of formats before 2.3 (mip/16), so that older decoders
+    /// read the file — format 2.0 readers with --fixed-rate, 2.2 readers packed. Costs quality:
+    /// the int8 network keeps less of the float one (at ntc-1.0 1.66 dB on average over 15
+    /// materials, up to 3.7; docs/QUALITY.md, "The LOD feature's scale")
+    #[arg(long)]
+    pub legacy_lod: bool,
     /// Neural, packed: the in-memory (fixed-rate) layout may be this many times the profile's
     /// nominal size, 1–2: larger latent grids, kept to the nominal rate on disk by training
     /// (docs/ENCODING.md, "Rate control"); 1: the nominal layout, whose packed file lands below

@@ -739,7 +739,15 @@ pub fn describe(path: &Path, m: &Material<'_>, stored: Stored) -> String {
         mlp.macs_per_texel(),
         mlp.input_frac_bits(),
         mlp.pe_frequencies(),
-        mlp.lod_input()
+        // Code c: mip · 2^(c − 5).
+        match mlp.lod_code() {
+            0 => "none",
+            1 => "mip/16",
+            2 => "mip/8",
+            3 => "mip/4",
+            4 => "mip/2",
+            _ => "mip",
+        }
     );
     s.push_str(&budget_table(&file_budget(m), texel_channels(m)));
     s

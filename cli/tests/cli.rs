@@ -67,7 +67,9 @@ fn encode_info_decode_eval_round_trip() {
         "latent grids",
         "byte budget",
         "network (int8 weights, row scales, biases)",
-        ".nmat format 2.2",
+        // Packed (2.2's sections) with 2.3's LOD feature.
+        ".nmat format 2.3",
+        "LOD input mip/2",
         "latents entropy-coded",
         "in memory",
     ] {
@@ -104,7 +106,22 @@ fn encode_info_decode_eval_round_trip() {
     let packed_size = std::fs::metadata(&nominal).unwrap().len();
     assert!(packed_size < fixed_bytes.len() as u64, "{packed_size} vs {}", fixed_bytes.len());
     let fixed_info = text(&nmat(&["info", fixed.to_str().unwrap()]));
-    assert!(fixed_info.contains(".nmat format 2.0") && !fixed_info.contains("entropy-coded"));
+    assert!(fixed_info.contains(".nmat format 2.3") && !fixed_info.contains("entropy-coded"));
+    // For decoders before 2.3: the LOD feature they know, fixed-rate as 2.0 wrote it.
+    let legacy = dir.join("legacy.nmat");
+    let o = nmat(&[
+        "encode",
+        src.to_str().unwrap(),
+        "-o",
+        legacy.to_str().unwrap(),
+        "--steps",
+        "20",
+        "--fixed-rate",
+        "--legacy-lod",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let legacy_info = text(&nmat(&["info", legacy.to_str().unwrap()]));
+    assert!(legacy_info.contains(".nmat format 2.0") && legacy_info.contains("LOD input mip/16"));
     let o = encode(&dir.join("no.nmat"), "--memory-factor=2.5");
     assert!(!o.status.success() && text(&o).contains("memory_factor"), "{}", text(&o));
     // `nmat pack` of the fixed-rate file is the packed file; neither replaces its input.
@@ -1067,6 +1084,7 @@ fn encode_codec_jpeg_writes_a_material_decode_and_eval_read() {
     for (args, needle) in [
         (vec!["--codec", "jpeg", "--profile", "ntc-0.2"], "--profile belongs to the neural codec"),
         (vec!["--codec", "jpeg", "--steps", "10"], "--steps belongs to the neural codec"),
+        (vec!["--codec", "jpeg", "--legacy-lod"], "--legacy-lod belongs to the neural codec"),
         (vec!["--codec", "jpeg", "--effort", "max"], "--effort belongs to the neural codec"),
         (vec!["--subsampling", "4:4:4"], "--subsampling belongs to the JPEG codec"),
         (vec!["--quality", "50"], "--quality 50: sets the JPEG codec's quality"),

@@ -141,9 +141,8 @@ impl<'a> Material<'a> {
                 sink.push(i64::from(v) << RAW_SHIFT);
             }
         }
-        if n.mlp.lod_input {
-            // mip / 16 in Q.f (f ≥ 4, mip ≤ 14).
-            sink.push(i64::from(mip << (f - 4)) << RAW_SHIFT);
+        if let Some(q) = n.mlp.lod_feature(mip) {
+            sink.push(i64::from(q) << RAW_SHIFT);
         }
     }
 

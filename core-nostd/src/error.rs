@@ -192,6 +192,12 @@ impl fmt::Display for Error {
                  index); unpack it first into {value} bytes (nmat_core::unpack or unpack_into; \
                  nmat and the C API do this when they open a file)"
             ),
+            Error::Unsupported { field: Field::Flags, value, .. } => write!(
+                f,
+                "unsupported .nmat: header flags {value:#x} announce a feature this decoder lacks \
+                 (a newer nmat wrote the file: decode it with that version, or re-encode the \
+                 source maps with this one)"
+            ),
             Error::Unsupported { field, index, value } => {
                 write!(f, "unsupported .nmat: field {field}[{index}] has unknown value {value}")
             }

@@ -116,8 +116,9 @@ pub use error::{Argument, Error, Field};
 pub use format::channel::{AddressMode, Channel, ColorSpace, Semantic};
 #[doc(inline)]
 pub use format::container::{
-    Container, Header, JPEG_VERSION_MINOR, LEGACY_VERSION_MAJOR, MAGIC, PACKED_VERSION_MINOR,
-    ParseOptions, SectionKind, VERSION_MAJOR, VERSION_MINOR,
+    Container, FLAG_LOD_SCALE, Header, JPEG_VERSION_MINOR, LEGACY_VERSION_MAJOR,
+    LOD_SCALE_VERSION_MINOR, MAGIC, PACKED_VERSION_MINOR, ParseOptions, SectionKind, VERSION_MAJOR,
+    VERSION_MINOR,
 };
 #[cfg(feature = "alloc")]
 #[doc(inline)]

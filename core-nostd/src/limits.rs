@@ -31,7 +31,8 @@ pub const MAX_WIDTH: usize = 128;
 pub const MAX_PE_FREQUENCIES: u8 = 8;
 /// Activation fraction bits: hardGELU's `z·(z + 1.5·2^f)` fits an i32 only for f ≤ 14.
 pub const MAX_FRAC_BITS: u8 = 14;
-/// The LOD feature is `mip / 16` and must be exact in the input format, hence f ≥ 4.
+/// The LOD feature (at least `mip / 16`, FORMAT.md §6.5) must be exact in the input format, hence
+/// f ≥ 4.
 pub const MIN_INPUT_FRAC_BITS: u8 = 4;
 /// Bits per latent.
 pub const MAX_LATENT_BITS: u8 = 8;

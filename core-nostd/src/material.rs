@@ -47,7 +47,8 @@ pub enum Codec {
 pub struct Mlp<'a> {
     pub(crate) input_frac_bits: u8,
     pub(crate) pe_frequencies: u8,
-    pub(crate) lod_input: bool,
+    /// 0: no LOD feature; 1: `mip / 16`; 2–5: `mip · 2^(lod_input − 5)` (FORMAT.md §6.5).
+    pub(crate) lod_input: u8,
     pub(crate) input_width: u16,
     pub(crate) layers: heapless::Vec<Layer<'a>, MAX_LAYERS>,
 }
@@ -63,7 +64,20 @@ impl<'a> Mlp<'a> {
     }
     /// Whether the mip level is an input feature.
     pub fn lod_input(&self) -> bool {
+        self.lod_input != 0
+    }
+    /// The file's `lod_input` code (FORMAT.md §5.3): 0 no LOD feature, 1 `mip / 16`, 2–5
+    /// `mip · 2^(code − 5)` (format 2.3).
+    pub fn lod_code(&self) -> u8 {
         self.lod_input
+    }
+    /// The LOD feature of `mip`, a mip of the chain (decoders clamp it first), in the input's
+    /// Q-format (`None` without one): `mip · 2^(code − 5)`, `mip / 16` for code 1; exact, and
+    /// parsing guarantees it fits an i16 for every mip a file can have.
+    pub fn lod_feature(&self, mip: u32) -> Option<i32> {
+        // f ≥ 4 and code ≥ 1: the shift is never negative.
+        let code = u32::from(self.lod_input).checked_sub(1)?;
+        Some((mip << (u32::from(self.input_frac_bits) + code - 4)) as i32)
     }
     /// Number of input features.
     pub fn input_width(&self) -> usize {

@@ -68,7 +68,9 @@ pub struct LayerSpec {
 pub struct MlpSpec {
     pub input_frac_bits: u8,
     pub pe_frequencies: u8,
-    pub lod_input: bool,
+    /// 0: no LOD feature; 1: `mip / 16`; 2–5: `mip · 2^(lod_input − 5)`, written as format 2.3
+    /// (FORMAT.md §6.5).
+    pub lod_input: u8,
     pub layers: Vec<LayerSpec>,
 }
 
@@ -168,7 +170,7 @@ pub(crate) fn material_section(
 pub(crate) fn assemble(
     required: Vec<(SectionKind, Vec<u8>)>,
     optional: &[(u32, Vec<u8>)],
-    minor: u16,
+    (minor, flags): (u16, u32),
 ) -> Result<Vec<u8>, Error> {
     let mut sections: Vec<(SectionKind, u32, &[u8])> =
         required.iter().map(|(k, d)| (*k, SECTION_REQUIRED, d.as_slice())).collect();
@@ -183,7 +185,7 @@ pub(crate) fn assemble(
     out.extend_from_slice(&MAGIC);
     put_u16(&mut out, VERSION_MAJOR);
     put_u16(&mut out, minor);
-    put_u32(&mut out, 0); // flags
+    put_u32(&mut out, flags);
     put_u32(&mut out, 0); // file length, patched below
     put_u32(&mut out, sections.len() as u32);
     put_u32(&mut out, 0); // checksum, patched below
@@ -221,7 +223,13 @@ impl MaterialSpec {
             (SectionKind::MLP, mlp),
             (SectionKind::LATENTS, latents),
         ];
-        assemble(required, &self.optional_sections, VERSION_MINOR)
+        // A scaled LOD feature is 2.3's: its flag makes older readers refuse the file.
+        let version = if self.mlp.lod_input > 1 {
+            (LOD_SCALE_VERSION_MINOR, FLAG_LOD_SCALE)
+        } else {
+            (VERSION_MINOR, 0)
+        };
+        assemble(required, &self.optional_sections, version)
     }
 
     fn material_section(&self) -> Result<Vec<u8>, Error> {
@@ -290,7 +298,7 @@ impl MaterialSpec {
             len_u8(m.layers.len())?,
             m.input_frac_bits,
             m.pe_frequencies,
-            u8::from(m.lod_input),
+            m.lod_input,
         ]);
         put_u16(&mut s, m.layers.first().map_or(0, |l| l.inputs));
         put_u16(&mut s, 0);

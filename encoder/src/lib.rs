@@ -53,6 +53,10 @@ pub struct EncodeOptions {
     /// disk has the nominal rate (docs/ENCODING.md, "Rate control"). Fixed-rate files ignore it
     /// (their layout is the nominal size).
     pub memory_factor: f64,
+    /// Train on the LOD feature of formats before 2.3 (`mip / 16`), so that readers of 2.0
+    /// (fixed-rate files) and 2.2 (packed) decode the file; by default the feature is 2.3's
+    /// `mip / 2`, which keeps the int8 network closer to the float one (docs/ENCODING.md).
+    pub legacy_lod: bool,
 }
 
 /// The default [`EncodeOptions::memory_factor`] (docs/ENCODING.md, "Rate control").
@@ -146,6 +150,7 @@ impl Default for EncodeOptions {
             address_mode: AddressMode::Wrap,
             storage: Storage::default(),
             memory_factor: DEFAULT_MEMORY_FACTOR,
+            legacy_lod: false,
         }
     }
 }
@@ -187,8 +192,11 @@ pub fn encode(
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Encoded, EncodeError> {
     let shape = shape_of(set);
-    let Layout { config, latent_bytes } =
+    let Layout { mut config, latent_bytes } =
         layout(options.profile, &shape, options.storage, options.memory_factor)?;
+    if options.legacy_lod && config.lod_code != 0 {
+        config.lod_code = 1;
+    }
     let train_options = TrainOptions { latent_bytes, ..options.train.clone() };
     let mut model = train::Model::new(set, &config, options.address_mode, &train_options);
     model.train(&train_options, progress);
@@ -298,7 +306,7 @@ fn to_spec(
         mlp: MlpSpec {
             input_frac_bits: train::INPUT_FRAC_BITS,
             pe_frequencies: cfg.pe_frequencies,
-            lod_input: cfg.lod_input,
+            lod_input: cfg.lod_code,
             layers,
         },
         optional_sections: vec![(source_maps::SECTION_KIND, source_maps::encode(&set.maps))],

@@ -77,7 +77,9 @@ pub struct ModelConfig {
     pub levels: Vec<Vec<TermCfg>>,
     pub mip_to_level: Vec<u8>,
     pub pe_frequencies: u8,
-    pub lod_input: bool,
+    /// The LOD feature's code (docs/FORMAT.md §5.3): 0 none, 1 `mip / 16` (formats before 2.3),
+    /// 2–5 `mip · 2^(code − 5)`; the profiles use [`crate::train::LOD_CODE`].
+    pub lod_code: u8,
     pub hidden: Vec<usize>,
     /// Learned output channels.
     pub outputs: usize,
@@ -142,7 +144,7 @@ impl ModelConfig {
                 if t.mode == TermMode::Nearest4 { 4 * c } else { c }
             })
             .sum();
-        level + 4 * usize::from(self.pe_frequencies) + usize::from(self.lod_input)
+        level + 4 * usize::from(self.pe_frequencies) + usize::from(self.lod_code != 0)
     }
 
     /// The exact size of the file this model makes for `shape` (the writer's layout; a test
@@ -368,7 +370,7 @@ fn ntc_layout(
         levels,
         mip_to_level: (0..shape.mip_count).map(|m| (m / 2) as u8).collect(),
         pe_frequencies: 2,
-        lod_input: true,
+        lod_code: crate::train::LOD_CODE,
         hidden: vec![hidden; 2],
         outputs: shape.learned,
     }
@@ -431,7 +433,7 @@ fn nbc_layout(
             .map(|m| (m as usize).min(level_count - 1) as u8)
             .collect(),
         pe_frequencies: 2,
-        lod_input: true,
+        lod_code: crate::train::LOD_CODE,
         hidden: vec![hidden; 2],
         outputs: shape.learned,
     }

@@ -66,6 +66,32 @@ fn integer_and_float_decoders_agree_on_a_trained_material() {
     assert!(a.mean.abs() < 0.05);
 }
 
+#[test]
+fn the_lod_feature_is_format_2_3_s_unless_older_readers_are_asked_for() {
+    // By default the LOD feature is mip / 2 (code 4), flagged so that readers before 2.3 refuse
+    // the file; `legacy_lod` trains on mip / 16 (code 1) and writes what 2.0 (fixed-rate) and
+    // 2.2 (packed) readers take: no header flag, their minor versions.
+    let set = demo::bricks(32);
+    for (legacy, code, flags, minors) in [(false, 4, 1, (3, 3)), (true, 1, 0, (0, 2))] {
+        let out = encode(
+            &set,
+            &EncodeOptions { legacy_lod: legacy, ..options("ntc-0.5", 40, 2) },
+            &mut |_| {},
+        )
+        .unwrap();
+        let fixed = Container::parse(&out.bytes).unwrap();
+        let nmat_core::Body::Neural(n) = fixed.body() else { panic!("a neural material") };
+        assert_eq!(n.mlp().lod_code(), code, "legacy {legacy}");
+        let packed = out.packed.as_deref().unwrap();
+        for (bytes, minor) in [(&out.bytes[..], minors.0), (packed, minors.1)] {
+            let header = |at: usize| u16::from_le_bytes([bytes[at], bytes[at + 1]]);
+            assert_eq!((header(6), header(8)), (minor, flags), "legacy {legacy}");
+        }
+        let a = nmat_tests::int_vs_float(&fixed);
+        assert!(a.max_abs <= 1, "legacy {legacy}: {}", a.max_abs);
+    }
+}
+
 /// The solver's byte budget is the writer's file size, for every profile (the rate promise of
 /// docs/ENCODING.md rests on it).
 #[test]

@@ -4,7 +4,7 @@
 use arbitrary::Arbitrary;
 use libfuzzer_sys::fuzz_target;
 use nmat_core::{AddressMode, ChannelMask, Container};
-use nmat_tests::generate::{generate, FixtureConfig, Layout};
+use nmat_tests::generate::{fitting_lod_code, generate, FixtureConfig, Layout};
 
 #[derive(Arbitrary, Debug)]
 struct Shape {
@@ -22,7 +22,7 @@ struct Shape {
     clamp: bool,
     hidden: Vec<u8>,
     pe: u8,
-    lod: bool,
+    lod: u8,
     frac: [u8; 3],
     probes: Vec<(i16, i16, u8)>,
 }
@@ -71,7 +71,7 @@ fuzz_target!(|s: Shape| {
         address_mode: if s.clamp { AddressMode::Clamp } else { AddressMode::Wrap },
         hidden: hidden_widths(&s.hidden),
         pe_frequencies: s.pe % (input_frac_bits - 2).min(5),
-        lod_input: s.lod,
+        lod_input: fitting_lod_code(s.lod % 6, input_frac_bits),
         input_frac_bits,
         hidden_frac_bits: 8 + s.frac[1] % 6,
         output_frac_bits: 8 + s.frac[2] % 7,

@@ -201,7 +201,7 @@ fn network_words(m: &Material<'_>, n: &Neural<'_>) -> Result<(Vec<u32>, Vec<u32>
         address_mode: m.address_mode() as u32,
         input_frac_bits: u32::from(mlp.input_frac_bits()),
         pe_frequencies: u32::from(mlp.pe_frequencies()),
-        lod_input: u32::from(mlp.lod_input()),
+        lod_input: u32::from(mlp.lod_code()),
         layer_count: mlp.layers().len() as u32,
         level_count: n.levels().len() as u32,
         grid_count: n.grids().len() as u32,

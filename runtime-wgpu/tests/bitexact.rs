@@ -1,7 +1,8 @@
 //! The GPU decoder against the CPU integer decoder, byte for byte: every texel of every mip of
-//! every golden fixture, a trained material, and random-access requests at odd coordinates with
-//! channel subsets — through every kernel the device runs (`Kernel::ALL`). Runs on whatever
-//! adapter wgpu finds (lavapipe in CI); no adapter is a failure.
+//! every golden fixture, of every scale of the LOD feature and of a trained material, and
+//! random-access requests at odd coordinates with channel subsets — through every kernel the
+//! device runs (`Kernel::ALL`). Runs on whatever adapter wgpu finds (lavapipe in CI); no adapter
+//! is a failure.
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
 
@@ -107,6 +108,28 @@ fn random_access_requests_and_subsets_match_the_cpu() {
     assert!(ctx.submit_region(&device, &queue, &gm, 9, (0, 0, 1, 1), ChannelMask::ALL).is_err());
     assert!(ctx.decode_requests(&device, &queue, &gm, &reqs, ChannelMask(1 << 12)).is_err());
     assert!(ctx.decode_requests(&device, &queue, &gm, &reqs, ChannelMask(0)).is_err());
+}
+
+#[test]
+fn every_lod_feature_scale_decodes_identically_on_the_gpu() {
+    // The LOD feature mip · 2^(code − 5) (FORMAT.md §6.5): none, code 1 (mip / 16, before
+    // format 2.3) and the scaled codes, at the input formats they fit, on a 7-mip chain.
+    let (device, queue) = device();
+    let ctx = Context::new(&device);
+    for (code, f) in [(0u8, 12u8), (1, 12), (4, 12), (1, 11), (5, 11)] {
+        let cfg = nmat_tests::generate::FixtureConfig {
+            lod_input: code,
+            input_frac_bits: f,
+            ..nmat_tests::generate::FixtureConfig::ntc("lod", 40 + u64::from(code), 64, 48, 7)
+        };
+        let bytes = generate(&cfg).to_bytes().unwrap();
+        let m = Container::parse(&bytes).unwrap();
+        let cpu = decode_all_u8(&m);
+        for gm in each_kernel(&ctx, &device, &queue, &m) {
+            let gpu = ctx.decode_chain(&device, &queue, &gm, ChannelMask::ALL).unwrap();
+            assert!(gpu == cpu, "LOD code {code}, Q.{f}: differs on the GPU ({:?})", gm.kernel());
+        }
+    }
 }
 
 #[test]

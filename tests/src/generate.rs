@@ -58,7 +58,8 @@ pub struct FixtureConfig {
     pub address_mode: AddressMode,
     pub hidden: Vec<u16>,
     pub pe_frequencies: u8,
-    pub lod_input: bool,
+    /// The file's `lod_input` code: 0 none, 1 `mip / 16`, 2–5 `mip · 2^(code − 5)`.
+    pub lod_input: u8,
     pub input_frac_bits: u8,
     pub hidden_frac_bits: u8,
     pub output_frac_bits: u8,
@@ -84,7 +85,7 @@ impl FixtureConfig {
             address_mode: AddressMode::Wrap,
             hidden: vec![32, 32],
             pe_frequencies: 2,
-            lod_input: true,
+            lod_input: 1,
             input_frac_bits: 12,
             hidden_frac_bits: 12,
             output_frac_bits: 14,
@@ -137,7 +138,7 @@ pub fn golden_configs() -> Vec<FixtureConfig> {
         FixtureConfig { hidden: vec![64, 64], ..FixtureConfig::nbc("nbc_8421_64", 5, 64, 64, 4) },
         FixtureConfig {
             address_mode: AddressMode::Clamp,
-            lod_input: false,
+            lod_input: 0,
             pe_frequencies: 0,
             layout: Layout::Nbc { channels: 4, bits_coarse_to_fine: vec![8, 1, 1] },
             hidden_frac_bits: 10, // three fused grids reach beyond the ±8 of Q.12 (FORMAT.md §6.6)
@@ -304,8 +305,9 @@ pub fn generate(cfg: &FixtureConfig) -> MaterialSpec {
             if t.mode == TermMode::Nearest4 { 4 * c } else { c }
         })
         .sum();
-    let input_width =
-        (level_width + 4 * usize::from(cfg.pe_frequencies) + usize::from(cfg.lod_input)) as u16;
+    let input_width = (level_width
+        + 4 * usize::from(cfg.pe_frequencies)
+        + usize::from(cfg.lod_input != 0)) as u16;
     let mut layers = Vec::new();
     let mut prev = (input_width, f);
     for &h in &cfg.hidden {
@@ -370,7 +372,7 @@ pub fn wide_constant_material(input: i16, weight: i8, bias: i32) -> MaterialSpec
         mip_count: 1,
         hidden: vec![],
         pe_frequencies: 0,
-        lod_input: false,
+        lod_input: 0,
         layout: Layout::Ntc { hi_channels: 16, lo_channels: 16, hi_bits: 1, lo_bits: 1 },
         ..FixtureConfig::ntc("wide", 12, 4, 4, 1)
     };
@@ -388,6 +390,17 @@ pub fn wide_constant_material(input: i16, weight: i8, bias: i32) -> MaterialSpec
 }
 
 /// A random but valid configuration: sizes, layouts, bit depths, Q-formats, widths.
+/// The `lod_input` code a uniform draw `u` picks: 0 below ½, else 1–5 evenly.
+fn lod_code(u: f64, f: u8) -> u8 {
+    if u < 0.5 { 0 } else { fitting_lod_code(1 + ((u - 0.5) * 10.0).min(4.0) as u8, f) }
+}
+
+/// `code` (0–5) where input format Q.`f` holds its LOD feature at every mip (`f + code ≤ 16` for
+/// the scaled codes 2–5, FORMAT.md §6.5), else 1 (`mip / 16`).
+pub fn fitting_lod_code(code: u8, f: u8) -> u8 {
+    if code <= 1 || u16::from(f) + u16::from(code) <= 16 { code } else { 1 }
+}
+
 pub fn random_config(seed: u64) -> FixtureConfig {
     let mut r = Rng::new(seed);
     let pick = |r: &mut Rng, lo: i64, hi: i64| r.range(lo, hi);
@@ -422,7 +435,8 @@ pub fn random_config(seed: u64) -> FixtureConfig {
         address_mode: if r.unit() < 0.5 { AddressMode::Wrap } else { AddressMode::Clamp },
         hidden,
         pe_frequencies: pick(&mut r, 0, i64::from(input_frac_bits - 2).min(4)) as u8,
-        lod_input: r.unit() < 0.5,
+        // Half without a LOD feature, the rest spread over the codes that fit the input format.
+        lod_input: lod_code(r.unit(), input_frac_bits),
         input_frac_bits,
         hidden_frac_bits: pick(&mut r, 8, 13) as u8,
         output_frac_bits: pick(&mut r, 8, 14) as u8,

@@ -92,8 +92,10 @@ fn features(spec: &MaterialSpec, x: i64, y: i64, mip: u32) -> Vec<i64> {
             }
         }
     }
-    if spec.mlp.lod_input {
-        out.push((i64::from(mip) << (16 + f)) / 16);
+    if spec.mlp.lod_input != 0 {
+        // mip · 2^(code − 5): code 1 is mip / 16.
+        let code = u32::from(spec.mlp.lod_input);
+        out.push((i64::from(mip) << (16 + f + code)) / 32);
     }
     out
 }

@@ -74,8 +74,9 @@ pub(crate) fn read_container(bytes: &[u8]) -> Result<([u8; HEADER_LEN], Vec<Sect
     if version_major != 2 {
         return Err(format!("version_major {version_major}: only 2 is handled here"));
     }
-    if u32_at(&header, 8)? != 0 {
-        return Err("header flags are not 0".into());
+    // §1.1: bit 0 (2.3's scaled LOD feature) is the only flag.
+    if u32_at(&header, 8)? & !1 != 0 {
+        return Err("unknown header flags".into());
     }
     let file_length = u32_at(&header, 12)? as usize;
     if file_length != bytes.len() {

@@ -401,8 +401,8 @@ pub fn unpack(bytes: &[u8]) -> Result<Vec<u8>, String> {
 
 /// A fixed-rate neural file (kinds 1–4 present) → a packed file: the same sections in the same
 /// order with the same flags, LATENTS replaced by PACKED_LATENTS (flag `REQUIRED`) (`latents_length` = the LATENTS
-/// length, coder 1, `unpacked_minor` = the input's `version_minor`), header `version_minor` 2,
-/// laid out like an unpacked file (see [`write_container`]).
+/// length, coder 1, `unpacked_minor` = the input's `version_minor`), header `version_minor` 2
+/// or the input's if that is higher, the header flags kept, laid out like an unpacked file (see [`write_container`]).
 pub fn pack(bytes: &[u8]) -> Result<Vec<u8>, String> {
     pack_counting_carries(bytes).map(|(packed, _)| packed)
 }
@@ -447,7 +447,7 @@ pub fn pack_counting_carries(bytes: &[u8]) -> Result<(Vec<u8>, u64), String> {
             }
         })
         .collect();
-    let packed = write_container(&header, PACKED_VERSION_MINOR, &out_sections)?;
+    let packed = write_container(&header, PACKED_VERSION_MINOR.max(unpacked_minor), &out_sections)?;
 
     // Packing must lose nothing (§12): the input must be laid out exactly as an unpacked file is,
     // with zero padding and zero bits outside the grids' codes.

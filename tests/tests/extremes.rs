@@ -161,7 +161,7 @@ fn bilinear_of_a_constant_grid_is_exactly_the_constant() {
         let cfg = FixtureConfig {
             hidden: vec![],
             pe_frequencies: 0,
-            lod_input: false,
+            lod_input: 0,
             layout: Layout::Nbc { channels: 1, bits_coarse_to_fine: vec![3] },
             input_frac_bits: 14,
             ..FixtureConfig::ntc("const", 14, 37, 23, 1)

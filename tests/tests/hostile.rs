@@ -120,6 +120,41 @@ fn every_bit_flip_past_the_checksum_is_an_error_or_a_valid_decode() {
     });
 }
 
+/// The byte offset of the first section of `kind` in a well-formed file.
+fn section_offset(bytes: &[u8], kind: u32) -> usize {
+    let word = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
+    let entry = (0..word(16) as usize).map(|i| 32 + 16 * i).find(|&e| word(e) == kind).unwrap();
+    word(entry + 8) as usize
+}
+
+#[test]
+fn the_lod_feature_scale_needs_its_flag_and_must_fit_the_input_format() {
+    // ntc_rgb_64: input Q.12, a LOD feature (code 1, mip / 16). MLP header byte 3 is the code,
+    // header flag bit 0 allows codes 2–5 (mip · 2^(code − 5)) where f + code ≤ 16 (§5.3, §6.5).
+    let (name, good) = fixtures().remove(0);
+    let mlp = section_offset(&good, 3);
+    assert_eq!((good[mlp + 1], good[mlp + 3]), (12, 1), "{name}");
+    let with = |flags: u32, code: u8| {
+        let mut b = good.clone();
+        b[8..12].copy_from_slice(&flags.to_le_bytes());
+        b[mlp + 3] = code;
+        refresh_checksum(&mut b);
+        Container::parse(&b).map(|m| match m.body() {
+            nmat_core::Body::Neural(n) => (n.mlp().lod_code(), n.mlp().lod_feature(6)),
+            _ => unreachable!("a neural fixture"),
+        })
+    };
+    let lod_field =
+        |r: Result<_, Error>| matches!(r, Err(Error::Malformed { field: Field::LodInput, .. }));
+    // Q.12: mip 6 is 6 · 2^12 · 2^(code − 5).
+    assert_eq!(with(0, 1), Ok((1, Some(6 << 8))));
+    assert_eq!(with(1, 4), Ok((4, Some(6 << 11))));
+    assert!(with(0, 0).is_err(), "the input width counts the LOD feature");
+    assert!(lod_field(with(0, 4)), "a scaled code without its flag");
+    assert!(lod_field(with(1, 5)), "Q.12 cannot hold mip 14 · 2^0");
+    assert!(lod_field(with(1, 6)), "no code 6");
+}
+
 #[test]
 fn specific_corruptions_give_specific_errors() {
     let (_, good) = fixtures().remove(0);
@@ -141,10 +176,13 @@ fn specific_corruptions_give_specific_errors() {
     );
     // A newer minor version is accepted (§1.3).
     assert_eq!(edit(6, &7u16.to_le_bytes()), Ok(7));
-    assert!(matches!(
-        edit(8, &1u32.to_le_bytes()),
-        Err(Error::Unsupported { field: Field::Flags, .. })
-    ));
+    // Flag bit 0 (2.3's scaled LOD feature) is known; any other is a newer feature.
+    assert_eq!(edit(8, &1u32.to_le_bytes()), Ok(0));
+    for flags in [2u32, 1 << 31] {
+        let e = edit(8, &flags.to_le_bytes()).unwrap_err();
+        assert!(matches!(e, Error::Unsupported { field: Field::Flags, .. }), "{e:?}");
+        assert!(e.to_string().contains("newer nmat"), "{e}");
+    }
     assert!(matches!(
         edit(16, &0u32.to_le_bytes()),
         Err(Error::Malformed { field: Field::SectionCount, .. })

@@ -30,6 +30,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         address_mode: AddressMode::Wrap,
         storage: Default::default(),
         memory_factor: nmat_encode::DEFAULT_MEMORY_FACTOR,
+        legacy_lod: false,
     };
     let encoded = encode_with_progress(&set, &options)?;
     let path = out.join("demo.nmat");

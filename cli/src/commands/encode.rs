@@ -53,7 +53,13 @@ pub fn run(args: EncodeArgs) -> Result<()> {
     let memory_factor = args.memory_factor.unwrap_or(nmat_encode::DEFAULT_MEMORY_FACTOR);
     let start = Instant::now();
     let encoded = if let Some(target) = args.target_psnr {
-        search_target(&set, target, &train, address_mode, (storage, memory_factor))?
+        search_target(
+            &set,
+            target,
+            &train,
+            address_mode,
+            (storage, memory_factor, args.legacy_lod),
+        )?
     } else {
         let profile = match (&args.profile, args.bppc) {
             (Some(name), _) => profile_named(name)?,
@@ -71,7 +77,9 @@ pub fn run(args: EncodeArgs) -> Result<()> {
             print!("{}", plan(&set, profile, storage, memory_factor)?);
             return Ok(());
         }
-        let options = EncodeOptions { profile, train, address_mode, storage, memory_factor };
+        let legacy_lod = args.legacy_lod;
+        let options =
+            EncodeOptions { profile, train, address_mode, storage, memory_factor, legacy_lod };
         encode_with_progress(&set, &options)?
     };
     if let Some(note) = rate_note(&encoded) {
@@ -113,6 +121,7 @@ fn encode_jpeg(args: &EncodeArgs, set: &TextureSet, address_mode: AddressMode) -
         ("--target-psnr", args.target_psnr.is_some()),
         ("--dry-run", args.dry_run),
         ("--memory-factor", args.memory_factor.is_some()),
+        ("--legacy-lod", args.legacy_lod),
         ("--steps", args.train.steps.is_some()),
         ("--effort", args.train.effort != EffortArg::Default),
         ("--seed", args.train.seed != TrainOptions::default().seed),
@@ -256,7 +265,7 @@ fn search_target(
     target: f64,
     train: &TrainOptions,
     address_mode: AddressMode,
-    (storage, memory_factor): (Storage, f64),
+    (storage, memory_factor, legacy_lod): (Storage, f64, bool),
 ) -> Result<Encoded> {
     if !target.is_finite() || target <= 0.0 {
         return Err(Box::new(EncodeError::BadOption {
@@ -271,7 +280,14 @@ fn search_target(
     for profile in order {
         let e = encode_with_progress(
             set,
-            &EncodeOptions { profile, train: train.clone(), address_mode, storage, memory_factor },
+            &EncodeOptions {
+                profile,
+                train: train.clone(),
+                address_mode,
+                storage,
+                memory_factor,
+                legacy_lod,
+            },
         )?;
         eprintln!("  {:9} {:.3} BPPC  {:.2} dB", profile.name(), e.quality.bppc, e.quality.psnr);
         if e.quality.psnr >= target {

@@ -342,11 +342,10 @@ impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
                 }
             }
         }
-        if n.mlp.lod_input {
+        if let Some(q) = n.mlp.lod_feature(mip) {
             let lod = first + 4 * usize::from(n.mlp.pe_frequencies);
             if let Some(v) = template.get_mut(lod) {
-                // mip / 16 in Q.f (f ≥ 4, mip ≤ 14), as in `Material::gather`.
-                *v = feature(i64::from(mip << (f - 4)));
+                *v = feature(i64::from(q));
             }
         }
         SpanGather {

@@ -15,8 +15,8 @@ use crate::neural::latents::{LatentGrid, packed_len};
 use crate::neural::mlp::{Activation, Layer, Requant};
 
 pub use crate::format::version::{
-    JPEG_VERSION_MINOR, LEGACY_VERSION_MAJOR, MAGIC, PACKED_VERSION_MINOR, VERSION_MAJOR,
-    VERSION_MINOR,
+    FLAG_LOD_SCALE, JPEG_VERSION_MINOR, KNOWN_FLAGS, LEGACY_VERSION_MAJOR, LOD_SCALE_VERSION_MINOR,
+    MAGIC, PACKED_VERSION_MINOR, VERSION_MAJOR, VERSION_MINOR,
 };
 pub const HEADER_LEN: usize = 32;
 pub const SECTION_ENTRY_LEN: usize = 16;
@@ -140,11 +140,11 @@ impl Container {
             }
             BodySections::Neural([levels_bytes, mlp_bytes, latents]) => {
                 let levels = parse_levels(levels_bytes, latents, mip_count)?;
-                let mlp = parse_mlp(mlp_bytes, channels.len(), header.version_major)?;
+                let mlp = parse_mlp(mlp_bytes, channels.len(), &header)?;
                 for (l, width_of_level) in levels.widths.iter().enumerate() {
                     let expected = width_of_level
                         + 4 * usize::from(mlp.pe_frequencies)
-                        + usize::from(mlp.lod_input);
+                        + usize::from(mlp.lod_input != 0);
                     if expected != mlp.input_width() {
                         return Err(malformed(Field::LevelFeatureWidth, l, expected as i64));
                     }
@@ -205,8 +205,10 @@ pub(crate) fn read_header(bytes: &[u8]) -> Result<Header, Error> {
     if header.version_major != VERSION_MAJOR && header.version_major != LEGACY_VERSION_MAJOR {
         return Err(unsupported(Field::VersionMajor, 0, header.version_major));
     }
-    if header.flags != 0 {
-        // No header flag is defined in version 1; a set bit announces a feature we lack (§1.3).
+    if header.flags & !KNOWN_FLAGS != 0
+        || (header.flags != 0 && header.version_major != VERSION_MAJOR)
+    {
+        // A set bit we do not know announces a feature we lack (§1.3); version 1 has no flags.
         return Err(unsupported(Field::Flags, 0, header.flags));
     }
     let len = bytes.len() as u64;
@@ -633,7 +635,8 @@ fn legacy_layer_data_len(inputs: usize, outputs: usize) -> usize {
     layer_data_len(inputs, outputs) + align4(2 * inputs * outputs) + 4 * outputs
 }
 
-fn parse_mlp(s: &[u8], channel_count: usize, version_major: u16) -> Result<Mlp<'_>, Error> {
+fn parse_mlp<'a>(s: &'a [u8], channel_count: usize, header: &Header) -> Result<Mlp<'a>, Error> {
+    let version_major = header.version_major;
     need_bytes(s, 0, MLP_HEADER_LEN, Field::LayerCount, 0)?;
     let layer_count = count(Field::LayerCount, u8_at(s, 0), MAX_LAYERS)?;
     let input_frac_bits = u8_at(s, 1);
@@ -647,11 +650,14 @@ fn parse_mlp(s: &[u8], channel_count: usize, version_major: u16) -> Result<Mlp<'
         // The triangle wave of frequency k has denominator 2^(k+3) and must be exact (§6.4).
         return Err(malformed(Field::PeFrequencies, 0, pe_frequencies));
     }
-    let lod_input = match u8_at(s, 3) {
-        0 => false,
-        1 => true,
-        other => return Err(malformed(Field::LodInput, 0, other)),
-    };
+    // 0: none; 1: mip / 16; 2–5 (with FLAG_LOD_SCALE): mip · 2^(lod_input − 5), whose value at
+    // the last possible mip (MAX_MIPS − 1 = 14) must fit the i16 input: f + lod_input ≤ 16 (§5.3, §6.5).
+    let lod_input = u8_at(s, 3);
+    let scaled = header.flags & FLAG_LOD_SCALE != 0;
+    let fits = lod_input < 2 || u16::from(input_frac_bits) + u16::from(lod_input) <= 16;
+    if lod_input > 5 || (lod_input > 1 && !scaled) || !fits {
+        return Err(malformed(Field::LodInput, 0, lod_input));
+    }
     let input_width = u16_at(s, 4);
     if u16_at(s, 6) != 0 {
         return Err(malformed(Field::MlpReserved, 0, u16_at(s, 6)));

@@ -365,6 +365,7 @@ fn write_header(out: &mut [u8], header: &Header, minor: u16, total: usize, secti
     copy(out, 0, &header.magic);
     copy(out, 4, &header.version_major.to_le_bytes());
     copy(out, 6, &minor.to_le_bytes());
+    put_u32(out, 8, header.flags);
     put_u32(out, 12, total as u32);
     put_u32(out, 16, sections as u32);
 }
@@ -563,7 +564,7 @@ mod write {
         write_header(
             &mut out,
             &header,
-            crate::format::version::PACKED_VERSION_MINOR,
+            crate::format::version::PACKED_VERSION_MINOR.max(header.version_minor),
             0,
             entries.len(),
         );

@@ -71,7 +71,7 @@ impl JpegMaterialSpec {
         )?;
         let required =
             alloc::vec![(SectionKind::MATERIAL, material), (SectionKind::JPEG, self.section()?)];
-        assemble(required, &self.optional_sections, JPEG_VERSION_MINOR)
+        assemble(required, &self.optional_sections, (JPEG_VERSION_MINOR, 0))
     }
 
     fn section(&self) -> Result<Vec<u8>, Error> {

@@ -26,6 +26,11 @@ pub use options::{DEFAULT_STEPS, Effort, Phase, Progress, TrainOptions, mlp_flop
 pub const INPUT_FRAC_BITS: u8 = 12;
 /// Fraction bits of the last layer: outputs are unit values, Q.13 holds ±4.
 pub const OUTPUT_FRAC_BITS: u8 = 13;
+/// The LOD feature's code (docs/FORMAT.md §6.5): `mip / 2`, the largest scale the Q.12 input
+/// holds at every mip. At `mip / 16` (code 1, formats before 2.3) the first layer's weights on
+/// the feature grew to the whole int8 range of most rows, leaving the latents' weights 3 bits:
+/// the int8 network lost 3–4 dB against the float one on noisy 1024² materials at `ntc-1.0`.
+pub const LOD_CODE: u8 = 4;
 /// Latents are dequantized onto [−SPAN, SPAN].
 const SPAN: f64 = 1.5;
 /// Samples per parallel work item (fixed: it, not the thread count, shapes the arithmetic).
@@ -122,6 +127,13 @@ mod tests {
         let f = TrainOptions { qat_percent: 3, ..o.clone() };
         assert_eq!((f.qat_start(), f.phase(950)), (970, Phase::FrozenLatents));
         assert!(f.mlp_lr(969) >= 0.01 * lr && f.mlp_lr(970) == f.qat_lr * lr);
+        // Latents train in the joint phase, and in the quantization-aware one only when asked
+        // to, on a cosine of their own.
+        assert!(o.latents_train(start - 1) && !o.latents_train(start));
+        let q = TrainOptions { qat_lr_latents: 0.1, ..o.clone() };
+        assert!(q.latents_train(start) && !f.latents_train(950));
+        assert_eq!(q.latent_lr(start), 0.1 * q.lr_latents);
+        assert!(q.latent_lr(999) < 0.011 * 0.1 * q.lr_latents);
     }
 
     #[test]

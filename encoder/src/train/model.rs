@@ -7,7 +7,7 @@ use super::latents::{
     STATE_PER_LATENT, latent_bucket_edges,
 };
 use super::layers::{Dense, EvalLayer, eval_layers, hard_gelu, hard_gelu_grad};
-use super::options::{Phase, Progress, TrainOptions, cosine};
+use super::options::{Phase, Progress, TrainOptions};
 use super::rng::Rng;
 use super::{CHUNK, INPUT_FRAC_BITS, SPAN};
 use crate::gemm::{Available, Matrix, TrainKernel};
@@ -301,15 +301,15 @@ impl<'a> Model<'a> {
         let one = (1u32 << f) as f32;
         let mut at = self.cfg.input_width()
             - 4 * usize::from(self.cfg.pe_frequencies)
-            - usize::from(self.cfg.lod_input);
+            - usize::from(self.cfg.lod_code != 0);
         for k in 0..self.cfg.pe_frequencies {
             for (t, p) in [(x, 0), (x, 1), (y, 0), (y, 1)] {
                 row[at] = f32::from(triangle_q(t, k, p, f)) / one;
                 at += 1;
             }
         }
-        if self.cfg.lod_input {
-            row[at] = mip as f32 / 16.0;
+        if self.cfg.lod_code != 0 {
+            row[at] = mip as f32 * 2f32.powi(i32::from(self.cfg.lod_code) - 5);
         }
     }
 
@@ -493,7 +493,7 @@ impl<'a> Model<'a> {
             let layers = eval_layers(&self.layers, phase == Phase::QuantizationAware);
             let mode =
                 if phase == Phase::Joint { LatentMode::Noisy } else { LatentMode::Quantized };
-            let train_latents = phase == Phase::Joint;
+            let train_latents = opts.latents_train(step);
             let results: Vec<Grads> = (0..chunks)
                 .into_par_iter()
                 .map(|c| {
@@ -546,7 +546,7 @@ impl<'a> Model<'a> {
                 adam_b[k].update(&mut layer.b, &gb, adam_mlp);
             }
             if train_latents {
-                let adam_latents = AdamStep::new(cosine(opts.lr_latents, step, joint_end), t);
+                let adam_latents = AdamStep::new(opts.latent_lr(step), t);
                 let shrink = pull * adam_latents.lr;
                 let update =
                     LatentUpdate { inv, adam: adam_latents, shrink, scale, centers: &centers };

@@ -54,6 +54,11 @@ pub struct TrainOptions {
     /// its rate are separate knobs. (A phase of 3 % on the main schedule's tail left the int8
     /// network 1–2.5 dB below the float one on clean materials at high rates; docs/ENCODING.md.)
     pub qat_lr: f32,
+    /// The latents' learning rate in the quantization-aware phase, as a share of `lr_latents`
+    /// (a cosine of its own from there): the latents are read rounded and learn through the
+    /// rounding (straight-through), so they can make up for the int8 weights' error. 0: the
+    /// latents stay frozen.
+    pub qat_lr_latents: f32,
     /// Share of the samples drawn uniformly over the mips; the rest in proportion to their area.
     pub mip_uniform_share: f32,
     /// Latents start at the middle of their range ± half this (a unit range is 1).
@@ -106,6 +111,29 @@ impl TrainOptions {
     }
 }
 
+impl TrainOptions {
+    /// Whether the latents train at `step`: in the joint phase, and in the quantization-aware
+    /// phase when `qat_lr_latents` is above 0.
+    pub fn latents_train(&self, step: usize) -> bool {
+        match self.phase(step) {
+            Phase::Joint => true,
+            Phase::FrozenLatents => false,
+            Phase::QuantizationAware => self.qat_lr_latents > 0.0,
+        }
+    }
+
+    /// The latents' learning rate at `step`: a cosine over the joint phase, and in the
+    /// quantization-aware phase one of its own from `qat_lr_latents · lr_latents`.
+    pub fn latent_lr(&self, step: usize) -> f32 {
+        let start = self.qat_start();
+        if step >= start {
+            cosine(self.lr_latents * self.qat_lr_latents, step - start, self.steps.max(1) - start)
+        } else {
+            cosine(self.lr_latents, step, self.joint_end())
+        }
+    }
+}
+
 impl Default for TrainOptions {
     fn default() -> Self {
         TrainOptions {
@@ -117,6 +145,7 @@ impl Default for TrainOptions {
             joint_percent: 90,
             qat_percent: 10,
             qat_lr: 0.03,
+            qat_lr_latents: 0.0,
             mip_uniform_share: 0.1,
             latent_init_spread: 0.05,
             kernel: None,

@@ -235,8 +235,10 @@ fn nmat_features(xi: i32, yi: i32, mip_in: u32) {
         nmat_act_a[n + 3u] = nmat_triangle(y, k, 1u, f_in);
         n += 4u;
     }
-    if (nmat_desc[NMAT_DESC_LOD_INPUT] == 1u) {
-        nmat_act_a[n] = i32(mip << (f_in - 4u));
+    // The LOD feature, mip · 2^(code − 5) (code 1: mip / 16); f_in ≥ 4 and code ≥ 1.
+    let lod_code = nmat_desc[NMAT_DESC_LOD_INPUT];
+    if (lod_code != 0u) {
+        nmat_act_a[n] = i32(mip << (f_in + lod_code - 5u));
         n++;
     }
 }
