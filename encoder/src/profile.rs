@@ -78,7 +78,7 @@ pub struct ModelConfig {
     pub mip_to_level: Vec<u8>,
     pub pe_frequencies: u8,
     /// The LOD feature's code (docs/FORMAT.md §5.3): 0 none, 1 `mip / 16` (formats before 2.3),
-    /// 2–5 `mip · 2^(code − 5)`; the profiles use [`crate::train::LOD_CODE`].
+    /// 2–5 `mip · 2^(code − 5)`; the profiles use 4 (`mip / 2`).
     pub lod_code: u8,
     pub hidden: Vec<usize>,
     /// Learned output channels.
