@@ -741,12 +741,9 @@ pub fn describe(path: &Path, m: &Material<'_>, stored: Stored) -> String {
         mlp.pe_frequencies(),
         // Code c: mip · 2^(c − 5).
         match mlp.lod_code() {
-            0 => "none",
-            1 => "mip/16",
-            2 => "mip/8",
-            3 => "mip/4",
-            4 => "mip/2",
-            _ => "mip",
+            0 => "none".to_string(),
+            5 => "mip".to_string(),
+            c => format!("mip/{}", 1u32 << (5 - c)),
         }
     );
     s.push_str(&budget_table(&file_budget(m), texel_channels(m)));

@@ -51,15 +51,18 @@ pub fn run(args: EncodeArgs) -> Result<()> {
     let train = train_options(&args.train, nmat_encode::DEFAULT_STEPS)?;
     let storage = if args.fixed_rate { Storage::FixedRate } else { Storage::Packed };
     let memory_factor = args.memory_factor.unwrap_or(nmat_encode::DEFAULT_MEMORY_FACTOR);
+    // Everything but the profile, which the arguments or the target search choose.
+    let base = EncodeOptions {
+        train,
+        address_mode,
+        storage,
+        memory_factor,
+        legacy_lod: args.legacy_lod,
+        ..EncodeOptions::default()
+    };
     let start = Instant::now();
     let encoded = if let Some(target) = args.target_psnr {
-        search_target(
-            &set,
-            target,
-            &train,
-            address_mode,
-            (storage, memory_factor, args.legacy_lod),
-        )?
+        search_target(&set, target, &base)?
     } else {
         let profile = match (&args.profile, args.bppc) {
             (Some(name), _) => profile_named(name)?,
@@ -77,10 +80,7 @@ pub fn run(args: EncodeArgs) -> Result<()> {
             print!("{}", plan(&set, profile, storage, memory_factor)?);
             return Ok(());
         }
-        let legacy_lod = args.legacy_lod;
-        let options =
-            EncodeOptions { profile, train, address_mode, storage, memory_factor, legacy_lod };
-        encode_with_progress(&set, &options)?
+        encode_with_progress(&set, &EncodeOptions { profile, ..base })?
     };
     if let Some(note) = rate_note(&encoded) {
         eprintln!("{note}");
@@ -259,14 +259,9 @@ fn rate_note(e: &Encoded) -> Option<String> {
     })
 }
 
-/// Encodes with profiles from the smallest rate up until the whole-chain PSNR reaches `target`.
-fn search_target(
-    set: &TextureSet,
-    target: f64,
-    train: &TrainOptions,
-    address_mode: AddressMode,
-    (storage, memory_factor, legacy_lod): (Storage, f64, bool),
-) -> Result<Encoded> {
+/// Encodes with profiles from the smallest rate up until the whole-chain PSNR reaches `target`;
+/// `base` gives every other option.
+fn search_target(set: &TextureSet, target: f64, base: &EncodeOptions) -> Result<Encoded> {
     if !target.is_finite() || target <= 0.0 {
         return Err(Box::new(EncodeError::BadOption {
             option: EncodeOption::TargetPsnr,
@@ -278,17 +273,7 @@ fn search_target(
     order.sort_by(|a, b| a.bppc().total_cmp(&b.bppc()));
     let mut last = None;
     for profile in order {
-        let e = encode_with_progress(
-            set,
-            &EncodeOptions {
-                profile,
-                train: train.clone(),
-                address_mode,
-                storage,
-                memory_factor,
-                legacy_lod,
-            },
-        )?;
+        let e = encode_with_progress(set, &EncodeOptions { profile, ..base.clone() })?;
         eprintln!("  {:9} {:.3} BPPC  {:.2} dB", profile.name(), e.quality.bppc, e.quality.psnr);
         if e.quality.psnr >= target {
             return Ok(e);
