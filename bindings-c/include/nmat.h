@@ -138,6 +138,17 @@ typedef struct {
   uint32_t resolve_misses;
 } nmat_frame_stats;
 
+// A texel's address for `nmat_decode_texels_u8`: column, row and mip. Coordinates outside the
+// mip wrap or clamp by the material's address mode; a mip beyond the chain is refused.
+typedef struct {
+  // Column.
+  int64_t x;
+  // Row.
+  int64_t y;
+  // Mip level (0 = full size).
+  uint32_t mip;
+} nmat_texel_at;
+
 // What `nmat_material_info` reports.
 typedef struct {
   uint32_t width;
@@ -336,6 +347,20 @@ nmat_status nmat_decode_texel_u8(const nmat_material *m,
                                  uint32_t channel_mask,
                                  uint8_t *out,
                                  size_t out_len);
+
+// Integer-exact decode of `count` scattered texels to 8-bit codes: texel i of `texels` into
+// `out[i·n ..]`, n the channels of `channel_mask`, each texel's codes those of
+// `nmat_decode_texel_u8`. For random access to many texels this is faster than one call each:
+// a few texels at a time have their latents fetched together and go through the network
+// together. `out_len` must be at least count · n (`NMAT_BUFFER_TOO_SMALL` otherwise); a texel
+// whose mip is beyond the chain is `NMAT_BAD_ARGUMENT` (its index is in the error text) and
+// nothing is written.
+nmat_status nmat_decode_texels_u8(const nmat_material *m,
+                                  const nmat_texel_at *texels,
+                                  size_t count,
+                                  uint32_t channel_mask,
+                                  uint8_t *out,
+                                  size_t out_len);
 
 // The buffer a region decode needs: `*row_bytes` = width · channels · bytes_per_value (the
 // smallest valid row pitch) and `*total_bytes` = row_pitch · (height − 1) + row_bytes for the

@@ -147,6 +147,18 @@ static void test_arguments(const nmat_material *m) {
     CHECK_STATUS(nmat_decode_texel_u8(m, 0, 0, 0, 1u << 16, codes, 16), NMAT_BAD_ARGUMENT);
     CHECK_STATUS(nmat_decode_texel_u8(m, 0, 0, 0, 0xFFFF, codes, 15), NMAT_BUFFER_TOO_SMALL);
     CHECK_STATUS(nmat_decode_texel_u8(m, 0, 0, 99, 1, codes, 16), NMAT_BAD_ARGUMENT);
+    {
+        nmat_texel_at at[2] = {{0, 0, 0}, {1, 1, 99}};
+        CHECK_STATUS(nmat_decode_texels_u8(m, at, 2, 1, codes, 16), NMAT_BAD_ARGUMENT);
+        char text[256];
+        nmat_last_error((uint8_t *)text, sizeof text);
+        CHECK(strstr(text, "texel 1") != NULL);
+        CHECK_STATUS(nmat_decode_texels_u8(m, at, 1, 0xFFFF, codes, 15), NMAT_BUFFER_TOO_SMALL);
+        CHECK_STATUS(nmat_decode_texels_u8(m, NULL, 1, 1, codes, 16), NMAT_NULL_ARGUMENT);
+        CHECK_STATUS(nmat_decode_texels_u8(m, at, 1, 1, NULL, 16), NMAT_NULL_ARGUMENT);
+        CHECK_STATUS(nmat_decode_texels_u8(m, at, 1, 0, codes, 16), NMAT_BAD_ARGUMENT);
+        CHECK_STATUS(nmat_decode_texels_u8(m, at, (size_t)-1 / 2, 1, codes, 16), NMAT_SIZE_OVERFLOW);
+    }
     CHECK_STATUS(nmat_decode_texel(m, 0, 0, 0, 1, 7, values, 16), NMAT_BAD_ARGUMENT);
     CHECK_STATUS(nmat_decode_texel(m, 0, 0, 0, 0xFFFF, NMAT_MODE_FLOAT, values, 3), NMAT_BUFFER_TOO_SMALL);
     CHECK_STATUS(nmat_decode_texel(m, 0, 0, 0, 0xFFFF, NMAT_MODE_INTEGER, values, 3), NMAT_BUFFER_TOO_SMALL);
@@ -261,6 +273,25 @@ static void test_decoding(const nmat_material *m, const uint8_t *expected, size_
             CHECK_STATUS(nmat_decode_cost(m, mip, &texels, &macs), NMAT_OK);
             CHECK_STATUS(nmat_mip_size(m, mip, &w, &h), NMAT_OK);
             CHECK(texels == (uint64_t)w * h && macs == texels * (macs0 / texels0));
+        }
+    }
+    {
+        /* Scattered texels in one call: each one's codes those of its own call, out-of-mip
+         * coordinates and every mip included; 37 texels, so the last group is short. */
+        nmat_texel_at at[37];
+        uint8_t batch[37 * 16], three[37 * 3];
+        size_t i;
+        for (i = 0; i < 37; i++) {
+            at[i].x = (int64_t)(i * 13 % 41) - 4;
+            at[i].y = (int64_t)(i * 7 % 35) - 2;
+            at[i].mip = (uint32_t)(i % info.mip_count);
+        }
+        CHECK_STATUS(nmat_decode_texels_u8(m, at, 37, 0xFFFF, batch, sizeof batch), NMAT_OK);
+        CHECK_STATUS(nmat_decode_texels_u8(m, at, 37, 0x7, three, sizeof three), NMAT_OK);
+        for (i = 0; i < 37; i++) {
+            CHECK_STATUS(nmat_decode_texel_u8(m, at[i].x, at[i].y, at[i].mip, 0xFFFF, codes, 16), NMAT_OK);
+            CHECK(memcmp(batch + i * 16, codes, 16) == 0);
+            CHECK(memcmp(three + i * 3, codes, 3) == 0);
         }
     }
     /* A channel subset is the same bytes as the full decode. */

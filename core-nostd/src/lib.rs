@@ -109,7 +109,7 @@ pub mod spec {}
 pub use decode::ChannelMask;
 #[cfg(feature = "alloc")]
 #[doc(inline)]
-pub use decoder::{BcTarget, BlockRegion, Decoder, Kernel};
+pub use decoder::{BcTarget, BlockRegion, Decoder, Kernel, TexelAt};
 #[doc(inline)]
 pub use error::{Argument, Error, Field};
 #[doc(inline)]

@@ -1,10 +1,10 @@
 //! Decoding texels and regions of a material (`nmat_decode_*`, `nmat_required_size`).
 
 use crate::material::{handle, material, nmat_material};
-use crate::pointers::{arg_mut, slice_mut};
+use crate::pointers::{arg_mut, slice, slice_mut};
 use crate::status::nmat_status::*;
 use crate::status::{bad, fail, guard, nmat_status, set_last_error};
-use nmat_core::{ChannelMask, Material};
+use nmat_core::{ChannelMask, Material, TexelAt};
 
 /// Which decoder computes the values.
 #[repr(C)]
@@ -108,6 +108,67 @@ pub extern "C" fn nmat_decode_texel_u8(
             return Err(bad("mip beyond the chain"));
         }
         decoder.decode_texel_u8(m, x, y, mip, mask, out).map(|_| ()).map_err(fail)
+    })
+}
+
+/// A texel's address for `nmat_decode_texels_u8`: column, row and mip. Coordinates outside the
+/// mip wrap or clamp by the material's address mode; a mip beyond the chain is refused.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct nmat_texel_at {
+    /// Column.
+    pub x: i64,
+    /// Row.
+    pub y: i64,
+    /// Mip level (0 = full size).
+    pub mip: u32,
+}
+
+/// Integer-exact decode of `count` scattered texels to 8-bit codes: texel i of `texels` into
+/// `out[i·n ..]`, n the channels of `channel_mask`, each texel's codes those of
+/// `nmat_decode_texel_u8`. For random access to many texels this is faster than one call each:
+/// a few texels at a time have their latents fetched together and go through the network
+/// together. `out_len` must be at least count · n (`NMAT_BUFFER_TOO_SMALL` otherwise); a texel
+/// whose mip is beyond the chain is `NMAT_BAD_ARGUMENT` (its index is in the error text) and
+/// nothing is written.
+#[unsafe(no_mangle)]
+pub extern "C" fn nmat_decode_texels_u8(
+    m: *const nmat_material,
+    texels: *const nmat_texel_at,
+    count: usize,
+    channel_mask: u32,
+    out: *mut u8,
+    out_len: usize,
+) -> nmat_status {
+    guard(|| {
+        let h = handle(m)?;
+        let (m, decoder) = (h.material(), &h.decoder);
+        let texels = slice(texels, count)?;
+        let out = slice_mut(out, out_len)?;
+        let (mask, n) = mask(m, channel_mask)?;
+        let needed = count.checked_mul(n).filter(|&v| v <= out.len());
+        if needed.is_none() {
+            set_last_error(format!(
+                "{count} texels of {n} channels need more than {out_len} bytes"
+            ));
+            return Err(NMAT_BUFFER_TOO_SMALL);
+        }
+        if let Some(i) = texels.iter().position(|t| t.mip >= m.mip_count()) {
+            let chain = m.mip_count();
+            return Err(bad(&format!(
+                "texel {i}'s mip {} beyond the chain of {chain}",
+                texels[i].mip
+            )));
+        }
+        // The core's address type, a few at a time (no allocation).
+        let mut at = [TexelAt::default(); 64];
+        for (chunk, codes) in texels.chunks(at.len()).zip(out.chunks_mut(at.len() * n)) {
+            for (a, t) in at.iter_mut().zip(chunk) {
+                *a = TexelAt { x: t.x, y: t.y, mip: t.mip };
+            }
+            decoder.decode_texels_u8(m, &at[..chunk.len()], mask, codes).map_err(fail)?;
+        }
+        Ok(())
     })
 }
 

@@ -4,7 +4,7 @@
 #![allow(clippy::unwrap_used)]
 
 use nmat_core::AddressMode;
-use nmat_core::{Argument, ChannelMask, Container, Decoder, Error, Kernel, Material};
+use nmat_core::{Argument, ChannelMask, Container, Decoder, Error, Kernel, Material, TexelAt};
 use nmat_tests::generate::{
     FixtureConfig, Layout, Rng, generate, golden_configs, wide_constant_material,
 };
@@ -154,6 +154,48 @@ fn long_spans_equal_texel_by_texel_decodes_for_every_period() {
     }
 }
 
+/// Scattered texels in one call (`decode_texels_*`): each texel's codes equal its own
+/// `decode_texel_*` call, whatever the count (groups of 4 and a short tail), the mips (one past
+/// the chain clamps), coordinates outside the mip, the channels; on every kernel and codec.
+#[test]
+fn scattered_texels_in_one_call_equal_texel_by_texel_decodes() {
+    let jpeg =
+        std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/jpeg/pattern_420_37x21.nmat"))
+            .unwrap();
+    let mut files: Vec<Vec<u8>> =
+        golden_configs().iter().map(|cfg| generate(cfg).to_bytes().unwrap()).collect();
+    files.push(jpeg);
+    let mut r = Rng::new(81);
+    for (f, bytes) in files.iter().enumerate() {
+        let m = Container::parse(bytes).unwrap();
+        for kernel in kernels() {
+            let d = Decoder::with_kernel(&m, kernel).unwrap();
+            for count in [0, 1, 3, 4, 5, 9, 37] {
+                let texels: Vec<TexelAt> = (0..count)
+                    .map(|_| TexelAt {
+                        x: r.range(-40, i64::from(m.width()) + 40),
+                        y: r.range(-40, i64::from(m.height()) + 40),
+                        mip: r.range(0, i64::from(m.mip_count())) as u32,
+                    })
+                    .collect();
+                let mask = random_mask(&mut r, &m);
+                let n = m.required_len(mask).unwrap();
+                let (mut u8s, mut u16s) = (vec![0u8; count * n], vec![0u16; count * n]);
+                assert_eq!(d.decode_texels_u8(&m, &texels, mask, &mut u8s).unwrap(), count * n);
+                assert_eq!(d.decode_texels_u16(&m, &texels, mask, &mut u16s).unwrap(), count * n);
+                for (i, t) in texels.iter().enumerate() {
+                    let (mut a8, mut a16) = ([0u8; 16], [0u16; 16]);
+                    d.decode_texel_u8(&m, t.x, t.y, t.mip, mask, &mut a8).unwrap();
+                    m.decode_texel_u16(t.x, t.y, t.mip, mask, &mut a16).unwrap();
+                    let at = format!("file {f} {kernel:?} {count} texels, #{i} {t:?}");
+                    assert_eq!(u8s[i * n..(i + 1) * n], a8[..n], "u8 {at}");
+                    assert_eq!(u16s[i * n..(i + 1) * n], a16[..n], "u16 {at}");
+                }
+            }
+        }
+    }
+}
+
 #[test]
 fn a_decoder_refuses_another_material_and_short_outputs() {
     let (a, b) = (
@@ -172,6 +214,14 @@ fn a_decoder_refuses_another_material_and_short_outputs() {
     );
     let err = d.decode_span_u8(&ma, 0, 0, 0, usize::MAX, ChannelMask::ALL, &mut out).unwrap_err();
     assert!(matches!(err, Error::BadArgument { argument: Argument::Output, .. }), "{err}");
+    let texels = [TexelAt::default(); 22];
+    let err = d.decode_texels_u8(&ma, &texels, ChannelMask::ALL, &mut out).unwrap_err();
+    assert!(
+        matches!(err, Error::BadArgument { argument: Argument::Output, value: 64, limit: 66 }),
+        "{err}"
+    );
+    let err = d.decode_texels_u8(&mb, &texels[..1], ChannelMask::ALL, &mut out).unwrap_err();
+    assert!(matches!(err, Error::BadArgument { argument: Argument::Material, .. }), "{err}");
     let err = d.decode_texel_u8(&ma, 0, 0, 0, ChannelMask(1 << 5), &mut out).unwrap_err();
     assert!(matches!(err, Error::BadArgument { argument: Argument::Channels, .. }), "{err}");
 }

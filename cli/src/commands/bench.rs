@@ -10,7 +10,9 @@ use crate::common::{Result, chain_quality_shown, macs, mib, parse};
 use crate::reference::{load_reference, warn_if_decoded};
 use nmat_cli::input::read_nmat;
 use nmat_cli::stats::median;
-use nmat_core::{ChannelMask, Decoder, Filter, Kernel, Material, Precision, SampleRequest};
+use nmat_core::{
+    ChannelMask, Decoder, Filter, Kernel, Material, Precision, SampleRequest, TexelAt,
+};
 use nmat_encode::metrics::{psnr, unit_of};
 use std::hint::black_box;
 use std::path::{Path, PathBuf};
@@ -233,8 +235,15 @@ fn same_run_ratios(opts: &Options) -> Result<()> {
         let region_speed = 1.0 / (slower * per_texel);
         let slower = interleaved_ratio(opts.runs, &mut || a.random(), &mut || b.random());
         let random_speed = 1.0 / (slower * per_texel);
+        let (mut batch_a, mut batch_b) = (a.batch(), b.batch());
+        let slower =
+            interleaved_ratio(opts.runs, &mut || a.random_batched(&mut batch_a), &mut || {
+                b.random_batched(&mut batch_b)
+            });
+        let batched_speed = 1.0 / (slower * per_texel);
         println!(
-            "  {:40} region, 1 thread: {region_speed:.3}×   random access over mip 0: {random_speed:.3}×",
+            "  {:40} region, 1 thread: {region_speed:.3}×   random access over mip 0: \
+             {random_speed:.3}× per texel, {batched_speed:.3}× {RANDOM_BATCH} a call",
             path.display().to_string()
         );
     }
@@ -249,7 +258,7 @@ struct SpeedProbe<'m, 'a> {
     decoder: Decoder,
     side: (u32, u32),
     /// Texels of mip 0 in a scattered order (`scattered_order`).
-    scattered: Vec<(i64, i64)>,
+    scattered: Vec<TexelAt>,
 }
 
 impl<'m, 'a> SpeedProbe<'m, 'a> {
@@ -257,7 +266,7 @@ impl<'m, 'a> SpeedProbe<'m, 'a> {
     /// texels as the region of `side` has.
     fn new(m: &'m Material<'a>, side: (u32, u32), area: (u32, u32)) -> Self {
         let w = area.0 as usize;
-        let at = |t: usize| ((t % w) as i64, (t / w) as i64);
+        let at = |t: usize| TexelAt { x: (t % w) as i64, y: (t / w) as i64, mip: 0 };
         let n = (side.0 * side.1) as usize;
         let scattered = scattered_order(w * area.1 as usize).into_iter().take(n).map(at).collect();
         SpeedProbe { m, decoder: Decoder::new(m), side, scattered }
@@ -269,6 +278,10 @@ impl<'m, 'a> SpeedProbe<'m, 'a> {
     fn codes(&self) -> Vec<u8> {
         vec![0u8; self.texels() as usize * self.m.channel_count()]
     }
+    /// A buffer for [`SpeedProbe::random_batched`]'s codes.
+    fn batch(&self) -> Vec<u8> {
+        vec![0u8; RANDOM_BATCH * self.m.channel_count()]
+    }
     fn region(&self, codes: &mut [u8]) {
         let w = self.side.0 as usize;
         let row = w * self.m.channel_count();
@@ -278,9 +291,16 @@ impl<'m, 'a> SpeedProbe<'m, 'a> {
     }
     fn random(&self) {
         let mut texel = [0u8; 16];
-        for &(x, y) in &self.scattered {
-            let _ = self.decoder.decode_texel_u8(self.m, x, y, 0, ChannelMask::ALL, &mut texel);
+        for t in &self.scattered {
+            let _ = self.decoder.decode_texel_u8(self.m, t.x, t.y, 0, ChannelMask::ALL, &mut texel);
             black_box(&texel);
+        }
+    }
+    /// [`SpeedProbe::random`]'s texels, [`RANDOM_BATCH`] a call.
+    fn random_batched(&self, batch: &mut [u8]) {
+        for texels in self.scattered.chunks(RANDOM_BATCH) {
+            let _ = self.decoder.decode_texels_u8(self.m, texels, ChannelMask::ALL, batch);
+            black_box(&batch);
         }
     }
 }
@@ -520,6 +540,14 @@ fn region_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>, notes: &
         let _ = best.decode_texel_u8(m, x, y, 0, ChannelMask::ALL, out);
     });
     push(format!("integer {kernel} random access per texel, all {c} ch"), secs, c, &units, &all);
+    let (secs, units) = time_random_batched(setup, runs, &order, &best);
+    push(
+        format!("integer {kernel} random access, {RANDOM_BATCH} a call, all {c} ch"),
+        secs,
+        c,
+        &units,
+        &all,
+    );
     // Random access and region decode, timed in alternation so that both meet the same machine.
     let probe = SpeedProbe::new(m, setup.side, setup.side);
     let mut codes = probe.codes();
@@ -678,6 +706,33 @@ fn time_random(
     let secs = time(runs, || {
         for &t in order {
             decode((t % w) as i64, (t / w) as i64, &mut codes[t * c..(t + 1) * c]);
+        }
+    });
+    (secs, codes.iter().map(|&v| f32::from(v) / 255.0).collect())
+}
+
+/// Texels of a batched random-access call (`Decoder::decode_texels_u8`) in the benchmarks.
+const RANDOM_BATCH: usize = 256;
+
+/// [`time_random`] through `Decoder::decode_texels_u8`, [`RANDOM_BATCH`] texels of `order` a call.
+fn time_random_batched(
+    setup: &Setup<'_, '_>,
+    runs: usize,
+    order: &[usize],
+    decoder: &Decoder,
+) -> (Timing, Vec<f32>) {
+    let (m, c) = (setup.m, setup.m.channel_count());
+    let w = setup.side.0 as usize;
+    let at = |t: usize| TexelAt { x: (t % w) as i64, y: (t / w) as i64, mip: 0 };
+    let texels: Vec<TexelAt> = order.iter().map(|&t| at(t)).collect();
+    let mut batch = vec![0u8; RANDOM_BATCH * c];
+    let mut codes = vec![0u8; setup.texels() * c];
+    let secs = time(runs, || {
+        for (ts, order) in texels.chunks(RANDOM_BATCH).zip(order.chunks(RANDOM_BATCH)) {
+            let _ = decoder.decode_texels_u8(m, ts, ChannelMask::ALL, &mut batch);
+            for (&t, texel) in order.iter().zip(batch.chunks_exact(c)) {
+                codes[t * c..(t + 1) * c].copy_from_slice(texel);
+            }
         }
     });
     (secs, codes.iter().map(|&v| f32::from(v) / 255.0).collect())

@@ -107,6 +107,49 @@ impl<T, N: Fn(i32) -> T> Job for TexelJob<'_, '_, T, N> {
     }
 }
 
+/// A texel's address for [`Decoder::decode_texels_u8`]: column, row and mip, addressed like the
+/// arguments of [`Decoder::decode_texel_u8`] (wrapped or clamped into the mip by the material's
+/// address mode, the mip clamped to the chain). `#[repr(C)]`: the C API's `nmat_texel_at`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct TexelAt {
+    /// Column.
+    pub x: i64,
+    /// Row.
+    pub y: i64,
+    /// Mip level (0 = full size).
+    pub mip: u32,
+}
+
+/// The arguments of [`Decoder::texels_codes`].
+struct TexelsJob<'j, 'a, T, N> {
+    network: &'j Network,
+    material: &'j Material<'a>,
+    neural: &'j Neural<'a>,
+    texels: &'j [TexelAt],
+    rows: (u16, usize),
+    out: &'j mut [T],
+    full_scale: i32,
+    narrow: N,
+}
+
+impl<T, N: Fn(i32) -> T> Job for TexelsJob<'_, '_, T, N> {
+    type Output = ();
+    #[inline(always)]
+    fn run<K: Layers>(self, kernel: K) {
+        let TexelsJob { network, material, neural, texels, rows, out, full_scale, narrow } = self;
+        network.texels_codes_here(
+            kernel,
+            (material, neural),
+            texels,
+            rows,
+            out,
+            full_scale,
+            narrow,
+        );
+    }
+}
+
 /// The MLP of one material, prepared for fast decoding (see the module documentation). It owns
 /// its data and borrows nothing, so it can live next to the material in any handle; every call
 /// takes the [`Material`] it was made from and refuses another one.
@@ -326,6 +369,34 @@ impl Network {
         }
     }
 
+    /// Scattered texels, a group at a time: the inputs of all [`GROUP`] texels are gathered
+    /// before any goes through the network, so their latents' cache misses are waited for
+    /// together rather than one texel after the other, and each weight is loaded once per group.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn texels_codes_here<'a, T, K: Layers>(
+        &self,
+        kernel: K,
+        (material, neural): (&Material<'a>, &Neural<'a>),
+        texels: &[TexelAt],
+        (rows, n): (u16, usize),
+        out: &mut [T],
+        full_scale: i32,
+        narrow: impl Fn(i32) -> T,
+    ) {
+        let f = neural.last_frac_bits();
+        let mut xs = [[0i16; MAX_WIDTH]; GROUP];
+        for (group, codes) in texels.chunks(GROUP).zip(out.chunks_mut(GROUP * n)) {
+            for (x, t) in xs.iter_mut().zip(group) {
+                *x = material.inputs(neural, t.x, t.y, t.mip);
+            }
+            self.forward_int_group(kernel, &mut xs, group.len(), rows, None);
+            for (x, texel) in xs.iter().zip(codes.chunks_exact_mut(n)) {
+                write_selected(rows, x, texel, |&v| narrow(code(v, f, full_scale)));
+            }
+        }
+    }
+
     fn forward_float(&self, x: &mut [f32; MAX_WIDTH]) {
         let mut y = [0f32; MAX_WIDTH];
         for layer in &self.layers {
@@ -414,6 +485,35 @@ impl Decoder {
     ) -> Result<usize, Error> {
         let rows = material.check_out(channels, out.len())?;
         self.texel_codes(material, (x, y, mip), rows, out, 255, |c| c as u8)
+    }
+
+    /// Integer decode of scattered texels to 8-bit codes: texel `i` of `texels` into
+    /// `out[i·n..(i + 1)·n]`, `n` the channels selected; each texel's codes bit-identical to
+    /// [`Decoder::decode_texel_u8`]'s. For random access to many texels (a ray tracer's hit
+    /// points, a scattered lookup) this is the faster call: a few texels at a time have their
+    /// latents fetched together and go through the network together (docs/PERFORMANCE.md).
+    /// Returns how many values were written (`texels.len() · n`); an `out` shorter than that is
+    /// `BadArgument(Output)`.
+    pub fn decode_texels_u8(
+        &self,
+        material: &Material<'_>,
+        texels: &[TexelAt],
+        channels: ChannelMask,
+        out: &mut [u8],
+    ) -> Result<usize, Error> {
+        self.texels_codes(material, texels, channels, out, 255, |c| c as u8)
+    }
+
+    /// [`Decoder::decode_texels_u8`] to 16-bit codes, each texel's bit-identical to
+    /// [`Decoder::decode_texel_u16`]'s.
+    pub fn decode_texels_u16(
+        &self,
+        material: &Material<'_>,
+        texels: &[TexelAt],
+        channels: ChannelMask,
+        out: &mut [u16],
+    ) -> Result<usize, Error> {
+        self.texels_codes(material, texels, channels, out, 65535, |c| c as u16)
     }
 
     /// Integer decode to 16-bit codes, bit-identical to [`Material::decode_texel_u16`].
@@ -660,6 +760,37 @@ impl Decoder {
             });
         }
         Ok((bound, rows, n))
+    }
+
+    /// The integer codes of scattered `texels` into `out`, checked; a JPEG material's texel by
+    /// texel.
+    fn texels_codes<T>(
+        &self,
+        material: &Material<'_>,
+        texels: &[TexelAt],
+        channels: ChannelMask,
+        out: &mut [T],
+        full_scale: i32,
+        narrow: impl Fn(i32) -> T,
+    ) -> Result<usize, Error> {
+        let (bound, rows, n) = self.check_span(material, texels.len(), channels, out.len())?;
+        match bound {
+            Bound::Jpeg(j) => {
+                for (t, texel) in texels.iter().zip(out.chunks_exact_mut(n)) {
+                    let codes = material.jpeg_codes(j, t.x, t.y, t.mip, rows);
+                    write_selected(rows, &codes, texel, |&c| {
+                        narrow(i32::from(c) * full_scale / 255)
+                    });
+                }
+            }
+            Bound::Neural(network, neural) => {
+                let rows = (rows, n);
+                let job =
+                    TexelsJob { network, material, neural, texels, rows, out, full_scale, narrow };
+                kernel::run(self.kernel, job);
+            }
+        }
+        Ok(texels.len() * n)
     }
 
     /// The integer codes of one texel into `out`, all of it (the gather too) compiled for the
