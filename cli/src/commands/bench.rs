@@ -555,6 +555,13 @@ fn region_rows(setup: &Setup<'_, '_>, runs: usize, rows: &mut Vec<Row>, notes: &
     notes.push(format!(
         "random access ÷ region per texel, {kernel}, runs alternated: {ratio:.2}× (median of {runs})"
     ));
+    let mut batch = probe.batch();
+    let ratio =
+        interleaved_ratio(runs, &mut || probe.random(), &mut || probe.random_batched(&mut batch));
+    notes.push(format!(
+        "random access {RANDOM_BATCH} a call ÷ one call a texel, {kernel}, runs alternated: \
+         {ratio:.2}× (median of {runs})"
+    ));
     let (secs, units) = time_random(setup, runs, &order, &|x, y, out| {
         let _ = m.decode_texel_u8(x, y, 0, ChannelMask::ALL, out);
     });
