@@ -26,5 +26,7 @@ if [ -z "${XDG_RUNTIME_DIR:-}" ] || [ ! -d "${XDG_RUNTIME_DIR}" ]; then
   trap 'rm -rf "$XDG_RUNTIME_DIR"' EXIT
 fi
 cargo test --workspace --locked "$@"
-# The CLI's GPU paths exist only in a `--features gpu` build: run its GPU tests there too.
-cargo test -p nmat --features gpu --locked --test cli gpu
+# The CLI's GPU paths exist only in a `--features gpu` build: run its GPU tests there too. With
+# `--workspace` the dependencies keep the features they were just built with, so only the `nmat`
+# crate is compiled again (`-p nmat` alone would rebuild some 40 dependencies).
+cargo test --workspace --features nmat/gpu --locked --test cli gpu
