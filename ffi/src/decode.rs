@@ -146,10 +146,11 @@ pub extern "C" fn nmat_decode_texels_u8(
         let texels = slice(texels, count)?;
         let out = slice_mut(out, out_len)?;
         let (mask, n) = mask(m, channel_mask)?;
-        let needed = count.checked_mul(n).filter(|&v| v <= out.len());
-        if needed.is_none() {
+        // `slice` bounded count · 24 bytes, so count · n (n ≤ 16) does not overflow.
+        let needed = count * n;
+        if out_len < needed {
             set_last_error(format!(
-                "{count} texels of {n} channels need more than {out_len} bytes"
+                "{count} texels of {n} channels need {needed} bytes, the buffer has {out_len}"
             ));
             return Err(NMAT_BUFFER_TOO_SMALL);
         }

@@ -109,7 +109,8 @@ impl<T, N: Fn(i32) -> T> Job for TexelJob<'_, '_, T, N> {
 
 /// A texel's address for [`Decoder::decode_texels_u8`]: column, row and mip, addressed like the
 /// arguments of [`Decoder::decode_texel_u8`] (wrapped or clamped into the mip by the material's
-/// address mode, the mip clamped to the chain). `#[repr(C)]`: the C API's `nmat_texel_at`.
+/// address mode, the mip clamped to the chain). `#[repr(C)]`, with the fields of the C API's
+/// `nmat_texel_at`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub struct TexelAt {
