@@ -31,7 +31,7 @@ fuzz_target!(|data: &[u8]| {
     // Eight calls at most: a region decode costs a network evaluation per texel.
     let mut calls: Vec<Call> = (0..8).map_while(|_| Call::arbitrary(&mut u).ok()).collect();
     if calls.is_empty() {
-        calls = (0..7u8)
+        calls = (0..8u8)
             .map(|which| Call { which, a: 3, b: -2, c: 1, mask: 0xFFFF, mode: 1, len: 16, rect: [0, 0, 4, 4], pitch: 0, null: false })
             .collect();
     }
@@ -66,12 +66,21 @@ fuzz_target!(|data: &[u8]| {
         let h = if call.null { null() } else { handle };
         let len = usize::from(call.len);
         let [x0, y0, w, hh] = call.rect.map(u32::from);
-        let _ = match call.which % 7 {
+        let _ = match call.which % 8 {
             0 => nmat_decode_texel(h, call.a, call.b, call.c, call.mask, call.mode, floats.as_mut_ptr(), len.min(floats.len())),
             1 => nmat_decode_texel_u8(h, call.a, call.b, call.c, call.mask, bytes.as_mut_ptr(), len.min(bytes.len())),
             2 => nmat_sample(h, call.a as f32 * 1e-3, call.b as f32 * 1e-3, call.c as f32 * 1e-2, call.mode % 5, call.mode / 5 % 3, floats.as_ptr(), call.mask, floats.as_mut_ptr().wrapping_add(3), len.min(floats.len() - 3)),
             3 => nmat_decode_region_u8(h, call.c, x0 % 64, y0 % 64, w % 9, hh % 9, call.mask, bytes.as_mut_ptr(), usize::from(call.pitch), bytes.len()),
             4 => nmat_decode_region_f32(h, call.c, x0 % 32, y0 % 32, w % 5, hh % 5, call.mask, call.mode, floats.as_mut_ptr(), usize::from(call.pitch), floats.len() * 4),
+            // Up to 8 scattered texels (each a network evaluation), their addresses and mips from
+            // the call, some far outside the mip or past the chain.
+            6 => {
+                let texels: Vec<nmat_texel_at> = (0..i64::from(call.len % 9))
+                    .map(|i| nmat_texel_at { x: call.a.wrapping_add(i * 7), y: call.b.wrapping_sub(i), mip: call.c >> (i % 4) })
+                    .collect();
+                let at = if texels.is_empty() { null() } else { texels.as_ptr() };
+                nmat_decode_texels_u8(h, at, texels.len(), call.mask, bytes.as_mut_ptr(), usize::from(call.pitch).min(bytes.len()))
+            }
             5 => {
                 let (mut row, mut total) = (0usize, 0usize);
                 nmat_required_size(h, x0 << 16 | w, y0 << 16 | hh, call.mask, call.a as usize, usize::from(call.pitch), &mut row, &mut total)
