@@ -266,9 +266,9 @@ impl<'m, 'a> SpeedProbe<'m, 'a> {
     /// texels as the region of `side` has.
     fn new(m: &'m Material<'a>, side: (u32, u32), area: (u32, u32)) -> Self {
         let w = area.0 as usize;
-        let at = |t: usize| TexelAt { x: (t % w) as i64, y: (t / w) as i64, mip: 0 };
         let n = (side.0 * side.1) as usize;
-        let scattered = scattered_order(w * area.1 as usize).into_iter().take(n).map(at).collect();
+        let order = scattered_order(w * area.1 as usize);
+        let scattered = order.into_iter().take(n).map(|t| texel_at(t, w)).collect();
         SpeedProbe { m, decoder: Decoder::new(m), side, scattered }
     }
     fn texels(&self) -> f64 {
@@ -718,6 +718,11 @@ fn time_random(
     (secs, codes.iter().map(|&v| f32::from(v) / 255.0).collect())
 }
 
+/// Texel `t` of mip 0, counted row by row in rows of `width` texels.
+fn texel_at(t: usize, width: usize) -> TexelAt {
+    TexelAt { x: (t % width) as i64, y: (t / width) as i64, mip: 0 }
+}
+
 /// Texels of a batched random-access call (`Decoder::decode_texels_u8`) in the benchmarks.
 const RANDOM_BATCH: usize = 256;
 
@@ -730,8 +735,7 @@ fn time_random_batched(
 ) -> (Timing, Vec<f32>) {
     let (m, c) = (setup.m, setup.m.channel_count());
     let w = setup.side.0 as usize;
-    let at = |t: usize| TexelAt { x: (t % w) as i64, y: (t / w) as i64, mip: 0 };
-    let texels: Vec<TexelAt> = order.iter().map(|&t| at(t)).collect();
+    let texels: Vec<TexelAt> = order.iter().map(|&t| texel_at(t, w)).collect();
     let mut batch = vec![0u8; RANDOM_BATCH * c];
     let mut codes = vec![0u8; setup.texels() * c];
     let secs = time(runs, || {

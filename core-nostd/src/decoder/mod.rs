@@ -763,8 +763,8 @@ impl Decoder {
         Ok((bound, rows, n))
     }
 
-    /// The integer codes of scattered `texels` into `out`, checked; a JPEG material's texel by
-    /// texel.
+    /// The integer codes of scattered `texels` into `out`, checked; a JPEG material's through
+    /// [`Decoder::texel_codes`], texel by texel (each decodes its MCUs).
     fn texels_codes<T>(
         &self,
         material: &Material<'_>,
@@ -776,12 +776,10 @@ impl Decoder {
     ) -> Result<usize, Error> {
         let (bound, rows, n) = self.check_span(material, texels.len(), channels, out.len())?;
         match bound {
-            Bound::Jpeg(j) => {
+            Bound::Jpeg(_) => {
                 for (t, texel) in texels.iter().zip(out.chunks_exact_mut(n)) {
-                    let codes = material.jpeg_codes(j, t.x, t.y, t.mip, rows);
-                    write_selected(rows, &codes, texel, |&c| {
-                        narrow(i32::from(c) * full_scale / 255)
-                    });
+                    let at = (t.x, t.y, t.mip);
+                    self.texel_codes(material, at, rows, texel, full_scale, &narrow)?;
                 }
             }
             Bound::Neural(network, neural) => {
