@@ -217,8 +217,11 @@ mod tests {
         for i in 0..width * height * channels {
             s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
             let r = s >> 33;
-            let v =
-                if r % 4 == 0 { r % (max + 1) } else { (max / 2 + (i as u64 / 97) % 2).min(max) };
+            let v = if r.is_multiple_of(4) {
+                r % (max + 1)
+            } else {
+                (max / 2 + (i as u64 / 97) % 2).min(max)
+            };
             codes.push(v as u8);
         }
         Grid { width, height, channels, bits, codes }
