@@ -165,6 +165,15 @@ fn grids(material: &Material<'_>) -> Option<Vec<Grid>> {
     )
 }
 
+/// What the packed format's coder writes for `grids` (docs/FORMAT.md §12.3), in bytes.
+fn coded_len(grids: &[Grid]) -> usize {
+    let grids: Vec<(u32, u32, u32, u32, &[u8])> = grids
+        .iter()
+        .map(|g| (g.width as u32, g.height as u32, g.channels as u32, g.bits, &g.codes[..]))
+        .collect();
+    nmat_core::internals::coded_latents_len(&grids)
+}
+
 fn run(path: &str) -> Result<(), String> {
     let bytes = std::fs::read(path).map_err(|e| format!("{path}: {e}"))?;
     let options = ParseOptions::default();
@@ -172,11 +181,7 @@ fn run(path: &str) -> Result<(), String> {
     let material = Container::parse_with(&unpacked, options).map_err(|e| format!("{path}: {e}"))?;
     let grids = grids(&material).ok_or_else(|| format!("{path}: not a neural material"))?;
     let fixed: usize = grids.iter().map(|g| (g.codes.len() * g.bits as usize).div_ceil(8)).sum();
-    let triples: Vec<(u32, u32, u32, u32, &[u8])> = grids
-        .iter()
-        .map(|g| (g.width as u32, g.height as u32, g.channels as u32, g.bits, &g.codes[..]))
-        .collect();
-    let coded = nmat_core::internals::coded_latents_len(&triples);
+    let coded = coded_len(&grids);
     let costs: Vec<f64> =
         MODELS.iter().map(|&(m, _)| grids.iter().map(|g| cost(m, g)).sum()).collect();
     let base = costs[0] / 8.0;
@@ -230,11 +235,7 @@ mod tests {
     #[test]
     fn the_formats_model_costs_what_the_coder_writes() {
         let grids = [grid(37, 21, 3, 2, 1), grid(16, 9, 5, 4, 2), grid(5, 7, 2, 8, 3)];
-        let triples: Vec<(u32, u32, u32, u32, &[u8])> = grids
-            .iter()
-            .map(|g| (g.width as u32, g.height as u32, g.channels as u32, g.bits, &g.codes[..]))
-            .collect();
-        let coded = nmat_core::internals::coded_latents_len(&triples) as f64;
+        let coded = coded_len(&grids) as f64;
         let simulated: f64 = grids.iter().map(|g| cost(Model::Format, g)).sum::<f64>() / 8.0;
         // The coder adds its 4-byte start and a byte of flush to the ideal cost.
         assert!((coded - simulated).abs() <= 8.0, "coded {coded} bytes, simulated {simulated:.1}");
