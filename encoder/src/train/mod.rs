@@ -16,6 +16,7 @@ mod layers;
 mod model;
 mod options;
 mod rng;
+mod sampler;
 
 pub use export::{export_layer, frac_bits_for};
 pub(crate) use latents::coded_bytes;
@@ -157,6 +158,7 @@ mod tests {
             latents: buckets,
             latent_grads: vec![-1.0, -1.0, -1e-3, -1e-3],
             loss: 0.0,
+            sample_errors: Vec::new(),
         };
         let (lr, edges) = (0.04f32, [0, 4]);
         let update = model::LatentUpdate {

@@ -9,6 +9,7 @@ use super::latents::{
 use super::layers::{Dense, EvalLayer, eval_layers, hard_gelu, hard_gelu_grad};
 use super::options::{Phase, Progress, TrainOptions};
 use super::rng::Rng;
+use super::sampler::{Drawn, ErrorSampler, REBUILD_EVERY};
 use super::{CHUNK, INPUT_FRAC_BITS, SPAN};
 use crate::gemm::{Available, Matrix, TrainKernel};
 use crate::memhint::{huge_vec, prefetch};
@@ -60,6 +61,8 @@ pub struct Model<'a> {
     pub(super) taps_per_sample: (usize, usize),
     /// The latent buckets of the grids.
     pub(super) buckets: LatentBuckets,
+    /// Error-driven draws (`TrainOptions::error_share` above 0), else uniform ones.
+    pub(super) sampler: Option<ErrorSampler>,
 }
 
 /// One chunk's gradients.
@@ -72,6 +75,9 @@ pub(super) struct Grads {
     pub(super) latents: Vec<Vec<CellGrad>>,
     pub(super) latent_grads: Vec<f32>,
     pub(super) loss: f64,
+    /// With error-driven draws: each sample's tile and squared error (mean over the learned
+    /// channels), in sample order.
+    pub(super) sample_errors: Vec<(u32, f32)>,
 }
 
 /// One corner of a latent cell as one sample of a chunk reads it: the cell's `channels` latents
@@ -193,6 +199,9 @@ impl<'a> Model<'a> {
             })
             .fold((0, 0), |a, b| (a.0.max(b.0), a.1.max(b.1)));
         let buckets = LatentBuckets::new(latent_bucket_edges(&grids));
+        let sampler = (opts.error_share > 0.0).then(|| {
+            ErrorSampler::new(set.mips.iter().map(|m| (m.width, m.height)), opts.error_share)
+        });
         Model {
             cfg,
             grids,
@@ -206,15 +215,20 @@ impl<'a> Model<'a> {
             target_base,
             taps_per_sample,
             buckets,
+            sampler,
         }
     }
 
+    /// Draws a sample's texel: its mip, then the texel (uniformly, or by the error sampler).
     #[inline(always)]
-    pub(super) fn draw(&self, rng: &mut Rng) -> (u32, u32, u32) {
+    pub(super) fn draw(&self, rng: &mut Rng) -> Drawn {
         let r = rng.unit() * self.mip_cdf.last().copied().unwrap_or(1.0);
         let mip = self.mip_cdf.iter().position(|&c| r < c).unwrap_or(self.mip_cdf.len() - 1) as u32;
+        if let Some(sampler) = &self.sampler {
+            return sampler.draw(mip, rng);
+        }
         let m = &self.set.mips[mip as usize];
-        (rng.below(m.width), rng.below(m.height), mip)
+        Drawn { at: (rng.below(m.width), rng.below(m.height), mip), tile: 0, weight: 1.0 }
     }
 
     /// Appends the taps of sample `s` at texel `(x, y, mip)` in the order its features read
@@ -319,8 +333,8 @@ impl<'a> Model<'a> {
         self.target_base[mip as usize] + (y * m.width + x) as usize * self.learned.len()
     }
 
-    /// Draws `samples` texels: their input features (one row each) and every latent's share in
-    /// them (`taps`, in the order the random draws are made: texel, then its noise). A sample's
+    /// Draws `samples` texels (where, and the weight of each one's loss): their input features
+    /// (one row each) and every latent's share in them (`taps`, in the order the random draws are made: texel, then its noise). A sample's
     /// latent features are computed `LAG` samples after its taps are planned, so the latents it
     /// reads are on their way to the cache meanwhile.
     #[inline(always)]
@@ -330,7 +344,7 @@ impl<'a> Model<'a> {
         rng: &mut Rng,
         samples: usize,
         taps: &mut Taps,
-    ) -> (Vec<(u32, u32, u32)>, Matrix) {
+    ) -> (Vec<Drawn>, Matrix) {
         const LAG: usize = 8;
         assert!(samples <= CHUNK, "gather: {samples} samples do not fit a tap's sample index");
         let mut x = Matrix::zeros(samples, self.cfg.input_width());
@@ -345,7 +359,8 @@ impl<'a> Model<'a> {
             taps.noise.reserve(samples * per_latents);
         }
         for s in 0..samples {
-            let d = self.draw(rng);
+            let drawn = self.draw(rng);
+            let d = drawn.at;
             starts.push((taps.list.len(), taps.noise.len()));
             self.plan(s, d, &mut taps.list);
             if mode == LatentMode::Noisy {
@@ -360,7 +375,7 @@ impl<'a> Model<'a> {
                 let ((t0, n0), (t1, _)) = (starts[s - LAG], starts[s - LAG + 1]);
                 self.evaluate(&taps.list[t0..t1], &taps.noise[n0..], mode, &mut x);
             }
-            draws.push(d);
+            draws.push(drawn);
         }
         let (t0, n0) = starts.get(samples.saturating_sub(LAG)).copied().unwrap_or((0, 0));
         self.evaluate(&taps.list[t0..], &taps.noise[n0..], mode, &mut x);
@@ -388,7 +403,8 @@ impl<'a> Model<'a> {
         (xs, pres)
     }
 
-    /// Forward and backward over one chunk of samples; returns the mean squared error.
+    /// Forward and backward over one chunk of samples; returns the mean squared error (each
+    /// sample's weighted by its draw's weight: an estimate of the uniform mean either way).
     #[inline(always)]
     pub(super) fn run_chunk(
         &self,
@@ -406,14 +422,20 @@ impl<'a> Model<'a> {
         let outputs = self.learned.len().max(1);
         let mut loss = 0.0f64;
         let mut g = Matrix::zeros(samples, layers[last].outputs);
-        for (s, &d) in draws.iter().enumerate() {
+        for (s, d) in draws.iter().enumerate() {
             let out = pres[last].row(s);
             let row = g.row_mut(s);
-            let target = &self.targets[self.target_index(d)..][..self.learned.len()];
+            let target = &self.targets[self.target_index(d.at)..][..self.learned.len()];
+            let mut squared = 0f32;
             for (o, &t) in target.iter().enumerate() {
                 let e = out[o] - t;
-                loss += f64::from(e * e);
-                row[o] = 2.0 * e / outputs as f32;
+                squared += e * e;
+                // The network's gradient weighted (unbiased); a weight of 1 changes no bit.
+                row[o] = 2.0 * e / outputs as f32 * d.weight;
+            }
+            loss += f64::from(squared) * f64::from(d.weight);
+            if self.sampler.is_some() {
+                gr.sample_errors.push((d.tile, squared / outputs as f32));
             }
         }
         for k in (0..layers.len()).rev() {
@@ -441,7 +463,10 @@ impl<'a> Model<'a> {
                 let channels = self.grids[usize::from(t.grid)].channels;
                 let grads = &g.row(usize::from(t.sample))[usize::from(t.feature)..][..channels];
                 let at = gr.latent_grads.len();
-                gr.latent_grads.extend(grads.iter().map(|&gf| gf * t.coeff));
+                // A latent's gradient unweighted: a cell where the error is gets more updates,
+                // each of the size a uniform draw's would have.
+                let unweigh = 1.0 / draws[usize::from(t.sample)].weight;
+                gr.latent_grads.extend(grads.iter().map(|&gf| gf * t.coeff * unweigh));
                 if gr.latent_grads[at..].iter().any(|&gv| gv != 0.0) {
                     let cell =
                         CellGrad { latent: t.latent, at: at as u32, channels: channels as u32 };
@@ -515,6 +540,7 @@ impl<'a> Model<'a> {
                             0
                         }),
                         loss: 0.0,
+                        sample_errors: Vec::new(),
                     };
                     let how = ChunkMode { kernel, latents: mode, train_latents };
                     g.loss = kernel.run(
@@ -562,6 +588,15 @@ impl<'a> Model<'a> {
             }
             for r in &results {
                 mse += r.loss / chunks as f64;
+            }
+            if let Some(sampler) = &mut self.sampler {
+                // In chunk order: the same table for any thread count.
+                for r in &results {
+                    sampler.record(&r.sample_errors);
+                }
+                if step % REBUILD_EVERY == REBUILD_EVERY - 1 {
+                    sampler.rebuild();
+                }
             }
             let avg = running.map_or(mse, |a: f64| 0.95 * a + 0.05 * mse);
             running = Some(avg);

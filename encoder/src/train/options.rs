@@ -61,6 +61,10 @@ pub struct TrainOptions {
     pub qat_lr_latents: f32,
     /// Share of the samples drawn uniformly over the mips; the rest in proportion to their area.
     pub mip_uniform_share: f32,
+    /// Share of each mip's draws that pick an 8×8-texel tile in proportion to the running error
+    /// there, the rest uniformly; losses are weighted back to the uniform mean (0: uniform
+    /// draws; docs/ENCODING.md, "The trainer").
+    pub error_share: f32,
     /// Latents start at the middle of their range ± half this (a unit range is 1).
     pub latent_init_spread: f32,
     /// Matrix-product kernel; `None` picks [`TrainKernel::best`]. The file does not depend on it.
@@ -147,6 +151,7 @@ impl Default for TrainOptions {
             qat_lr: 0.03,
             qat_lr_latents: 0.0,
             mip_uniform_share: 0.1,
+            error_share: 0.2,
             latent_init_spread: 0.05,
             kernel: None,
             latent_bytes: None,
