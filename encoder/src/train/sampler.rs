@@ -137,10 +137,10 @@ mod tests {
 
     #[test]
     fn draws_follow_the_error_and_their_weights_undo_it() {
-        // A 40×24 mip (5×3 tiles of 8, all full) whose corner tile 0 has 50 times the error of the
-        // others, half the draws following the error: tile 0 gets 0.5/15 + 0.5·50/64 of them (it
-        // holds 50/64 of the error) instead of 1/15, and the weighted mean of any function of the texel is its mean over
-        // the mip (here x + 3y: 19.5 + 3·11.5).
+        // A 40×24 mip (5×3 tiles of 8, all full) whose corner tile 0 has 50 times the error of
+        // the others, half the draws following the error: tile 0 gets 0.5/15 + 0.5·50/64 of them
+        // (it holds 50/64 of the error) instead of 1/15, and the weighted mean of any function
+        // of the texel is its mean over the mip (here x + 3y: 19.5 + 3·11.5).
         let mut sampler = ErrorSampler::new([(40, 24)].into_iter(), 0.5);
         let errors: Vec<(u32, f32)> =
             (0..15).map(|t| (t, if t == 0 { 50.0 } else { 1.0 })).collect();
