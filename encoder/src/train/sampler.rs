@@ -30,6 +30,18 @@ struct MipTiles {
 }
 
 impl MipTiles {
+    /// The area (texels) of each tile, in tile order.
+    fn areas(&self) -> impl Iterator<Item = f32> + '_ {
+        let side = 1u32 << self.shift;
+        let rows =
+            (0..self.height).step_by(side as usize).map(move |y0| side.min(self.height - y0));
+        rows.flat_map(move |h| {
+            (0..self.width)
+                .step_by(side as usize)
+                .map(move |x0| (side.min(self.width - x0) * h) as f32)
+        })
+    }
+
     /// Corner and size (in texels) of tile `i` of this mip.
     fn tile(&self, i: usize) -> (u32, u32, u32, u32) {
         let i = i as u32;
@@ -91,16 +103,10 @@ impl ErrorSampler {
         for mip in &self.mips {
             let texels = (mip.width * mip.height) as f32;
             let errors = &self.error[mip.first..][..mip.count];
-            let area = |i: usize| {
-                let (_, _, w, h) = mip.tile(i);
-                (w * h) as f32
-            };
-            let total: f32 = errors.iter().enumerate().map(|(i, &e)| e * area(i)).sum();
+            let total: f32 = errors.iter().zip(mip.areas()).map(|(&e, a)| e * a).sum();
             let mut acc = 0f32;
-            for (i, (c, &e)) in
-                self.cdf[mip.first..][..mip.count].iter_mut().zip(errors).enumerate()
-            {
-                let a = area(i);
+            let cdf = &mut self.cdf[mip.first..][..mip.count];
+            for ((c, &e), a) in cdf.iter_mut().zip(errors).zip(mip.areas()) {
                 acc += (1.0 - self.share) * a / texels + self.share * e * a / total.max(1e-30);
                 *c = acc;
             }
