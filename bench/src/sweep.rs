@@ -8,7 +8,7 @@
 //! to PATH; rows already in PATH are not measured again, so a sweep can be resumed. A summary per
 //! variant (mean ΔPSNR against `default`, wins, losses, mean seconds) follows on stdout.
 //! Knobs: steps, batch, lr_mlp, lr_latents, joint_percent, qat_percent, qat_lr, qat_lr_latents,
-//! mip_uniform_share, error_share, latent_init_spread (docs/ENCODING.md, "Tuning").
+//! int8_percent, mip_uniform_share, error_share, latent_init_spread (docs/ENCODING.md, "Tuning").
 
 use nmat_encode::texset::{self, LoadOptions};
 use nmat_encode::{EncodeOptions, Profile, TrainOptions, encode};
@@ -19,7 +19,7 @@ use std::time::Instant;
 
 type Result<T> = std::result::Result<T, String>;
 
-const KNOBS: &str = "steps, batch, lr_mlp, lr_latents, joint_percent, qat_percent, qat_lr, qat_lr_latents, \
+const KNOBS: &str = "steps, batch, lr_mlp, lr_latents, joint_percent, qat_percent, qat_lr, qat_lr_latents, int8_percent, \
                      mip_uniform_share, error_share, latent_init_spread";
 
 /// Applies `key=value` to `o`.
@@ -34,6 +34,7 @@ fn set_knob(o: &mut TrainOptions, key: &str, value: &str) -> Result<()> {
         "lr_latents" => o.lr_latents = float()?,
         "joint_percent" => o.joint_percent = int()? as u32,
         "qat_percent" => o.qat_percent = int()? as u32,
+        "int8_percent" => o.int8_percent = int()? as u32,
         "qat_lr" => o.qat_lr = float()?,
         "qat_lr_latents" => o.qat_lr_latents = float()?,
         "mip_uniform_share" => o.mip_uniform_share = float()?,

@@ -287,12 +287,12 @@ impl MemoryArg {
 #[derive(Args)]
 pub struct TrainArgs {
     /// Optimizer steps (more: better quality, longer encode) [default: 30000 for encode, 3000
-    /// for demo].
+    /// for demo]. More than the default: the network trains on its int8 weights throughout.
     #[arg(long, conflicts_with = "effort")]
     pub steps: Option<usize>,
     /// Encode time for quality: fast = ¼ of the default steps (0.4–0.9 dB lower); max = twice
-    /// the steps, about twice the time (+0.16–0.43 dB at the default profile ntc-0.5 on the
-    /// materials measured; docs/ENCODING.md).
+    /// the steps with the network on its int8 weights throughout, about twice the time
+    /// (docs/ENCODING.md, "Speed").
     #[arg(long, value_enum, default_value_t = EffortArg::Default)]
     pub effort: EffortArg,
     /// Seed of every random choice: same inputs, seed and steps give the same file.

@@ -110,7 +110,10 @@ pub fn train_options(t: &TrainArgs, default_steps: usize) -> Result<TrainOptions
             reason: "must be at least 1",
         }));
     }
-    Ok(TrainOptions { steps, batch, seed: t.seed, ..defaults })
+    // A run longer than the command's default trains on int8 weights throughout: a long float
+    // run drifts to weights int8 rounds badly (`TrainOptions::int8_percent`).
+    let int8_percent = if steps > default_steps { 100 } else { defaults.int8_percent };
+    Ok(TrainOptions { steps, batch, seed: t.seed, int8_percent, ..defaults })
 }
 
 /// The profile `--profile` names, or an error listing them.
@@ -191,4 +194,27 @@ pub fn macs(m: &Material<'_>, outputs: usize) -> usize {
         .enumerate()
         .map(|(i, l)| l.inputs() * if i == last { outputs } else { l.outputs() })
         .sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::args::EffortArg;
+
+    #[test]
+    fn runs_longer_than_the_default_train_on_int8_weights_throughout() {
+        let int8 = |steps: Option<usize>, effort: EffortArg, default_steps: usize| {
+            let t = TrainArgs { steps, effort, seed: 1, threads: None };
+            train_options(&t, default_steps).map(|o| (o.steps, o.int8_percent)).unwrap()
+        };
+        let base = TrainOptions::default().int8_percent;
+        assert_eq!(int8(None, EffortArg::Default, 30_000), (30_000, base));
+        assert_eq!(int8(None, EffortArg::Fast, 30_000), (7_500, base));
+        assert_eq!(int8(None, EffortArg::Max, 30_000), (60_000, 100));
+        assert_eq!(int8(Some(30_000), EffortArg::Default, 30_000), (30_000, base));
+        assert_eq!(int8(Some(30_001), EffortArg::Default, 30_000), (30_001, 100));
+        // The demo's own default decides for the demo.
+        assert_eq!(int8(Some(5), EffortArg::Default, 3_000), (5, base));
+        assert_eq!(int8(None, EffortArg::Max, 3_000), (6_000, 100));
+    }
 }

@@ -138,6 +138,28 @@ mod tests {
     }
 
     #[test]
+    fn int8_weights_run_in_the_last_int8_percent_and_the_quantization_aware_phase() {
+        let o = TrainOptions { steps: 1000, ..Default::default() };
+        // The default: exactly the quantization-aware phase, whatever its length.
+        for qat_percent in [10, 3, 0] {
+            let q = TrainOptions { qat_percent, ..o.clone() };
+            assert!(
+                (0..1000).all(|s| q.int8_weights(s) == (q.phase(s) == Phase::QuantizationAware))
+            );
+            let short = TrainOptions { int8_percent: 2, ..q.clone() };
+            assert_eq!(short.int8_weights(979), q.int8_weights(979));
+            assert!(short.int8_weights(980));
+        }
+        let all = TrainOptions { int8_percent: 100, ..o.clone() };
+        assert!((0..1000).all(|s| all.int8_weights(s)));
+        let third = TrainOptions { int8_percent: 30, ..o.clone() };
+        assert!(!third.int8_weights(699) && third.int8_weights(700));
+        assert_eq!(third.phase(700), Phase::Joint);
+        // Above 100 is all of them, not an overflow.
+        assert!(TrainOptions { int8_percent: 250, ..o }.int8_weights(0));
+    }
+
+    #[test]
     fn the_rate_pull_takes_the_latents_the_loss_hardly_feels() {
         // Two cells of a 4-bit grid at 0.8, one with a gradient 1000 times the other's, both
         // pointing away from the middle code (8/15). Adam's first step moves both by its

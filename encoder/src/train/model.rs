@@ -515,7 +515,7 @@ impl<'a> Model<'a> {
                 scale = latent_state.mean_step_scale(&self.grids, AdamStep::new(0.0, step as i32));
             }
             let phase = opts.phase(step);
-            let layers = eval_layers(&self.layers, phase == Phase::QuantizationAware);
+            let layers = eval_layers(&self.layers, opts.int8_weights(step));
             let mode =
                 if phase == Phase::Joint { LatentMode::Noisy } else { LatentMode::Quantized };
             let train_latents = opts.latents_train(step);

@@ -9,9 +9,10 @@ use crate::profile::ModelConfig;
 pub const DEFAULT_STEPS: usize = 30_000;
 
 /// Encode time traded for quality (`--effort`): a quarter of a command's default steps, or twice
-/// them. `Max` doubles the steps at the same batch: at the default profile `ntc-0.5` that gained
-/// 0.16–0.43 dB on the three development materials tried, for about twice the time; a larger batch
-/// (what `Max` was before) lost up to 1.2 dB there (docs/ENCODING.md, "Speed").
+/// them. `Max` doubles the steps at the same batch, for about twice the time (`nmat` also trains
+/// its network on int8 weights throughout, [`TrainOptions::int8_percent`]): −0.64 … +0.53 dB on
+/// four development materials, three better; a larger batch (what `Max` was before) lost up to
+/// 1.2 dB (docs/ENCODING.md, "Speed").
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Effort {
     /// A quarter of the steps: for previews and iteration.
@@ -59,6 +60,15 @@ pub struct TrainOptions {
     /// rounding (straight-through), so they can make up for the int8 weights' error. 0: the
     /// latents stay frozen.
     pub qat_lr_latents: f32,
+    /// Percent of the steps, counted from the end, whose forward pass runs the int8
+    /// (fake-quantized) weights, gradients passing straight through to the float ones; the
+    /// quantization-aware phase always does (0, the default: that phase alone). 100: the whole
+    /// run. A float network trained long drifts to weights that int8 rounds badly: on
+    /// `stk-eggkart` at `ntc-0.2` and 60 000 steps the training PSNR fell about 2 dB when
+    /// the weights became int8 (0.3 dB at 30 000), and the file lost 0.75 dB to the 30 000-step one;
+    /// with int8 weights throughout it gained 0.20 dB (docs/ENCODING.md, "Long runs and the int8
+    /// weights"). `nmat` uses 100 for `--effort max` and any `--steps` above a command's default.
+    pub int8_percent: u32,
     /// Share of the samples drawn uniformly over the mips; the rest in proportion to their area.
     pub mip_uniform_share: f32,
     /// Share of each mip's draws that pick an 8×8-texel tile in proportion to the running error
@@ -100,6 +110,14 @@ impl TrainOptions {
     pub(super) fn qat_start(&self) -> usize {
         let steps = self.steps.max(1);
         (steps * 100usize.saturating_sub(self.qat_percent as usize) / 100).max(self.joint_end())
+    }
+
+    /// Whether step `step` runs the int8 (fake-quantized) weights: in the quantization-aware
+    /// phase, and in the last `int8_percent` of the steps.
+    pub fn int8_weights(&self, step: usize) -> bool {
+        let steps = self.steps.max(1);
+        let from = steps * 100usize.saturating_sub(self.int8_percent as usize) / 100;
+        step >= from || self.phase(step) == Phase::QuantizationAware
     }
 
     /// The MLP's learning rate at `step`: a cosine over all steps from `lr_mlp`, and in the
@@ -150,6 +168,7 @@ impl Default for TrainOptions {
             qat_percent: 10,
             qat_lr: 0.03,
             qat_lr_latents: 0.0,
+            int8_percent: 0,
             mip_uniform_share: 0.1,
             error_share: 0.2,
             latent_init_spread: 0.05,
