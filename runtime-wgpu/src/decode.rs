@@ -131,17 +131,15 @@ impl Context {
         };
         let bytes = 12 * u64::from(count);
         let len = u64::from(count) * u64::from(n);
+        params.in_offset = check_requests(device, requests, requests_offset, bytes)?;
+        params.out_offset = check_output(device, out, offset, len)?;
         match &gm.body {
             GpuBody::Neural(tiled) => {
                 let groups = self.decode_groups(device, tiled, &params)?;
-                params.in_offset = check_requests(device, requests, requests_offset, bytes)?;
-                params.out_offset = check_output(device, out, offset, len)?;
                 let bind = self.bind(device, Some(gm), Some(requests), out, &params);
                 dispatch(encoder, self.decode_pipeline(tiled).0, &bind, groups);
             }
             GpuBody::Jpeg(maps) => {
-                params.in_offset = check_requests(device, requests, requests_offset, bytes)?;
-                params.out_offset = check_output(device, out, offset, len)?;
                 let requests = Some(requests);
                 self.record_jpeg(device, encoder, (gm, maps), params, requests, out)?;
             }
