@@ -334,9 +334,10 @@ impl<'a> Model<'a> {
     }
 
     /// Draws `samples` texels (where, and the weight of each one's loss): their input features
-    /// (one row each) and every latent's share in them (`taps`, in the order the random draws are made: texel, then its noise). A sample's
-    /// latent features are computed `LAG` samples after its taps are planned, so the latents it
-    /// reads are on their way to the cache meanwhile.
+    /// (one row each) and every latent's share in them (`taps`, in the order the random draws
+    /// are made: texel, then its noise). A sample's latent features are computed `LAG` samples
+    /// after its taps are planned, so the latents it reads are on their way to the cache
+    /// meanwhile.
     #[inline(always)]
     pub(super) fn gather(
         &self,
@@ -459,13 +460,14 @@ impl<'a> Model<'a> {
             g = gin;
         }
         if train_latents {
+            // A latent's gradient unweighted: a cell where the error is gets more updates, each
+            // of the size a uniform draw's would have. One division a sample, not one a tap.
+            let unweigh: Vec<f32> = draws.iter().map(|d| 1.0 / d.weight).collect();
             for t in &taps.list {
                 let channels = self.grids[usize::from(t.grid)].channels;
                 let grads = &g.row(usize::from(t.sample))[usize::from(t.feature)..][..channels];
                 let at = gr.latent_grads.len();
-                // A latent's gradient unweighted: a cell where the error is gets more updates,
-                // each of the size a uniform draw's would have.
-                let unweigh = 1.0 / draws[usize::from(t.sample)].weight;
+                let unweigh = unweigh[usize::from(t.sample)];
                 gr.latent_grads.extend(grads.iter().map(|&gf| gf * t.coeff * unweigh));
                 if gr.latent_grads[at..].iter().any(|&gv| gv != 0.0) {
                     let cell =

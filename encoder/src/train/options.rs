@@ -64,10 +64,11 @@ pub struct TrainOptions {
     /// (fake-quantized) weights, gradients passing straight through to the float ones; the
     /// quantization-aware phase always does (0, the default: that phase alone). 100: the whole
     /// run. A float network trained long drifts to weights that int8 rounds badly: on
-    /// `stk-eggkart` at `ntc-0.2` and 60 000 steps the training PSNR fell about 2 dB when
-    /// the weights became int8 (0.3 dB at 30 000), and the file lost 0.75 dB to the 30 000-step one;
-    /// with int8 weights throughout it gained 0.20 dB (docs/ENCODING.md, "Long runs and the int8
-    /// weights"). `nmat` uses 100 for `--effort max` and any `--steps` above a command's default.
+    /// `stk-eggkart` at `ntc-0.2` and 60 000 steps the training PSNR fell about 2 dB when the
+    /// weights became int8 (0.3 dB at 30 000), and the file lost 0.75 dB to the 30 000-step
+    /// one; with int8 weights throughout it gained 0.20 dB (docs/ENCODING.md, "Long runs and the
+    /// int8 weights"). `nmat` uses 100 for `--effort max` and any `--steps` above a command's
+    /// default.
     pub int8_percent: u32,
     /// Share of the samples drawn uniformly over the mips; the rest in proportion to their area.
     pub mip_uniform_share: f32,
@@ -106,18 +107,20 @@ impl TrainOptions {
         self.steps.max(1) * (self.joint_percent as usize).min(100) / 100
     }
 
+    /// The first step of the last `percent` of the steps (`steps` for 0).
+    fn last_percent_start(&self, percent: u32) -> usize {
+        self.steps.max(1) * 100usize.saturating_sub(percent as usize) / 100
+    }
+
     /// The first step of the quantization-aware phase (`steps` if there is none).
     pub(super) fn qat_start(&self) -> usize {
-        let steps = self.steps.max(1);
-        (steps * 100usize.saturating_sub(self.qat_percent as usize) / 100).max(self.joint_end())
+        self.last_percent_start(self.qat_percent).max(self.joint_end())
     }
 
     /// Whether step `step` runs the int8 (fake-quantized) weights: in the quantization-aware
     /// phase, and in the last `int8_percent` of the steps.
     pub fn int8_weights(&self, step: usize) -> bool {
-        let steps = self.steps.max(1);
-        let from = steps * 100usize.saturating_sub(self.int8_percent as usize) / 100;
-        step >= from || self.phase(step) == Phase::QuantizationAware
+        step >= self.last_percent_start(self.int8_percent).min(self.qat_start())
     }
 
     /// The MLP's learning rate at `step`: a cosine over all steps from `lr_mlp`, and in the
