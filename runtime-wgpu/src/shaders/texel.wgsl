@@ -34,29 +34,49 @@ fn nmat_grid_pos(x: u32, mip_size: u32, grid_size: u32) -> i32 {
     return i32(p) - 128;
 }
 
-fn nmat_grid_code(g: u32, x: u32, y: u32, c: u32) -> u32 {
-    let gb = nmat_desc[NMAT_DESC_GRIDS_AT] + NMAT_GRID_WORDS * g;
-    let w = nmat_desc[gb + NMAT_GRID_WIDTH];
-    let ch = nmat_desc[gb + NMAT_GRID_CHANNELS];
-    let bits = nmat_desc[gb + NMAT_GRID_BITS];
-    let base = nmat_desc[gb + NMAT_GRID_LATENTS_AT];
-    let words = nmat_desc[gb + NMAT_GRID_LATENT_WORDS];
-    let bit = ((y * w + x) * ch + c) * bits;
-    let word = bit / 32u;
-    let shift = bit % 32u;
-    let lo = nmat_latents[base + word];
-    var v = lo >> shift;
-    if (shift + bits > 32u && word + 1u < words) {
-        v = v | (nmat_latents[base + word + 1u] << (32u - shift));
-    }
-    return v & ((1u << bits) - 1u);
+// One latent grid's record (NMAT_GRID_*), read once for all the codes a texel takes from it.
+struct NmatGrid {
+    width: u32,
+    height: u32,
+    channels: u32,
+    bits: u32,
+    latents_at: u32,
+    latent_words: u32,
+    quant_at: u32,
 }
 
-fn nmat_grid_value(g: u32, x: u32, y: u32, c: u32) -> i32 {
+fn nmat_grid(g: u32) -> NmatGrid {
     let gb = nmat_desc[NMAT_DESC_GRIDS_AT] + NMAT_GRID_WORDS * g;
-    let qa = nmat_desc[gb + NMAT_GRID_QUANT_AT] + NMAT_QUANT_WORDS * c;
-    let offset = bitcast<i32>(nmat_desc[qa + NMAT_QUANT_OFFSET]);
-    return offset + i32(nmat_grid_code(g, x, y, c)) * bitcast<i32>(nmat_desc[qa + NMAT_QUANT_STEP]);
+    var r: NmatGrid;
+    r.width = nmat_desc[gb + NMAT_GRID_WIDTH];
+    r.height = nmat_desc[gb + NMAT_GRID_HEIGHT];
+    r.channels = nmat_desc[gb + NMAT_GRID_CHANNELS];
+    r.bits = nmat_desc[gb + NMAT_GRID_BITS];
+    r.latents_at = nmat_desc[gb + NMAT_GRID_LATENTS_AT];
+    r.latent_words = nmat_desc[gb + NMAT_GRID_LATENT_WORDS];
+    r.quant_at = nmat_desc[gb + NMAT_GRID_QUANT_AT];
+    return r;
+}
+
+fn nmat_grid_code(r: NmatGrid, x: u32, y: u32, c: u32) -> u32 {
+    let bit = ((y * r.width + x) * r.channels + c) * r.bits;
+    let word = bit / 32u;
+    let shift = bit % 32u;
+    var v = nmat_latents[r.latents_at + word] >> shift;
+    if (shift + r.bits > 32u && word + 1u < r.latent_words) {
+        v = v | (nmat_latents[r.latents_at + word + 1u] << (32u - shift));
+    }
+    return v & ((1u << r.bits) - 1u);
+}
+
+// Channel c's dequantization, offset + code · step (§4): (offset, step).
+fn nmat_grid_quant(r: NmatGrid, c: u32) -> vec2<i32> {
+    let qa = r.quant_at + NMAT_QUANT_WORDS * c;
+    return vec2<i32>(bitcast<i32>(nmat_desc[qa + NMAT_QUANT_OFFSET]), bitcast<i32>(nmat_desc[qa + NMAT_QUANT_STEP]));
+}
+
+fn nmat_grid_value(r: NmatGrid, q: vec2<i32>, x: u32, y: u32, c: u32) -> i32 {
+    return q.x + i32(nmat_grid_code(r, x, y, c)) * q.y;
 }
 
 struct NmatFootprint {
@@ -68,31 +88,28 @@ struct NmatFootprint {
     fy: i32,
 }
 
-fn nmat_footprint(g: u32, x: u32, y: u32, mw: u32, mh: u32) -> NmatFootprint {
-    let gb = nmat_desc[NMAT_DESC_GRIDS_AT] + NMAT_GRID_WORDS * g;
-    let gw = nmat_desc[gb + NMAT_GRID_WIDTH];
-    let gh = nmat_desc[gb + NMAT_GRID_HEIGHT];
-    let clamp_mode = nmat_desc[NMAT_DESC_ADDRESS_MODE] == 1u;
-    let px = nmat_grid_pos(x, mw, gw);
-    let py = nmat_grid_pos(y, mh, gh);
+fn nmat_footprint(r: NmatGrid, x: u32, y: u32, mw: u32, mh: u32, clamp_mode: bool) -> NmatFootprint {
+    let px = nmat_grid_pos(x, mw, r.width);
+    let py = nmat_grid_pos(y, mh, r.height);
     let ix = px >> 8u;
     let iy = py >> 8u;
     var f: NmatFootprint;
-    f.x0 = nmat_address(ix, gw, clamp_mode);
-    f.x1 = nmat_address(ix + 1, gw, clamp_mode);
-    f.y0 = nmat_address(iy, gh, clamp_mode);
-    f.y1 = nmat_address(iy + 1, gh, clamp_mode);
+    f.x0 = nmat_address(ix, r.width, clamp_mode);
+    f.x1 = nmat_address(ix + 1, r.width, clamp_mode);
+    f.y0 = nmat_address(iy, r.height, clamp_mode);
+    f.y1 = nmat_address(iy + 1, r.height, clamp_mode);
     f.fx = px & 255;
     f.fy = py & 255;
     return f;
 }
 
-// Σ w·v of one grid's 4 cells: within [−2^31, 2^31) (§6.3), so an i32 holds it.
-fn nmat_bilinear(g: u32, f: NmatFootprint, c: u32) -> i32 {
+// Σ w·v of one grid's 4 cells, channel c: within [−2^31, 2^31) (§6.3), so an i32 holds it.
+fn nmat_bilinear(r: NmatGrid, f: NmatFootprint, c: u32) -> i32 {
+    let q = nmat_grid_quant(r, c);
     let gx = 256 - f.fx;
     let gy = 256 - f.fy;
-    return gx * gy * nmat_grid_value(g, f.x0, f.y0, c) + f.fx * gy * nmat_grid_value(g, f.x1, f.y0, c)
-        + gx * f.fy * nmat_grid_value(g, f.x0, f.y1, c) + f.fx * f.fy * nmat_grid_value(g, f.x1, f.y1, c);
+    return gx * gy * nmat_grid_value(r, q, f.x0, f.y0, c) + f.fx * gy * nmat_grid_value(r, q, f.x1, f.y0, c)
+        + gx * f.fy * nmat_grid_value(r, q, f.x0, f.y1, c) + f.fx * f.fy * nmat_grid_value(r, q, f.x1, f.y1, c);
 }
 
 fn nmat_triangle(t: u32, k: u32, phase: u32, frac_bits: u32) -> i32 {
@@ -196,36 +213,55 @@ fn nmat_features(xi: i32, yi: i32, mip_in: u32) {
     let lb = nmat_desc[NMAT_DESC_LEVELS_AT] + level * NMAT_LEVEL_WORDS;
     var n = 0u;
     let terms = nmat_desc[lb + NMAT_LEVEL_TERM_COUNT];
+    // Each grid's record and footprint are read and computed once, and each channel's
+    // dequantization once per grid (not once per code).
     for (var t = 0u; t < terms; t++) {
         let tb = lb + NMAT_LEVEL_TERMS + t * NMAT_TERM_WORDS;
         let chain = nmat_desc[tb + NMAT_TERM_CHAIN_LEN];
-        let g0 = nmat_desc[tb + NMAT_TERM_GRIDS];
-        let channels = nmat_desc[nmat_desc[NMAT_DESC_GRIDS_AT] + NMAT_GRID_WORDS * g0 + NMAT_GRID_CHANNELS];
+        let r0 = nmat_grid(nmat_desc[tb + NMAT_TERM_GRIDS]);
+        let channels = r0.channels;
         if (nmat_desc[tb + NMAT_TERM_BILINEAR] == 0u) {
-            let f = nmat_footprint(g0, x, y, mw, mh);
-            for (var k = 0u; k < 4u; k++) {
-                let cx = select(f.x0, f.x1, (k & 1u) == 1u);
-                let cy = select(f.y0, f.y1, k >= 2u);
-                for (var c = 0u; c < channels; c++) {
-                    nmat_act_a[n] = nmat_grid_value(g0, cx, cy, c);
-                    n++;
-                }
-            }
-        } else {
+            // The 4 cells' codes in cell order, channels within a cell: feature k·channels + c.
+            let f = nmat_footprint(r0, x, y, mw, mh, clamp_mode);
             for (var c = 0u; c < channels; c++) {
-                // Σ over the chain of (s >> 16) and (s & 0xFFFF) kept apart: the exact sum
-                // rounded half up is hi + (lo + 2^15) >> 16, and no part overflows.
-                var hi = 0;
-                var lo = 0u;
-                for (var k = 0u; k < chain; k++) {
-                    let g = nmat_desc[tb + NMAT_TERM_GRIDS + k];
-                    let s = nmat_bilinear(g, nmat_footprint(g, x, y, mw, mh), c);
-                    hi += s >> 16u;
-                    lo += bitcast<u32>(s) & 0xFFFFu;
-                }
-                nmat_act_a[n] = nmat_sat16(hi + i32((lo + 32768u) >> 16u));
-                n++;
+                let q = nmat_grid_quant(r0, c);
+                nmat_act_a[n + c] = nmat_grid_value(r0, q, f.x0, f.y0, c);
+                nmat_act_a[n + channels + c] = nmat_grid_value(r0, q, f.x1, f.y0, c);
+                nmat_act_a[n + 2u * channels + c] = nmat_grid_value(r0, q, f.x0, f.y1, c);
+                nmat_act_a[n + 3u * channels + c] = nmat_grid_value(r0, q, f.x1, f.y1, c);
             }
+            n += 4u * channels;
+        } else if (chain == 1u) {
+            let f = nmat_footprint(r0, x, y, mw, mh, clamp_mode);
+            for (var c = 0u; c < channels; c++) {
+                // (s + 2^15) >> 16 is the sum rounded half up; it cannot overflow as one piece
+                // (below), so it is formed as the chain's general case does.
+                let s = nmat_bilinear(r0, f, c);
+                nmat_act_a[n + c] = nmat_sat16((s >> 16u) + i32(((bitcast<u32>(s) & 0xFFFFu) + 32768u) >> 16u));
+            }
+            n += channels;
+        } else {
+            // Σ over the chain of (s >> 16) and (s & 0xFFFF) kept apart, per channel in
+            // nmat_act_a and nmat_act_b (free until the first layer): the exact sum rounded half
+            // up is hi + (lo + 2^15) >> 16, and no part overflows.
+            for (var c = 0u; c < channels; c++) {
+                nmat_act_a[n + c] = 0;
+                nmat_act_b[n + c] = 0;
+            }
+            for (var k = 0u; k < chain; k++) {
+                let r = nmat_grid(nmat_desc[tb + NMAT_TERM_GRIDS + k]);
+                let f = nmat_footprint(r, x, y, mw, mh, clamp_mode);
+                for (var c = 0u; c < channels; c++) {
+                    let s = nmat_bilinear(r, f, c);
+                    nmat_act_a[n + c] += s >> 16u;
+                    nmat_act_b[n + c] += bitcast<i32>(bitcast<u32>(s) & 0xFFFFu);
+                }
+            }
+            for (var c = 0u; c < channels; c++) {
+                let lo = bitcast<u32>(nmat_act_b[n + c]);
+                nmat_act_a[n + c] = nmat_sat16(nmat_act_a[n + c] + i32((lo + 32768u) >> 16u));
+            }
+            n += channels;
         }
     }
     for (var k = 0u; k < nmat_desc[NMAT_DESC_PE_FREQUENCIES]; k++) {
