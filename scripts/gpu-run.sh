@@ -1,0 +1,55 @@
+#!/usr/bin/env bash
+# Runs on the lent GPU what scripts/gpu-prepare.sh built (docs/GPU.md, "On a lent GPU"): unpacks the
+# Vulkan loaders of .gl/, warms the GPU up, runs every nmat-wgpu test executable with the
+# cooperative-matrix and dot4 kernels required, then `nmat bench --gpu --region 1024` on each
+# carried material. Every step under a timeout (a shader can hang); outputs in $OUT (default
+# /tmp/gpu-run). Exit status: the number of steps that failed.
+set -uo pipefail
+cd "$(dirname "$0")/.."
+out=${OUT:-/tmp/gpu-run}
+mkdir -p "$out"
+failed=0
+step() { # NAME SECONDS COMMAND...: runs it, output in $out/NAME.txt, and says how it ended
+  local name=$1 limit=$2
+  shift 2
+  local start=$SECONDS
+  timeout "$limit" "$@" > "$out/$name.txt" 2>&1
+  local rc=$?
+  echo "$name: rc $rc in $((SECONDS - start)) s" | tee -a "$out/summary.txt"
+  [ "$rc" -eq 0 ] || failed=$((failed + 1))
+}
+if [ -d .gl ] && ! ldconfig -p | grep -q libvulkan; then
+  for f in .gl/*.deb; do dpkg -x "$f" /; done
+  ldconfig
+fi
+icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+[ -f "$icd" ] && export VK_DRIVER_FILES=$icd
+for f in .devcarry/nmat.gz .devcarry/tests/*.gz; do
+  [ -f "$f" ] && gunzip -f "$f"
+done
+chmod +x .devcarry/nmat .devcarry/tests/*
+# The test executables read tests/fixtures at the path they were built at.
+root=$(cat .devcarry/build-root)
+if [ ! -e "$root" ]; then
+  mkdir -p "$(dirname "$root")"
+  ln -s "$PWD" "$root"
+fi
+nvidia-smi > "$out/nvidia-smi.txt" 2>&1
+# A material of the built-in demo, and a throwaway GPU run (a fresh machine's first GPU process
+# reads slow).
+step demo 300 .devcarry/nmat demo -o "$out/demo"
+step warm-up 300 .devcarry/nmat bench "$out/demo/demo.nmat" --gpu --runs 1
+# The tests fail where a fast kernel is missing (REQUIRE_KERNELS=0: note it and go on, e.g. on
+# lavapipe, which has no cooperative matrices).
+if [ "${REQUIRE_KERNELS:-1}" = 1 ]; then
+  export NMAT_REQUIRE_MATRIX=1 NMAT_REQUIRE_DOT4=1
+fi
+for t in .devcarry/tests/*; do
+  step "test-$(basename "$t")" 300 "$t" --test-threads 1
+done
+for m in .devcarry/materials/*.nmat; do
+  [ -f "$m" ] || continue
+  step "bench-$(basename "$m" .nmat)" 300 .devcarry/nmat bench "$m" --gpu --region 1024 --runs 5
+done
+echo "failed steps: $failed" | tee -a "$out/summary.txt"
+exit "$failed"
