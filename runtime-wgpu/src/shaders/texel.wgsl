@@ -34,7 +34,8 @@ fn nmat_grid_pos(x: u32, mip_size: u32, grid_size: u32) -> i32 {
     return i32(p) - 128;
 }
 
-// One latent grid's record (NMAT_GRID_*), read once for all the codes a texel takes from it.
+// One latent grid's record (NMAT_GRID_*: the fields of layout.rs's `GridRecord` but its padding),
+// read once for all the codes a texel takes from it.
 struct NmatGrid {
     width: u32,
     height: u32,
