@@ -235,8 +235,8 @@ fn nmat_features(xi: i32, yi: i32, mip_in: u32) {
         } else if (chain == 1u) {
             let f = nmat_footprint(r0, x, y, mw, mh, clamp_mode);
             for (var c = 0u; c < channels; c++) {
-                // (s + 2^15) >> 16 is the sum rounded half up; it cannot overflow as one piece
-                // (below), so it is formed as the chain's general case does.
+                // The sum rounded half up, (s + 2^15) >> 16, in two pieces as in the chain's case
+                // below: s + 2^15 itself can overflow an i32.
                 let s = nmat_bilinear(r0, f, c);
                 nmat_act_a[n + c] = nmat_sat16((s >> 16u) + i32(((bitcast<u32>(s) & 0xFFFFu) + 32768u) >> 16u));
             }
