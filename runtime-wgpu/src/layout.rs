@@ -527,6 +527,30 @@ pub(crate) fn wgsl_struct<T: ShaderLayout>(name: &str) -> String {
     s
 }
 
+/// `T` as the WGSL struct `name` ([`wgsl_struct`]) and `fn reader(at: u32) -> name`, which reads
+/// the record at word `at` of `nmat_desc` through the `PREFIX_*` offsets ([`wgsl_offsets`]) once
+/// (padding fields, named `pad`, left 0).
+pub(crate) fn wgsl_record_reader<T: ShaderLayout>(
+    name: &str,
+    reader: &str,
+    prefix: &str,
+) -> String {
+    let mut s = wgsl_struct::<T>(name);
+    let _ = writeln!(s, "fn {reader}(at: u32) -> {name} {{\n    var r: {name};");
+    for &(field, _, words) in T::FIELDS.iter().filter(|f| f.0 != "pad") {
+        let at = format!("at + {prefix}_{}", field.to_uppercase());
+        if words == 1 {
+            let _ = writeln!(s, "    r.{field} = nmat_desc[{at}];");
+        } else {
+            for k in 0..words {
+                let _ = writeln!(s, "    r.{field}_{k} = nmat_desc[{at} + {k}u];");
+            }
+        }
+    }
+    s.push_str("    return r;\n}\n");
+    s
+}
+
 /// `T`'s word offsets as WGSL constants: `PREFIX_FIELD` per field and `PREFIX_WORDS`.
 pub(crate) fn wgsl_offsets<T: ShaderLayout>(prefix: &str) -> String {
     let mut s = String::new();
@@ -537,9 +561,10 @@ pub(crate) fn wgsl_offsets<T: ShaderLayout>(prefix: &str) -> String {
     s
 }
 
-/// The generated declarations a neural material's descriptor is read with (texel.wgsl and
-/// every shader that includes it, the sampling module among them: every name starts with
-/// `NMAT_`).
+/// The generated declarations a neural material's descriptor is read with — the records' word
+/// offsets, and the grid record's struct and reader — for texel.wgsl and every shader that
+/// includes it, the sampling module among them (every name starts with `NMAT_`, `Nmat` or
+/// `nmat_`).
 pub(crate) fn neural_wgsl() -> String {
     [
         "// nmat: the layout of `nmat_desc` (generated from nmat-wgpu's layout.rs).\n".to_string(),
@@ -552,6 +577,7 @@ pub(crate) fn neural_wgsl() -> String {
         wgsl_offsets::<LayerRecord>("NMAT_LAYER"),
         wgsl_offsets::<RowConstants>("NMAT_ROW"),
         wgsl_offsets::<RequantRow>("NMAT_REQUANT"),
+        wgsl_record_reader::<GridRecord>("NmatGrid", "nmat_grid_record", "NMAT_GRID"),
     ]
     .concat()
 }

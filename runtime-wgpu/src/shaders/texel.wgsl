@@ -34,29 +34,10 @@ fn nmat_grid_pos(x: u32, mip_size: u32, grid_size: u32) -> i32 {
     return i32(p) - 128;
 }
 
-// One latent grid's record (NMAT_GRID_*: the fields of layout.rs's `GridRecord` but its padding),
-// read once for all the codes a texel takes from it.
-struct NmatGrid {
-    width: u32,
-    height: u32,
-    channels: u32,
-    bits: u32,
-    latents_at: u32,
-    latent_words: u32,
-    quant_at: u32,
-}
-
+// One latent grid's record, read once for all the codes a texel takes from it (`NmatGrid` and
+// `nmat_grid_record` are generated from layout.rs's `GridRecord`).
 fn nmat_grid(g: u32) -> NmatGrid {
-    let gb = nmat_desc[NMAT_DESC_GRIDS_AT] + NMAT_GRID_WORDS * g;
-    var r: NmatGrid;
-    r.width = nmat_desc[gb + NMAT_GRID_WIDTH];
-    r.height = nmat_desc[gb + NMAT_GRID_HEIGHT];
-    r.channels = nmat_desc[gb + NMAT_GRID_CHANNELS];
-    r.bits = nmat_desc[gb + NMAT_GRID_BITS];
-    r.latents_at = nmat_desc[gb + NMAT_GRID_LATENTS_AT];
-    r.latent_words = nmat_desc[gb + NMAT_GRID_LATENT_WORDS];
-    r.quant_at = nmat_desc[gb + NMAT_GRID_QUANT_AT];
-    return r;
+    return nmat_grid_record(nmat_desc[NMAT_DESC_GRIDS_AT] + NMAT_GRID_WORDS * g);
 }
 
 fn nmat_grid_code(r: NmatGrid, x: u32, y: u32, c: u32) -> u32 {
@@ -111,6 +92,12 @@ fn nmat_bilinear(r: NmatGrid, f: NmatFootprint, c: u32) -> i32 {
     let gy = 256 - f.fy;
     return gx * gy * nmat_grid_value(r, q, f.x0, f.y0, c) + f.fx * gy * nmat_grid_value(r, q, f.x1, f.y0, c)
         + gx * f.fy * nmat_grid_value(r, q, f.x0, f.y1, c) + f.fx * f.fy * nmat_grid_value(r, q, f.x1, f.y1, c);
+}
+
+// A sum of Σ w·v terms kept as (Σ (s >> 16), Σ (s & 0xFFFF)), rounded half up to the input grid
+// and saturated (§6.3): hi + (lo + 2^15) >> 16, where s + 2^15 itself could overflow an i32.
+fn nmat_round_split(hi: i32, lo: u32) -> i32 {
+    return nmat_sat16(hi + i32((lo + 32768u) >> 16u));
 }
 
 fn nmat_triangle(t: u32, k: u32, phase: u32, frac_bits: u32) -> i32 {
@@ -235,10 +222,8 @@ fn nmat_features(xi: i32, yi: i32, mip_in: u32) {
         } else if (chain == 1u) {
             let f = nmat_footprint(r0, x, y, mw, mh, clamp_mode);
             for (var c = 0u; c < channels; c++) {
-                // The sum rounded half up, (s + 2^15) >> 16, in two pieces as in the chain's case
-                // below: s + 2^15 itself can overflow an i32.
                 let s = nmat_bilinear(r0, f, c);
-                nmat_act_a[n + c] = nmat_sat16((s >> 16u) + i32(((bitcast<u32>(s) & 0xFFFFu) + 32768u) >> 16u));
+                nmat_act_a[n + c] = nmat_round_split(s >> 16u, bitcast<u32>(s) & 0xFFFFu);
             }
             n += channels;
         } else {
@@ -259,8 +244,7 @@ fn nmat_features(xi: i32, yi: i32, mip_in: u32) {
                 }
             }
             for (var c = 0u; c < channels; c++) {
-                let lo = bitcast<u32>(nmat_act_b[n + c]);
-                nmat_act_a[n + c] = nmat_sat16(nmat_act_a[n + c] + i32((lo + 32768u) >> 16u));
+                nmat_act_a[n + c] = nmat_round_split(nmat_act_a[n + c], bitcast<u32>(nmat_act_b[n + c]));
             }
             n += channels;
         }
