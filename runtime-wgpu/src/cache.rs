@@ -15,6 +15,7 @@ use crate::gpu::{
     check_output, check_requests, dispatch, read_back, read_buffer, spread, storage_entry,
     try_pipeline, uniform_buffer, uniform_entry,
 };
+use crate::jpeg::JpegMap;
 use crate::layout::{
     self, CacheArgs, CacheDecodeParams, CacheHeader, CacheMaterial, CacheParams, CacheState,
     ChannelRange, DecodeArgs, DispatchArgs, JpegParams, MAX_MIPS, PAGE_MARK, PageRange, QueueEntry,
@@ -345,7 +346,7 @@ impl Context {
                 continue;
             };
             let jpeg = self.jpeg_pipelines(device)?;
-            for (map, &(_, _, mw, mh)) in maps.maps.iter().enumerate() {
+            for (map, &JpegMap { mcu: (mw, mh), .. }) in maps.maps.iter().enumerate() {
                 let (columns, rows) = (TILE_SIZE / mw, TILE_SIZE / mh);
                 let params = JpegParams {
                     mode: 2,

@@ -36,6 +36,12 @@ pub struct Context {
     pub(crate) choices: Mutex<HashMap<String, Kernel>>,
     /// A kernel made to compute wrong codes ([`Context::break_kernel_for_testing`]).
     pub(crate) fault: Mutex<Option<Kernel>>,
+    /// The JPEG request passes' work buffer and its shape, shared by every JPEG material's calls
+    /// (replaced by a larger one when a material needs more; jpeg.rs, `WorkShape`).
+    pub(crate) jpeg_work: Mutex<Option<(wgpu::Buffer, jpeg::WorkShape)>>,
+    /// The JPEG request passes' scratch words per material, where a test made it small
+    /// ([`Context::limit_jpeg_scratch_for_testing`]).
+    pub(crate) jpeg_scratch: Mutex<Option<u32>>,
 }
 
 /// The shader: BC1's single-colour table from the core, the decoder, the BC encoders.
@@ -108,6 +114,8 @@ impl Context {
             jpeg: Mutex::default(),
             choices: Mutex::default(),
             fault: Mutex::default(),
+            jpeg_work: Mutex::default(),
+            jpeg_scratch: Mutex::default(),
         }
     }
 
@@ -135,9 +143,19 @@ impl Context {
     ) -> wgpu::BindGroup {
         let (desc, latents) =
             material.map_or((&self.empty, &self.empty), |m| (&m.desc, &m.latents));
-        let buffers = [desc, latents, requests.unwrap_or(&self.empty), out, uniform];
+        self.bind_buffers(device, [desc, latents, requests.unwrap_or(&self.empty), out], uniform)
+    }
+
+    /// A bind group of the five bindings: four storage buffers, then the parameters.
+    pub(crate) fn bind_buffers(
+        &self,
+        device: &wgpu::Device,
+        buffers: [&wgpu::Buffer; 4],
+        uniform: &wgpu::Buffer,
+    ) -> wgpu::BindGroup {
         let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
             .iter()
+            .chain([&uniform])
             .enumerate()
             .map(|(binding, b)| wgpu::BindGroupEntry {
                 binding: binding as u32,

@@ -43,6 +43,10 @@ pub enum GpuError {
     /// A JPEG material's section larger than one storage binding of the device (or 2^28 bytes,
     /// so that bit positions fit 32 bits).
     SectionTooLarge { bytes: u64, limit: u64 },
+    /// Requests of a JPEG material whose MCU table and scratch (one word per MCU of a map's
+    /// chain, then up to 8 MiB of decoded MCUs) exceed one storage binding of the device: decode
+    /// its regions, or its requests on the CPU.
+    RequestTablesTooLarge { bytes: u64, limit: u64 },
     /// A tile cache [`Context::create_tile_cache`] cannot make: no material or more than
     /// [`MAX_CACHE_MATERIALS`], no slot, or more tiles than one storage binding holds.
     Cache { reason: &'static str },
@@ -61,6 +65,11 @@ impl std::fmt::Display for GpuError {
             GpuError::SectionTooLarge { bytes, limit } => write!(
                 f,
                 "the JPEG section has {bytes} bytes; this device binds at most {limit} in one buffer"
+            ),
+            GpuError::RequestTablesTooLarge { bytes, limit } => write!(
+                f,
+                "the JPEG material's request tables take {bytes} bytes; this device binds at most \
+                 {limit} in one buffer (decode regions, or requests on the CPU)"
             ),
             GpuError::Codec => write!(
                 f,

@@ -97,9 +97,11 @@ shader_layout! {
     /// The uniform block of the JPEG passes (jpeg.wgsl): [`Params`]'s words but for the five
     /// between `out_channels` and `out_offset`, which say what a JPEG dispatch needs.
     struct JpegParams {
-        /// 0: decode `count` requests from `requests`; 1: the rectangle (x0, y0, width, height)
-        /// of `mip`, row-major; 2: the tile cache's decode queue at `in_offset` (cache.wgsl),
-        /// every channel into the tiles' slots.
+        /// `jpeg_main`: 1: the rectangle (x0, y0, width, height) of `mip`, row-major; 2: the
+        /// tile cache's decode queue at `in_offset` (cache.wgsl), every channel into the tiles'
+        /// slots; 3: the MCUs the mark pass listed, every channel into their scratch slots.
+        /// The request passes (`jpeg_mark`, `jpeg_resolve`, `jpeg_reset`): `count` requests
+        /// from word `in_offset` of `requests`.
         mode: u32,
         count: u32,
         mip: u32,
@@ -116,11 +118,17 @@ shader_layout! {
         mcu_count: u32,
         /// The clear pass: how many words to zero.
         clear_words: u32,
-        /// The tile cache: words per slot.
+        /// The tile cache: words per slot; requests: words per scratch slot (an MCU's codes).
         slot_words: u32,
         out_offset: u32,
         in_offset: u32,
-        pad: u32,
+        /// Requests: the number of the first (its place in the output).
+        first: u32,
+        /// Requests: where the list of MCUs and their scratch slots start in the work buffer.
+        list_at: u32,
+        scratch_at: u32,
+        /// To a multiple of four words.
+        spare: [u32; 2],
     }
 }
 
@@ -351,7 +359,9 @@ shader_layout! {
         quant_at: [u32; 3],
         dc_table: [u32; 3],
         ac_table: [u32; 3],
-        pad: u32,
+        /// The word of the stream's first MCU in the request passes' table (the work buffer,
+        /// `jpeg::JpegMaps`): one word per MCU, row-major.
+        table_at: u32,
     }
 }
 

@@ -54,7 +54,8 @@ impl Context {
                         reason: "a JPEG material has no network",
                     });
                 }
-                let (desc, section, maps) = jpeg::upload_words(device, m, j)?;
+                let scratch = *self.jpeg_scratch.lock().unwrap_or_else(|e| e.into_inner());
+                let (desc, section, maps) = jpeg::upload_words(device, m, j, scratch)?;
                 let desc = storage_init(device, "nmat jpeg desc", &desc);
                 let section = storage_init(device, "nmat jpeg section", &section);
                 let body = GpuBody::Jpeg(maps);
@@ -185,6 +186,14 @@ impl Context {
     #[doc(hidden)]
     pub fn break_kernel_for_testing(&self, kernel: Kernel) {
         *self.fault.lock().unwrap_or_else(|e| e.into_inner()) = Some(kernel);
+    }
+
+    /// Gives the JPEG materials uploaded from now on request passes with scratch slots of at
+    /// most `words` words (at least one MCU per map), so that a test can see requests decoded
+    /// in several rounds. For tests only.
+    #[doc(hidden)]
+    pub fn limit_jpeg_scratch_for_testing(&self, words: u32) {
+        *self.jpeg_scratch.lock().unwrap_or_else(|e| e.into_inner()) = Some(words);
     }
 }
 

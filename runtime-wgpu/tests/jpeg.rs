@@ -80,14 +80,7 @@ fn check_material(
         .map(|i| TexelRequest { x: i * 37 - 900, y: i * 11 - 50, mip: (i % 9) as u32 })
         .collect();
     let gpu = context.decode_requests(device, queue, &gm, &requests, all).unwrap();
-    let mut cpu = Vec::new();
-    for r in &requests {
-        let mip = r.mip.min(m.mip_count() - 1);
-        let mut t = [0u8; 16];
-        let n = m.decode_texel_u8(i64::from(r.x), i64::from(r.y), mip, all, &mut t).unwrap();
-        cpu.extend_from_slice(&t[..n]);
-    }
-    assert!(gpu == cpu, "{name}: requests differ");
+    assert!(gpu == cpu_requests(m, &requests, all), "{name}: requests differ");
 }
 
 #[test]
@@ -191,6 +184,74 @@ fn recorded_jpeg_decodes_equal_submitted_ones() {
     let submitted =
         context.decode_requests(&device, &queue, &gm, &requests, ChannelMask::ALL).unwrap();
     assert!(back[..submitted.len()] == submitted[..]);
+}
+
+/// The CPU's codes of `requests` (a mip past the chain is the last one), channels of `mask`.
+fn cpu_requests(m: &Material<'_>, requests: &[TexelRequest], mask: ChannelMask) -> Vec<u8> {
+    let mut out = Vec::new();
+    for r in requests {
+        let mip = r.mip.min(m.mip_count() - 1);
+        let mut t = [0u8; 16];
+        let n = m.decode_texel_u8(i64::from(r.x), i64::from(r.y), mip, mask, &mut t).unwrap();
+        out.extend_from_slice(&t[..n]);
+    }
+    out
+}
+
+/// Requests decode each MCU they read once, through a table the passes clear again: many
+/// requests on few MCUs (repeats within and across calls), in one round and — with scratch room
+/// for one colour MCU, or a few — in many rounds, equal to the CPU's codes; a call after them,
+/// or on another material sharing the context's work buffer, reads no stale slot.
+#[test]
+fn requests_sharing_mcus_decode_alike_in_one_round_or_many() {
+    let (device, queue) = common::device();
+    let bytes = bricks_jpeg(nmat_encode::jpeg::Subsampling::S420);
+    let m = Container::parse(&bytes).unwrap();
+    let small_bytes = fixture();
+    let small = Container::parse(&small_bytes).unwrap();
+    // A small LCG: 1 500 requests clustered on a few MCUs of mips 0–2, then spread ones.
+    let mut seed = 7u32;
+    let mut next = |n: u32| {
+        seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        (seed >> 8) % n
+    };
+    let clustered: Vec<TexelRequest> = (0..1500)
+        .map(|_| TexelRequest { x: next(24) as i32 - 4, y: next(40) as i32, mip: next(3) })
+        .collect();
+    let spread: Vec<TexelRequest> = (0..300)
+        .map(|_| TexelRequest {
+            x: next(300) as i32 - 100,
+            y: next(300) as i32 - 100,
+            mip: next(9),
+        })
+        .collect();
+    // 192 words: one 16 × 16 colour MCU (and 12 gray ones); 1 000: five colour MCUs.
+    for scratch in [None, Some(192), Some(1000)] {
+        let context = Context::new(&device);
+        if let Some(words) = scratch {
+            context.limit_jpeg_scratch_for_testing(words);
+        }
+        // The small material first: the larger one's calls grow the shared work buffer.
+        let gm_small = context.upload(&device, &queue, &small).unwrap();
+        let gm = context.upload(&device, &queue, &m).unwrap();
+        for (requests, mask) in [
+            (&clustered, ChannelMask::ALL),
+            (&spread, ChannelMask(0b1010_0110)),
+            (&clustered, ChannelMask(0b1)),
+        ] {
+            let gpu = context.decode_requests(&device, &queue, &gm, requests, mask).unwrap();
+            let cpu = cpu_requests(&m, requests, mask);
+            assert!(gpu == cpu, "scratch {scratch:?}, mask {mask:?}: requests differ");
+            // The fixture's 3 channels of the mask.
+            let mask = ChannelMask(mask.0 & 0b111);
+            let gpu = context.decode_requests(&device, &queue, &gm_small, requests, mask).unwrap();
+            let cpu = cpu_requests(&small, requests, mask);
+            assert!(
+                gpu == cpu,
+                "scratch {scratch:?}, mask {mask:?}: the fixture's requests differ"
+            );
+        }
+    }
 }
 
 #[test]

@@ -176,8 +176,8 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
     }
     if jpeg {
         println!(
-            "  a JPEG material: one workgroup per MCU (a request decodes its whole MCU); no \
-             nmat_sample rows (neural materials only)"
+            "  a JPEG material: one workgroup per MCU (requests: each MCU they read decoded once \
+             per call); no nmat_sample rows (neural materials only)"
         );
     }
     let round_trips: Vec<f64> = (0..runs)

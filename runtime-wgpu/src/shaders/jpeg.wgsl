@@ -4,6 +4,14 @@
 // the two passes of the islow IDCT, and every invocation then writes the texels it owns. One
 // dispatch decodes one map; jpeg.rs dispatches each map that holds a selected channel.
 //
+// Requests decode each MCU they read once, through a work buffer (jpeg.rs, `WorkShape`): word 0
+// counts the MCUs listed, then a table of one word per MCU of a map's chain (0, or CLAIMED | the
+// MCU's slot), the list of MCUs (`params.list_at`, keys as the tile cache's: mip << 26 | row << 13
+// | column) and their slots of decoded codes (`params.scratch_at`, `params.slot_words` each).
+// `jpeg_mark` claims each request's MCU and lists it; `jpeg_main` in mode 3 decodes the listed
+// MCUs, one workgroup each, every channel of the map into the MCU's slot; `jpeg_resolve` copies
+// each request's selected channels out of its MCU's slot; `jpeg_reset` clears the table again.
+//
 // `jdesc` (written by `upload_words` in jpeg.rs) is read through the constants nmat-wgpu's
 // layout.rs generates and prepends to this file: JDESC_* (the header: sizes, address mode, where
 // the records start), JMIP_* (each mip's size), JMAP_* (a map's channels and luma sampling),
@@ -234,9 +242,8 @@ fn put(byte: u32, code: u32) {
     atomicOr(&out_codes[out_base + (byte >> 2u)], code << (8u * (byte & 3u)));
 }
 
-// Writes the selected channels of this map at texel (x, y) of the MCU (samples in `blocks`) as
-// the codes of output texel `t`.
-fn write_texel(t: u32, x: u32, y: u32, first: u32, count: u32, lh: u32, lv: u32) {
+// The `count` channels' codes of this map at texel (x, y) of the MCU (samples in `blocks`).
+fn texel_codes(x: u32, y: u32, count: u32, lh: u32, lv: u32) -> array<u32, 3> {
     var codes: array<u32, 3>;
     if (count == 1u) {
         codes[0] = u32(blocks[8u * y + x]);
@@ -250,6 +257,12 @@ fn write_texel(t: u32, x: u32, y: u32, first: u32, count: u32, lh: u32, lv: u32)
         codes[1] = u32(clamp(yv + ((-22554 * cb - 46802 * cr + 32768) >> 16u), 0, 255));
         codes[2] = u32(clamp(yv + ((116130 * cb + 32768) >> 16u), 0, 255));
     }
+    return codes;
+}
+
+// Writes `codes`, the `count` channels of this map from channel `first`, as output texel `t`'s
+// selected channels.
+fn put_codes(t: u32, codes: array<u32, 3>, first: u32, count: u32) {
     let mask = params.channel_mask;
     var slot = countOneBits(mask & ((1u << first) - 1u));
     for (var c = 0u; c < count; c++) {
@@ -258,6 +271,11 @@ fn write_texel(t: u32, x: u32, y: u32, first: u32, count: u32, lh: u32, lv: u32)
             slot += 1u;
         }
     }
+}
+
+// Writes the selected channels of this map at texel (x, y) of the MCU as output texel `t`.
+fn write_texel(t: u32, x: u32, y: u32, first: u32, count: u32, lh: u32, lv: u32) {
+    put_codes(t, texel_codes(x, y, count, lh, lv), first, count);
 }
 
 @compute @workgroup_size(64)
@@ -277,8 +295,6 @@ fn jpeg_main(
     var mip = params.mip;
     var mx = 0u;
     var my = 0u;
-    var tx = 0u;
-    var ty = 0u;
     out_base = params.out_offset;
     if (params.mode == 2u) {
         // Tile g / mcu_count of the queue, its MCU g % mcu_count (a tile of 16 × 16 texels
@@ -298,16 +314,16 @@ fn jpeg_main(
         if (mx * mw >= mip_width(mip) || my * mh >= mip_height(mip)) {
             return;
         }
-    } else if (params.mode == 0u) {
-        if (g >= params.count) {
+    } else if (params.mode == 3u) {
+        // The listed MCU g, into its slot.
+        if (g >= atomicLoad(&out_codes[0])) {
             return;
         }
-        let r = params.in_offset + 3u * g;
-        mip = min(bitcast<u32>(requests[r + 2u]), jdesc[JDESC_MIP_COUNT] - 1u);
-        tx = address(requests[r], mip_width(mip));
-        ty = address(requests[r + 1u], mip_height(mip));
-        mx = tx / mw;
-        my = ty / mh;
+        let key = atomicLoad(&out_codes[params.list_at + g]);
+        mip = key >> 26u;
+        mx = key & 0x1FFFu;
+        my = (key >> 13u) & 0x1FFFu;
+        out_base = params.scratch_at + g * params.slot_words;
     } else {
         if (g >= params.mcu_count) {
             return;
@@ -347,9 +363,19 @@ fn jpeg_main(
         }
     }
     workgroupBarrier();
-    if (params.mode == 0u) {
-        if (lid == 0u) {
-            write_texel(g, tx % mw, ty % mh, first, count, lh, lv);
+    if (params.mode == 3u) {
+        // Whole words of the slot: byte 4·w + i is channel b % count of texel b / count.
+        for (var w = lid; w < params.slot_words; w += 64u) {
+            var word = 0u;
+            for (var i = 0u; i < 4u; i++) {
+                let b = 4u * w + i;
+                let t = b / count;
+                if (t < mw * mh) {
+                    let codes = texel_codes(t % mw, t / mw, count, lh, lv);
+                    word |= codes[b % count] << (8u * i);
+                }
+            }
+            atomicStore(&out_codes[out_base + w], word);
         }
         return;
     }
@@ -368,6 +394,101 @@ fn jpeg_main(
     }
 }
 
+// A claimed entry of the request passes' table; its low bits are the MCU's slot.
+const CLAIMED = 0x80000000u;
+
+// Request g of the round: its mip and texel (addressed as the CPU does), its MCU's key and
+// table word, and the map's channels and MCU shape.
+struct JpegRequest {
+    mip: u32,
+    tx: u32,
+    ty: u32,
+    key: u32,
+    table: u32,
+    first: u32,
+    count: u32,
+    lh: u32,
+    lv: u32,
+}
+
+fn jpeg_request(g: u32) -> JpegRequest {
+    var q: JpegRequest;
+    let map = jdesc[JDESC_MAPS_AT] + JMAP_WORDS * params.map;
+    q.first = jdesc[map + JMAP_FIRST_CHANNEL];
+    q.count = jdesc[map + JMAP_CHANNEL_COUNT];
+    q.lh = jdesc[map + JMAP_LUMA_H];
+    q.lv = jdesc[map + JMAP_LUMA_V];
+    let r = params.in_offset + 3u * g;
+    q.mip = min(bitcast<u32>(requests[r + 2u]), jdesc[JDESC_MIP_COUNT] - 1u);
+    q.tx = address(requests[r], mip_width(q.mip));
+    q.ty = address(requests[r + 1u], mip_height(q.mip));
+    let mx = q.tx / (8u * q.lh);
+    let my = q.ty / (8u * q.lv);
+    q.key = (q.mip << 26u) | (my << 13u) | mx;
+    let s = jdesc[JDESC_STREAMS_AT] + JSTREAM_WORDS * (params.map * jdesc[JDESC_MIP_COUNT] + q.mip);
+    q.table = jdesc[s + JSTREAM_TABLE_AT] + my * jdesc[s + JSTREAM_MCUS_X] + mx;
+    return q;
+}
+
+// The number of this invocation in a dispatch of 64-invocation workgroups (x + y · columns).
+fn invocation_index(id: vec3<u32>, groups: vec3<u32>) -> u32 {
+    return id.x + id.y * groups.x * 64u;
+}
+
+// Claims each request's MCU: the first request to reach an MCU lists it and gives it the next
+// slot.
+@compute @workgroup_size(64)
+fn jpeg_mark(
+    @builtin(global_invocation_id) id: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+) {
+    let g = invocation_index(id, groups);
+    if (g >= params.count) {
+        return;
+    }
+    let q = jpeg_request(g);
+    if (atomicOr(&out_codes[q.table], CLAIMED) == 0u) {
+        let slot = atomicAdd(&out_codes[0], 1u);
+        atomicStore(&out_codes[params.list_at + slot], q.key);
+        atomicStore(&out_codes[q.table], CLAIMED | slot);
+    }
+}
+
+// Each request's selected channels from its MCU's slot (`section` is the work buffer here).
+@compute @workgroup_size(64)
+fn jpeg_resolve(
+    @builtin(global_invocation_id) id: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+) {
+    let g = invocation_index(id, groups);
+    if (g >= params.count) {
+        return;
+    }
+    let q = jpeg_request(g);
+    let slot = section[q.table] & ~CLAIMED;
+    let mw = 8u * q.lh;
+    let t = (q.ty % (8u * q.lv)) * mw + q.tx % mw;
+    let at = 4u * (params.scratch_at + slot * params.slot_words) + t * q.count;
+    var codes: array<u32, 3>;
+    for (var c = 0u; c < q.count; c++) {
+        codes[c] = sbyte(at + c);
+    }
+    out_base = params.out_offset;
+    put_codes(params.first + g, codes, q.first, q.count);
+}
+
+// Clears the table entries the round claimed.
+@compute @workgroup_size(64)
+fn jpeg_reset(
+    @builtin(global_invocation_id) id: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+) {
+    let g = invocation_index(id, groups);
+    if (g < params.count) {
+        atomicStore(&out_codes[jpeg_request(g).table], 0u);
+    }
+}
+
 // Zeroes the words the codes of `params` take (from `params.out_offset`), before the maps' passes
 // OR their bytes in.
 @compute @workgroup_size(64)
@@ -375,7 +496,7 @@ fn jpeg_clear(
     @builtin(global_invocation_id) id: vec3<u32>,
     @builtin(num_workgroups) groups: vec3<u32>,
 ) {
-    let i = id.x + id.y * groups.x * 64u;
+    let i = invocation_index(id, groups);
     if (i < params.clear_words) {
         atomicStore(&out_codes[params.out_offset + i], 0u);
     }
