@@ -55,7 +55,7 @@ pub(crate) struct JpegMap {
 /// scratch slots of decoded codes (`scratch` words after the list). One work buffer per
 /// [`Context`] serves every JPEG material: it is replaced by one with the larger of each part
 /// when a material needs more, so the table's words are never anything else.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug)]
 pub(crate) struct WorkShape {
     table: u32,
     list: u32,
@@ -311,19 +311,16 @@ impl Context {
                 ..p
             };
             let uniform = uniform_buffer(device, &params.bytes());
-            let bind = |buffers: [&wgpu::Buffer; 4]| self.bind_buffers(device, buffers, &uniform);
+            // Mark, decode and reset read the material and write the work buffer; resolve reads
+            // the work buffer (as the section) and writes the output.
+            let on_work = self.bind_buffers(device, [desc, section, requests, work], &uniform);
+            let to_out = self.bind_buffers(device, [desc, work, requests, out], &uniform);
             let per_request = u64::from(n).div_ceil(64);
             encoder.clear_buffer(work, 0, Some(4));
-            dispatch(encoder, &pipelines.mark, &bind([desc, section, requests, work]), per_request);
-            let listed = u64::from(n.min(map.slots));
-            dispatch(encoder, &pipelines.decode, &bind([desc, section, requests, work]), listed);
-            dispatch(encoder, &pipelines.resolve, &bind([desc, work, requests, out]), per_request);
-            dispatch(
-                encoder,
-                &pipelines.reset,
-                &bind([desc, section, requests, work]),
-                per_request,
-            );
+            dispatch(encoder, &pipelines.mark, &on_work, per_request);
+            dispatch(encoder, &pipelines.decode, &on_work, u64::from(n.min(map.slots)));
+            dispatch(encoder, &pipelines.resolve, &to_out, per_request);
+            dispatch(encoder, &pipelines.reset, &on_work, per_request);
             start += n;
         }
     }

@@ -364,16 +364,22 @@ fn jpeg_main(
     }
     workgroupBarrier();
     if (params.mode == 3u) {
-        // Whole words of the slot: byte 4·w + i is channel b % count of texel b / count.
+        // Whole words of the slot: byte 4·w + i is channel b % count of texel b / count (a
+        // texel's codes computed once for the bytes of it a word holds).
         for (var w = lid; w < params.slot_words; w += 64u) {
             var word = 0u;
+            var t = 0xFFFFFFFFu;
+            var codes: array<u32, 3>;
             for (var i = 0u; i < 4u; i++) {
                 let b = 4u * w + i;
-                let t = b / count;
-                if (t < mw * mh) {
-                    let codes = texel_codes(t % mw, t / mw, count, lh, lv);
-                    word |= codes[b % count] << (8u * i);
+                if (b / count >= mw * mh) {
+                    break;
                 }
+                if (b / count != t) {
+                    t = b / count;
+                    codes = texel_codes(t % mw, t / mw, count, lh, lv);
+                }
+                word |= codes[b % count] << (8u * i);
             }
             atomicStore(&out_codes[out_base + w], word);
         }
