@@ -2,6 +2,7 @@
 //! run the MLP in float or integer arithmetic, scale the outputs. Every function here is total for
 //! a parsed material: any coordinate, mip and mask gives a value or a `BadArgument` error.
 
+use crate::decoder::TexelAt;
 use crate::error::{Argument, Error};
 use crate::format::channel::{AddressMode, Channel};
 use crate::jpeg::Jpeg;
@@ -75,21 +76,53 @@ impl<'a> Material<'a> {
         (address(x, w, self.address_mode), address(y, h, self.address_mode), mip)
     }
 
+    /// The footprints of texel (x, y) of `mip` (already addressed) on every grid its level
+    /// reads, and their cells' codes, into `reads` (emptied first): each grid once, however many
+    /// terms use it. The first half of [`Material::gather`], apart so that the reads of all
+    /// grids, and of several texels, are issued before any value is computed from them: a texel
+    /// then waits for its cache misses once rather than once per grid.
+    pub(crate) fn read_latents(
+        &self,
+        n: &Neural<'_>,
+        (x, y, mip): (u32, u32, u32),
+        reads: &mut TexelReads,
+    ) {
+        reads.clear();
+        let mip_size = self.mip_size(mip);
+        let Some(level) = n.levels.get(n.level_for_mip(mip)) else {
+            return;
+        };
+        for term in &level.terms {
+            // Nearest4 reads the first grid only; a bilinear term sums its whole chain.
+            let grids = match term.mode {
+                TermMode::Nearest4 => term.grids.get(..1).unwrap_or(&[]),
+                TermMode::Bilinear => term.grids.as_slice(),
+            };
+            for &g in grids {
+                let Some(grid) = n.grids.get(usize::from(g)) else { continue };
+                if reads.iter().all(|r| r.grid != g) {
+                    // A level holds at most MAX_GRIDS grids.
+                    let _ = reads.push(Reads::new(g, grid, (x, y), mip_size, self.address_mode));
+                }
+            }
+        }
+    }
+
     /// Input features of texel (x, y) of `mip` (already addressed) in units of 2^-(16+f), passed
-    /// to `sink` in input order. The definition; `Decoder` spans have a faster twin
-    /// (`decoder/span.rs`).
+    /// to `sink` in input order, from its latents as [`Material::read_latents`] read them. The
+    /// definition; `Decoder` spans have a faster twin (`decoder/span.rs`).
     pub(crate) fn gather<T: Feature>(
         &self,
         n: &Neural<'_>,
         (x, y, mip): (u32, u32, u32),
+        reads: &TexelReads,
         sink: &mut Inputs<'_, T>,
     ) {
-        let mip_size = self.mip_size(mip);
-        let mode = self.address_mode;
         let Some(level) = n.levels.get(n.level_for_mip(mip)) else {
             return;
         };
-        // The bilinear samples taken so far (a level holds at most MAX_GRIDS grids).
+        let read = |g: u8| reads.iter().find(|r| r.grid == g);
+        // The bilinear samples taken so far.
         let mut sampled = heapless::Vec::<(u8, [i32; MAX_GRID_CHANNELS]), MAX_GRIDS>::new();
         for term in &level.terms {
             let channels = term
@@ -100,8 +133,11 @@ impl<'a> Material<'a> {
             match term.mode {
                 TermMode::Nearest4 => {
                     let Some(&g) = term.grids.first() else { continue };
-                    let Some(grid) = n.grids.get(usize::from(g)) else { continue };
-                    let (_, cells) = footprint_cells(grid, x, y, mip_size, mode);
+                    let (Some(grid), Some(r)) = (n.grids.get(usize::from(g)), read(g)) else {
+                        continue;
+                    };
+                    let mut cells = [[0; MAX_GRID_CHANNELS]; 4];
+                    r.cells(grid, &mut cells);
                     for cell in &cells {
                         sink.push_latents(cell.get(..channels).unwrap_or(&[]));
                     }
@@ -109,13 +145,15 @@ impl<'a> Material<'a> {
                 TermMode::Bilinear => {
                     let mut sums = [0i64; MAX_GRID_CHANNELS];
                     for &g in &term.grids {
-                        let Some(grid) = n.grids.get(usize::from(g)) else { continue };
+                        let (Some(grid), Some(r)) = (n.grids.get(usize::from(g)), read(g)) else {
+                            continue;
+                        };
                         // A grid in several chains (NBC's feature reuse) is sampled once.
                         let known = sampled.iter().find(|(index, _)| *index == g);
                         let values = match known {
                             Some((_, values)) => *values,
                             None => {
-                                let values = bilinear(grid, x, y, mip_size, mode);
+                                let values = bilinear(grid, r);
                                 let _ = sampled.push((g, values));
                                 values
                             }
@@ -157,10 +195,33 @@ impl<'a> Material<'a> {
         mip: u32,
     ) -> [T; MAX_WIDTH] {
         let texel = self.address_texel(x, y, mip);
+        let mut reads = TexelReads::new();
+        self.read_latents(n, texel, &mut reads);
         let mut io = [T::default(); MAX_WIDTH];
         let input_frac_bits = n.mlp.input_frac_bits;
-        self.gather(n, texel, &mut Inputs { io: &mut io, next: 0, input_frac_bits });
+        self.gather(n, texel, &reads, &mut Inputs { io: &mut io, next: 0, input_frac_bits });
         io
+    }
+
+    /// [`Material::inputs`] of several texels into `ios`, one each: every texel's latents read
+    /// before any texel's inputs are computed, so their cache misses overlap.
+    pub(crate) fn inputs_group<T: Feature, const G: usize>(
+        &self,
+        n: &Neural<'_>,
+        texels: &[TexelAt],
+        ios: &mut [[T; MAX_WIDTH]; G],
+    ) {
+        let mut at = [(0, 0, 0); G];
+        let mut reads: [TexelReads; G] = core::array::from_fn(|_| TexelReads::new());
+        for ((a, r), t) in at.iter_mut().zip(&mut reads).zip(texels) {
+            *a = self.address_texel(t.x, t.y, t.mip);
+            self.read_latents(n, *a, r);
+        }
+        let input_frac_bits = n.mlp.input_frac_bits;
+        for ((io, r), &texel) in ios.iter_mut().zip(&reads).zip(&at).take(texels.len()) {
+            *io = [T::default(); MAX_WIDTH];
+            self.gather(n, texel, r, &mut Inputs { io, next: 0, input_frac_bits });
+        }
     }
 
     /// The float decode of an (unaddressed) texel for the rows in `rows`, in unit scale (1.0 =
@@ -363,24 +424,21 @@ impl<T: Feature> Inputs<'_, T> {
     }
 }
 
-/// The bilinear sample of texel (x, y) (addressed) on `grid`, per channel, in units of 2^-(16+f):
-/// the footprint's 4 cells weighted by products of 1/256 fractions (§6.2). Exact: weights in
-/// 1/65536 summing to 65536 and values i16 keep each sum in [−2^31, 2^31 − 2^16].
+/// The bilinear sample of a texel on `grid`, from its footprint as read in `r`, per channel, in
+/// units of 2^-(16+f): the footprint's 4 cells weighted by products of 1/256 fractions (§6.2).
+/// Exact: weights in 1/65536 summing to 65536 and values i16 keep each sum in
+/// [−2^31, 2^31 − 2^16].
 #[inline(always)]
-fn bilinear(
-    grid: &LatentGrid<'_>,
-    x: u32,
-    y: u32,
-    mip_size: (u32, u32),
-    mode: AddressMode,
-) -> [i32; MAX_GRID_CHANNELS] {
-    let (fp, [c00, c10, c01, c11]) = footprint_cells(grid, x, y, mip_size, mode);
-    let (fx, fy) = (fp.fx, fp.fy);
+fn bilinear(grid: &LatentGrid<'_>, r: &Reads) -> [i32; MAX_GRID_CHANNELS] {
+    let mut cells = [[0; MAX_GRID_CHANNELS]; 4];
+    r.cells(grid, &mut cells);
+    let [c00, c10, c01, c11] = &cells;
+    let (fx, fy) = (r.footprint.fx, r.footprint.fy);
     let (gx, gy) = (256 - fx, 256 - fy);
     let w = [gx * gy, fx * gy, gx * fy, fx * fy];
     let mut values = [0i32; MAX_GRID_CHANNELS];
     // Lanes past the grid's channels stay 0.
-    let lanes = values.iter_mut().zip(&c00).zip(&c10).zip(&c01).zip(&c11);
+    let lanes = values.iter_mut().zip(c00).zip(c10).zip(c01).zip(c11);
     for ((((v, &a), &b), &c), &d) in lanes.take(grid.channels()) {
         *v = (w[0].wrapping_mul(a))
             .wrapping_add(w[1].wrapping_mul(b))
@@ -390,21 +448,80 @@ fn bilinear(
     values
 }
 
-/// The footprint of texel (x, y) (addressed) on `grid` and the dequantized latent values of its 4
-/// cells, in the order (x0, y0), (x1, y0), (x0, y1), (x1, y1); channels past the grid's are 0.
-fn footprint_cells(
-    grid: &LatentGrid<'_>,
-    x: u32,
-    y: u32,
-    mip_size: (u32, u32),
-    mode: AddressMode,
-) -> (Footprint, [[i32; MAX_GRID_CHANNELS]; 4]) {
-    let fp = footprint((grid.width(), grid.height()), x, y, mip_size, mode);
-    let mut cells = [[0; MAX_GRID_CHANNELS]; 4];
-    let [c00, c10, c01, c11] = &mut cells;
-    grid.cell_pair_values((fp.x0, fp.x1), fp.y0, (c00, c10));
-    grid.cell_pair_values((fp.x0, fp.x1), fp.y1, (c01, c11));
-    (fp, cells)
+/// What [`Material::read_latents`] reads for one texel: a [`Reads`] per grid of its level.
+pub(crate) type TexelReads = heapless::Vec<Reads, MAX_GRIDS>;
+
+/// The footprint of a texel on one grid and its cells' codes as read, a [`Row`] per row (y0, y1).
+pub(crate) struct Reads {
+    grid: u8,
+    footprint: Footprint,
+    rows: [Row; 2],
+}
+
+/// The codes of a footprint row's two cells, as [`LatentGrid::cells_window`] reads them: both
+/// in one window where one holds them, else a window per cell (`None`: a cell it cannot read,
+/// left to [`LatentGrid::cell_values`]).
+#[derive(Clone, Copy)]
+enum Row {
+    Pair(u64),
+    Cells(Option<u64>, Option<u64>),
+}
+
+impl Row {
+    /// Cells (x0, y) and (x1, y) of footprint `fp` on `grid`.
+    #[inline(always)]
+    fn read(grid: &LatentGrid<'_>, fp: &Footprint, y: u32) -> Row {
+        let pair =
+            if fp.x1 == fp.x0.wrapping_add(1) { grid.cells_window(fp.x0, y, 2) } else { None };
+        match pair {
+            Some(codes) => Row::Pair(codes),
+            None => Row::Cells(grid.cells_window(fp.x0, y, 1), grid.cells_window(fp.x1, y, 1)),
+        }
+    }
+}
+
+impl Reads {
+    /// Texel (x, y) (addressed) of a `mip_size` mip on grid number `index`, `grid`.
+    #[inline(always)]
+    fn new(
+        index: u8,
+        grid: &LatentGrid<'_>,
+        (x, y): (u32, u32),
+        mip_size: (u32, u32),
+        mode: AddressMode,
+    ) -> Reads {
+        let fp = footprint((grid.width(), grid.height()), x, y, mip_size, mode);
+        Reads {
+            grid: index,
+            footprint: fp,
+            rows: [Row::read(grid, &fp, fp.y0), Row::read(grid, &fp, fp.y1)],
+        }
+    }
+
+    /// The dequantized values of the 4 cells into `cells`, in the order (x0, y0), (x1, y0),
+    /// (x0, y1), (x1, y1); channels past the grid's are left alone.
+    #[inline(always)]
+    fn cells(&self, grid: &LatentGrid<'_>, cells: &mut [[i32; MAX_GRID_CHANNELS]; 4]) {
+        let fp = &self.footprint;
+        let [c00, c10, c01, c11] = cells;
+        for ((left, right), (y, row)) in
+            [(c00, c10), (c01, c11)].into_iter().zip([fp.y0, fp.y1].into_iter().zip(self.rows))
+        {
+            match row {
+                Row::Pair(codes) => grid.dequantize_pair(codes, (left, right)),
+                Row::Cells(l, r) => {
+                    for (x, window, out) in [(fp.x0, l, left), (fp.x1, r, right)] {
+                        match window {
+                            Some(codes) => {
+                                grid.dequantize(codes, out);
+                            }
+                            None => grid.cell_values(x, y, out),
+                        }
+                    }
+                }
+            }
+        }
+    }
 }
 
 /// Unit-scale clamp; NaN (impossible for validated weights, but cheap to rule out) maps to 0.

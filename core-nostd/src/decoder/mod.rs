@@ -388,9 +388,7 @@ impl Network {
         let f = neural.last_frac_bits();
         let mut xs = [[0i16; MAX_WIDTH]; GROUP];
         for (group, codes) in texels.chunks(GROUP).zip(out.chunks_mut(GROUP * n)) {
-            for (x, t) in xs.iter_mut().zip(group) {
-                *x = material.inputs(neural, t.x, t.y, t.mip);
-            }
+            material.inputs_group(neural, group, &mut xs);
             self.forward_int_group(kernel, &mut xs, group.len(), rows, None);
             for (x, texel) in xs.iter().zip(codes.chunks_exact_mut(n)) {
                 write_selected(rows, x, texel, |&v| narrow(code(v, f, full_scale)));

@@ -110,30 +110,16 @@ impl<'a> LatentGrid<'a> {
         }
     }
 
-    /// The values of cells (x0, y) and (x1, y) into `out.0` and `out.1`, as
-    /// [`LatentGrid::cell_values`]: with one read when x1 is the cell after x0 and the two cells'
-    /// codes span at most 57 bits.
-    pub(crate) fn cell_pair_values(
-        &self,
-        (x0, x1): (u32, u32),
-        y: u32,
-        out: (&mut [i32], &mut [i32]),
-    ) {
-        let window = if x1 == x0.wrapping_add(1) { self.cells_window(x0, y, 2) } else { None };
-        match window {
-            Some(codes) => {
-                let rest = self.dequantize(codes, out.0);
-                self.dequantize(rest, out.1);
-            }
-            None => {
-                self.cell_values(x0, y, out.0);
-                self.cell_values(x1, y, out.1);
-            }
-        }
+    /// The values of two consecutive cells from the codes of [`LatentGrid::cells_window`]`(…, 2)`.
+    #[inline]
+    pub(crate) fn dequantize_pair(&self, codes: u64, out: (&mut [i32], &mut [i32])) {
+        let rest = self.dequantize(codes, out.0);
+        self.dequantize(rest, out.1);
     }
 
     /// Dequantizes the codes of one cell, lowest bits first, into `out`; returns the bits left.
-    fn dequantize(&self, mut codes: u64, out: &mut [i32]) -> u64 {
+    #[inline]
+    pub(crate) fn dequantize(&self, mut codes: u64, out: &mut [i32]) -> u64 {
         let bits = u32::from(self.bits);
         let mask = (1u64 << bits) - 1;
         for (slot, q) in out.iter_mut().zip(self.quant.chunks_exact(4)) {
@@ -151,6 +137,7 @@ impl<'a> LatentGrid<'a> {
     /// channel c at bit (k · channels + c) · bits), when the cells are inside the grid and their
     /// codes span at most 57 bits (so that, wherever they start in a byte, one 64-bit read from
     /// that byte holds them).
+    #[inline(always)]
     pub(crate) fn cells_window(&self, x: u32, y: u32, count: u32) -> Option<u64> {
         let cell_bits = u32::from(self.bits) * u32::from(self.channels);
         let inside =
