@@ -185,6 +185,10 @@ pub struct BenchArgs {
     /// requests and channel subsets. Needs the `gpu` feature.
     #[arg(long)]
     pub gpu: bool,
+    /// The CPU rows only: a `--features gpu` build leaves out its GPU row (on a machine whose
+    /// only adapter is a software one, that row takes minutes and measures the CPU again).
+    #[arg(long, conflicts_with = "gpu")]
+    pub cpu_only: bool,
     /// With --ref: measure even when the reference maps do not match the material's
     /// channels by role.
     #[arg(long)]

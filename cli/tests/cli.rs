@@ -1471,6 +1471,22 @@ fn bench_gpu_row_on_a_software_adapter_decodes_the_region_only() {
     }
 }
 
+/// `nmat bench --cpu-only` leaves the GPU row out whatever the build (a `gpu` build would add it,
+/// minutes on a software adapter), and is refused together with `--gpu`.
+#[test]
+fn bench_cpu_only_leaves_out_the_gpu_row() {
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/ntc_rgb_64.nmat");
+    let f = fixture.to_str().unwrap();
+    let o = nmat(&["bench", f, "--region", "8", "--runs", "1", "--cpu-only"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let out = text(&o);
+    let gpu_lines: Vec<&str> = out.lines().filter(|l| l.trim_start().starts_with("GPU")).collect();
+    assert_eq!(gpu_lines, ["  GPU: not measured (--cpu-only)"], "{out}");
+    assert!(out.contains("peak multiply-add rate"), "no CPU rows:\n{out}");
+    let o = nmat(&["bench", f, "--gpu", "--cpu-only"]);
+    assert!(!o.status.success() && text(&o).contains("--cpu-only"), "{}", text(&o));
+}
+
 /// `nmat bench A B`: after the tables, B's decode speed against A's, timed in alternation (the
 /// machine's drift meets both): one line per file after the first, three positive ratios
 /// (region; random access one call a texel and a batch a call).

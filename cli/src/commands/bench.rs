@@ -28,6 +28,8 @@ struct Options {
     pub runs: usize,
     /// The GPU decoder's table (`--gpu`) instead of the CPU's.
     pub gpu: bool,
+    /// No GPU row in the CPU's table (`--cpu-only`).
+    pub cpu_only: bool,
     /// Measure against reference maps that do not match the material's channels by role.
     pub force: bool,
     /// Bytes a material's measurement may hold (`--max-memory`).
@@ -155,12 +157,12 @@ fn channels_of(mask: ChannelMask, count: usize) -> Vec<usize> {
 }
 
 pub fn run(args: BenchArgs) -> Result<()> {
-    let BenchArgs { inputs, reference, region, runs, gpu, force, memory } = args;
+    let BenchArgs { inputs, reference, region, runs, gpu, cpu_only, force, memory } = args;
     if region == 0 || runs == 0 {
         return Err("--region and --runs must be at least 1".into());
     }
     let max_memory = memory.bytes();
-    bench_all(&Options { inputs, reference, region, runs, gpu, force, max_memory })
+    bench_all(&Options { inputs, reference, region, runs, gpu, cpu_only, force, max_memory })
 }
 
 /// The tables of every material of `opts`.
@@ -322,7 +324,7 @@ fn bench_one(input: &Path, opts: &Options) -> Result<()> {
     let m = parse(&bytes, input)?;
     let (w, h) = m.mip_size(0);
     let side = (opts.region.min(w).max(1), opts.region.min(h).max(1));
-    check_memory(input, &m, side, opts.max_memory)?;
+    check_memory(input, &m, side, opts)?;
     if opts.gpu {
         println!(
             "{}: {w}×{h}, {} channels, {} mips, {} bytes, {} MACs/texel",
@@ -385,14 +387,18 @@ fn bench_one(input: &Path, opts: &Options) -> Result<()> {
         println!("  {note}");
     }
     reference_rows(&setup, &float_units_to_codes(&setup.float_units), opts.runs, png);
-    crate::gpu::bench_row(&m, side, &|name, secs, texels, scope| {
-        let texels = texels as f64;
-        println!(
-            "  {name:52} {:9.1} ns/texel {:12.0} texels/s ({scope})",
-            secs * 1e9 / texels,
-            texels / secs
-        );
-    })?;
+    if opts.cpu_only {
+        println!("  GPU: not measured (--cpu-only)");
+    } else {
+        crate::gpu::bench_row(&m, side, &|name, secs, texels, scope| {
+            let texels = texels as f64;
+            println!(
+                "  {name:52} {:9.1} ns/texel {:12.0} texels/s ({scope})",
+                secs * 1e9 / texels,
+                texels / secs
+            );
+        })?;
+    }
     println!();
     Ok(())
 }
@@ -400,12 +406,13 @@ fn bench_one(input: &Path, opts: &Options) -> Result<()> {
 /// Refuses a measurement of `m` whose buffers would exceed `--max-memory`, before any is
 /// allocated: per texel-channel of the region the float decode, the source, the codes of a mode
 /// and its float output; with the `gpu` feature the codes of the whole chain (the GPU row reads
-/// mip 0 back, `--gpu` the chain).
-fn check_memory(input: &Path, m: &Material<'_>, side: (u32, u32), max_memory: u64) -> Result<()> {
+/// mip 0 back, `--gpu` the chain), unless `--cpu-only`.
+fn check_memory(input: &Path, m: &Material<'_>, side: (u32, u32), opts: &Options) -> Result<()> {
+    let max_memory = opts.max_memory;
     let c = m.channel_count() as u64;
     let region = u64::from(side.0) * u64::from(side.1) * c * 16;
     let chain: u64 = (0..m.mip_count()).map(|i| m.decode_cost(i).texels).sum();
-    let gpu = if crate::gpu::BUILT { chain * c } else { 0 };
+    let gpu = if crate::gpu::BUILT && !opts.cpu_only { chain * c } else { 0 };
     let need = region + gpu;
     if need > max_memory {
         return Err(format!(
