@@ -8,9 +8,9 @@
 //! Prints the mean time per texel of the passes, and the fastest and median time of one row (or
 //! of 256 random texels): single rows are short enough that the fastest one is rarely disturbed
 //! by other work on a shared machine. To compare two builds, run them in turn many times
-//! (`scripts/alternate.sh`).
+//! (`bench/alternate.sh`).
 
-use nmat_core::{ChannelMask, Container, Decoder, Kernel, TexelAt};
+use nmat_core::{ChannelMask, Container, Decoder, Kernel, Material, TexelAt};
 use std::time::Instant;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -21,18 +21,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         None => Kernel::best(),
         Some(name) => Kernel::ALL.into_iter().find(|k| k.name() == name).ok_or(usage)?,
     };
-    let mode = std::env::args().nth(4);
-    let texel_by_texel = match mode.as_deref() {
-        None => false,
-        Some("texel") => true,
-        Some("random") => return random(&path, passes, kernel, 1),
-        Some("random256") => return random(&path, passes, kernel, 256),
-        Some(_) => return Err(usage.into()),
-    };
     let raw = std::fs::read(&path)?;
     let bytes = nmat_core::unpack(&raw, Default::default())?;
     let m = Container::parse(&bytes)?;
     let d = Decoder::with_kernel(&m, kernel)?;
+    let texel_by_texel = match std::env::args().nth(4).as_deref() {
+        None => false,
+        Some("texel") => true,
+        Some("random") => return random(&path, (&m, &d), passes, 1),
+        Some("random256") => return random(&path, (&m, &d), passes, 256),
+        Some(_) => return Err(usage.into()),
+    };
     let (w, h) = m.mip_size(0);
     let mut row = vec![0u8; w as usize * m.channel_count()];
     let mut rows = Vec::with_capacity(passes * h as usize);
@@ -61,14 +60,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 /// `passes` passes over `nmat bench`'s scattered texels of mip 0, `batch` a call.
 fn random(
     path: &str,
+    (m, d): (&Material<'_>, &Decoder),
     passes: usize,
-    kernel: Kernel,
     batch: usize,
 ) -> Result<(), Box<dyn std::error::Error>> {
-    let raw = std::fs::read(path)?;
-    let bytes = nmat_core::unpack(&raw, Default::default())?;
-    let m = Container::parse(&bytes)?;
-    let d = Decoder::with_kernel(&m, kernel)?;
     let (w, h) = m.mip_size(0);
     let n = w as usize * h as usize;
     // `nmat bench`'s order: a stride near 7919 coprime with the texel count.
@@ -91,9 +86,9 @@ fn random(
             for call in group.chunks(batch) {
                 if batch == 1 {
                     let t = call[0];
-                    d.decode_texel_u8(&m, t.x, t.y, t.mip, ChannelMask::ALL, &mut out)?;
+                    d.decode_texel_u8(m, t.x, t.y, t.mip, ChannelMask::ALL, &mut out)?;
                 } else {
-                    d.decode_texels_u8(&m, call, ChannelMask::ALL, &mut out)?;
+                    d.decode_texels_u8(m, call, ChannelMask::ALL, &mut out)?;
                 }
             }
             groups.push(group_start.elapsed().as_secs_f64() * 1e9 / group.len() as f64);
