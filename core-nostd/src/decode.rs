@@ -2,6 +2,7 @@
 //! run the MLP in float or integer arithmetic, scale the outputs. Every function here is total for
 //! a parsed material: any coordinate, mip and mask gives a value or a `BadArgument` error.
 
+#[cfg(feature = "alloc")]
 use crate::decoder::TexelAt;
 use crate::error::{Argument, Error};
 use crate::format::channel::{AddressMode, Channel};
@@ -204,7 +205,9 @@ impl<'a> Material<'a> {
     }
 
     /// [`Material::inputs`] of several texels into `ios`, one each: every texel's latents read
-    /// before any texel's inputs are computed, so their cache misses overlap.
+    /// before any texel's inputs are computed, so their cache misses overlap. (Only the
+    /// [`crate::Decoder`], which needs `alloc`, calls it.)
+    #[cfg(feature = "alloc")]
     pub(crate) fn inputs_group<T: Feature, const G: usize>(
         &self,
         n: &Neural<'_>,
