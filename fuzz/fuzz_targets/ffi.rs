@@ -72,6 +72,10 @@ fuzz_target!(|data: &[u8]| {
             2 => nmat_sample(h, call.a as f32 * 1e-3, call.b as f32 * 1e-3, call.c as f32 * 1e-2, call.mode % 5, call.mode / 5 % 3, floats.as_ptr(), call.mask, floats.as_mut_ptr().wrapping_add(3), len.min(floats.len() - 3)),
             3 => nmat_decode_region_u8(h, call.c, x0 % 64, y0 % 64, w % 9, hh % 9, call.mask, bytes.as_mut_ptr(), usize::from(call.pitch), bytes.len()),
             4 => nmat_decode_region_f32(h, call.c, x0 % 32, y0 % 32, w % 5, hh % 5, call.mask, call.mode, floats.as_mut_ptr(), usize::from(call.pitch), floats.len() * 4),
+            5 => {
+                let (mut row, mut total) = (0usize, 0usize);
+                nmat_required_size(h, x0 << 16 | w, y0 << 16 | hh, call.mask, call.a as usize, usize::from(call.pitch), &mut row, &mut total)
+            }
             // Up to 8 scattered texels (each a network evaluation), their addresses and mips from
             // the call, some far outside the mip or past the chain.
             6 => {
@@ -80,10 +84,6 @@ fuzz_target!(|data: &[u8]| {
                     .collect();
                 let at = if texels.is_empty() { null() } else { texels.as_ptr() };
                 nmat_decode_texels_u8(h, at, texels.len(), call.mask, bytes.as_mut_ptr(), usize::from(call.pitch).min(bytes.len()))
-            }
-            5 => {
-                let (mut row, mut total) = (0usize, 0usize);
-                nmat_required_size(h, x0 << 16 | w, y0 << 16 | hh, call.mask, call.a as usize, usize::from(call.pitch), &mut row, &mut total)
             }
             _ => {
                 let mut info = nmat_info::default();

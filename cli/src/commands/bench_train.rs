@@ -116,8 +116,9 @@ fn measure(o: &Options) -> Result<()> {
         ..TrainOptions::default()
     };
     let batch = base.batch;
-    let flops: u64 =
-        (0..o.steps).map(|s| mlp_flops_per_sample(&cfg, base.phase(s)) * batch as u64).sum();
+    let flops: u64 = (0..o.steps)
+        .map(|s| mlp_flops_per_sample(&cfg, base.latents_train(s)) * batch as u64)
+        .sum();
     println!(
         "material: {} ({}×{}, {} channels), profile {}, network {} → {:?} → {}, batch {batch}, {} steps per run ({} % joint, {} % quantization-aware), median of {}",
         o.label,

@@ -137,6 +137,31 @@ mod tests {
         assert!(q.latent_lr(999) < 0.011 * 0.1 * q.lr_latents);
     }
 
+    /// `nmat bench-train`'s work count: a step whose latents train also pays the first layer's
+    /// input gradients (its input width × first hidden width multiply-adds, 2 flops each), in the
+    /// quantization-aware phase too when `qat_lr_latents` > 0.
+    #[test]
+    fn flops_count_the_first_layers_input_gradients_while_latents_train() {
+        use crate::profile::{MaterialShape, Profile, configure};
+        let shape = MaterialShape {
+            width: 256,
+            height: 256,
+            mip_count: 9,
+            channels: 8,
+            learned: 8,
+            optional_bytes: 0,
+        };
+        let cfg = configure(Profile::by_name("ntc-0.2").unwrap(), &shape);
+        let first = 2 * (cfg.input_width() * cfg.hidden[0]) as u64;
+        assert_eq!(mlp_flops_per_sample(&cfg, true) - mlp_flops_per_sample(&cfg, false), first);
+        let o = TrainOptions { steps: 1000, ..TrainOptions::default() };
+        let q = TrainOptions { qat_lr_latents: 0.1, ..o.clone() };
+        let qat = o.qat_start();
+        let per_step = |t: &TrainOptions, s| mlp_flops_per_sample(&cfg, t.latents_train(s));
+        assert_eq!(per_step(&o, 0), per_step(&q, qat));
+        assert_eq!(per_step(&o, qat) + first, per_step(&q, qat));
+    }
+
     #[test]
     fn int8_weights_run_in_the_last_int8_percent_and_the_quantization_aware_phase() {
         let o = TrainOptions { steps: 1000, ..Default::default() };

@@ -202,15 +202,17 @@ pub enum Phase {
 }
 
 /// Floating-point operations (2 per multiply-add) of the MLP's matrix products per training
-/// sample in `phase`: forward, weight gradients, and input gradients of every layer but the
-/// first — of the first too while latents train. What `nmat bench-train` counts as work.
-pub fn mlp_flops_per_sample(cfg: &ModelConfig, phase: Phase) -> u64 {
+/// sample: forward, weight gradients, and input gradients of every layer but the first — of the
+/// first too when `latents_train` (at a step `s`, [`TrainOptions::latents_train`]`(s)`: the joint
+/// phase, and the quantization-aware one when `qat_lr_latents` > 0). What `nmat bench-train`
+/// counts as work.
+pub fn mlp_flops_per_sample(cfg: &ModelConfig, latents_train: bool) -> u64 {
     let mut widths = vec![cfg.input_width()];
     widths.extend(&cfg.hidden);
     widths.push(cfg.outputs.max(1));
     let products: Vec<u64> = widths.windows(2).map(|w| (w[0] * w[1]) as u64).collect();
     let all: u64 = products.iter().sum();
-    let input_grads = if phase == Phase::Joint { all } else { all - products[0] };
+    let input_grads = if latents_train { all } else { all - products[0] };
     2 * (2 * all + input_grads)
 }
 
