@@ -3,7 +3,7 @@
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use nmat_encode::texset;
-use nmat_encode::{Effort, TrainOptions};
+use nmat_encode::{Effort, LayoutChoice, TrainOptions};
 use std::path::PathBuf;
 
 #[derive(Parser)]
@@ -325,6 +325,23 @@ impl From<EffortArg> for Effort {
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum LayoutArg {
+    Trial,
+    ResolutionFirst,
+    BitsFirst,
+}
+
+impl From<LayoutArg> for LayoutChoice {
+    fn from(l: LayoutArg) -> LayoutChoice {
+        match l {
+            LayoutArg::Trial => LayoutChoice::Trial,
+            LayoutArg::ResolutionFirst => LayoutChoice::ResolutionFirst,
+            LayoutArg::BitsFirst => LayoutChoice::BitsFirst,
+        }
+    }
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum CodecArg {
     Neural,
     Jpeg,
@@ -407,6 +424,12 @@ pub struct EncodeArgs {
     /// the nominal rate [default: 1.5].
     #[arg(long, conflicts_with = "fixed_rate")]
     pub memory_factor: Option<f64>,
+    /// Neural, packed ntc-0.2: how the in-memory layout grows past the nominal one — `trial`
+    /// trains the grids' resolution first and one more bit per latent first for a quarter of the
+    /// steps each and keeps the better (about 1.5× the encode time); the others take that way
+    /// without a trial (docs/ENCODING.md, "The layout trial")
+    #[arg(long, value_enum, default_value_t = LayoutArg::Trial, conflicts_with = "fixed_rate")]
+    pub layout: LayoutArg,
     /// Solve the layout and print the file's byte budget without training; writes nothing.
     #[arg(long, conflicts_with = "target_psnr")]
     pub dry_run: bool,

@@ -129,6 +129,8 @@ pub fn encode_with_progress(set: &TextureSet, options: &EncodeOptions) -> Result
     let steps = options.train.steps as u64;
     let mut progress = Progress::new(options.profile.name(), steps, "steps");
     let encoded = encode(set, options, &mut |p| {
+        // A layout trial adds its steps to the count.
+        progress.set_total(p.steps as u64);
         progress.set(p.step as u64, &|| format!("train PSNR {:.2} dB ({:?})", p.psnr, p.phase));
     })?;
     progress.finish();

@@ -54,6 +54,16 @@ impl Progress {
         }
     }
 
+    /// Changes the total (more work found on the way).
+    pub fn set_total(&mut self, total: u64) {
+        if total != self.total {
+            self.total = total;
+            if let Some(bar) = &self.bar {
+                bar.set_length(total);
+            }
+        }
+    }
+
     pub fn inc(&mut self, units: u64) {
         self.set(self.done + units, &String::new);
     }

@@ -636,6 +636,50 @@ fn effort_fast_is_a_quarter_of_the_default_steps_and_conflicts_with_steps() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `--layout`: a packed `ntc-0.2` file of a 512² material has two layouts; `--dry-run` shows
+/// both, the default trial says what each way measured and which it kept, a forced way runs no
+/// trial and is the trial's file where the trial kept it.
+#[test]
+fn the_layout_trial_is_shown_and_can_be_skipped() {
+    let dir = temp_dir("layout-trial");
+    let src = dir.join("src");
+    write_maps(&src, 512);
+    let s = src.to_str().unwrap();
+    let out = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    let encode = |name: &str, extra: &[&str]| {
+        let o = out(name);
+        nmat(
+            &[&["encode", s, "-o", &o, "--profile", "ntc-0.2", "--steps", "40"][..], extra]
+                .concat(),
+        )
+    };
+    let o = encode("plan.nmat", &["--dry-run"]);
+    assert!(
+        o.status.success() && text(&o).contains("or, one more bit per latent first"),
+        "{}",
+        text(&o)
+    );
+    let o = encode("trial.nmat", &[]);
+    let said = text(&o);
+    assert!(o.status.success(), "{said}");
+    let line =
+        said.lines().find(|l| l.starts_with("layout trial")).unwrap_or_else(|| panic!("{said}"));
+    let kept = if line.ends_with("kept one more bit per latent first") {
+        "bits-first"
+    } else {
+        assert!(line.ends_with("kept the grids' resolution first"), "{line}");
+        "resolution-first"
+    };
+    let o = encode("forced.nmat", &["--layout", kept]);
+    assert!(o.status.success() && !text(&o).contains("layout trial"), "{}", text(&o));
+    let same =
+        std::fs::read(out("trial.nmat")).unwrap() == std::fs::read(out("forced.nmat")).unwrap();
+    assert!(same, "{kept}: the trial's file differs from the way it kept");
+    let o = encode("fixed.nmat", &["--fixed-rate", "--layout", "bits-first"]);
+    assert!(!o.status.success() && text(&o).contains("cannot be used with"), "{}", text(&o));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn bench_train_reports_every_kernel_row_and_refuses_bad_options() {
     let dir = temp_dir("bench-train");
@@ -1090,6 +1134,7 @@ fn encode_codec_jpeg_writes_a_material_decode_and_eval_read() {
         (vec!["--codec", "jpeg", "--steps", "10"], "--steps belongs to the neural codec"),
         (vec!["--codec", "jpeg", "--legacy-lod"], "--legacy-lod belongs to the neural codec"),
         (vec!["--codec", "jpeg", "--effort", "max"], "--effort belongs to the neural codec"),
+        (vec!["--codec", "jpeg", "--layout", "bits-first"], "--layout belongs to the neural codec"),
         (vec!["--subsampling", "4:4:4"], "--subsampling belongs to the JPEG codec"),
         (vec!["--quality", "50"], "--quality 50: sets the JPEG codec's quality"),
         (vec!["--codec", "jpeg", "--quality", "0"], "'--quality"),

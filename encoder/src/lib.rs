@@ -29,7 +29,8 @@ pub use error::{EncodeError, EncodeOption};
 pub use gemm::TrainKernel;
 use profile::RATE_TOLERANCE;
 pub use profile::{
-    ByteBudget, DEFAULT_PROFILE, MaterialShape, ModelConfig, PROFILES, Profile, configure,
+    BITS_FIRST_MAX_BITS, ByteBudget, DEFAULT_PROFILE, MaterialShape, ModelConfig, PROFILES,
+    Profile, configure,
 };
 pub use train::{DEFAULT_STEPS, Effort, Phase, Progress, TrainOptions};
 
@@ -57,7 +58,29 @@ pub struct EncodeOptions {
     /// (fixed-rate files) and 2.2 (packed) decode the file; by default the feature is 2.3's
     /// `mip / 2`, which keeps the int8 network closer to the float one (docs/ENCODING.md).
     pub legacy_lod: bool,
+    /// How a packed layout grows to its in-memory size where there are two ways
+    /// (docs/ENCODING.md, "The layout trial"); default [`LayoutChoice::Trial`].
+    pub layout: LayoutChoice,
 }
+
+/// How a packed file's in-memory layout is grown past the nominal one, where a profile has two
+/// ways (`ntc-0.2`, whose 2-bit latents can take a third bit: [`layouts`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LayoutChoice {
+    /// Train each way for [`TRIAL_SHARE`] of the steps and keep the one whose file decodes with
+    /// the higher whole-chain PSNR; then train it in full (the encode takes about 1.5× as long).
+    #[default]
+    Trial,
+    /// The grids' resolution first (the layout where there is only one way).
+    ResolutionFirst,
+    /// One more bit per latent first, then the grids' resolution.
+    BitsFirst,
+}
+
+/// The share of the steps each layout of a [`LayoutChoice::Trial`] trains for: a quarter, what
+/// `--effort fast` trains (on the development sets its ranking of the two ways agreed with full
+/// trainings', docs/ENCODING.md, "The layout trial").
+pub const TRIAL_SHARE: f64 = 0.25;
 
 /// The default [`EncodeOptions::memory_factor`] (docs/ENCODING.md, "Rate control").
 pub const DEFAULT_MEMORY_FACTOR: f64 = 1.5;
@@ -94,13 +117,26 @@ pub struct Layout {
 /// The layout of `profile` for a material of `shape` stored as `storage`: fixed-rate, the
 /// nominal-size model ([`configure`]); packed, the same latent channels and network with grids
 /// solved for `memory_factor` × the nominal size, and the coded size of latents that makes the
-/// packed file nominal.
+/// packed file nominal. Where there are two ways to grow it, the first of [`layouts`]: the grids'
+/// resolution first.
 pub fn layout(
     profile: Profile,
     shape: &MaterialShape,
     storage: Storage,
     memory_factor: f64,
 ) -> Result<Layout, EncodeError> {
+    Ok(layouts(profile, shape, storage, memory_factor)?.swap_remove(0))
+}
+
+/// The layouts an encode of `profile` chooses between ([`EncodeOptions::layout`]): one, or for
+/// a packed `ntc-0.2` file two — the grids' resolution grown first, and one more bit per latent
+/// first ([`BITS_FIRST_MAX_BITS`]) — where they differ.
+pub fn layouts(
+    profile: Profile,
+    shape: &MaterialShape,
+    storage: Storage,
+    memory_factor: f64,
+) -> Result<Vec<Layout>, EncodeError> {
     if !(1.0..=MAX_MEMORY_FACTOR).contains(&memory_factor) {
         return Err(EncodeError::BadOption {
             option: EncodeOption::MemoryFactor,
@@ -113,20 +149,26 @@ pub fn layout(
     // A material too small for the rate (its smallest model is above it) has no latent bytes to
     // steer: it keeps the nominal model.
     let too_small = nominal.byte_budget(shape).total() as f64 > bytes * (1.0 + RATE_TOLERANCE);
+    let unsteered = vec![Layout { config: nominal.clone(), latent_bytes: None }];
     if storage == Storage::FixedRate || memory_factor == 1.0 || too_small {
-        return Ok(Layout { config: nominal, latent_bytes: None });
+        return Ok(unsteered);
     }
-    let config = profile::configure_like(profile, shape, bytes * memory_factor, &nominal);
-    let budget = config.byte_budget(shape);
-    // All but the latents are stored as they are; a packed section starts with an 8-byte
-    // header (docs/FORMAT.md §12.1).
-    let target = bytes - (budget.total() - budget.latents + 8) as f64;
-    // Latents that all sit on their middle code still cost what the coder needs to learn that;
-    // where that is a large share of the target (small grids), steering would crush them.
-    if target < MIN_STEERING_ROOM * floor_bytes(&config) as f64 {
-        return Ok(Layout { config: nominal, latent_bytes: None });
-    }
-    Ok(Layout { config, latent_bytes: Some(target) })
+    let target_size = bytes * memory_factor;
+    let grown = profile::configure_like(profile, shape, target_size, &nominal);
+    let bits_first = profile::configure_bits_first(profile, shape, target_size, &nominal);
+    let steered = |config: ModelConfig| {
+        let budget = config.byte_budget(shape);
+        // All but the latents are stored as they are; a packed section starts with an 8-byte
+        // header (docs/FORMAT.md §12.1).
+        let target = bytes - (budget.total() - budget.latents + 8) as f64;
+        // Latents that all sit on their middle code still cost what the coder needs to learn
+        // that; where that is a large share of the target (small grids), steering would crush
+        // them.
+        (target >= MIN_STEERING_ROOM * floor_bytes(&config) as f64)
+            .then_some(Layout { config, latent_bytes: Some(target) })
+    };
+    let Some(first) = steered(grown) else { return Ok(unsteered) };
+    Ok([Some(first), bits_first.and_then(steered)].into_iter().flatten().collect())
 }
 
 /// How a file stores its latents, or its JPEG streams' index (docs/FORMAT.md §12).
@@ -151,6 +193,7 @@ impl Default for EncodeOptions {
             storage: Storage::default(),
             memory_factor: DEFAULT_MEMORY_FACTOR,
             legacy_lod: false,
+            layout: LayoutChoice::default(),
         }
     }
 }
@@ -166,6 +209,8 @@ pub struct Encoded {
     /// Whole-chain quality of the integer decoder against the source mip chain; its `bppc` is
     /// the rate of [`Encoded::file`].
     pub quality: metrics::ChainQuality,
+    /// The layout trial's measurements, where the encode ran one.
+    pub trial: Option<LayoutTrial>,
 }
 
 /// The packed form of a fixed-rate file (docs/FORMAT.md §12) when `storage` asks for it and it
@@ -185,25 +230,84 @@ impl Encoded {
 }
 
 /// Trains a model for `set` and writes it. Deterministic: the same set, options and seed give the
-/// same bytes, whatever the number of threads.
+/// same bytes, whatever the number of threads. Where the profile has two layouts ([`layouts`])
+/// and [`EncodeOptions::layout`] is a trial, `progress` counts the trials' steps too.
 pub fn encode(
     set: &TextureSet,
     options: &EncodeOptions,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Encoded, EncodeError> {
     let shape = shape_of(set);
-    let Layout { mut config, latent_bytes } =
-        layout(options.profile, &shape, options.storage, options.memory_factor)?;
+    let mut candidates = layouts(options.profile, &shape, options.storage, options.memory_factor)?;
+    let trial_steps = ((options.train.steps as f64 * TRIAL_SHARE).round() as usize).max(1);
+    let trials = if candidates.len() > 1 && options.layout == LayoutChoice::Trial { 2 } else { 0 };
+    let total = options.train.steps + trials * trial_steps;
+    // Steps counted over the trials and the training: `done` steps before this one.
+    let mut counted =
+        |done: usize, p: Progress| progress(Progress { step: done + p.step, steps: total, ..p });
+    let mut trial = None;
+    let bits_first = candidates.len() > 1
+        && match options.layout {
+            LayoutChoice::ResolutionFirst => false,
+            LayoutChoice::BitsFirst => true,
+            LayoutChoice::Trial => {
+                let mut psnr = [0.0; 2];
+                for (k, (db, layout)) in psnr.iter_mut().zip(&candidates).enumerate() {
+                    let o = TrainOptions { steps: trial_steps, ..options.train.clone() };
+                    let done = k * trial_steps;
+                    *db =
+                        trained(set, options, layout, &o, &mut |p| counted(done, p))?.quality.psnr;
+                }
+                let t = LayoutTrial { resolution_first_db: psnr[0], bits_first_db: psnr[1] };
+                trial = Some(t);
+                t.chosen() == LayoutChoice::BitsFirst
+            }
+        };
+    let layout = candidates.swap_remove(usize::from(bits_first));
+    let done = trials * trial_steps;
+    let encoded = trained(set, options, &layout, &options.train, &mut |p| counted(done, p))?;
+    Ok(Encoded { trial, ..encoded })
+}
+
+/// What a layout trial measured ([`LayoutChoice::Trial`]): each way's whole-chain PSNR (integer
+/// decoder, stored file) after [`TRIAL_SHARE`] of the steps.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LayoutTrial {
+    pub resolution_first_db: f64,
+    pub bits_first_db: f64,
+}
+
+impl LayoutTrial {
+    /// The way the encode kept: bits first where its trial decoded strictly better.
+    pub fn chosen(&self) -> LayoutChoice {
+        if self.bits_first_db > self.resolution_first_db {
+            LayoutChoice::BitsFirst
+        } else {
+            LayoutChoice::ResolutionFirst
+        }
+    }
+}
+
+/// `layout` trained for `set` with `train`, its latents steered to the layout's coded size (no
+/// trial).
+fn trained(
+    set: &TextureSet,
+    options: &EncodeOptions,
+    layout: &Layout,
+    train: &TrainOptions,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<Encoded, EncodeError> {
+    let mut config = layout.config.clone();
     if options.legacy_lod && config.lod_code != 0 {
         config.lod_code = 1;
     }
-    let train_options = TrainOptions { latent_bytes, ..options.train.clone() };
+    let train_options = TrainOptions { latent_bytes: layout.latent_bytes, ..train.clone() };
     let mut model = train::Model::new(set, &config, options.address_mode, &train_options);
     model.train(&train_options, progress);
     let spec = to_spec(set, &model, options)?;
     let bytes = spec.to_bytes()?;
     let (packed, quality) = as_stored(&bytes, set, options.storage)?;
-    Ok(Encoded { bytes, packed, config, quality })
+    Ok(Encoded { bytes, packed, config, quality, trial: None })
 }
 
 /// A fixed-rate file as it will be stored: its packed form where `storage` asks for one and it

@@ -255,8 +255,54 @@ pub fn configure_like(
     target: f64,
     like: &ModelConfig,
 ) -> ModelConfig {
+    let size = |cfg: &ModelConfig| cfg.byte_budget(shape).total() as f64;
+    let mut best = grown(profile, shape, target, like, 0);
+    for extra in 1..=2 {
+        if size(&best) >= target * (1.0 - BITS_STEP_ROOM) {
+            break;
+        }
+        let more = grown(profile, shape, target, like, extra);
+        if (size(&more) - target).abs() < (size(&best) - target).abs() {
+            best = more;
+        }
+    }
+    best
+}
+
+/// The most bits a high-resolution latent takes in a bits-first layout (`configure_bits_first`):
+/// from 4 bits up, the layouts measured did better with larger grids (`ntc-0.5`, `ntc-1.0`: 7
+/// of 8) and 5-bit latents decoded slower (docs/ENCODING.md, "The bits step").
+pub const BITS_FIRST_MAX_BITS: u8 = 4;
+
+/// The other way to grow `like` toward `target` bytes, for a layout trial: one more bit per
+/// latent first, then the grids' resolution. Only NTC layouts whose high-resolution latents stay
+/// within [`BITS_FIRST_MAX_BITS`] have it (`ntc-0.2`: 3-bit high-resolution and 5-bit smooth
+/// grids), and only where it differs from [`configure_like`]'s; `None` otherwise.
+pub fn configure_bits_first(
+    profile: Profile,
+    shape: &MaterialShape,
+    target: f64,
+    like: &ModelConfig,
+) -> Option<ModelConfig> {
+    let Profile::Ntc { hi_bits, .. } = profile else { return None };
+    if hi_bits + 1 > BITS_FIRST_MAX_BITS {
+        return None;
+    }
+    let cfg = grown(profile, shape, target, like, 1);
+    (cfg != configure_like(profile, shape, target, like)).then_some(cfg)
+}
+
+/// `like` with `extra` more bits per latent (at most 8) and its grids' resolution solved so that
+/// the fixed-rate file comes nearest `target` bytes.
+fn grown(
+    profile: Profile,
+    shape: &MaterialShape,
+    target: f64,
+    like: &ModelConfig,
+    extra: u8,
+) -> ModelConfig {
     let hidden = like.hidden[0];
-    let with_bits = |extra: u8| match profile {
+    match profile {
         Profile::Ntc { hi_divisor, hi_bits, lo_bits, .. } => {
             let (c_hi, c_lo) = (like.grids[0].channels, like.grids[1].channels);
             let bits = |b: u8| (b + extra).min(8);
@@ -278,19 +324,7 @@ pub fn configure_like(
                 cfg
             })
         }
-    };
-    let size = |cfg: &ModelConfig| cfg.byte_budget(shape).total() as f64;
-    let mut best = with_bits(0);
-    for extra in 1..=2 {
-        if size(&best) >= target * (1.0 - BITS_STEP_ROOM) {
-            break;
-        }
-        let more = with_bits(extra);
-        if (size(&more) - target).abs() < (size(&best) - target).abs() {
-            best = more;
-        }
     }
-    best
 }
 
 /// The resolution factor of a continuous grid knob that brings the file closest to `target`

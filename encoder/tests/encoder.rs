@@ -6,7 +6,8 @@
 use nmat_core::{ChannelMask, Container};
 use nmat_encode::texset::{self, FileLayout, LoadOptions, Role, role_from_name};
 use nmat_encode::{
-    EncodeError, EncodeOptions, Profile, TrainKernel, TrainOptions, demo, encode, source_maps,
+    DEFAULT_MEMORY_FACTOR, EncodeError, EncodeOptions, LayoutChoice, ModelConfig, Profile, Storage,
+    TrainKernel, TrainOptions, demo, encode, layouts, source_maps,
 };
 use std::path::{Path, PathBuf};
 
@@ -159,6 +160,60 @@ fn packed_files_land_at_the_nominal_rate_on_disk() {
         let (_, length) = nmat_tests::files::section(packed, 6); // PACKED_LATENTS
         assert_eq!(nmat_core::internals::coded_latents_len(&views) + 8, length, "{profile}");
     }
+}
+
+/// The layout trial (docs/ENCODING.md): a packed `ntc-0.2` file can grow its in-memory layout
+/// by the grids' resolution first or by one more bit per latent first; the trial trains each way
+/// for a quarter of the steps and keeps the one whose file decodes better, then trains it in full.
+#[test]
+fn the_layout_trial_keeps_the_way_whose_short_training_decoded_better() {
+    // 256² would be too small: its grids at their largest stay far under the memory factor, so
+    // the grids' resolution way takes the bit too and the two ways are one.
+    let set = demo::bricks(512);
+    let shape = nmat_encode::shape_of(&set);
+    let profile = Profile::by_name("ntc-0.2").unwrap();
+    let ways = layouts(profile, &shape, Storage::Packed, DEFAULT_MEMORY_FACTOR).unwrap();
+    assert_eq!(ways.len(), 2, "{ways:?}");
+    let bits = |c: &ModelConfig| c.grids.iter().map(|g| g.bits).collect::<Vec<_>>();
+    let more: Vec<u8> = bits(&ways[0].config).iter().map(|b| b + 1).collect();
+    assert_eq!(bits(&ways[1].config), more, "one more bit on every grid");
+    let size = |c: &ModelConfig| c.byte_budget(&shape).total() as f64;
+    let target = DEFAULT_MEMORY_FACTOR * shape.budget_bits(0.2) / 8.0;
+    assert!(ways.iter().all(|w| size(&w.config) <= target * 1.02), "within the memory factor");
+    // One way only for the other profiles, for fixed-rate files and for the nominal layout.
+    for other in ["ntc-0.5", "ntc-1.0", "nbc-0.1"] {
+        let p = Profile::by_name(other).unwrap();
+        assert_eq!(layouts(p, &shape, Storage::Packed, 1.5).unwrap().len(), 1, "{other}");
+    }
+    assert_eq!(layouts(profile, &shape, Storage::FixedRate, 1.5).unwrap().len(), 1);
+    assert_eq!(layouts(profile, &shape, Storage::Packed, 1.0).unwrap().len(), 1);
+
+    let steps = 200;
+    let run = |layout: LayoutChoice, steps: usize| {
+        let o = EncodeOptions { layout, ..options("ntc-0.2", steps, 3) };
+        encode(&set, &o, &mut |_| {}).unwrap()
+    };
+    let resolution_first = run(LayoutChoice::ResolutionFirst, steps);
+    let bits_first = run(LayoutChoice::BitsFirst, steps);
+    assert_eq!((&resolution_first.config, resolution_first.trial), (&ways[0].config, None));
+    assert_eq!((&bits_first.config, bits_first.trial), (&ways[1].config, None));
+    let mut counted = Vec::new();
+    let o = options("ntc-0.2", steps, 3);
+    let tried = encode(&set, &o, &mut |p| counted.push((p.step, p.steps))).unwrap();
+    let trial = tried.trial.unwrap();
+    // Each way's trial is that way trained for a quarter of the steps.
+    assert_eq!(trial.resolution_first_db, run(LayoutChoice::ResolutionFirst, 50).quality.psnr);
+    assert_eq!(trial.bits_first_db, run(LayoutChoice::BitsFirst, 50).quality.psnr);
+    let kept = if trial.bits_first_db > trial.resolution_first_db {
+        &bits_first
+    } else {
+        &resolution_first
+    };
+    eprintln!("trial: {trial:?}; kept {:?}", bits(&kept.config));
+    assert!(tried.bytes == kept.bytes, "the file is the kept way trained in full");
+    // Progress counts the trials' steps with the training's, and ends at their sum.
+    assert!(counted.windows(2).all(|w| w[0].0 <= w[1].0), "{counted:?}");
+    assert_eq!(counted.last(), Some(&(steps + 2 * 50, steps + 2 * 50)));
 }
 
 #[test]

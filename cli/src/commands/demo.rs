@@ -31,6 +31,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         storage: Default::default(),
         memory_factor: nmat_encode::DEFAULT_MEMORY_FACTOR,
         legacy_lod: false,
+        layout: Default::default(),
     };
     let encoded = encode_with_progress(&set, &options)?;
     let path = out.join("demo.nmat");
