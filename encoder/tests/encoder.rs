@@ -188,7 +188,7 @@ fn the_layout_trial_keeps_the_way_whose_short_training_decoded_better() {
     assert_eq!(layouts(profile, &shape, Storage::FixedRate, 1.5).unwrap().len(), 1);
     assert_eq!(layouts(profile, &shape, Storage::Packed, 1.0).unwrap().len(), 1);
 
-    let steps = 200;
+    let (steps, quarter) = (80, 20);
     let run = |layout: LayoutChoice, steps: usize| {
         let o = EncodeOptions { layout, ..options("ntc-0.2", steps, 3) };
         encode(&set, &o, &mut |_| {}).unwrap()
@@ -202,8 +202,8 @@ fn the_layout_trial_keeps_the_way_whose_short_training_decoded_better() {
     let tried = encode(&set, &o, &mut |p| counted.push((p.step, p.steps))).unwrap();
     let trial = tried.trial.unwrap();
     // Each way's trial is that way trained for a quarter of the steps.
-    assert_eq!(trial.resolution_first_db, run(LayoutChoice::ResolutionFirst, 50).quality.psnr);
-    assert_eq!(trial.bits_first_db, run(LayoutChoice::BitsFirst, 50).quality.psnr);
+    assert_eq!(trial.resolution_first_db, run(LayoutChoice::ResolutionFirst, quarter).quality.psnr);
+    assert_eq!(trial.bits_first_db, run(LayoutChoice::BitsFirst, quarter).quality.psnr);
     let kept = if trial.bits_first_db > trial.resolution_first_db {
         &bits_first
     } else {
@@ -213,7 +213,7 @@ fn the_layout_trial_keeps_the_way_whose_short_training_decoded_better() {
     assert!(tried.bytes == kept.bytes, "the file is the kept way trained in full");
     // Progress counts the trials' steps with the training's, and ends at their sum.
     assert!(counted.windows(2).all(|w| w[0].0 <= w[1].0), "{counted:?}");
-    assert_eq!(counted.last(), Some(&(steps + 2 * 50, steps + 2 * 50)));
+    assert_eq!(counted.last(), Some(&(steps + 2 * quarter, steps + 2 * quarter)));
 }
 
 #[test]
