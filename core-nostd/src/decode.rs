@@ -199,9 +199,23 @@ impl<'a> Material<'a> {
         let mut reads = TexelReads::new();
         self.read_latents(n, texel, &mut reads);
         let mut io = [T::default(); MAX_WIDTH];
-        let input_frac_bits = n.mlp.input_frac_bits;
-        self.gather(n, texel, &reads, &mut Inputs { io: &mut io, next: 0, input_frac_bits });
+        self.gather_into(n, texel, &reads, &mut io);
         io
+    }
+
+    /// The network's input vector of an (addressed) texel into `io` (zeroed first), from its
+    /// latents as [`Material::read_latents`] read them.
+    #[inline(always)]
+    fn gather_into<T: Feature>(
+        &self,
+        n: &Neural<'_>,
+        texel: (u32, u32, u32),
+        reads: &TexelReads,
+        io: &mut [T; MAX_WIDTH],
+    ) {
+        *io = [T::default(); MAX_WIDTH];
+        let input_frac_bits = n.mlp.input_frac_bits;
+        self.gather(n, texel, reads, &mut Inputs { io, next: 0, input_frac_bits });
     }
 
     /// [`Material::inputs`] of several texels into `ios`, one each: every texel's latents read
@@ -220,10 +234,8 @@ impl<'a> Material<'a> {
             *a = self.address_texel(t.x, t.y, t.mip);
             self.read_latents(n, *a, r);
         }
-        let input_frac_bits = n.mlp.input_frac_bits;
         for ((io, r), &texel) in ios.iter_mut().zip(&reads).zip(&at).take(texels.len()) {
-            *io = [T::default(); MAX_WIDTH];
-            self.gather(n, texel, r, &mut Inputs { io, next: 0, input_frac_bits });
+            self.gather_into(n, texel, r, io);
         }
     }
 

@@ -114,23 +114,12 @@ pub struct Layout {
     pub latent_bytes: Option<f64>,
 }
 
-/// The layout of `profile` for a material of `shape` stored as `storage`: fixed-rate, the
-/// nominal-size model ([`configure`]); packed, the same latent channels and network with grids
-/// solved for `memory_factor` × the nominal size, and the coded size of latents that makes the
-/// packed file nominal. Where there are two ways to grow it, the first of [`layouts`]: the grids'
-/// resolution first.
-pub fn layout(
-    profile: Profile,
-    shape: &MaterialShape,
-    storage: Storage,
-    memory_factor: f64,
-) -> Result<Layout, EncodeError> {
-    Ok(layouts(profile, shape, storage, memory_factor)?.swap_remove(0))
-}
-
-/// The layouts an encode of `profile` chooses between ([`EncodeOptions::layout`]): one, or for
-/// a packed `ntc-0.2` file two — the grids' resolution grown first, and one more bit per latent
-/// first ([`BITS_FIRST_MAX_BITS`]) — where they differ.
+/// The layouts of `profile` for a material of `shape` stored as `storage`, which an encode
+/// chooses between ([`EncodeOptions::layout`]). Fixed-rate, the nominal-size model
+/// ([`configure`]); packed, the same latent channels and network with grids solved for
+/// `memory_factor` × the nominal size, and the coded size of latents that makes the packed file
+/// nominal: the grids' resolution grown first, and for `ntc-0.2` a second layout, one more bit
+/// per latent first ([`BITS_FIRST_MAX_BITS`]), where the two differ.
 pub fn layouts(
     profile: Profile,
     shape: &MaterialShape,
@@ -155,7 +144,8 @@ pub fn layouts(
     }
     let target_size = bytes * memory_factor;
     let grown = profile::configure_like(profile, shape, target_size, &nominal);
-    let bits_first = profile::configure_bits_first(profile, shape, target_size, &nominal);
+    let bits_first = profile::configure_bits_first(profile, shape, target_size, &nominal)
+        .filter(|cfg| *cfg != grown);
     let steered = |config: ModelConfig| {
         let budget = config.byte_budget(shape);
         // All but the latents are stored as they are; a packed section starts with an 8-byte

@@ -277,7 +277,7 @@ pub const BITS_FIRST_MAX_BITS: u8 = 4;
 /// The other way to grow `like` toward `target` bytes, for a layout trial: one more bit per
 /// latent first, then the grids' resolution. Only NTC layouts whose high-resolution latents stay
 /// within [`BITS_FIRST_MAX_BITS`] have it (`ntc-0.2`: 3-bit high-resolution and 5-bit smooth
-/// grids), and only where it differs from [`configure_like`]'s; `None` otherwise.
+/// grids; where [`configure_like`] took the bit too, the two are the same); `None` otherwise.
 pub fn configure_bits_first(
     profile: Profile,
     shape: &MaterialShape,
@@ -288,8 +288,7 @@ pub fn configure_bits_first(
     if hi_bits + 1 > BITS_FIRST_MAX_BITS {
         return None;
     }
-    let cfg = grown(profile, shape, target, like, 1);
-    (cfg != configure_like(profile, shape, target, like)).then_some(cfg)
+    Some(grown(profile, shape, target, like, 1))
 }
 
 /// `like` with `extra` more bits per latent (at most 8) and its grids' resolution solved so that
