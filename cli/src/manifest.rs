@@ -37,12 +37,14 @@ pub struct Options {
     pub resize: Option<bool>,
     pub fixed_rate: Option<bool>,
     pub memory_factor: Option<f64>,
+    pub layout: Option<String>,
 }
 
 impl Options {
     /// `self` where set, else `defaults` — but a JPEG entry does not inherit the neural
-    /// codec's options (`profile`, `target_psnr`, `steps`, `effort`, `seed`) from the defaults,
-    /// nor a neural one JPEG's (`quality`, `subsampling`): `[defaults]` may hold both.
+    /// codec's options (`profile`, `target_psnr`, `steps`, `effort`, `seed`, `memory_factor`,
+    /// `layout`) from the defaults, nor a neural one JPEG's (`quality`, `subsampling`):
+    /// `[defaults]` may hold both.
     fn over(&self, defaults: &Options) -> Options {
         let codec = self.codec.clone().or_else(|| defaults.codec.clone());
         let jpeg = codec.as_deref() == Some("jpeg");
@@ -53,6 +55,7 @@ impl Options {
             effort: defaults.effort.clone().filter(|_| !jpeg),
             seed: defaults.seed.filter(|_| !jpeg),
             memory_factor: defaults.memory_factor.filter(|_| !jpeg),
+            layout: defaults.layout.clone().filter(|_| !jpeg),
             quality: defaults.quality.filter(|_| jpeg),
             subsampling: defaults.subsampling.clone().filter(|_| jpeg),
             ..defaults.clone()
@@ -72,6 +75,7 @@ impl Options {
             resize: self.resize.or(defaults.resize),
             fixed_rate: self.fixed_rate.or(defaults.fixed_rate),
             memory_factor: self.memory_factor.or(defaults.memory_factor),
+            layout: self.layout.clone().or_else(|| defaults.layout.clone()),
         }
     }
 
@@ -95,6 +99,7 @@ impl Options {
         push("address", self.address.clone());
         push("subsampling", self.subsampling.clone());
         push("memory-factor", self.memory_factor.map(|v| v.to_string()));
+        push("layout", self.layout.clone());
         if self.resize == Some(true) {
             f.push("--resize".into());
         }
@@ -359,8 +364,10 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("nmat-manifest-{}", std::process::id()));
         std::fs::create_dir_all(dir.join("a")).unwrap();
         let jobs = expand(
-            "[defaults]\nprofile = \"ntc-1.0\"\nquality = 70\nsteps = 9\n\
+            "[defaults]\nprofile = \"ntc-0.2\"\nquality = 70\nsteps = 9\nmemory_factor = 1.25\n\
+             layout = \"bits-first\"\n\
              [[material]]\ninput = \"a\"\noutput = \"n.nmat\"\n\
+             [[material]]\ninput = \"a\"\noutput = \"t.nmat\"\nlayout = \"trial\"\n\
              [[material]]\ninput = \"a\"\noutput = \"j.nmat\"\ncodec = \"jpeg\"\n\
              [[material]]\ninput = \"a\"\noutput = \"k.nmat\"\ncodec = \"jpeg\"\nsteps = 3\n",
             &dir,
@@ -370,7 +377,14 @@ mod tests {
             let job = jobs.iter().find(|j| j.output.ends_with(name)).unwrap();
             job.args[3..].join(" ")
         };
-        assert_eq!(args("n.nmat"), "--profile ntc-1.0 --steps 9");
+        assert_eq!(
+            args("n.nmat"),
+            "--profile ntc-0.2 --steps 9 --memory-factor 1.25 --layout bits-first"
+        );
+        assert_eq!(
+            args("t.nmat"),
+            "--profile ntc-0.2 --steps 9 --memory-factor 1.25 --layout trial"
+        );
         assert_eq!(args("j.nmat"), "--codec jpeg --quality 70");
         // Set on the entry itself: passed on (and `nmat encode` names the conflict).
         assert_eq!(args("k.nmat"), "--codec jpeg --quality 70 --steps 3");
