@@ -7,7 +7,16 @@ use nmat_core::TermMode;
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Profile {
     /// NTC layout: per level a high-res grid (4 nearest cells) and a low-res grid (bilinear).
-    Ntc { name: &'static str, bppc: f64, hi_divisor: u32, hi_bits: u8, lo_bits: u8 },
+    /// Level 0 serves the first `level0_mips` mips (2 in the NTC paper), every other level the
+    /// next two ([`ntc_level_of`]).
+    Ntc {
+        name: &'static str,
+        bppc: f64,
+        hi_divisor: u32,
+        hi_bits: u8,
+        lo_bits: u8,
+        level0_mips: u32,
+    },
     /// NBC layout: 4 residual levels with 8-4-2-1 bits coarse → fine, fused.
     Nbc { name: &'static str, bppc: f64 },
 }
@@ -16,11 +25,39 @@ pub const PROFILES: [Profile; 8] = [
     Profile::Nbc { name: "nbc-0.05", bppc: 0.05 },
     Profile::Nbc { name: "nbc-0.1", bppc: 0.1 },
     Profile::Nbc { name: "nbc-0.2", bppc: 0.2 },
-    Profile::Ntc { name: "ntc-0.2", bppc: 0.2, hi_divisor: 4, hi_bits: 2, lo_bits: 4 },
+    Profile::Ntc {
+        name: "ntc-0.2",
+        bppc: 0.2,
+        hi_divisor: 4,
+        hi_bits: 2,
+        lo_bits: 4,
+        level0_mips: 3,
+    },
     Profile::Nbc { name: "nbc-0.5", bppc: 0.5 },
-    Profile::Ntc { name: "ntc-0.5", bppc: 0.5, hi_divisor: 4, hi_bits: 4, lo_bits: 4 },
-    Profile::Ntc { name: "ntc-1.0", bppc: 1.0, hi_divisor: 2, hi_bits: 4, lo_bits: 4 },
-    Profile::Ntc { name: "ntc-2.25", bppc: 2.25, hi_divisor: 2, hi_bits: 8, lo_bits: 8 },
+    Profile::Ntc {
+        name: "ntc-0.5",
+        bppc: 0.5,
+        hi_divisor: 4,
+        hi_bits: 4,
+        lo_bits: 4,
+        level0_mips: 2,
+    },
+    Profile::Ntc {
+        name: "ntc-1.0",
+        bppc: 1.0,
+        hi_divisor: 2,
+        hi_bits: 4,
+        lo_bits: 4,
+        level0_mips: 2,
+    },
+    Profile::Ntc {
+        name: "ntc-2.25",
+        bppc: 2.25,
+        hi_divisor: 2,
+        hi_bits: 8,
+        lo_bits: 8,
+        level0_mips: 2,
+    },
 ];
 
 /// The default profile.
@@ -211,9 +248,7 @@ pub fn configure(profile: Profile, shape: &MaterialShape) -> ModelConfig {
     let mut closest: Option<(f64, ModelConfig)> = None;
     for hidden in HIDDEN_WIDTHS {
         let candidates = match profile {
-            Profile::Ntc { hi_divisor, hi_bits, lo_bits, .. } => {
-                ntc_candidates(profile.name(), shape, hidden, hi_divisor, hi_bits, lo_bits, target)
-            }
+            Profile::Ntc { .. } => ntc_candidates(profile, shape, hidden, target),
             Profile::Nbc { .. } => nbc_candidates(profile.name(), shape, hidden, target),
         };
         let mut fitting: Option<(f64, ModelConfig)> = None;
@@ -302,17 +337,11 @@ fn grown(
 ) -> ModelConfig {
     let hidden = like.hidden[0];
     match profile {
-        Profile::Ntc { hi_divisor, hi_bits, lo_bits, .. } => {
+        Profile::Ntc { hi_bits, lo_bits, .. } => {
             let (c_hi, c_lo) = (like.grids[0].channels, like.grids[1].channels);
             let bits = |b: u8| (b + extra).min(8);
             solve_scale(shape, target, (0.5, 8.0), |s| {
-                ntc_layout(
-                    profile.name(),
-                    shape,
-                    hidden,
-                    (hi_divisor, c_hi, bits(hi_bits)),
-                    (c_lo, bits(lo_bits), s),
-                )
+                ntc_layout(profile, shape, hidden, (c_hi, bits(hi_bits)), (c_lo, bits(lo_bits), s))
             })
         }
         Profile::Nbc { .. } => {
@@ -351,19 +380,19 @@ fn solve_scale(
 /// low-resolution scale solved for the target size; preference: the high-resolution share of the
 /// latent bits nearest [`NTC_HI_SHARE`], then the smooth grid nearest its nominal resolution.
 fn ntc_candidates(
-    name: &'static str,
+    profile: Profile,
     shape: &MaterialShape,
     hidden: usize,
-    hi_divisor: u32,
-    hi_bits: u8,
-    lo_bits: u8,
     target: f64,
 ) -> Vec<(f64, ModelConfig)> {
+    let Profile::Ntc { hi_divisor, hi_bits, lo_bits, .. } = profile else {
+        unreachable!("ntc_candidates of an NBC profile")
+    };
     let mut out = Vec::new();
     for c_hi in 1..=16 {
         for c_lo in 1..=16 {
             let cfg = solve_scale(shape, target, (0.5, 8.0), |s| {
-                ntc_layout(name, shape, hidden, (hi_divisor, c_hi, hi_bits), (c_lo, lo_bits, s))
+                ntc_layout(profile, shape, hidden, (c_hi, hi_bits), (c_lo, lo_bits, s))
             });
             let hi: usize = cfg.grids.iter().step_by(2).map(GridCfg::bits).sum();
             let share = hi as f64 / cfg.latent_bits().max(1) as f64;
@@ -375,14 +404,29 @@ fn ntc_candidates(
     out
 }
 
+/// The level of an NTC layout that mip `mip` reads: the first `level0_mips` mips read level 0,
+/// the others two by two the next levels. Level `k` is sized from mip `2k` (its high-resolution
+/// grid one cell per `hi_divisor` texels there), so with `level0_mips` 3 every mip from 1 on
+/// reads a grid of one or two texels per cell along each axis, where the NTC paper's pairs
+/// (`level0_mips` 2) leave the even mips from 2 on at `hi_divisor` texels per cell, as sparse as
+/// mip 0 while a clean texture's small mips keep its edges (docs/ENCODING.md, "Which level a
+/// mip reads").
+pub fn ntc_level_of(mip: u32, level0_mips: u32) -> u32 {
+    if mip < level0_mips { 0 } else { (mip - level0_mips) / 2 + 1 }
+}
+
 fn ntc_layout(
-    name: &'static str,
+    profile: Profile,
     shape: &MaterialShape,
     hidden: usize,
-    (hi_divisor, c_hi, hi_bits): (u32, usize, u8),
+    (c_hi, hi_bits): (usize, u8),
     (c_lo, lo_bits, lo_scale): (usize, u8, f64),
 ) -> ModelConfig {
-    let level_count = shape.mip_count.div_ceil(2) as usize;
+    let Profile::Ntc { hi_divisor, level0_mips, .. } = profile else {
+        unreachable!("ntc_layout of an NBC profile")
+    };
+    let level_of = |mip: u32| ntc_level_of(mip, level0_mips);
+    let level_count = level_of(shape.mip_count.max(1) - 1) as usize + 1;
     let mut grids = Vec::new();
     let mut levels = Vec::new();
     for k in 0..level_count as u32 {
@@ -407,10 +451,10 @@ fn ntc_layout(
         ]);
     }
     ModelConfig {
-        profile: name,
+        profile: profile.name(),
         grids,
         levels,
-        mip_to_level: (0..shape.mip_count).map(|m| (m / 2) as u8).collect(),
+        mip_to_level: (0..shape.mip_count).map(|m| level_of(m) as u8).collect(),
         pe_frequencies: 2,
         lod_code: crate::train::LOD_CODE,
         hidden: vec![hidden; 2],
@@ -536,10 +580,10 @@ mod tests {
         let bits = |cfg: &ModelConfig| cfg.grids.iter().map(|g| g.bits).max().unwrap();
         let size = |cfg: &ModelConfig| cfg.byte_budget(&s).total() as f64;
         // The grids at their largest: the smooth grids as fine as the high-resolution ones.
-        let Profile::Ntc { hi_divisor, hi_bits, lo_bits, .. } = p else { unreachable!() };
+        let Profile::Ntc { hi_bits, lo_bits, .. } = p else { unreachable!() };
         let (c_hi, c_lo) = (nominal.grids[0].channels, nominal.grids[1].channels);
-        let hi = (hi_divisor, c_hi, hi_bits);
-        let largest = ntc_layout(p.name(), &s, nominal.hidden[0], hi, (c_lo, lo_bits, 0.5));
+        let hi = (c_hi, hi_bits);
+        let largest = ntc_layout(p, &s, nominal.hidden[0], hi, (c_lo, lo_bits, 0.5));
         assert_eq!(largest.grids[1].width, largest.grids[0].width, "{:?}", largest.grids);
         let room = size(&largest);
         // A target the grids come within the room of: no extra bits, the largest grids.
@@ -550,6 +594,38 @@ mod tests {
         let far = configure_like(p, &s, target, &nominal);
         assert!(bits(&far) > bits(&nominal), "{:?}", far.grids);
         assert!((size(&far) - target).abs() < (room - target).abs());
+    }
+
+    /// `ntc-0.2` reads mips 0–2 from level 0 and the others two by two; every level is read, and
+    /// every mip from 1 on finds its high-resolution grid at one or two texels per cell (the
+    /// reason for the rule). The other NTC profiles keep the paper's pairs.
+    #[test]
+    fn ntc_0_2_reads_three_mips_from_level_0_and_the_others_two_by_two() {
+        let p = Profile::by_name("ntc-0.2").unwrap();
+        let expected: [&[u8]; 4] =
+            [&[0], &[0, 0, 0], &[0, 0, 0, 1], &[0, 0, 0, 1, 1, 2, 2, 3, 3, 4, 4]];
+        for (size, want) in [1, 4, 8, 1024].into_iter().zip(expected) {
+            let s = shape(size, 9, 9);
+            let cfg = configure(p, &s);
+            assert_eq!(cfg.mip_to_level, want, "{size}²");
+            assert_eq!(cfg.levels.len(), usize::from(want[want.len() - 1]) + 1, "{size}²");
+        }
+        for size in [256, 512, 1024, 2048] {
+            let s = shape(size, 9, 9);
+            let cfg = configure(p, &s);
+            for mip in 1..s.mip_count {
+                let level = &cfg.levels[usize::from(cfg.mip_to_level[mip as usize])];
+                let hi = &cfg.grids[level[0].grids[0]];
+                let texels = (size >> mip).max(1);
+                let ok = hi.width <= texels && texels <= 2 * hi.width;
+                assert!(ok, "{size}² mip {mip}: {texels} texels, {hi:?}");
+            }
+        }
+        for name in ["ntc-0.5", "ntc-1.0", "ntc-2.25"] {
+            let cfg = configure(Profile::by_name(name).unwrap(), &shape(1024, 9, 9));
+            let pairs: Vec<u8> = (0..11).map(|m| m / 2).collect();
+            assert_eq!(cfg.mip_to_level, pairs, "{name}");
+        }
     }
 
     #[test]

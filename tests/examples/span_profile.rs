@@ -1,10 +1,11 @@
-//! Decodes mip 0 of a .nmat file through `Decoder` spans, repeatedly: a steady load to attach a
+//! Decodes mip 0 (or the mip given last) of a .nmat file through `Decoder` spans, repeatedly: a steady load to attach a
 //! profiler to (`perf record cargo run --release -p nmat-tests --example span_profile -- FILE`). An
 //! optional kernel name (`Kernel::name`: `scalar`, `avx2`, `avx512-vnni`, `neon`, …) picks the
 //! kernel, e.g. to count instructions under valgrind, which lacks AVX-512; `texel` after it decodes
-//! each row texel by texel in a scattered order instead; `random` decodes the scattered texels of
-//! `nmat bench`'s random access (16 384 of them spread over the whole of mip 0, one call each) in
-//! place of a pass over the rows, `random256` the same texels 256 a call (`decode_texels_u8`).
+//! each row texel by texel in a scattered order instead (`row`: the spans, the default); `random`
+//! decodes the scattered texels of `nmat bench`'s random access (16 384 of them spread over the
+//! whole mip, one call each) in place of a pass over the rows, `random256` the same texels 256 a
+//! call (`decode_texels_u8`). A mip number after the mode decodes that mip instead of mip 0.
 //! Prints the mean time per texel of the passes, and the fastest and median time of one row (or
 //! of 256 random texels): single rows are short enough that the fastest one is rarely disturbed
 //! by other work on a shared machine. To compare two builds, run them in turn many times
@@ -14,7 +15,8 @@ use nmat_core::{ChannelMask, Container, Decoder, Kernel, Material, TexelAt};
 use std::time::Instant;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let usage = "usage: span_profile FILE.nmat [PASSES [KERNEL [texel|random|random256]]]";
+    let usage =
+        "usage: span_profile FILE.nmat [PASSES [KERNEL [row|texel|random|random256 [MIP]]]]";
     let path = std::env::args().nth(1).ok_or(usage)?;
     let passes: usize = std::env::args().nth(2).map_or(Ok(5), |s| s.parse())?;
     let kernel = match std::env::args().nth(3) {
@@ -25,14 +27,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let bytes = nmat_core::unpack(&raw, Default::default())?;
     let m = Container::parse(&bytes)?;
     let d = Decoder::with_kernel(&m, kernel)?;
+    let mip: u32 = std::env::args().nth(5).map_or(Ok(0), |s| s.parse())?;
+    if mip >= m.mip_count() {
+        return Err(format!("{path} has {} mips; mip {mip} asked", m.mip_count()).into());
+    }
     let texel_by_texel = match std::env::args().nth(4).as_deref() {
-        None => false,
+        None | Some("row") => false,
         Some("texel") => true,
-        Some("random") => return random(&path, (&m, &d), passes, 1),
-        Some("random256") => return random(&path, (&m, &d), passes, 256),
+        Some("random") => return random(&path, (&m, &d), (passes, mip), 1),
+        Some("random256") => return random(&path, (&m, &d), (passes, mip), 256),
         Some(_) => return Err(usage.into()),
     };
-    let (w, h) = m.mip_size(0);
+    let (w, h) = m.mip_size(mip);
     let mut row = vec![0u8; w as usize * m.channel_count()];
     let mut rows = Vec::with_capacity(passes * h as usize);
     let start = Instant::now();
@@ -44,10 +50,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 for (i, texel) in row.chunks_exact_mut(n).enumerate() {
                     // A stride coprime with the (power-of-two or odd) width scatters the order.
                     let x = (i as u64 * 97 % u64::from(w)) as i64;
-                    d.decode_texel_u8(&m, x, i64::from(y), 0, ChannelMask::ALL, texel)?;
+                    d.decode_texel_u8(&m, x, i64::from(y), mip, ChannelMask::ALL, texel)?;
                 }
             } else {
-                d.decode_span_u8(&m, 0, i64::from(y), 0, w as usize, ChannelMask::ALL, &mut row)?;
+                let mask = ChannelMask::ALL;
+                d.decode_span_u8(&m, 0, i64::from(y), mip, w as usize, mask, &mut row)?;
             }
             rows.push(row_start.elapsed().as_secs_f64() * 1e9 / f64::from(w));
         }
@@ -57,14 +64,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     Ok(())
 }
 
-/// `passes` passes over `nmat bench`'s scattered texels of mip 0, `batch` a call.
+/// `passes` passes over `nmat bench`'s scattered texels of `mip`, `batch` a call.
 fn random(
     path: &str,
     (m, d): (&Material<'_>, &Decoder),
-    passes: usize,
+    (passes, mip): (usize, u32),
     batch: usize,
 ) -> Result<(), Box<dyn std::error::Error>> {
-    let (w, h) = m.mip_size(0);
+    let (w, h) = m.mip_size(mip);
     let n = w as usize * h as usize;
     // `nmat bench`'s order: a stride near 7919 coprime with the texel count.
     let mut stride = 7919 % n.max(1);
@@ -74,7 +81,7 @@ fn random(
     let texels: Vec<TexelAt> = (0..n.min(16384))
         .map(|i| {
             let t = i * stride.max(1) % n;
-            TexelAt { x: (t % w as usize) as i64, y: (t / w as usize) as i64, mip: 0 }
+            TexelAt { x: (t % w as usize) as i64, y: (t / w as usize) as i64, mip }
         })
         .collect();
     let mut out = vec![0u8; batch * m.channel_count()];
