@@ -30,7 +30,7 @@ pub use gemm::TrainKernel;
 use profile::RATE_TOLERANCE;
 pub use profile::{
     BITS_FIRST_MAX_BITS, ByteBudget, DEFAULT_PROFILE, MaterialShape, ModelConfig, PROFILES,
-    Profile, configure,
+    Profile, configure, ntc_level_of,
 };
 pub use train::{DEFAULT_STEPS, Effort, Phase, Progress, TrainOptions};
 
