@@ -408,10 +408,9 @@ fn ntc_candidates(
 /// the others two by two the next levels. Level `k` is sized from mip `2k` (its high-resolution
 /// grid one cell per `hi_divisor` texels there), so with `level0_mips` 3 and `hi_divisor` 4
 /// every mip from 1 on reads a grid of one or two texels per cell along each axis, where the
-/// NTC paper's pairs
-/// (`level0_mips` 2) leave the even mips from 2 on at `hi_divisor` texels per cell, as sparse as
-/// mip 0 while a clean texture's small mips keep its edges (docs/ENCODING.md, "Which level a
-/// mip reads").
+/// NTC paper's pairs (`level0_mips` 2) leave the even mips from 2 on at `hi_divisor` texels per
+/// cell, as sparse as mip 0 while a clean texture's small mips keep its edges (docs/ENCODING.md,
+/// "Which level a mip reads").
 pub fn ntc_level_of(mip: u32, level0_mips: u32) -> u32 {
     if mip < level0_mips { 0 } else { (mip - level0_mips) / 2 + 1 }
 }
