@@ -138,9 +138,9 @@ pub fn layouts(
     // A material too small for the rate (its smallest model is above it) has no latent bytes to
     // steer: it keeps the nominal model.
     let too_small = nominal.byte_budget(shape).total() as f64 > bytes * (1.0 + RATE_TOLERANCE);
-    let unsteered = vec![Layout { config: nominal.clone(), latent_bytes: None }];
+    let unsteered = |config: ModelConfig| vec![Layout { config, latent_bytes: None }];
     if storage == Storage::FixedRate || memory_factor == 1.0 || too_small {
-        return Ok(unsteered);
+        return Ok(unsteered(nominal));
     }
     let target_size = bytes * memory_factor;
     let grown = profile::configure_like(profile, shape, target_size, &nominal);
@@ -157,7 +157,7 @@ pub fn layouts(
         (target >= MIN_STEERING_ROOM * floor_bytes(&config) as f64)
             .then_some(Layout { config, latent_bytes: Some(target) })
     };
-    let Some(first) = steered(grown) else { return Ok(unsteered) };
+    let Some(first) = steered(grown) else { return Ok(unsteered(nominal)) };
     Ok([Some(first), bits_first.and_then(steered)].into_iter().flatten().collect())
 }
 
