@@ -8,7 +8,8 @@
 //! to PATH; rows already in PATH are not measured again, so a sweep can be resumed. A summary per
 //! variant (mean ΔPSNR against `default`, wins, losses, mean seconds) follows on stdout.
 //! Knobs: steps, batch, lr_mlp, lr_latents, joint_percent, qat_percent, qat_lr, qat_lr_latents,
-//! int8_percent, mip_uniform_share, error_share, latent_init_spread (docs/ENCODING.md, "Tuning").
+//! int8_percent, mip_uniform_share, error_share, latent_init_spread, output_margin (docs/ENCODING.md,
+//! "Tuning").
 
 use nmat_encode::texset::{self, LoadOptions};
 use nmat_encode::{EncodeOptions, Profile, TrainOptions, encode};
@@ -20,7 +21,7 @@ use std::time::Instant;
 type Result<T> = std::result::Result<T, String>;
 
 const KNOBS: &str = "steps, batch, lr_mlp, lr_latents, joint_percent, qat_percent, qat_lr, qat_lr_latents, int8_percent, \
-                     mip_uniform_share, error_share, latent_init_spread";
+                     mip_uniform_share, error_share, latent_init_spread, output_margin";
 
 /// Applies `key=value` to `o`.
 fn set_knob(o: &mut TrainOptions, key: &str, value: &str) -> Result<()> {
@@ -40,6 +41,7 @@ fn set_knob(o: &mut TrainOptions, key: &str, value: &str) -> Result<()> {
         "mip_uniform_share" => o.mip_uniform_share = float()?,
         "error_share" => o.error_share = float()?,
         "latent_init_spread" => o.latent_init_spread = float()?,
+        "output_margin" => o.output_margin = float()?,
         _ => return Err(format!("--variant: unknown knob {key:?}; knobs: {KNOBS}")),
     }
     Ok(())

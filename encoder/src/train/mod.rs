@@ -227,6 +227,28 @@ mod tests {
     }
 
     #[test]
+    fn outputs_past_the_end_their_target_sits_at_cost_nothing_within_the_margin() {
+        use model::output_error;
+        // No margin: the plain error, bit for bit (files trained without it do not change).
+        for (y, t) in [(1.3f32, 1.0f32), (0.37, 0.61), (-0.2, 0.0), (0.1 + 0.2, 0.3)] {
+            assert_eq!(output_error(y, t, 0.0).to_bits(), (y - t).to_bits());
+        }
+        let m = 0.02;
+        // Past the end the target sits at, within the margin: decoded exactly, no error.
+        assert_eq!(output_error(1.01, 1.0, m), 0.0);
+        assert_eq!(output_error(-0.015, 0.0, m), 0.0);
+        // Beyond the margin: only the excess counts, pulling the output back.
+        assert!((output_error(1.05, 1.0, m) - 0.03).abs() < 1e-6);
+        assert!((output_error(-0.1, 0.0, m) + 0.08).abs() < 1e-6);
+        // A target inside the range: the clamped output's error (what a decoder shows), plus
+        // any excess.
+        assert!((output_error(1.01, 0.9, m) - 0.1).abs() < 1e-6);
+        assert!((output_error(1.1, 0.9, m) - 0.18).abs() < 1e-6);
+        // Inside the range the margin changes nothing.
+        assert!((output_error(0.4, 0.7, m) + 0.3).abs() < 1e-6);
+    }
+
+    #[test]
     fn huge_vectors_hold_their_values() {
         // Large enough to span several 2 MiB blocks, whatever the allocation's alignment.
         let n = (5 << 20) + 3;

@@ -41,6 +41,22 @@ pub(super) struct ChunkMode {
     pub(super) latents: LatentMode,
     /// Whether gradients flow back to the latents (the joint phase).
     pub(super) train_latents: bool,
+    /// [`TrainOptions::output_margin`].
+    pub(super) output_margin: f32,
+}
+
+/// The error of output `y` against target `t` that the loss squares: with `margin` 0, `y − t`;
+/// above 0, the error of `y` clamped to [0, 1] as every decoder clamps it (so past the end a
+/// target sits at, an output is exact), plus how far `y` lies beyond the margin past either end
+/// (so outputs stay near the range and the activations' fixed-point formats stay fine).
+#[inline(always)]
+pub(super) fn output_error(y: f32, t: f32, margin: f32) -> f32 {
+    if margin > 0.0 {
+        let inside = y.clamp(0.0, 1.0);
+        inside - t + (y - y.clamp(-margin, 1.0 + margin))
+    } else {
+        y - t
+    }
 }
 
 /// The model being trained.
@@ -415,7 +431,7 @@ impl<'a> Model<'a> {
         samples: usize,
         gr: &mut Grads,
     ) -> f64 {
-        let ChunkMode { kernel, latents: mode, train_latents } = how;
+        let ChunkMode { kernel, latents: mode, train_latents, output_margin } = how;
         let mut taps = Taps::default();
         let (draws, x0) = self.gather(mode, rng, samples, &mut taps);
         let (xs, pres) = Self::forward(layers, kernel, x0);
@@ -429,7 +445,7 @@ impl<'a> Model<'a> {
             let target = &self.targets[self.target_index(d.at)..][..self.learned.len()];
             let mut squared = 0f32;
             for (o, &t) in target.iter().enumerate() {
-                let e = out[o] - t;
+                let e = output_error(out[o], t, output_margin);
                 squared += e * e;
                 // The network's gradient weighted (unbiased); a weight of 1 changes no bit.
                 row[o] = 2.0 * e / outputs as f32 * d.weight;
@@ -544,7 +560,12 @@ impl<'a> Model<'a> {
                         loss: 0.0,
                         sample_errors: Vec::new(),
                     };
-                    let how = ChunkMode { kernel, latents: mode, train_latents };
+                    let how = ChunkMode {
+                        kernel,
+                        latents: mode,
+                        train_latents,
+                        output_margin: opts.output_margin,
+                    };
                     g.loss = kernel.run(
                         #[inline(always)]
                         || self.run_chunk(&layers, how, &mut rng, n, &mut g),

@@ -78,6 +78,13 @@ pub struct TrainOptions {
     pub error_share: f32,
     /// Latents start at the middle of their range ± half this (a unit range is 1).
     pub latent_init_spread: f32,
+    /// How far past its unit range an output may go without cost where its target sits at that
+    /// end (0: plain squared error). Every decoder clamps the outputs to [0, 1], so a texel at
+    /// an end of its range (pure white or black, a 0/1 mask, zero padding) decodes exactly once
+    /// the network's output passes the end, instead of noisily around it; beyond the margin the
+    /// excess is penalized, which keeps activations near the range their fixed-point formats
+    /// are chosen for (docs/ENCODING.md, "Tuning").
+    pub output_margin: f32,
     /// Matrix-product kernel; `None` picks [`TrainKernel::best`]. The file does not depend on it.
     pub kernel: Option<TrainKernel>,
     /// Steer the latents' coded size (docs/FORMAT.md §12) toward this many bytes while they
@@ -175,6 +182,7 @@ impl Default for TrainOptions {
             mip_uniform_share: 0.1,
             error_share: 0.2,
             latent_init_spread: 0.05,
+            output_margin: 0.0,
             kernel: None,
             latent_bytes: None,
         }
