@@ -48,7 +48,7 @@ pub(super) struct ChunkMode {
 /// The error of output `y` against target `t` that the loss squares: with `margin` 0, `y − t`;
 /// above 0, the error of `y` clamped to [0, 1] as every decoder clamps it (so past the end a
 /// target sits at, an output is exact), plus how far `y` lies beyond the margin past either end
-/// (so outputs stay near the range and the activations' fixed-point formats stay fine).
+/// (so outputs stay near the range).
 #[inline(always)]
 pub(super) fn output_error(y: f32, t: f32, margin: f32) -> f32 {
     if margin > 0.0 {
