@@ -82,8 +82,8 @@ pub struct TrainOptions {
     /// end (0: plain squared error). Every decoder clamps the outputs to [0, 1], so a texel at
     /// an end of its range (pure white or black, a 0/1 mask, zero padding) decodes exactly once
     /// the network's output passes the end, instead of noisily around it; beyond the margin the
-    /// excess is penalized (with no bound, outputs ran far past the range and a material lost
-    /// quality: docs/ENCODING.md, "Outputs past the ends of their range").
+    /// excess is penalized (with no bound at all, a material lost quality: docs/ENCODING.md,
+    /// "Outputs past the ends of their range").
     pub output_margin: f32,
     /// Matrix-product kernel; `None` picks [`TrainKernel::best`]. The file does not depend on it.
     pub kernel: Option<TrainKernel>,
