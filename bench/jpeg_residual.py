@@ -37,14 +37,17 @@ def main():
     h, w = src[maps[0]].shape[:2]
     print(f'decode alone: mip-0 PSNR {psnr(src, dec, maps):.2f} dB')
     with tempfile.TemporaryDirectory() as tmp:
-        ppm, jpg, back = (os.path.join(tmp, n) for n in ('r.ppm', 'r.jpg', 'b.ppm'))
+        jpg, back = os.path.join(tmp, 'r.jpg'), os.path.join(tmp, 'b.ppm')
+        # Each map's residual written once, coded at every quality.
+        ppms = {m: os.path.join(tmp, f'{i}.ppm') for i, m in enumerate(maps)}
+        for m, ppm in ppms.items():
+            residual = np.clip(src[m] - dec[m], -127, 127) + 128
+            Image.fromarray(residual.astype(np.uint8)).save(ppm)
         for quality in (50, 70, 80, 90, 95):
             total, rebuilt = 0, {}
             for m in maps:
-                residual = np.clip(src[m] - dec[m], -127, 127) + 128
-                Image.fromarray(residual.astype(np.uint8)).save(ppm)
                 subprocess.run(['cjpeg', '-quality', str(quality), '-sample', '1x1', '-optimize',
-                                '-outfile', jpg, ppm], check=True)
+                                '-outfile', jpg, ppms[m]], check=True)
                 total += os.path.getsize(jpg)
                 subprocess.run(['djpeg', '-outfile', back, jpg], check=True)
                 rebuilt[m] = np.clip(dec[m] + np.asarray(Image.open(back)).astype(int) - 128, 0, 255)
