@@ -41,7 +41,7 @@ fn set_knob(o: &mut TrainOptions, key: &str, value: &str) -> Result<()> {
         "mip_uniform_share" => o.mip_uniform_share = float()?,
         "error_share" => o.error_share = float()?,
         "latent_init_spread" => o.latent_init_spread = float()?,
-        "output_margin" => o.output_margin = float()?,
+        "output_margin" => o.output_margin = Some(float()?),
         _ => return Err(format!("--variant: unknown knob {key:?}; knobs: {KNOBS}")),
     }
     Ok(())

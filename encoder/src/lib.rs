@@ -227,6 +227,10 @@ pub fn encode(
     options: &EncodeOptions,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Encoded, EncodeError> {
+    // The profile's trainer defaults where the caller left them open.
+    let margin = options.train.output_margin.unwrap_or(options.profile.output_margin());
+    let train = TrainOptions { output_margin: Some(margin), ..options.train.clone() };
+    let options = &EncodeOptions { train, ..options.clone() };
     let shape = shape_of(set);
     let mut candidates = layouts(options.profile, &shape, options.storage, options.memory_factor)?;
     let trial_steps = ((options.train.steps as f64 * TRIAL_SHARE).round() as usize).max(1);

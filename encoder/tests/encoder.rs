@@ -41,6 +41,25 @@ fn same_inputs_seed_and_steps_give_identical_files_for_any_thread_count_and_kern
     assert_ne!(one, other_seed, "the seed matters");
 }
 
+/// A margin left open (`None`) is the profile's; one given wins, and it changes the file where
+/// outputs pass an end of their range (the procedural material's normal z sits at 1 on flat
+/// ground).
+#[test]
+fn the_output_margin_left_open_is_the_profile_s() {
+    let set = demo::bricks(64);
+    let run = |profile: &str, margin: Option<f32>| {
+        let mut o = options(profile, 60, 2);
+        o.train.output_margin = margin;
+        encode(&set, &o, &mut |_| {}).unwrap().bytes
+    };
+    for profile in ["ntc-0.2", "ntc-1.0"] {
+        let own = Profile::by_name(profile).unwrap().output_margin();
+        assert_eq!(run(profile, None), run(profile, Some(own)), "{profile}");
+    }
+    assert!(Profile::by_name("ntc-0.2").unwrap().output_margin() > 0.0);
+    assert_ne!(run("ntc-0.2", None), run("ntc-0.2", Some(0.0)), "the margin changes nothing");
+}
+
 #[test]
 fn training_reaches_a_useful_quality_on_the_procedural_material() {
     let set = demo::bricks(64);

@@ -564,7 +564,7 @@ impl<'a> Model<'a> {
                         kernel,
                         latents: mode,
                         train_latents,
-                        output_margin: opts.output_margin,
+                        output_margin: opts.output_margin.unwrap_or(0.0),
                     };
                     g.loss = kernel.run(
                         #[inline(always)]

@@ -83,8 +83,9 @@ pub struct TrainOptions {
     /// an end of its range (pure white or black, a 0/1 mask, zero padding) decodes exactly once
     /// the network's output passes the end, instead of noisily around it; beyond the margin the
     /// excess is penalized (with no bound at all, a material lost quality: docs/ENCODING.md,
-    /// "Outputs past the ends of their range").
-    pub output_margin: f32,
+    /// "Outputs past the ends of their range"). `None`: the profile's
+    /// ([`Profile::output_margin`](crate::Profile::output_margin)) where `encode` trains, else 0.
+    pub output_margin: Option<f32>,
     /// Matrix-product kernel; `None` picks [`TrainKernel::best`]. The file does not depend on it.
     pub kernel: Option<TrainKernel>,
     /// Steer the latents' coded size (docs/FORMAT.md §12) toward this many bytes while they
@@ -182,7 +183,7 @@ impl Default for TrainOptions {
             mip_uniform_share: 0.1,
             error_share: 0.2,
             latent_init_spread: 0.05,
-            output_margin: 0.0,
+            output_margin: None,
             kernel: None,
             latent_bytes: None,
         }
