@@ -227,10 +227,6 @@ pub fn encode(
     options: &EncodeOptions,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Encoded, EncodeError> {
-    // The profile's trainer defaults where the caller left them open.
-    let margin = options.train.output_margin.unwrap_or(options.profile.output_margin());
-    let train = TrainOptions { output_margin: Some(margin), ..options.train.clone() };
-    let options = &EncodeOptions { train, ..options.clone() };
     let shape = shape_of(set);
     let mut candidates = layouts(options.profile, &shape, options.storage, options.memory_factor)?;
     let trial_steps = ((options.train.steps as f64 * TRIAL_SHARE).round() as usize).max(1);
@@ -282,8 +278,8 @@ impl LayoutTrial {
     }
 }
 
-/// `layout` trained for `set` with `train`, its latents steered to the layout's coded size (no
-/// trial).
+/// `layout` trained for `set` with `train` (an output margin left open: the profile's), its latents
+/// steered to the layout's coded size (no trial).
 fn trained(
     set: &TextureSet,
     options: &EncodeOptions,
@@ -295,7 +291,10 @@ fn trained(
     if options.legacy_lod && config.lod_code != 0 {
         config.lod_code = 1;
     }
-    let train_options = TrainOptions { latent_bytes: layout.latent_bytes, ..train.clone() };
+    // A margin the caller left open is the profile's.
+    let output_margin = Some(train.output_margin.unwrap_or(options.profile.output_margin()));
+    let train_options =
+        TrainOptions { latent_bytes: layout.latent_bytes, output_margin, ..train.clone() };
     let mut model = train::Model::new(set, &config, options.address_mode, &train_options);
     model.train(&train_options, progress);
     let spec = to_spec(set, &model, options)?;
