@@ -26,6 +26,8 @@ pub fn flag(option: EncodeOption) -> &'static str {
         EncodeOption::Bppc => "--bppc",
         EncodeOption::Steps => "--steps",
         EncodeOption::TargetPsnr => "--target-psnr",
+        EncodeOption::MemoryFactor => "--memory-factor",
+        EncodeOption::OutputMargin => "--output-margin",
         other => other.api_name(),
     }
 }

@@ -37,13 +37,14 @@ pub struct Options {
     pub resize: Option<bool>,
     pub fixed_rate: Option<bool>,
     pub memory_factor: Option<f64>,
+    pub output_margin: Option<f32>,
     pub layout: Option<String>,
 }
 
 impl Options {
     /// `self` where set, else `defaults` — but a JPEG entry does not inherit the neural
     /// codec's options (`profile`, `target_psnr`, `steps`, `effort`, `seed`, `memory_factor`,
-    /// `layout`) from the defaults, nor a neural one JPEG's (`quality`, `subsampling`):
+    /// `output_margin`, `layout`) from the defaults, nor a neural one JPEG's (`quality`, `subsampling`):
     /// `[defaults]` may hold both.
     fn over(&self, defaults: &Options) -> Options {
         let codec = self.codec.clone().or_else(|| defaults.codec.clone());
@@ -55,6 +56,7 @@ impl Options {
             effort: defaults.effort.clone().filter(|_| !jpeg),
             seed: defaults.seed.filter(|_| !jpeg),
             memory_factor: defaults.memory_factor.filter(|_| !jpeg),
+            output_margin: defaults.output_margin.filter(|_| !jpeg),
             layout: defaults.layout.clone().filter(|_| !jpeg),
             quality: defaults.quality.filter(|_| jpeg),
             subsampling: defaults.subsampling.clone().filter(|_| jpeg),
@@ -75,6 +77,7 @@ impl Options {
             resize: self.resize.or(defaults.resize),
             fixed_rate: self.fixed_rate.or(defaults.fixed_rate),
             memory_factor: self.memory_factor.or(defaults.memory_factor),
+            output_margin: self.output_margin.or(defaults.output_margin),
             layout: self.layout.clone().or_else(|| defaults.layout.clone()),
         }
     }
@@ -99,6 +102,7 @@ impl Options {
         push("address", self.address.clone());
         push("subsampling", self.subsampling.clone());
         push("memory-factor", self.memory_factor.map(|v| v.to_string()));
+        push("output-margin", self.output_margin.map(|v| v.to_string()));
         push("layout", self.layout.clone());
         if self.resize == Some(true) {
             f.push("--resize".into());
@@ -365,7 +369,7 @@ mod tests {
         std::fs::create_dir_all(dir.join("a")).unwrap();
         let jobs = expand(
             "[defaults]\nprofile = \"ntc-0.2\"\nquality = 70\nsteps = 9\nmemory_factor = 1.25\n\
-             layout = \"bits-first\"\n\
+             output_margin = 0.01\nlayout = \"bits-first\"\n\
              [[material]]\ninput = \"a\"\noutput = \"n.nmat\"\n\
              [[material]]\ninput = \"a\"\noutput = \"t.nmat\"\nlayout = \"trial\"\n\
              [[material]]\ninput = \"a\"\noutput = \"j.nmat\"\ncodec = \"jpeg\"\n\
@@ -379,11 +383,11 @@ mod tests {
         };
         assert_eq!(
             args("n.nmat"),
-            "--profile ntc-0.2 --steps 9 --memory-factor 1.25 --layout bits-first"
+            "--profile ntc-0.2 --steps 9 --memory-factor 1.25 --output-margin 0.01 --layout bits-first"
         );
         assert_eq!(
             args("t.nmat"),
-            "--profile ntc-0.2 --steps 9 --memory-factor 1.25 --layout trial"
+            "--profile ntc-0.2 --steps 9 --memory-factor 1.25 --output-margin 0.01 --layout trial"
         );
         assert_eq!(args("j.nmat"), "--codec jpeg --quality 70");
         // Set on the entry itself: passed on (and `nmat encode` names the conflict).

@@ -123,7 +123,13 @@ fn encode_info_decode_eval_round_trip() {
     let legacy_info = text(&nmat(&["info", legacy.to_str().unwrap()]));
     assert!(legacy_info.contains(".nmat format 2.0") && legacy_info.contains("LOD input mip/16"));
     let o = encode(&dir.join("no.nmat"), "--memory-factor=2.5");
-    assert!(!o.status.success() && text(&o).contains("memory_factor"), "{}", text(&o));
+    assert!(!o.status.success() && text(&o).contains("--memory-factor 2.5"), "{}", text(&o));
+    for (bad, shown) in [("--output-margin=0.3", "0.3"), ("--output-margin=-1", "-1")] {
+        let o = encode(&dir.join("no.nmat"), bad);
+        let message = text(&o);
+        assert!(!o.status.success() && message.contains(&format!("--output-margin {shown}:")));
+    }
+    assert!(!dir.join("no.nmat").exists());
     // `nmat pack` of the fixed-rate file is the packed file; neither replaces its input.
     let repacked = dir.join("repacked.nmat");
     let o = nmat(&["pack", fixed.to_str().unwrap(), "-o", repacked.to_str().unwrap()]);
@@ -1135,6 +1141,10 @@ fn encode_codec_jpeg_writes_a_material_decode_and_eval_read() {
         (vec!["--codec", "jpeg", "--legacy-lod"], "--legacy-lod belongs to the neural codec"),
         (vec!["--codec", "jpeg", "--effort", "max"], "--effort belongs to the neural codec"),
         (vec!["--codec", "jpeg", "--layout", "bits-first"], "--layout belongs to the neural codec"),
+        (
+            vec!["--codec", "jpeg", "--output-margin", "0.02"],
+            "--output-margin belongs to the neural codec",
+        ),
         (vec!["--subsampling", "4:4:4"], "--subsampling belongs to the JPEG codec"),
         (vec!["--quality", "50"], "--quality 50: sets the JPEG codec's quality"),
         (vec!["--codec", "jpeg", "--quality", "0"], "'--quality"),

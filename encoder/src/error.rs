@@ -63,6 +63,8 @@ pub enum EncodeOption {
     /// How much larger than the nominal rate a packed file's in-memory layout may be:
     /// `EncodeOptions::memory_factor`.
     MemoryFactor,
+    /// How far past their range outputs may go without cost: `TrainOptions::output_margin`.
+    OutputMargin,
 }
 
 impl EncodeOption {
@@ -77,6 +79,7 @@ impl EncodeOption {
             EncodeOption::Steps => "TrainOptions::steps",
             EncodeOption::TargetPsnr => "target PSNR",
             EncodeOption::MemoryFactor => "EncodeOptions::memory_factor",
+            EncodeOption::OutputMargin => "TrainOptions::output_margin",
         }
     }
 }

@@ -87,6 +87,22 @@ pub const DEFAULT_MEMORY_FACTOR: f64 = 1.5;
 /// The largest [`EncodeOptions::memory_factor`].
 pub const MAX_MEMORY_FACTOR: f64 = 2.0;
 
+/// The largest [`TrainOptions::output_margin`]: a quarter of an output's range.
+pub const MAX_OUTPUT_MARGIN: f32 = 0.25;
+
+/// `Ok` where `margin` is a [`TrainOptions::output_margin`] the trainer takes: from 0 (plain
+/// squared error) to [`MAX_OUTPUT_MARGIN`].
+pub fn check_output_margin(margin: f32) -> Result<(), EncodeError> {
+    if (0.0..=MAX_OUTPUT_MARGIN).contains(&margin) {
+        return Ok(());
+    }
+    Err(EncodeError::BadOption {
+        option: EncodeOption::OutputMargin,
+        value: margin.to_string(),
+        reason: "must be from 0 (plain squared error) to 0.25 of the output's range",
+    })
+}
+
 /// Rate control is used only where the target coded size of the latents is at least this many
 /// times what they code in when every latent sits on its grid's middle code.
 const MIN_STEERING_ROOM: f64 = 4.0;
@@ -227,6 +243,9 @@ pub fn encode(
     options: &EncodeOptions,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Encoded, EncodeError> {
+    if let Some(margin) = options.train.output_margin {
+        check_output_margin(margin)?;
+    }
     let shape = shape_of(set);
     let mut candidates = layouts(options.profile, &shape, options.storage, options.memory_factor)?;
     let trial_steps = ((options.train.steps as f64 * TRIAL_SHARE).round() as usize).max(1);

@@ -6,8 +6,8 @@
 use nmat_core::{ChannelMask, Container};
 use nmat_encode::texset::{self, FileLayout, LoadOptions, Role, role_from_name};
 use nmat_encode::{
-    DEFAULT_MEMORY_FACTOR, EncodeError, EncodeOptions, LayoutChoice, ModelConfig, Profile, Storage,
-    TrainKernel, TrainOptions, demo, encode, layouts, source_maps,
+    DEFAULT_MEMORY_FACTOR, EncodeError, EncodeOption, EncodeOptions, LayoutChoice, ModelConfig,
+    Profile, Storage, TrainKernel, TrainOptions, demo, encode, layouts, source_maps,
 };
 use std::path::{Path, PathBuf};
 
@@ -58,6 +58,26 @@ fn the_output_margin_left_open_is_the_profile_s() {
     }
     assert!(Profile::by_name("ntc-0.2").unwrap().output_margin() > 0.0);
     assert_ne!(run("ntc-0.2", None), run("ntc-0.2", Some(0.0)), "the margin changes nothing");
+}
+
+#[test]
+fn an_output_margin_out_of_its_range_is_refused_before_training() {
+    let set = demo::bricks(16);
+    for margin in [-0.01, 0.26, f32::NAN, f32::INFINITY] {
+        let mut o = options("ntc-0.2", 50, 1);
+        o.train.output_margin = Some(margin);
+        let mut steps = 0;
+        match encode(&set, &o, &mut |_| steps += 1) {
+            Err(EncodeError::BadOption { option: EncodeOption::OutputMargin, value, .. }) => {
+                assert_eq!(value, margin.to_string());
+            }
+            other => panic!("margin {margin}: {:?}", other.map(|e| e.bytes.len())),
+        }
+        assert_eq!(steps, 0, "margin {margin}: trained before refusing");
+    }
+    for margin in [0.0, nmat_encode::MAX_OUTPUT_MARGIN] {
+        assert!(nmat_encode::check_output_margin(margin).is_ok(), "{margin}");
+    }
 }
 
 #[test]

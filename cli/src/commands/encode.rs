@@ -49,7 +49,13 @@ pub fn run(args: EncodeArgs) -> Result<()> {
     if args.subsampling.is_some() {
         return Err("--subsampling belongs to the JPEG codec; pass --codec jpeg".into());
     }
-    let train = train_options(&args.train, nmat_encode::DEFAULT_STEPS)?;
+    let train = TrainOptions {
+        output_margin: args.output_margin,
+        ..train_options(&args.train, nmat_encode::DEFAULT_STEPS)?
+    };
+    if let Some(margin) = args.output_margin {
+        nmat_encode::check_output_margin(margin)?;
+    }
     let storage = if args.fixed_rate { Storage::FixedRate } else { Storage::Packed };
     let memory_factor = args.memory_factor.unwrap_or(nmat_encode::DEFAULT_MEMORY_FACTOR);
     // Everything but the profile, which the arguments or the target search choose.
@@ -128,6 +134,7 @@ fn encode_jpeg(args: &EncodeArgs, set: &TextureSet, address_mode: AddressMode) -
         ("--memory-factor", args.memory_factor.is_some()),
         ("--legacy-lod", args.legacy_lod),
         ("--layout", args.layout != LayoutArg::Trial),
+        ("--output-margin", args.output_margin.is_some()),
         ("--steps", args.train.steps.is_some()),
         ("--effort", args.train.effort != EffortArg::Default),
         ("--seed", args.train.seed != TrainOptions::default().seed),
