@@ -431,9 +431,9 @@ pub struct EncodeArgs {
     #[arg(long, value_enum, default_value_t = LayoutArg::Trial, conflicts_with = "fixed_rate")]
     pub layout: LayoutArg,
     /// Neural: how far past its range an output may go without cost where its target sits at
-    /// that end, 0–0.25 of the range [default: the profile's, 0.02 at ntc-0.2, else 0]. Every
-    /// decoder clamps the outputs, so a 0/1 mask, pure white or zero padding then decodes
-    /// exactly (docs/ENCODING.md, "Outputs past the ends of their range").
+    /// that end, 0–0.25 of the range [default: the profile's, 0.02 at ntc-0.2 and nbc-0.1, else
+    /// 0]. Every decoder clamps the outputs, so a 0/1 mask, pure white or zero padding then
+    /// decodes exactly (docs/ENCODING.md, "Outputs past the ends of their range").
     #[arg(long)]
     pub output_margin: Option<f32>,
     /// Solve the layout and print the file's byte budget without training; writes nothing.

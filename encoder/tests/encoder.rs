@@ -52,11 +52,13 @@ fn the_output_margin_left_open_is_the_profile_s() {
         o.train.output_margin = margin;
         encode(&set, &o, &mut |_| {}).unwrap().bytes
     };
-    for profile in ["ntc-0.2", "ntc-1.0"] {
+    for profile in ["ntc-0.2", "ntc-1.0", "nbc-0.1"] {
         let own = Profile::by_name(profile).unwrap().output_margin();
         assert_eq!(run(profile, None), run(profile, Some(own)), "{profile}");
     }
-    assert!(Profile::by_name("ntc-0.2").unwrap().output_margin() > 0.0);
+    for profile in ["ntc-0.2", "nbc-0.1"] {
+        assert!(Profile::by_name(profile).unwrap().output_margin() > 0.0, "{profile}");
+    }
     assert_ne!(run("ntc-0.2", None), run("ntc-0.2", Some(0.0)), "the margin changes nothing");
 }
 
