@@ -53,6 +53,7 @@ pub fn run(args: EncodeArgs) -> Result<()> {
         output_margin: args.output_margin,
         ..train_options(&args.train, nmat_encode::DEFAULT_STEPS)?
     };
+    // `encode` checks it too, but `--dry-run` trains nothing: refuse a bad margin either way.
     if let Some(margin) = args.output_margin {
         nmat_encode::check_output_margin(margin)?;
     }
