@@ -75,6 +75,7 @@ fuzz_target!(|s: Shape| {
         input_frac_bits,
         hidden_frac_bits: 8 + s.frac[1] % 6,
         output_frac_bits: 8 + s.frac[2] % 7,
+        ntc_hi_bilinear: !s.nbc && s.seed % 2 == 1,
     };
     let spec = generate(&cfg);
     let bytes = spec.to_bytes().expect("the generator makes valid materials");

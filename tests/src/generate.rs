@@ -63,6 +63,9 @@ pub struct FixtureConfig {
     pub input_frac_bits: u8,
     pub hidden_frac_bits: u8,
     pub output_frac_bits: u8,
+    /// NTC only: each level also reads its high-resolution grid bilinearly, a third term after
+    /// `Nearest4[hi]` and `Bilinear[lo]` (one grid read in two modes, as `ntc-0.2` files do).
+    pub ntc_hi_bilinear: bool,
 }
 
 impl FixtureConfig {
@@ -89,6 +92,7 @@ impl FixtureConfig {
             input_frac_bits: 12,
             hidden_frac_bits: 12,
             output_frac_bits: 14,
+            ntc_hi_bilinear: false,
         }
     }
 
@@ -147,6 +151,13 @@ pub fn golden_configs() -> Vec<FixtureConfig> {
         // Degenerate sizes: one texel; a 1×N strip; a single hidden layer.
         FixtureConfig { hidden: vec![8], ..FixtureConfig::ntc("tiny_1x1", 7, 1, 1, 1) },
         FixtureConfig { hidden: vec![16, 16, 16], ..FixtureConfig::ntc("strip_1x37", 8, 1, 37, 2) },
+        // One grid read in two modes: each level's high-res grid by its 4 nearest cells and
+        // bilinearly (the layout of `ntc-0.2` files); 2-bit high-res latents as there.
+        FixtureConfig {
+            layout: Layout::Ntc { hi_channels: 6, lo_channels: 2, hi_bits: 2, lo_bits: 4 },
+            ntc_hi_bilinear: true,
+            ..FixtureConfig::ntc("ntc_hi_twice_48x40", 9, 48, 40, 6)
+        },
     ]
 }
 
@@ -260,12 +271,14 @@ pub fn generate(cfg: &FixtureConfig) -> MaterialSpec {
                     *lo_bits,
                     f,
                 ));
-                levels.push(LevelSpec {
-                    terms: vec![
-                        TermSpec { mode: TermMode::Nearest4, grids: vec![hi] },
-                        TermSpec { mode: TermMode::Bilinear, grids: vec![hi + 1] },
-                    ],
-                });
+                let mut terms = vec![
+                    TermSpec { mode: TermMode::Nearest4, grids: vec![hi] },
+                    TermSpec { mode: TermMode::Bilinear, grids: vec![hi + 1] },
+                ];
+                if cfg.ntc_hi_bilinear {
+                    terms.push(TermSpec { mode: TermMode::Bilinear, grids: vec![hi] });
+                }
+                levels.push(LevelSpec { terms });
             }
             mip_to_level.extend((0..mip_count).map(|m| m / 2));
         }
@@ -424,6 +437,7 @@ pub fn random_config(seed: u64) -> FixtureConfig {
     };
     let hidden = (0..pick(&mut r, 0, 3)).map(|_| pick(&mut r, 1, 64) as u16).collect();
     let full = (32 - width.max(height).leading_zeros()) as i64;
+    let is_ntc = matches!(layout, Layout::Ntc { .. });
     FixtureConfig {
         name: "random",
         seed,
@@ -440,5 +454,7 @@ pub fn random_config(seed: u64) -> FixtureConfig {
         input_frac_bits,
         hidden_frac_bits: pick(&mut r, 8, 13) as u8,
         output_frac_bits: pick(&mut r, 8, 14) as u8,
+        // Drawn last, so the draws above are those of the configurations before this field.
+        ntc_hi_bilinear: is_ntc && r.unit() < 0.5,
     }
 }
