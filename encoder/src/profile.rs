@@ -20,7 +20,7 @@ pub enum Profile {
         /// `Bilinear[hi]`, after NTC's `Nearest4[hi]` and `Bilinear[lo]`): the same four cells,
         /// interpolated, so the network has smooth features at that resolution as well as the
         /// four corners. On at `ntc-0.2` (+0.39 dB mean over the development materials, for
-        /// 6–9 % more multiply-adds per texel); the other profiles are not measured yet
+        /// 4–10 % more multiply-adds per texel); the other profiles are not measured yet
         /// (docs/ENCODING.md, "The high-resolution grid read twice").
         hi_bilinear: bool,
         /// The trainer's default [`TrainOptions::output_margin`](crate::TrainOptions::output_margin).
