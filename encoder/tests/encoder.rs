@@ -212,6 +212,7 @@ fn ntc_0_2_reads_its_high_resolution_grids_twice_in_every_layout() {
     let shape = nmat_encode::shape_of(&demo::bricks(384));
     for name in ["ntc-0.2", "ntc-0.5", "ntc-1.0", "ntc-2.25"] {
         let profile = Profile::by_name(name).unwrap();
+        let twice = name == "ntc-0.2";
         let mut configs = Vec::new();
         for (storage, factor) in [
             (Storage::Packed, DEFAULT_MEMORY_FACTOR),
@@ -228,7 +229,7 @@ fn ntc_0_2_reads_its_high_resolution_grids_twice_in_every_layout() {
                 let modes: Vec<_> = terms.iter().map(|t| (t.mode, t.grids.clone())).collect();
                 let hi = terms[0].grids[0];
                 let mut expected = vec![(Nearest4, vec![hi]), (Bilinear, vec![hi + 1])];
-                if name == "ntc-0.2" {
+                if twice {
                     expected.push((Bilinear, vec![hi]));
                 }
                 assert_eq!(modes, expected, "{name}");
@@ -236,7 +237,7 @@ fn ntc_0_2_reads_its_high_resolution_grids_twice_in_every_layout() {
             // The third term's features are inputs of the network.
             let hi_channels = config.grids[0].channels;
             let lo_channels = config.grids[1].channels;
-            let extra = if name == "ntc-0.2" { hi_channels } else { 0 };
+            let extra = if twice { hi_channels } else { 0 };
             let position = 4 * usize::from(config.pe_frequencies) + 1; // PE and the LOD
             assert_eq!(
                 config.input_width(),
