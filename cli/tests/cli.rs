@@ -642,9 +642,10 @@ fn effort_fast_is_a_quarter_of_the_default_steps_and_conflicts_with_steps() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// `--layout`: a packed `ntc-0.2` file of a 512² material has two layouts; `--dry-run` shows
-/// both, the default trial says what each way measured and which it kept, a forced way runs no
-/// trial and is the trial's file where the trial kept it.
+/// `--layout`: a packed `ntc-0.2` file of a 384² material has two layouts; `--dry-run` shows
+/// both, `--layout trial` says what each way measured and which it kept, a forced way runs no
+/// trial and is the trial's file where the trial kept it, and the default is one more bit per
+/// latent first, without a trial.
 #[test]
 fn the_layout_trial_is_shown_and_can_be_skipped() {
     let dir = temp_dir("layout-trial");
@@ -663,11 +664,13 @@ fn the_layout_trial_is_shown_and_can_be_skipped() {
     };
     let o = encode("plan.nmat", &["--dry-run"]);
     assert!(
-        o.status.success() && text(&o).contains("or, one more bit per latent first"),
+        o.status.success()
+            && text(&o).contains("or, the grids' resolution first")
+            && text(&o).contains("level 0 (mips 0,1,2): Nearest4[0] + Bilinear[1] + Bilinear[0]"),
         "{}",
         text(&o)
     );
-    let o = encode("trial.nmat", &[]);
+    let o = encode("trial.nmat", &["--layout", "trial"]);
     let said = text(&o);
     assert!(o.status.success(), "{said}");
     let line =
@@ -683,6 +686,16 @@ fn the_layout_trial_is_shown_and_can_be_skipped() {
     let same =
         std::fs::read(out("trial.nmat")).unwrap() == std::fs::read(out("forced.nmat")).unwrap();
     assert!(same, "{kept}: the trial's file differs from the way it kept");
+    let o = encode("default.nmat", &[]);
+    assert!(o.status.success() && !text(&o).contains("layout trial"), "{}", text(&o));
+    let bits_first = if kept == "bits-first" {
+        out("forced.nmat")
+    } else {
+        assert!(encode("bits.nmat", &["--layout", "bits-first"]).status.success());
+        out("bits.nmat")
+    };
+    let same = std::fs::read(out("default.nmat")).unwrap() == std::fs::read(bits_first).unwrap();
+    assert!(same, "the default file is not the bits-first layout's");
     let o = encode("fixed.nmat", &["--fixed-rate", "--layout", "bits-first"]);
     assert!(!o.status.success() && text(&o).contains("cannot be used with"), "{}", text(&o));
     std::fs::remove_dir_all(&dir).unwrap();

@@ -59,7 +59,7 @@ pub struct EncodeOptions {
     /// `mip / 2`, which keeps the int8 network closer to the float one (docs/ENCODING.md).
     pub legacy_lod: bool,
     /// How a packed layout grows to its in-memory size where there are two ways
-    /// (docs/ENCODING.md, "The layout trial"); default [`LayoutChoice::Trial`].
+    /// (docs/ENCODING.md, "The layout trial"); default [`LayoutChoice::BitsFirst`].
     pub layout: LayoutChoice,
 }
 
@@ -69,11 +69,13 @@ pub struct EncodeOptions {
 pub enum LayoutChoice {
     /// Train each way for [`TRIAL_SHARE`] of the steps and keep the one whose file decodes with
     /// the higher whole-chain PSNR; then train it in full (the encode takes about 1.5× as long).
-    #[default]
     Trial,
     /// The grids' resolution first (the layout where there is only one way).
     ResolutionFirst,
-    /// One more bit per latent first, then the grids' resolution.
+    /// One more bit per latent first, then the grids' resolution: the default, the way the trial
+    /// kept on every development material with two ways since `ntc-0.2` reads its
+    /// high-resolution grids twice.
+    #[default]
     BitsFirst,
 }
 

@@ -284,8 +284,11 @@ fn the_layout_trial_keeps_the_way_whose_short_training_decoded_better() {
     let bits_first = run(LayoutChoice::BitsFirst, steps);
     assert_eq!((&resolution_first.config, resolution_first.trial), (&ways[0].config, None));
     assert_eq!((&bits_first.config, bits_first.trial), (&ways[1].config, None));
+    // The default is one more bit per latent first, without a trial.
+    let default = encode(&set, &options("ntc-0.2", steps, 3), &mut |_| {}).unwrap();
+    assert!(default.trial.is_none() && default.bytes == bits_first.bytes, "default: bits first");
     let mut counted = Vec::new();
-    let o = options("ntc-0.2", steps, 3);
+    let o = EncodeOptions { layout: LayoutChoice::Trial, ..options("ntc-0.2", steps, 3) };
     let tried = encode(&set, &o, &mut |p| counted.push((p.step, p.steps))).unwrap();
     let trial = tried.trial.unwrap();
     // Each way's trial is that way trained for a quarter of the steps.

@@ -86,7 +86,7 @@ pub fn run(args: EncodeArgs) -> Result<()> {
             (None, None) => profile_named(nmat_encode::DEFAULT_PROFILE)?,
         };
         if args.dry_run {
-            print!("{}", plan(&set, profile, storage, memory_factor)?);
+            print!("{}", plan(&set, profile, storage, memory_factor, args.layout.into())?);
             return Ok(());
         }
         encode_with_progress(&set, &EncodeOptions { profile, ..base })?
@@ -134,7 +134,7 @@ fn encode_jpeg(args: &EncodeArgs, set: &TextureSet, address_mode: AddressMode) -
         ("--dry-run", args.dry_run),
         ("--memory-factor", args.memory_factor.is_some()),
         ("--legacy-lod", args.legacy_lod),
-        ("--layout", args.layout != LayoutArg::Trial),
+        ("--layout", args.layout != LayoutArg::BitsFirst),
         ("--output-margin", args.output_margin.is_some()),
         ("--steps", args.train.steps.is_some()),
         ("--effort", args.train.effort != EffortArg::Default),
@@ -187,16 +187,20 @@ fn encode_jpeg(args: &EncodeArgs, set: &TextureSet, address_mode: AddressMode) -
     Ok(())
 }
 
-/// What `encode --dry-run` prints: the solved layout of `profile` for `set` and its byte budget.
+/// What `encode --dry-run` prints: the solved layout of `profile` for `set` that `choice` trains
+/// (bits first for a trial) and its byte budget, then the other way where there are two.
 fn plan(
     set: &TextureSet,
     profile: Profile,
     storage: Storage,
     memory_factor: f64,
+    choice: LayoutChoice,
 ) -> Result<String> {
     let shape = nmat_encode::shape_of(set);
     let layouts = nmat_encode::layouts(profile, &shape, storage, memory_factor)?;
-    let layout = &layouts[0];
+    // `layouts` lists the grids' resolution first, then (where it differs) one more bit first.
+    let shown = if choice == LayoutChoice::ResolutionFirst { 0 } else { layouts.len() - 1 };
+    let layout = &layouts[shown];
     let cfg = &layout.config;
     let budget = cfg.byte_budget(&shape);
     // BPPC's denominator: width · height · channels that vary, of mip 0.
@@ -234,14 +238,22 @@ fn plan(
         set.channel_count()
     ));
     s.push_str(&grid_lines(cfg));
+    s.push_str(&level_lines(cfg));
     s.push_str(&output::budget_table(&budget, texel_channels));
-    if let Some(other) = layouts.get(1) {
+    if layouts.len() > 1 {
+        let (other, way, arg) = match shown {
+            0 => (&layouts[1], "one more bit per latent first", "bits-first"),
+            _ => (&layouts[0], "the grids' resolution first", "resolution-first"),
+        };
         s.push_str(&format!(
-            "\nor, one more bit per latent first (--layout trial trains both for a quarter of the \
-             steps and keeps the better; this one is {:.4} BPPC in memory):\n",
+            "\nor, {way} (--layout {arg}; --layout trial trains both for a quarter of the steps \
+             and keeps the better; this one is {:.4} BPPC in memory):\n",
             rate(other.config.byte_budget(&shape).total() as f64)
         ));
         s.push_str(&grid_lines(&other.config));
+        if other.config.levels != cfg.levels {
+            s.push_str(&level_lines(&other.config));
+        }
     }
     Ok(s)
 }
@@ -258,6 +270,22 @@ fn grid_lines(cfg: &nmat_encode::ModelConfig) -> String {
             g.bits,
             4 * g.bits().div_ceil(32)
         ));
+    }
+    s
+}
+
+/// A line per level of `cfg`: its mips and the terms that read its grids, as `nmat info` lists
+/// them.
+fn level_lines(cfg: &nmat_encode::ModelConfig) -> String {
+    let mut s = String::new();
+    for (l, terms) in cfg.levels.iter().enumerate() {
+        let mips: Vec<String> = (cfg.mip_to_level.iter().enumerate())
+            .filter(|&(_, &level)| usize::from(level) == l)
+            .map(|(k, _)| k.to_string())
+            .collect();
+        let terms: Vec<String> =
+            terms.iter().map(|t| format!("{:?}{:?}", t.mode, t.grids.as_slice())).collect();
+        s.push_str(&format!("  level {l} (mips {}): {}\n", mips.join(","), terms.join(" + ")));
     }
     s
 }
