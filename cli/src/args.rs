@@ -425,11 +425,11 @@ pub struct EncodeArgs {
     #[arg(long, conflicts_with = "fixed_rate")]
     pub memory_factor: Option<f64>,
     /// Neural, packed ntc-0.2: how the in-memory layout grows past the nominal one — one more
-    /// bit per latent first (the default), the grids' resolution first, or `trial`: train both
-    /// for a quarter of the steps each and keep the better (about 1.5× the encode time)
-    /// (docs/ENCODING.md, "The layout trial")
-    #[arg(long, value_enum, default_value_t = LayoutArg::BitsFirst, conflicts_with = "fixed_rate")]
-    pub layout: LayoutArg,
+    /// bit per latent first, the grids' resolution first, or `trial`: train both for a quarter of
+    /// the steps each and keep the better (about 1.5× the encode time) (docs/ENCODING.md, "The
+    /// layout trial") [default: bits-first]
+    #[arg(long, value_enum, conflicts_with = "fixed_rate")]
+    pub layout: Option<LayoutArg>,
     /// Neural: how far past its range an output may go without cost where its target sits at
     /// that end, 0–0.25 of the range [default: the profile's, 0.02 at ntc-0.2 and nbc-0.1, else
     /// 0]. Every decoder clamps the outputs, so a 0/1 mask, pure white or zero padding then

@@ -66,7 +66,7 @@ pub fn run(args: EncodeArgs) -> Result<()> {
         storage,
         memory_factor,
         legacy_lod: args.legacy_lod,
-        layout: args.layout.into(),
+        layout: args.layout.unwrap_or(LayoutArg::BitsFirst).into(),
         ..EncodeOptions::default()
     };
     let start = Instant::now();
@@ -86,7 +86,7 @@ pub fn run(args: EncodeArgs) -> Result<()> {
             (None, None) => profile_named(nmat_encode::DEFAULT_PROFILE)?,
         };
         if args.dry_run {
-            print!("{}", plan(&set, profile, storage, memory_factor, args.layout.into())?);
+            print!("{}", plan(&set, profile, storage, memory_factor, base.layout)?);
             return Ok(());
         }
         encode_with_progress(&set, &EncodeOptions { profile, ..base })?
@@ -134,7 +134,7 @@ fn encode_jpeg(args: &EncodeArgs, set: &TextureSet, address_mode: AddressMode) -
         ("--dry-run", args.dry_run),
         ("--memory-factor", args.memory_factor.is_some()),
         ("--legacy-lod", args.legacy_lod),
-        ("--layout", args.layout != LayoutArg::BitsFirst),
+        ("--layout", args.layout.is_some()),
         ("--output-margin", args.output_margin.is_some()),
         ("--steps", args.train.steps.is_some()),
         ("--effort", args.train.effort != EffortArg::Default),

@@ -24,6 +24,7 @@
 extern crate alloc;
 
 use alloc::vec::Vec;
+use core::ops::Range;
 
 use crate::decode::{ChannelMask, code, unit, write_selected};
 use crate::error::{Argument, Error};
@@ -178,6 +179,70 @@ struct Network {
     layers: Vec<PackedLayer>,
 }
 
+/// The first layer's sums over a span's shared features — the `Nearest4` term's, the same for
+/// every texel between two cell centres (FORMAT.md §6.2) — summed once per cell by the kernel
+/// and added to each texel's start row (the bias, or its periodic sums), so that per texel only
+/// the pairs after them are summed. Integer sums do not depend on their order: the layer's
+/// result to the bit.
+struct SharedSums<'l> {
+    layer: &'l PackedLayer,
+    /// The shared features are input pairs `0..skip`; a texel's own are `skip..end`.
+    skip: usize,
+    end: usize,
+    sums: [i32; MAX_WIDTH],
+}
+
+impl<'l> SharedSums<'l> {
+    /// For a span of `gather` through kernel `K`, if the kernel saves the skipped pairs' work and
+    /// the span has shared features ([`SpanGather::shared_pairs`]) and features of its own.
+    fn new<K: Layers>(
+        network: &'l Network,
+        gather: &SpanGather<'_, '_, i16>,
+        periodic: Option<&PeriodicSums<'_>>,
+    ) -> Option<SharedSums<'l>> {
+        let layer = network.layers.first().filter(|_| K::SKIPS_PAIRS)?;
+        let skip = gather.shared_pairs();
+        let end = periodic.map_or(layer.in_pairs(), |p| p.pairs);
+        (skip > 0 && skip < end).then_some(SharedSums { layer, skip, end, sums: [0; MAX_WIDTH] })
+    }
+
+    /// The pairs each texel sums itself.
+    fn pairs(&self) -> Range<usize> {
+        self.skip..self.end
+    }
+
+    /// The start row of the texel whose inputs `gather` just wrote into `x` (at addressed x
+    /// `at`): its periodic sums (or the bias) plus the shared sums, summed again where the
+    /// texel entered another cell.
+    #[inline(always)]
+    fn start<K: Layers>(
+        &mut self,
+        kernel: K,
+        gather: &SpanGather<'_, '_, i16>,
+        x: &[i16; MAX_WIDTH],
+        periodic: Option<&PeriodicSums<'_>>,
+        at: u32,
+        start: &mut [i32; MAX_WIDTH],
+    ) {
+        if gather.shared_changed() {
+            kernel.sums(self.layer, x, 0..self.skip, &mut self.sums);
+        }
+        let base = periodic.map_or(self.layer.bias(), |p| p.at(at));
+        // 16 rows at a time (out_pad is a multiple of 16): fixed-length, vector code.
+        let (to, _) = start.as_chunks_mut::<16>();
+        let (from, _) = base.as_chunks::<16>();
+        let (shared, _) = self.sums.as_chunks::<16>();
+        let chunks = to.iter_mut().zip(from).zip(shared).take(self.layer.out_pad() / 16);
+        for ((to, from), shared) in chunks {
+            let mut sum = *from;
+            for (s, &n) in sum.iter_mut().zip(shared) {
+                *s = s.wrapping_add(n);
+            }
+            *to = sum;
+        }
+    }
+}
+
 /// A material checked against its decoder, by codec: what each entry point matches on.
 #[derive(Clone, Copy)]
 enum Bound<'d, 'm, 'a> {
@@ -266,9 +331,10 @@ impl Network {
     }
 
     /// [`Decoder::forward_int`] for the first `count` texels of a group, batched (each weight
-    /// loaded once for the group) by the SIMD kernels. With `periodic`, the first layer starts
-    /// from the span's sums over the periodic inputs of each texel's addressed x; the SIMD
-    /// kernels then compute the whole group (texels from `count` on are ignored).
+    /// loaded once for the group) by the SIMD kernels. With `first`, the first layer starts each
+    /// texel from its row of sums (bias and the inputs summed ahead: the periodic ones, and those
+    /// of cells the texels share) and sums only the pairs in the range; the SIMD kernels then
+    /// compute the whole group (texels from `count` on are ignored).
     #[inline(always)]
     fn forward_int_group<K: Layers>(
         &self,
@@ -276,22 +342,23 @@ impl Network {
         xs: &mut [[i16; MAX_WIDTH]; GROUP],
         count: usize,
         rows: u16,
-        periodic: Option<(&PeriodicSums<'_>, &[u32; GROUP])>,
+        first: Option<([&[i32]; GROUP], Range<usize>)>,
     ) {
-        if count < GROUP && periodic.is_none() {
+        if count < GROUP && first.is_none() {
             for x in xs.iter_mut().take(count) {
                 self.forward_int(kernel, x, rows);
             }
             return;
         }
+        let mut first = first;
         let mut spare = [[0i16; MAX_WIDTH]; GROUP];
         let (mut from, mut to) = (&mut *xs, &mut spare);
         let layers = self.layers.len();
         for (li, layer) in self.layers.iter().enumerate() {
             let blocks = layer.blocks(li + 1 == layers, rows);
-            let (init, pairs) = match periodic.filter(|_| li == 0) {
-                Some((sums, at)) => (at.map(|x| sums.at(x)), sums.pairs),
-                None => ([layer.bias(); GROUP], layer.in_pairs()),
+            let (init, pairs) = match first.take() {
+                Some(start) => start,
+                None => ([layer.bias(); GROUP], 0..layer.in_pairs()),
             };
             kernel.forward_group(layer, from, init, pairs, to, blocks, count);
             core::mem::swap(&mut from, &mut to);
@@ -345,14 +412,25 @@ impl Network {
         // Room for the table, filled (and zeroed first) only if the span uses it.
         let mut table = None;
         let periodic = self.periodic_sums(&gather, count, &mut table);
+        let mut shared = SharedSums::new::<K>(self, &gather, periodic.as_ref());
         let mut xs = [[0i16; MAX_WIDTH]; GROUP];
         let mut at = [0u32; GROUP];
+        let mut starts = [[0i32; MAX_WIDTH]; GROUP];
         for (g, texels) in out.chunks_mut(GROUP * n).take(count.div_ceil(GROUP)).enumerate() {
             let k = (count - g * GROUP).min(GROUP);
-            for ((i, x), at) in xs.iter_mut().enumerate().zip(&mut at).take(k) {
+            let group = xs.iter_mut().zip(&mut at).zip(&mut starts).enumerate().take(k);
+            for (i, ((x, at), start)) in group {
                 *at = gather.inputs(x0.wrapping_add((g * GROUP + i) as i64), x);
+                if let Some(shared) = shared.as_mut() {
+                    shared.start(kernel, &gather, x, periodic.as_ref(), *at, start);
+                }
             }
-            self.forward_int_group(kernel, &mut xs, k, rows, periodic.as_ref().map(|p| (p, &at)));
+            let first = match (&shared, &periodic) {
+                (Some(shared), _) => Some((starts.each_ref().map(|r| &r[..]), shared.pairs())),
+                (None, Some(p)) => Some((at.map(|x| p.at(x)), 0..p.pairs)),
+                (None, None) => None,
+            };
+            self.forward_int_group(kernel, &mut xs, k, rows, first);
             for (x, texel) in xs.iter().zip(texels.chunks_exact_mut(n)) {
                 if first_rows {
                     // All 16 lanes at once (fixed length: vector code), then the n wanted.

@@ -6,6 +6,7 @@
 extern crate alloc;
 
 use alloc::vec::Vec;
+use core::ops::Range;
 
 use super::lanes::Tables;
 use crate::limits::MAX_WIDTH;
@@ -195,6 +196,12 @@ impl PackedLayer {
 }
 
 impl PackedLayer {
+    /// `pairs` cut to the layer's input pairs (an empty range where it starts past them).
+    pub(crate) fn pairs_within(&self, pairs: Range<usize>) -> Range<usize> {
+        let end = pairs.end.min(self.in_pairs);
+        pairs.start.min(end)..end
+    }
+
     /// The accumulators' start values for a layer pass: `init`, or the bias if `init` is shorter
     /// than `out_pad` (the rule of `forward_scalar_from` and every kernel's group form).
     pub(crate) fn start_row<'s>(&'s self, init: &'s [i32]) -> &'s [i32] {
@@ -219,14 +226,14 @@ impl PackedLayer {
 
     /// The scalar twin: exactly the integer layer of FORMAT.md §6.6 over the prepared layout,
     /// with the accumulators starting at `init` (per row; a row shorter than `out_pad` counts as
-    /// the bias) instead of the bias, and only input pairs `0..pairs` summed: with `init` = bias
-    /// + the sum over the other pairs (`partial_sums`) this is the whole layer, as integer sums
-    ///   do not depend on their order.
+    /// the bias) instead of the bias, and only input pairs `pairs` summed: with `init` = bias +
+    /// the sum over the other pairs (`partial_sums`, `pair_sums`) this is the whole layer, as
+    /// integer sums do not depend on their order.
     pub(crate) fn forward_scalar_from(
         &self,
         x: &[i16; MAX_WIDTH],
         init: &[i32],
-        pairs: usize,
+        pairs: Range<usize>,
         y: &mut [i16; MAX_WIDTH],
         blocks: u32,
     ) {
@@ -240,8 +247,8 @@ impl PackedLayer {
             for (a, &start) in acc.iter_mut().zip(init.iter().skip(8 * b)) {
                 *a = start;
             }
-            let weights = self.weights.chunks_exact(row_len).take(pairs);
-            for (pair, x) in weights.zip(x.chunks_exact(2)) {
+            let weights = self.weights.chunks_exact(row_len).zip(x.chunks_exact(2));
+            for (pair, x) in weights.take(pairs.end).skip(pairs.start) {
                 let (x0, x1) = match x {
                     [x0, x1] => (i32::from(*x0), i32::from(*x1)),
                     _ => (0, 0),
@@ -278,11 +285,23 @@ impl PackedLayer {
         first_pair: usize,
         sums: &mut [i32; MAX_WIDTH],
     ) {
+        self.pair_sums(x, first_pair..self.in_pairs, sums);
         for (s, &b) in sums.iter_mut().zip(&self.bias) {
-            *s = b;
+            *s = s.wrapping_add(b);
         }
-        let pairs = self.weights.chunks_exact(2 * self.out_pad).zip(x.chunks_exact(2));
-        for (pair, x) in pairs.skip(first_pair) {
+    }
+
+    /// Per row: the sum over input pairs `pairs` of `x` (wrapping, like every accumulator; no
+    /// bias), into the first `out_pad` entries of `sums`: the scalar form of `Layers::sums`.
+    pub(super) fn pair_sums(
+        &self,
+        x: &[i16; MAX_WIDTH],
+        pairs: Range<usize>,
+        sums: &mut [i32; MAX_WIDTH],
+    ) {
+        sums.iter_mut().take(self.out_pad).for_each(|s| *s = 0);
+        let weights = self.weights.chunks_exact(2 * self.out_pad).zip(x.chunks_exact(2));
+        for (pair, x) in weights.take(pairs.end).skip(pairs.start) {
             let (x0, x1) = match x {
                 [x0, x1] => (i32::from(*x0), i32::from(*x1)),
                 _ => (0, 0),

@@ -3,6 +3,7 @@
 //! `decoder/lanes.rs`).
 
 use core::arch::x86_64::*;
+use core::ops::Range;
 
 use super::{GROUP, Job, Kernel, Layers, PackedLayer};
 use crate::limits::MAX_WIDTH;
@@ -23,6 +24,7 @@ pub(super) unsafe fn run<J: Job>(job: J) -> J::Output {
 
 impl Layers for Avx2 {
     const KERNEL: Kernel = Kernel::Avx2;
+    const SKIPS_PAIRS: bool = true;
 
     #[inline(always)]
     fn forward(self, l: &PackedLayer, x: &[i16; MAX_WIDTH], y: &mut [i16; MAX_WIDTH], blocks: u32) {
@@ -36,14 +38,26 @@ impl Layers for Avx2 {
         l: &PackedLayer,
         xs: &[[i16; MAX_WIDTH]; GROUP],
         init: [&[i32]; GROUP],
-        pairs: usize,
+        pairs: Range<usize>,
         ys: &mut [[i16; MAX_WIDTH]; GROUP],
         blocks: u32,
         _count: usize,
     ) {
         let init = init.map(|s| l.start_row(s).as_ptr());
         // SAFETY: as in `forward`; every start row holds out_pad entries (`start_row`).
-        unsafe { forward_group_avx2(l, xs, init, pairs.min(l.in_pairs()), ys, blocks) }
+        unsafe { forward_group_avx2(l, xs, init, l.pairs_within(pairs), ys, blocks) }
+    }
+
+    #[inline(always)]
+    fn sums(
+        self,
+        l: &PackedLayer,
+        x: &[i16; MAX_WIDTH],
+        pairs: Range<usize>,
+        sums: &mut [i32; MAX_WIDTH],
+    ) {
+        // SAFETY: as in `forward`.
+        unsafe { sums_avx2(l, x, l.pairs_within(pairs), sums) }
     }
 
     fn probe(self, rounds: u64) -> i64 {
@@ -129,13 +143,71 @@ fn block<const B: usize, const S: usize>(
     }
 }
 
-/// `Layers::forward_group` for `G` texels, `pairs` ≤ `in_pairs`, `init` rows of `out_pad`.
+/// `Layers::sums` for `pairs` within `in_pairs`: 4 blocks of 8 rows per pass over the pairs
+/// (out_pad is a multiple of 16, so passes of 4 or 2 blocks cover it), each broadcast of an input
+/// pair serving 4 independent chains.
+#[target_feature(enable = "avx2")]
+pub(super) fn sums_avx2(
+    l: &PackedLayer,
+    x: &[i16; MAX_WIDTH],
+    pairs: Range<usize>,
+    sums: &mut [i32; MAX_WIDTH],
+) {
+    let count = l.out_pad() / 8;
+    let mut b = 0;
+    while b < count {
+        if b + 4 <= count {
+            sums_block::<4>(l, x, pairs.clone(), sums, b);
+            b += 4;
+        } else {
+            sums_block::<2>(l, x, pairs.clone(), sums, b);
+            b += 2;
+        }
+    }
+}
+
+/// Rows `8·first .. 8·(first + B)` of `Layers::sums`.
+#[target_feature(enable = "avx2")]
+fn sums_block<const B: usize>(
+    l: &PackedLayer,
+    x: &[i16; MAX_WIDTH],
+    pairs: Range<usize>,
+    sums: &mut [i32; MAX_WIDTH],
+    first: usize,
+) {
+    // Bounds as in `block`; pairs.end ≤ in_pairs (`pairs_within`).
+    debug_assert!(8 * (first + B) <= l.out_pad() && l.out_pad() <= MAX_WIDTH);
+    debug_assert!(
+        2 * l.in_pairs() <= MAX_WIDTH && l.weights().len() == l.in_pairs() * l.out_pad() * 2
+    );
+    debug_assert!(pairs.start <= pairs.end && pairs.end <= l.in_pairs());
+    let mut acc = [_mm256_setzero_si256(); B];
+    // SAFETY: every pointer access below stays within the bounds stated above.
+    unsafe {
+        let inputs = x.as_ptr().cast::<i32>();
+        let mut row = l.weights().as_ptr().add(16 * first + 2 * l.out_pad() * pairs.start);
+        for p in pairs {
+            let both = _mm256_set1_epi32(inputs.add(p).read_unaligned());
+            for (k, a) in acc.iter_mut().enumerate() {
+                let w = _mm256_loadu_si256(row.add(16 * k).cast());
+                *a = _mm256_add_epi32(*a, _mm256_madd_epi16(w, both));
+            }
+            row = row.add(2 * l.out_pad());
+        }
+        for (k, a) in acc.into_iter().enumerate() {
+            // 8·(first + k) + 8 ≤ out_pad ≤ MAX_WIDTH.
+            _mm256_storeu_si256(sums.as_mut_ptr().add(8 * (first + k)).cast(), a);
+        }
+    }
+}
+
+/// `Layers::forward_group` for `G` texels, `pairs` within `in_pairs`, `init` rows of `out_pad`.
 #[target_feature(enable = "avx2")]
 fn forward_group_avx2<const G: usize>(
     l: &PackedLayer,
     x: &[[i16; MAX_WIDTH]; G],
     init: [*const i32; G],
-    pairs: usize,
+    pairs: Range<usize>,
     y: &mut [[i16; MAX_WIDTH]; G],
     blocks: u32,
 ) {
@@ -145,11 +217,11 @@ fn forward_group_avx2<const G: usize>(
         // Two blocks per pass: G·2 accumulators, 2 weight vectors and a broadcast fit the 16
         // registers.
         if b + 2 <= count && (blocks >> b) & 3 == 3 {
-            group_block::<G, 2>(l, x, init, pairs, y, b);
+            group_block::<G, 2>(l, x, init, pairs.clone(), y, b);
             b += 2;
         } else {
             if (blocks >> b) & 1 != 0 {
-                group_block::<G, 1>(l, x, init, pairs, y, b);
+                group_block::<G, 1>(l, x, init, pairs.clone(), y, b);
             }
             b += 1;
         }
@@ -162,7 +234,7 @@ fn group_block<const G: usize, const B: usize>(
     l: &PackedLayer,
     x: &[[i16; MAX_WIDTH]; G],
     init: [*const i32; G],
-    pairs: usize,
+    pairs: Range<usize>,
     y: &mut [[i16; MAX_WIDTH]; G],
     first: usize,
 ) {
@@ -171,7 +243,7 @@ fn group_block<const G: usize, const B: usize>(
     debug_assert!(
         2 * l.in_pairs() <= MAX_WIDTH && l.weights().len() == l.in_pairs() * l.out_pad() * 2
     );
-    debug_assert!(pairs <= l.in_pairs());
+    debug_assert!(pairs.end <= l.in_pairs());
     let mut acc = [[_mm256_setzero_si256(); B]; G];
     // SAFETY: every pointer access below stays within the bounds stated above.
     unsafe {
@@ -181,8 +253,8 @@ fn group_block<const G: usize, const B: usize>(
                 *a = _mm256_loadu_si256(start.add(8 * k).cast());
             }
         }
-        let mut row = l.weights().as_ptr().add(16 * first);
-        for p in 0..pairs {
+        let mut row = l.weights().as_ptr().add(16 * first + 2 * l.out_pad() * pairs.start);
+        for p in pairs {
             let mut w = [_mm256_setzero_si256(); B];
             for (k, v) in w.iter_mut().enumerate() {
                 *v = _mm256_loadu_si256(row.add(16 * k).cast());

@@ -3,6 +3,7 @@
 //! its lane tables (`Avx512Lanes` in `decoder/lanes.rs`).
 
 use core::arch::x86_64::*;
+use core::ops::Range;
 
 use super::{GROUP, Job, Kernel, Layers, PackedLayer};
 use crate::limits::MAX_WIDTH;
@@ -23,6 +24,7 @@ pub(super) unsafe fn run<J: Job>(job: J) -> J::Output {
 
 impl Layers for Avx512 {
     const KERNEL: Kernel = Kernel::Avx512Vnni;
+    const SKIPS_PAIRS: bool = true;
 
     #[inline(always)]
     fn forward(self, l: &PackedLayer, x: &[i16; MAX_WIDTH], y: &mut [i16; MAX_WIDTH], blocks: u32) {
@@ -37,14 +39,28 @@ impl Layers for Avx512 {
         l: &PackedLayer,
         xs: &[[i16; MAX_WIDTH]; GROUP],
         init: [&[i32]; GROUP],
-        pairs: usize,
+        pairs: Range<usize>,
         ys: &mut [[i16; MAX_WIDTH]; GROUP],
         blocks: u32,
         _count: usize,
     ) {
         let init = init.map(|s| l.start_row(s).as_ptr());
         // SAFETY: as in `forward`; every start row holds out_pad entries (`start_row`).
-        unsafe { forward_group_avx512(l, xs, init, pairs.min(l.in_pairs()), ys, blocks) }
+        unsafe { forward_group_avx512(l, xs, init, l.pairs_within(pairs), ys, blocks) }
+    }
+
+    /// The AVX2 form (`vpmaddwd` over 8 rows): the sums are a small share of a span's work.
+    #[inline(always)]
+    fn sums(
+        self,
+        l: &PackedLayer,
+        x: &[i16; MAX_WIDTH],
+        pairs: Range<usize>,
+        sums: &mut [i32; MAX_WIDTH],
+    ) {
+        // SAFETY: an `Avx512Vnni` exists only inside `run`, whose caller checked the CPU has
+        // AVX-512 F, which implies AVX2 (and `run` is compiled with it).
+        unsafe { super::avx2::sums_avx2(l, x, l.pairs_within(pairs), sums) }
     }
 
     fn probe(self, rounds: u64) -> i64 {
@@ -132,13 +148,13 @@ fn block<const B: usize, const S: usize>(
     }
 }
 
-/// `Layers::forward_group` for `G` texels, `pairs` ≤ `in_pairs`, `init` rows of `out_pad`.
+/// `Layers::forward_group` for `G` texels, `pairs` within `in_pairs`, `init` rows of `out_pad`.
 #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
 fn forward_group_avx512<const G: usize>(
     l: &PackedLayer,
     x: &[[i16; MAX_WIDTH]; G],
     init: [*const i32; G],
-    pairs: usize,
+    pairs: Range<usize>,
     y: &mut [[i16; MAX_WIDTH]; G],
     blocks: u32,
 ) {
@@ -147,14 +163,14 @@ fn forward_group_avx512<const G: usize>(
     let mut b = 0;
     while b < count {
         if b + 4 <= count && (b..b + 4).all(selected) {
-            group_block::<G, 4>(l, x, init, pairs, y, b);
+            group_block::<G, 4>(l, x, init, pairs.clone(), y, b);
             b += 4;
         } else if b + 2 <= count && (b..b + 2).all(selected) {
-            group_block::<G, 2>(l, x, init, pairs, y, b);
+            group_block::<G, 2>(l, x, init, pairs.clone(), y, b);
             b += 2;
         } else {
             if selected(b) {
-                group_block::<G, 1>(l, x, init, pairs, y, b);
+                group_block::<G, 1>(l, x, init, pairs.clone(), y, b);
             }
             b += 1;
         }
@@ -167,7 +183,7 @@ fn group_block<const G: usize, const B: usize>(
     l: &PackedLayer,
     x: &[[i16; MAX_WIDTH]; G],
     init: [*const i32; G],
-    pairs: usize,
+    pairs: Range<usize>,
     y: &mut [[i16; MAX_WIDTH]; G],
     first: usize,
 ) {
@@ -176,7 +192,7 @@ fn group_block<const G: usize, const B: usize>(
     debug_assert!(
         2 * l.in_pairs() <= MAX_WIDTH && l.weights().len() == l.in_pairs() * l.out_pad() * 2
     );
-    debug_assert!(pairs <= l.in_pairs());
+    debug_assert!(pairs.end <= l.in_pairs());
     let mut acc = [[_mm512_setzero_si512(); B]; G];
     // SAFETY: every pointer access below stays within the bounds stated above.
     unsafe {
@@ -186,8 +202,8 @@ fn group_block<const G: usize, const B: usize>(
                 *a = _mm512_loadu_si512(start.add(16 * k).cast());
             }
         }
-        let mut row = l.weights().as_ptr().add(32 * first);
-        for p in 0..pairs {
+        let mut row = l.weights().as_ptr().add(32 * first + 2 * l.out_pad() * pairs.start);
+        for p in pairs {
             let mut w = [_mm512_setzero_si512(); B];
             for (k, v) in w.iter_mut().enumerate() {
                 *v = _mm512_loadu_si512(row.add(32 * k).cast());

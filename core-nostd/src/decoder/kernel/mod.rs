@@ -30,6 +30,8 @@ mod neon;
 mod neon_dot;
 mod scalar;
 
+use core::ops::Range;
+
 use super::packed::PackedLayer;
 use crate::limits::MAX_WIDTH;
 
@@ -204,20 +206,39 @@ pub(super) trait Layers: Copy {
 
     /// [`Layers::forward`] for a group of texels, with texel `t`'s accumulators starting at
     /// `init[t]` (per row; the bias for a plain layer; a row shorter than the layer's padded
-    /// width counts as the bias) and only input pairs `0..pairs` summed
-    /// ([`PackedLayer::forward_scalar_from`] per texel). The first `count` texels are wanted;
-    /// a kernel may compute all of them.
+    /// width counts as the bias) and only input pairs `pairs` summed (a range within the
+    /// layer's; [`PackedLayer::forward_scalar_from`] per texel). The first `count` texels are
+    /// wanted; a kernel may compute all of them.
     #[allow(clippy::too_many_arguments)]
     fn forward_group(
         self,
         l: &PackedLayer,
         xs: &[[i16; MAX_WIDTH]; GROUP],
         init: [&[i32]; GROUP],
-        pairs: usize,
+        pairs: Range<usize>,
         ys: &mut [[i16; MAX_WIDTH]; GROUP],
         blocks: u32,
         count: usize,
     );
+
+    /// Whether [`Layers::forward_group`] saves the work of the pairs before `pairs.start`, and
+    /// [`Layers::sums`] is fast enough that a span reuses the sums over inputs that stay the same
+    /// for several texels (measured on x86-64: docs/PERFORMANCE.md, "Nearest features summed
+    /// once per cell").
+    const SKIPS_PAIRS: bool;
+
+    /// Per row, the sum over input pairs `pairs` of `x` (no bias, wrapping like the
+    /// accumulators) into the first `out_pad` entries of `sums` ([`PackedLayer::pair_sums`]).
+    #[inline(always)]
+    fn sums(
+        self,
+        l: &PackedLayer,
+        x: &[i16; MAX_WIDTH],
+        pairs: Range<usize>,
+        sums: &mut [i32; MAX_WIDTH],
+    ) {
+        l.pair_sums(x, pairs, sums);
+    }
 
     /// `rounds` rounds of independent chains of the kernel's multiply-add instruction on
     /// registers only ([`Kernel::probe`]).

@@ -11,6 +11,7 @@
 //! input as in `avx512::hard_gelu`.
 
 use core::arch::aarch64::*;
+use core::ops::Range;
 
 use super::{GROUP, Job, Kernel, Layers, PackedLayer};
 use crate::limits::MAX_WIDTH;
@@ -31,6 +32,8 @@ pub(super) unsafe fn run<J: Job>(job: J) -> J::Output {
 
 impl Layers for Neon {
     const KERNEL: Kernel = Kernel::Neon;
+    /// Not measured on an AArch64 CPU yet: spans keep summing every pair per texel.
+    const SKIPS_PAIRS: bool = false;
 
     #[inline(always)]
     fn forward(self, l: &PackedLayer, x: &[i16; MAX_WIDTH], y: &mut [i16; MAX_WIDTH], blocks: u32) {
@@ -44,14 +47,14 @@ impl Layers for Neon {
         l: &PackedLayer,
         xs: &[[i16; MAX_WIDTH]; GROUP],
         init: [&[i32]; GROUP],
-        pairs: usize,
+        pairs: Range<usize>,
         ys: &mut [[i16; MAX_WIDTH]; GROUP],
         blocks: u32,
         _count: usize,
     ) {
         let init = init.map(|s| l.start_row(s).as_ptr());
         // SAFETY: as in `forward`; every start row holds out_pad entries (`start_row`).
-        unsafe { forward_group_neon(l, xs, init, pairs.min(l.in_pairs()), ys, blocks) }
+        unsafe { forward_group_neon(l, xs, init, l.pairs_within(pairs), ys, blocks) }
     }
 
     fn probe(self, rounds: u64) -> i64 {
@@ -152,18 +155,18 @@ fn fold(quads: [[int32x4_t; 2]; 2], init: [int32x4_t; 2]) -> [int32x4_t; 2] {
     [vaddq_s32(vpaddq_s32(a, b), init[0]), vaddq_s32(vpaddq_s32(c, d), init[1])]
 }
 
-/// `Layers::forward_group` for `G` texels, `pairs` ≤ `in_pairs`, `init` rows of `out_pad`.
+/// `Layers::forward_group` for `G` texels, `pairs` within `in_pairs`, `init` rows of `out_pad`.
 #[target_feature(enable = "neon")]
 fn forward_group_neon<const G: usize>(
     l: &PackedLayer,
     x: &[[i16; MAX_WIDTH]; G],
     init: [*const i32; G],
-    pairs: usize,
+    pairs: Range<usize>,
     y: &mut [[i16; MAX_WIDTH]; G],
     blocks: u32,
 ) {
     for b in (0..l.out_pad() / 8).filter(|b| (blocks >> b) & 1 != 0) {
-        group_block(l, x, init, pairs, y, b);
+        group_block(l, x, init, pairs.clone(), y, b);
     }
 }
 
@@ -174,19 +177,19 @@ fn group_block<const G: usize>(
     l: &PackedLayer,
     x: &[[i16; MAX_WIDTH]; G],
     init: [*const i32; G],
-    pairs: usize,
+    pairs: Range<usize>,
     y: &mut [[i16; MAX_WIDTH]; G],
     b: usize,
 ) {
     // Bounds as in `block`; each `init` row holds out_pad entries and pairs ≤ in_pairs (callers).
     debug_assert!(8 * b + 8 <= l.out_pad() && l.out_pad() <= MAX_WIDTH);
-    debug_assert!(2 * l.in_pairs() <= MAX_WIDTH && pairs <= l.in_pairs());
+    debug_assert!(2 * l.in_pairs() <= MAX_WIDTH && pairs.end <= l.in_pairs());
     debug_assert!(l.weights().len() == l.in_pairs() * l.out_pad() * 2);
     let zero = vdupq_n_s32(0);
     let mut acc = [[[zero; 2]; 2]; G];
     let step = 2 * l.out_pad();
-    let mut row = l.weights().as_ptr().wrapping_add(16 * b);
-    for p in 0..pairs {
+    let mut row = l.weights().as_ptr().wrapping_add(16 * b + step * pairs.start);
+    for p in pairs {
         // SAFETY: row + 16 ≤ (p + 1)·step, within the weights.
         let w = unsafe { [vld1q_s16(row), vld1q_s16(row.add(8))] };
         for (texel, inputs) in acc.iter_mut().zip(x) {

@@ -24,6 +24,7 @@
 
 use core::arch::aarch64::*;
 use core::arch::asm;
+use core::ops::Range;
 
 use super::super::lanes::CHUNK;
 use super::neon::requantize;
@@ -49,6 +50,9 @@ pub(super) unsafe fn run<J: Job>(job: J) -> J::Output {
 
 impl Layers for NeonDot {
     const KERNEL: Kernel = Kernel::NeonDot;
+    /// Its chunks of 16 inputs carry a correction for the split activations summed over whole
+    /// chunks from the first: a later start sums the pairs before it as zeros (no work saved).
+    const SKIPS_PAIRS: bool = false;
 
     #[inline(always)]
     fn forward(self, l: &PackedLayer, x: &[i16; MAX_WIDTH], y: &mut [i16; MAX_WIDTH], blocks: u32) {
@@ -62,14 +66,25 @@ impl Layers for NeonDot {
         l: &PackedLayer,
         xs: &[[i16; MAX_WIDTH]; GROUP],
         init: [&[i32]; GROUP],
-        pairs: usize,
+        pairs: Range<usize>,
         ys: &mut [[i16; MAX_WIDTH]; GROUP],
         blocks: u32,
         _count: usize,
     ) {
         let init = init.map(|s| l.start_row(s).as_ptr());
+        let pairs = l.pairs_within(pairs);
+        let mut zeroed;
+        let xs = if pairs.start > 0 {
+            zeroed = *xs;
+            for x in &mut zeroed {
+                x.iter_mut().take(2 * pairs.start).for_each(|v| *v = 0);
+            }
+            &zeroed
+        } else {
+            xs
+        };
         // SAFETY: as in `forward`; every start row holds out_pad entries (`start_row`).
-        unsafe { forward_group_dot(l, xs, init, pairs.min(l.in_pairs()), ys, blocks) }
+        unsafe { forward_group_dot(l, xs, init, pairs.end, ys, blocks) }
     }
 
     fn probe(self, rounds: u64) -> i64 {

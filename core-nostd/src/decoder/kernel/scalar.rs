@@ -1,6 +1,8 @@
 //! The portable kernel: the scalar twin of `PackedLayer` (`packed.rs`), which every SIMD kernel
 //! is tested against, run texel by texel.
 
+use core::ops::Range;
+
 use super::{GROUP, Kernel, Layers};
 use crate::decoder::packed::PackedLayer;
 use crate::limits::MAX_WIDTH;
@@ -11,10 +13,11 @@ pub(super) struct Scalar;
 
 impl Layers for Scalar {
     const KERNEL: Kernel = Kernel::Scalar;
+    const SKIPS_PAIRS: bool = true;
 
     #[inline(always)]
     fn forward(self, l: &PackedLayer, x: &[i16; MAX_WIDTH], y: &mut [i16; MAX_WIDTH], blocks: u32) {
-        l.forward_scalar_from(x, l.bias(), l.in_pairs(), y, blocks);
+        l.forward_scalar_from(x, l.bias(), 0..l.in_pairs(), y, blocks);
     }
 
     #[inline(always)]
@@ -23,13 +26,13 @@ impl Layers for Scalar {
         l: &PackedLayer,
         xs: &[[i16; MAX_WIDTH]; GROUP],
         init: [&[i32]; GROUP],
-        pairs: usize,
+        pairs: Range<usize>,
         ys: &mut [[i16; MAX_WIDTH]; GROUP],
         blocks: u32,
         count: usize,
     ) {
         for ((x, y), init) in xs.iter().zip(ys.iter_mut()).zip(init).take(count) {
-            l.forward_scalar_from(x, init, pairs, y, blocks);
+            l.forward_scalar_from(x, init, pairs.clone(), y, blocks);
         }
     }
 

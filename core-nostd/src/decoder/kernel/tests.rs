@@ -1,6 +1,7 @@
 //! Every SIMD kernel this CPU runs against the scalar twin, through the one dispatch site.
 
 use alloc::vec::Vec;
+use core::ops::Range;
 
 use super::*;
 use crate::decoder::packed::Parts;
@@ -57,7 +58,7 @@ struct Group<'l> {
     l: &'l PackedLayer,
     xs: &'l [[i16; MAX_WIDTH]; GROUP],
     init: [&'l [i32]; GROUP],
-    pairs: usize,
+    pairs: Range<usize>,
     ys: &'l mut [[i16; MAX_WIDTH]; GROUP],
     blocks: u32,
 }
@@ -66,7 +67,25 @@ impl Job for Group<'_> {
     type Output = ();
     #[inline(always)]
     fn run<K: Layers>(self, kernel: K) {
-        kernel.forward_group(self.l, self.xs, self.init, self.pairs, self.ys, self.blocks, GROUP);
+        let (l, xs, init, pairs, ys, blocks) =
+            (self.l, self.xs, self.init, self.pairs, self.ys, self.blocks);
+        kernel.forward_group(l, xs, init, pairs, ys, blocks, GROUP);
+    }
+}
+
+/// A layer's sums over a range of pairs through a kernel.
+struct Sums<'l> {
+    l: &'l PackedLayer,
+    x: &'l [i16; MAX_WIDTH],
+    pairs: Range<usize>,
+    sums: &'l mut [i32; MAX_WIDTH],
+}
+
+impl Job for Sums<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn run<K: Layers>(self, kernel: K) {
+        kernel.sums(self.l, self.x, self.pairs, self.sums);
     }
 }
 
@@ -206,7 +225,7 @@ fn simd_layers_match_the_scalar_twin() {
         }
         let blocks = if trial % 3 == 0 { rng.next() as u32 } else { u32::MAX };
         let mut scalar = [7i16; MAX_WIDTH];
-        l.forward_scalar_from(&x, l.bias(), in_pairs, &mut scalar, blocks);
+        l.forward_scalar_from(&x, l.bias(), 0..in_pairs, &mut scalar, blocks);
         // The group forms: texel 2 is `x` from the bias; in even trials the others start from
         // random rows, and all sum a random number of pairs.
         let mut xs = [[0i16; MAX_WIDTH]; GROUP];
@@ -222,16 +241,37 @@ fn simd_layers_match_the_scalar_twin() {
                 init[t] = &starts[t];
             }
         }
-        let pairs = if trial % 2 == 0 { rng.range(0, in_pairs as i64) as usize } else { in_pairs };
+        // Even trials: a random range of pairs, from the first one in a quarter of them.
+        let pairs = if trial % 2 == 0 {
+            let end = rng.range(0, in_pairs as i64) as usize;
+            let start = if trial % 8 == 0 { 0 } else { rng.range(0, end as i64) as usize };
+            start..end
+        } else {
+            0..in_pairs
+        };
         let selected = |b: usize| blocks & (1 << b) != 0;
+        // The layer split at a pair: the bias plus the sums over the pairs before it, then the
+        // pairs from it on, is the whole layer (integer sums do not depend on their order).
+        let split = pairs.end.min(in_pairs);
+        let mut init_split = [0i32; MAX_WIDTH];
+        l.pair_sums(&x, 0..split, &mut init_split);
+        for (s, &b) in init_split.iter_mut().zip(l.bias()) {
+            *s = s.wrapping_add(b);
+        }
+        let mut resumed = [7i16; MAX_WIDTH];
+        l.forward_scalar_from(&x, &init_split, split..in_pairs, &mut resumed, blocks);
+        for b in (0..out_pad / 8).filter(|&b| selected(b)) {
+            let rows = 8 * b..8 * b + 8;
+            assert_eq!(resumed[rows.clone()], scalar[rows], "split at pair {split}, trial {trial}");
+        }
         for &kernel in &kernels {
             let name = kernel.kernel();
             let mut ys = [[7i16; MAX_WIDTH]; GROUP];
-            run(kernel, Group { l: &l, xs: &xs, init, pairs, ys: &mut ys, blocks });
+            run(kernel, Group { l: &l, xs: &xs, init, pairs: pairs.clone(), ys: &mut ys, blocks });
             for (t, (xt, yt)) in xs.iter().zip(&ys).enumerate() {
                 let mut want = [7i16; MAX_WIDTH];
-                l.forward_scalar_from(xt, init[t], pairs, &mut want, blocks);
-                if t == 2 && pairs == in_pairs {
+                l.forward_scalar_from(xt, init[t], pairs.clone(), &mut want, blocks);
+                if t == 2 && pairs == (0..in_pairs) {
                     assert_eq!(want, scalar, "the scalar forms differ, trial {trial}");
                 }
                 for b in (0..out_pad / 8).filter(|&b| selected(b)) {
@@ -243,6 +283,11 @@ fn simd_layers_match_the_scalar_twin() {
                     );
                 }
             }
+            let mut sums = [7i32; MAX_WIDTH];
+            run(kernel, Sums { l: &l, x: &x, pairs: pairs.clone(), sums: &mut sums });
+            let mut want = [7i32; MAX_WIDTH];
+            l.pair_sums(&x, pairs.clone(), &mut want);
+            assert_eq!(sums[..out_pad], want[..out_pad], "{name:?} sums, trial {trial}");
             let mut simd = [7i16; MAX_WIDTH];
             run(kernel, Layer { l: &l, x: &x, y: &mut simd, blocks });
             for b in (0..out_pad / 8).filter(|&b| selected(b)) {
@@ -288,7 +333,7 @@ fn simd_requantization_matches_the_scalar_twin_at_every_shift() {
                 let l = PackedLayer::from_parts(&parts).expect("parts within the limits");
                 let x = [0i16; MAX_WIDTH];
                 let mut scalar = [0i16; MAX_WIDTH];
-                l.forward_scalar_from(&x, l.bias(), l.in_pairs(), &mut scalar, 1);
+                l.forward_scalar_from(&x, l.bias(), 0..l.in_pairs(), &mut scalar, 1);
                 for &kernel in &kernels {
                     let mut simd = [0i16; MAX_WIDTH];
                     run(kernel, Layer { l: &l, x: &x, y: &mut simd, blocks: 1 });
