@@ -125,6 +125,9 @@ impl<'a> Material<'a> {
         let read = |g: u8| reads.iter().find(|r| r.grid == g);
         // The bilinear samples taken so far.
         let mut sampled = heapless::Vec::<(u8, [i32; MAX_GRID_CHANNELS]), MAX_GRIDS>::new();
+        // The cells a `Nearest4` term dequantized, and their grid: a bilinear read of the same
+        // grid (`ntc-0.2` reads its high-resolution grids both ways) weights them again.
+        let (mut nearest, mut cells) = (None, [[0; MAX_GRID_CHANNELS]; 4]);
         for term in &level.terms {
             let channels = term
                 .grids
@@ -137,11 +140,11 @@ impl<'a> Material<'a> {
                     let (Some(grid), Some(r)) = (n.grids.get(usize::from(g)), read(g)) else {
                         continue;
                     };
-                    let mut cells = [[0; MAX_GRID_CHANNELS]; 4];
                     r.cells(grid, &mut cells);
                     for cell in &cells {
                         sink.push_latents(cell.get(..channels).unwrap_or(&[]));
                     }
+                    nearest = Some(g);
                 }
                 TermMode::Bilinear => {
                     let mut sums = [0i64; MAX_GRID_CHANNELS];
@@ -154,7 +157,11 @@ impl<'a> Material<'a> {
                         let values = match known {
                             Some((_, values)) => *values,
                             None => {
-                                let values = bilinear(grid, r);
+                                let values = if nearest == Some(g) {
+                                    weighted(&cells, r, grid.channels())
+                                } else {
+                                    bilinear(grid, r)
+                                };
                                 let _ = sampled.push((g, values));
                                 values
                             }
@@ -447,14 +454,25 @@ impl<T: Feature> Inputs<'_, T> {
 fn bilinear(grid: &LatentGrid<'_>, r: &Reads) -> [i32; MAX_GRID_CHANNELS] {
     let mut cells = [[0; MAX_GRID_CHANNELS]; 4];
     r.cells(grid, &mut cells);
-    let [c00, c10, c01, c11] = &cells;
+    weighted(&cells, r, grid.channels())
+}
+
+/// [`bilinear`] of a footprint whose 4 cells are dequantized already (in the order of
+/// [`Reads::cells`]), over its first `channels` channels (the others 0).
+#[inline(always)]
+fn weighted(
+    cells: &[[i32; MAX_GRID_CHANNELS]; 4],
+    r: &Reads,
+    channels: usize,
+) -> [i32; MAX_GRID_CHANNELS] {
+    let [c00, c10, c01, c11] = cells;
     let (fx, fy) = (r.footprint.fx, r.footprint.fy);
     let (gx, gy) = (256 - fx, 256 - fy);
     let w = [gx * gy, fx * gy, gx * fy, fx * fy];
     let mut values = [0i32; MAX_GRID_CHANNELS];
     // Lanes past the grid's channels stay 0.
     let lanes = values.iter_mut().zip(c00).zip(c10).zip(c01).zip(c11);
-    for ((((v, &a), &b), &c), &d) in lanes.take(grid.channels()) {
+    for ((((v, &a), &b), &c), &d) in lanes.take(channels) {
         *v = (w[0].wrapping_mul(a))
             .wrapping_add(w[1].wrapping_mul(b))
             .wrapping_add(w[2].wrapping_mul(c))
