@@ -342,6 +342,12 @@ impl From<LayoutArg> for LayoutChoice {
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum OnOffArg {
+    On,
+    Off,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum CodecArg {
     Neural,
     Jpeg,
@@ -430,6 +436,13 @@ pub struct EncodeArgs {
     /// layout trial") [default: bits-first]
     #[arg(long, value_enum, conflicts_with = "fixed_rate")]
     pub layout: Option<LayoutArg>,
+    /// Neural, NTC profiles: read each level's high-resolution grid bilinearly as well as at its
+    /// 4 nearest cells — the same latents and rate, more quality for more decode time (ntc-0.5:
+    /// +0.51 dB mean PSNR over the development materials, 12–15 % more decode instructions)
+    /// (docs/ENCODING.md, "The high-resolution grid read twice") [default: on at ntc-0.2, off at
+    /// the others]
+    #[arg(long, value_enum)]
+    pub hi_bilinear: Option<OnOffArg>,
     /// Neural: how far past its range an output may go without cost where its target sits at
     /// that end, 0–0.25 of the range [default: the profile's, 0.02 at ntc-0.2 and nbc-0.1, else
     /// 0]. Every decoder clamps the outputs, so a 0/1 mask, pure white or zero padding then

@@ -39,12 +39,13 @@ pub struct Options {
     pub memory_factor: Option<f64>,
     pub output_margin: Option<f32>,
     pub layout: Option<String>,
+    pub hi_bilinear: Option<String>,
 }
 
 impl Options {
     /// `self` where set, else `defaults` — but a JPEG entry does not inherit the neural
     /// codec's options (`profile`, `target_psnr`, `steps`, `effort`, `seed`, `memory_factor`,
-    /// `output_margin`, `layout`) from the defaults, nor a neural one JPEG's (`quality`,
+    /// `output_margin`, `layout`, `hi_bilinear`) from the defaults, nor a neural one JPEG's (`quality`,
     /// `subsampling`): `[defaults]` may hold both.
     fn over(&self, defaults: &Options) -> Options {
         let codec = self.codec.clone().or_else(|| defaults.codec.clone());
@@ -58,6 +59,7 @@ impl Options {
             memory_factor: defaults.memory_factor.filter(|_| !jpeg),
             output_margin: defaults.output_margin.filter(|_| !jpeg),
             layout: defaults.layout.clone().filter(|_| !jpeg),
+            hi_bilinear: defaults.hi_bilinear.clone().filter(|_| !jpeg),
             quality: defaults.quality.filter(|_| jpeg),
             subsampling: defaults.subsampling.clone().filter(|_| jpeg),
             ..defaults.clone()
@@ -79,6 +81,7 @@ impl Options {
             memory_factor: self.memory_factor.or(defaults.memory_factor),
             output_margin: self.output_margin.or(defaults.output_margin),
             layout: self.layout.clone().or_else(|| defaults.layout.clone()),
+            hi_bilinear: self.hi_bilinear.clone().or_else(|| defaults.hi_bilinear.clone()),
         }
     }
 
@@ -104,6 +107,7 @@ impl Options {
         push("memory-factor", self.memory_factor.map(|v| v.to_string()));
         push("output-margin", self.output_margin.map(|v| v.to_string()));
         push("layout", self.layout.clone());
+        push("hi-bilinear", self.hi_bilinear.clone());
         if self.resize == Some(true) {
             f.push("--resize".into());
         }
@@ -369,7 +373,7 @@ mod tests {
         std::fs::create_dir_all(dir.join("a")).unwrap();
         let jobs = expand(
             "[defaults]\nprofile = \"ntc-0.2\"\nquality = 70\nsteps = 9\nmemory_factor = 1.25\n\
-             output_margin = 0.01\nlayout = \"bits-first\"\n\
+             output_margin = 0.01\nlayout = \"bits-first\"\nhi_bilinear = \"off\"\n\
              [[material]]\ninput = \"a\"\noutput = \"n.nmat\"\n\
              [[material]]\ninput = \"a\"\noutput = \"t.nmat\"\nlayout = \"trial\"\n\
              [[material]]\ninput = \"a\"\noutput = \"j.nmat\"\ncodec = \"jpeg\"\n\
@@ -383,11 +387,13 @@ mod tests {
         };
         assert_eq!(
             args("n.nmat"),
-            "--profile ntc-0.2 --steps 9 --memory-factor 1.25 --output-margin 0.01 --layout bits-first"
+            "--profile ntc-0.2 --steps 9 --memory-factor 1.25 --output-margin 0.01 --layout bits-first \
+             --hi-bilinear off"
         );
         assert_eq!(
             args("t.nmat"),
-            "--profile ntc-0.2 --steps 9 --memory-factor 1.25 --output-margin 0.01 --layout trial"
+            "--profile ntc-0.2 --steps 9 --memory-factor 1.25 --output-margin 0.01 --layout trial \
+             --hi-bilinear off"
         );
         assert_eq!(args("j.nmat"), "--codec jpeg --quality 70");
         // Set on the entry itself: passed on (and `nmat encode` names the conflict).

@@ -642,6 +642,56 @@ fn effort_fast_is_a_quarter_of_the_default_steps_and_conflicts_with_steps() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `--hi-bilinear`: an NTC profile's high-resolution grids read at their 4 nearest cells only or
+/// bilinearly too, whatever the profile's default (the third term is in the plan `--dry-run`
+/// prints); refused for NBC profiles and the JPEG codec, naming the option.
+#[test]
+fn hi_bilinear_turns_the_third_term_on_and_off() {
+    let dir = temp_dir("hi-bilinear");
+    let src = dir.join("src");
+    write_maps(&src, 128);
+    let s = src.to_str().unwrap();
+    let out = dir.join("x.nmat");
+    let o = out.to_str().unwrap();
+    let plan = |extra: &[&str]| nmat(&[&["encode", s, "-o", o, "--dry-run"][..], extra].concat());
+    let twice = "level 0 (mips 0,1,2): Nearest4[0] + Bilinear[1] + Bilinear[0]";
+    let once = "level 0 (mips 0,1,2): Nearest4[0] + Bilinear[1]\n";
+    for (profile, flag, want) in [
+        ("ntc-0.2", None, twice),
+        ("ntc-0.2", Some("off"), once),
+        ("ntc-0.5", None, once),
+        ("ntc-0.5", Some("on"), twice),
+    ] {
+        let mut args = vec!["--profile", profile];
+        args.extend(flag.iter().flat_map(|f| ["--hi-bilinear", *f]));
+        let o = plan(&args);
+        assert!(o.status.success() && text(&o).contains(want), "{args:?}: {}", text(&o));
+    }
+    let o = plan(&["--profile", "nbc-0.1", "--hi-bilinear", "on"]);
+    assert!(
+        !o.status.success() && text(&o).contains("--hi-bilinear belongs to the NTC"),
+        "{}",
+        text(&o)
+    );
+    let o = nmat(&[
+        "encode",
+        s,
+        "-o",
+        out.to_str().unwrap(),
+        "--codec",
+        "jpeg",
+        "--hi-bilinear",
+        "off",
+    ]);
+    assert!(
+        !o.status.success() && text(&o).contains("--hi-bilinear belongs to the neural codec"),
+        "{}",
+        text(&o)
+    );
+    assert!(!out.exists(), "nothing written");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// `--layout`: a packed `ntc-0.2` file of a 384² material has two layouts; `--dry-run` shows
 /// both, `--layout trial` says what each way measured and which it kept, a forced way runs no
 /// trial and is the trial's file where the trial kept it, and the default is one more bit per

@@ -20,8 +20,9 @@ pub enum Profile {
         /// `Bilinear[hi]`, after NTC's `Nearest4[hi]` and `Bilinear[lo]`): the same four cells,
         /// interpolated, so the network has smooth features at that resolution as well as the
         /// four corners. On at `ntc-0.2` (+0.39 dB mean over the development materials, for
-        /// 4–10 % more multiply-adds per texel); the other profiles are not measured yet
-        /// (docs/ENCODING.md, "The high-resolution grid read twice").
+        /// 4–10 % more multiply-adds per texel); off at `ntc-0.5` (measured: +0.51 dB for 12–15 %
+        /// more decode instructions) and the others (not measured); [`Profile::with_hi_bilinear`]
+        /// chooses (docs/ENCODING.md, "The high-resolution grid read twice").
         hi_bilinear: bool,
         /// The trainer's default [`TrainOptions::output_margin`](crate::TrainOptions::output_margin).
         output_margin: f32,
@@ -101,6 +102,43 @@ impl Profile {
             Profile::Ntc { output_margin, .. } | Profile::Nbc { output_margin, .. } => {
                 output_margin
             }
+        }
+    }
+    /// Whether the profile reads each level's high-resolution grid bilinearly as well as at its
+    /// 4 nearest cells (`Nearest4[hi] + Bilinear[lo] + Bilinear[hi]`; NBC profiles: `None`).
+    pub fn hi_bilinear(&self) -> Option<bool> {
+        match *self {
+            Profile::Ntc { hi_bilinear, .. } => Some(hi_bilinear),
+            Profile::Nbc { .. } => None,
+        }
+    }
+    /// This NTC profile with the high-resolution grids read twice (`on`) or only at their 4
+    /// nearest cells — the same latents and rate; reading twice costs decode time for quality
+    /// (`ntc-0.2`'s default; at `ntc-0.5` +0.51 dB mean PSNR over the development materials for
+    /// 12–15 % more decode instructions: docs/ENCODING.md, "The high-resolution grid read
+    /// twice"). `None` for an NBC profile, which has no such grid.
+    pub fn with_hi_bilinear(self, on: bool) -> Option<Profile> {
+        match self {
+            Profile::Ntc {
+                name,
+                bppc,
+                hi_divisor,
+                hi_bits,
+                lo_bits,
+                level0_mips,
+                output_margin,
+                ..
+            } => Some(Profile::Ntc {
+                name,
+                bppc,
+                hi_divisor,
+                hi_bits,
+                lo_bits,
+                level0_mips,
+                hi_bilinear: on,
+                output_margin,
+            }),
+            Profile::Nbc { .. } => None,
         }
     }
     pub fn by_name(name: &str) -> Option<Profile> {

@@ -248,6 +248,32 @@ fn ntc_0_2_reads_its_high_resolution_grids_twice_in_every_layout() {
     }
 }
 
+/// `Profile::with_hi_bilinear` turns the third term on or off at any NTC profile (the same
+/// grids; the network's input grows by the high-resolution channels); NBC profiles have none.
+#[test]
+fn any_ntc_profile_reads_its_high_resolution_grids_twice_on_request() {
+    let shape = nmat_encode::shape_of(&demo::bricks(256));
+    for name in ["ntc-0.2", "ntc-0.5", "ntc-1.0", "ntc-2.25"] {
+        let profile = Profile::by_name(name).unwrap();
+        assert_eq!(profile.hi_bilinear(), Some(name == "ntc-0.2"), "{name}");
+        let [once, twice] = [false, true].map(|on| {
+            let p = profile.with_hi_bilinear(on).unwrap();
+            assert_eq!((p.name(), p.bppc(), p.hi_bilinear()), (name, profile.bppc(), Some(on)));
+            layouts(p, &shape, Storage::FixedRate, 1.0).unwrap().remove(0).config
+        });
+        assert!(once.levels.iter().all(|terms| terms.len() == 2), "{name}");
+        assert!(twice.levels.iter().all(|terms| terms.len() == 3), "{name}");
+        for (a, b) in once.levels.iter().zip(&twice.levels) {
+            assert_eq!(b[2].grids, b[0].grids, "{name}: the third term reads the first's grid");
+            assert_eq!(&b[..2], &a[..], "{name}: the first two terms as without it");
+        }
+    }
+    for name in ["nbc-0.05", "nbc-0.1", "nbc-0.2", "nbc-0.5"] {
+        let p = Profile::by_name(name).unwrap();
+        assert_eq!((p.hi_bilinear(), p.with_hi_bilinear(true)), (None, None), "{name}");
+    }
+}
+
 /// The layout trial (docs/ENCODING.md): a packed `ntc-0.2` file can grow its in-memory layout
 /// by the grids' resolution first or by one more bit per latent first; the trial trains each way
 /// for a quarter of the steps and keeps the one whose file decodes better, then trains it in full.

@@ -1,6 +1,6 @@
 //! `nmat encode`: maps → .nmat, neural (a profile, a rate or a PSNR target) or indexed JPEG.
 
-use crate::args::{Address, CodecArg, EffortArg, EncodeArgs, LayoutArg, SubsamplingArg};
+use crate::args::{Address, CodecArg, EffortArg, EncodeArgs, LayoutArg, OnOffArg, SubsamplingArg};
 use crate::common::{Result, encode_with_progress, profile_named, threads, train_options};
 use nmat_cli::output;
 use nmat_core::AddressMode;
@@ -70,8 +70,9 @@ pub fn run(args: EncodeArgs) -> Result<()> {
         ..EncodeOptions::default()
     };
     let start = Instant::now();
+    let hi_bilinear = args.hi_bilinear.map(|v| v == OnOffArg::On);
     let encoded = if let Some(target) = args.target_psnr {
-        search_target(&set, target, &base)?
+        search_target(&set, target, &base, hi_bilinear)?
     } else {
         let profile = match (&args.profile, args.bppc) {
             (Some(name), _) => profile_named(name)?,
@@ -84,6 +85,16 @@ pub fn run(args: EncodeArgs) -> Result<()> {
                 }));
             }
             (None, None) => profile_named(nmat_encode::DEFAULT_PROFILE)?,
+        };
+        let profile = match hi_bilinear {
+            None => profile,
+            Some(on) => profile.with_hi_bilinear(on).ok_or_else(|| {
+                format!(
+                    "--hi-bilinear belongs to the NTC profiles; {} is an NBC profile (no \
+                     high-resolution grid)",
+                    profile.name()
+                )
+            })?,
         };
         if args.dry_run {
             print!("{}", plan(&set, profile, storage, memory_factor, base.layout)?);
@@ -135,6 +146,7 @@ fn encode_jpeg(args: &EncodeArgs, set: &TextureSet, address_mode: AddressMode) -
         ("--memory-factor", args.memory_factor.is_some()),
         ("--legacy-lod", args.legacy_lod),
         ("--layout", args.layout.is_some()),
+        ("--hi-bilinear", args.hi_bilinear.is_some()),
         ("--output-margin", args.output_margin.is_some()),
         ("--steps", args.train.steps.is_some()),
         ("--effort", args.train.effort != EffortArg::Default),
@@ -332,7 +344,14 @@ fn rate_note(e: &Encoded) -> Option<String> {
 
 /// Encodes with profiles from the smallest rate up until the whole-chain PSNR reaches `target`;
 /// `base` gives every other option.
-fn search_target(set: &TextureSet, target: f64, base: &EncodeOptions) -> Result<Encoded> {
+/// `--target-psnr`: the profiles from the lowest rate up until one reaches `target`; with
+/// `hi_bilinear`, the NTC profiles read their high-resolution grids that way.
+fn search_target(
+    set: &TextureSet,
+    target: f64,
+    base: &EncodeOptions,
+    hi_bilinear: Option<bool>,
+) -> Result<Encoded> {
     if !target.is_finite() || target <= 0.0 {
         return Err(Box::new(EncodeError::BadOption {
             option: EncodeOption::TargetPsnr,
@@ -344,6 +363,7 @@ fn search_target(set: &TextureSet, target: f64, base: &EncodeOptions) -> Result<
     order.sort_by(|a, b| a.bppc().total_cmp(&b.bppc()));
     let mut last = None;
     for profile in order {
+        let profile = hi_bilinear.and_then(|on| profile.with_hi_bilinear(on)).unwrap_or(profile);
         let e = encode_with_progress(set, &EncodeOptions { profile, ..base.clone() })?;
         eprintln!("  {:9} {:.3} BPPC  {:.2} dB", profile.name(), e.quality.bppc, e.quality.psnr);
         if e.quality.psnr >= target {
