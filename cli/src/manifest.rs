@@ -45,8 +45,8 @@ pub struct Options {
 impl Options {
     /// `self` where set, else `defaults` — but a JPEG entry does not inherit the neural
     /// codec's options (`profile`, `target_psnr`, `steps`, `effort`, `seed`, `memory_factor`,
-    /// `output_margin`, `layout`, `hi_bilinear`) from the defaults, nor a neural one JPEG's (`quality`,
-    /// `subsampling`): `[defaults]` may hold both.
+    /// `output_margin`, `layout`, `hi_bilinear`) from the defaults, nor a neural one JPEG's
+    /// (`quality`, `subsampling`): `[defaults]` may hold both.
     fn over(&self, defaults: &Options) -> Options {
         let codec = self.codec.clone().or_else(|| defaults.codec.clone());
         let jpeg = codec.as_deref() == Some("jpeg");

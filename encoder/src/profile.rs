@@ -118,28 +118,12 @@ impl Profile {
     /// 12–15 % more decode instructions: docs/ENCODING.md, "The high-resolution grid read
     /// twice"). `None` for an NBC profile, which has no such grid.
     pub fn with_hi_bilinear(self, on: bool) -> Option<Profile> {
-        match self {
-            Profile::Ntc {
-                name,
-                bppc,
-                hi_divisor,
-                hi_bits,
-                lo_bits,
-                level0_mips,
-                output_margin,
-                ..
-            } => Some(Profile::Ntc {
-                name,
-                bppc,
-                hi_divisor,
-                hi_bits,
-                lo_bits,
-                level0_mips,
-                hi_bilinear: on,
-                output_margin,
-            }),
-            Profile::Nbc { .. } => None,
+        let mut profile = self;
+        match &mut profile {
+            Profile::Ntc { hi_bilinear, .. } => *hi_bilinear = on,
+            Profile::Nbc { .. } => return None,
         }
+        Some(profile)
     }
     pub fn by_name(name: &str) -> Option<Profile> {
         PROFILES.into_iter().find(|p| p.name() == name)

@@ -343,9 +343,8 @@ fn rate_note(e: &Encoded) -> Option<String> {
 }
 
 /// Encodes with profiles from the smallest rate up until the whole-chain PSNR reaches `target`;
-/// `base` gives every other option.
-/// `--target-psnr`: the profiles from the lowest rate up until one reaches `target`; with
-/// `hi_bilinear`, the NTC profiles read their high-resolution grids that way.
+/// `base` gives every other option, and with `hi_bilinear` the NTC profiles read their
+/// high-resolution grids that way (`--hi-bilinear`).
 fn search_target(
     set: &TextureSet,
     target: f64,
