@@ -189,6 +189,8 @@ struct SharedSums<'l> {
     /// The shared features are input pairs `0..skip`; a texel's own are `skip..end`.
     skip: usize,
     end: usize,
+    /// The span gather's slot whose cells the shared features are.
+    slot: usize,
     sums: [i32; MAX_WIDTH],
 }
 
@@ -201,9 +203,10 @@ impl<'l> SharedSums<'l> {
         periodic: Option<&PeriodicSums<'_>>,
     ) -> Option<SharedSums<'l>> {
         let layer = network.layers.first().filter(|_| K::SKIPS_PAIRS)?;
-        let skip = gather.shared_pairs();
+        let (skip, slot) = gather.shared_pairs()?;
         let end = periodic.map_or(layer.in_pairs(), |p| p.pairs);
-        (skip > 0 && skip < end).then_some(SharedSums { layer, skip, end, sums: [0; MAX_WIDTH] })
+        let sums = [0; MAX_WIDTH];
+        (skip > 0 && skip < end).then_some(SharedSums { layer, skip, end, slot, sums })
     }
 
     /// The pairs each texel sums itself.
@@ -224,7 +227,7 @@ impl<'l> SharedSums<'l> {
         at: u32,
         start: &mut [i32; MAX_WIDTH],
     ) {
-        if gather.shared_changed() {
+        if gather.changed(self.slot) {
             kernel.sums(self.layer, x, 0..self.skip, &mut self.sums);
         }
         let base = periodic.map_or(self.layer.bias(), |p| p.at(at));

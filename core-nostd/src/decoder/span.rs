@@ -418,27 +418,24 @@ impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
         x
     }
 
-    /// The input pairs at the front that texels share: those of a first `Nearest4` term (its
-    /// features change only where a texel enters another cell) when its grid has at most half
-    /// as many cells across as the mip has texels, so that each cell serves two texels or more
-    /// of the row; else 0.
-    pub(super) fn shared_pairs(&self) -> usize {
-        let Some(term) = self.terms.first().filter(|t| t.mode == TermMode::Nearest4) else {
-            return 0;
-        };
-        let Some(slot) = term.chain.first().and_then(|&i| self.slots.get(i)) else { return 0 };
-        if term.first != 0 || 2 * u64::from(slot.grid.width()) > u64::from(self.mip_width) {
-            return 0;
-        }
-        // 4 cells of `channels` features each: an even count.
-        2 * term.channels
+    /// The input pairs at the front that texels share — those of a first `Nearest4` term, whose
+    /// features change only where a texel enters another cell — and the slot whose
+    /// [`SpanGather::changed`] says so, when its grid has at most half as many cells across as
+    /// the mip has texels (so that each cell serves two texels or more of the row).
+    pub(super) fn shared_pairs(&self) -> Option<(usize, usize)> {
+        let term = self.terms.first().filter(|t| t.mode == TermMode::Nearest4)?;
+        let &slot = term.chain.first()?;
+        let grid_width = self.slots.get(slot)?.grid.width();
+        // 4 cells of `channels` features each (an even count), from input 0.
+        (2 * u64::from(grid_width) <= u64::from(self.mip_width))
+            .then_some((2 * term.channels, slot))
     }
 
-    /// Whether the texel of the last [`SpanGather::inputs`] changed the shared features (see
-    /// [`SpanGather::shared_pairs`]); true for the span's first texel.
-    pub(super) fn shared_changed(&self) -> bool {
-        let first = self.terms.first().and_then(|t| t.chain.first());
-        first.and_then(|&i| self.slots.get(i)).is_some_and(|s| s.changed)
+    /// Whether the texel of the last [`SpanGather::inputs`] entered another cell of `slot`'s
+    /// grid; true for the span's first texel.
+    #[inline(always)]
+    pub(super) fn changed(&self, slot: usize) -> bool {
+        self.slots.get(slot).is_some_and(|s| s.changed)
     }
 
     /// How many leading inputs depend on x other than through its positional encoding (the
