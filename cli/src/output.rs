@@ -721,13 +721,9 @@ pub fn describe(path: &Path, m: &Material<'_>, stored: Stored) -> String {
         );
     }
     for (l, level) in n.levels().iter().enumerate() {
-        let mips: Vec<String> = (0..m.mip_count())
-            .filter(|&k| n.level_for_mip(k) == l)
-            .map(|k| k.to_string())
-            .collect();
-        let terms: Vec<String> =
-            level.terms.iter().map(|t| format!("{:?}{:?}", t.mode, t.grids.as_slice())).collect();
-        let _ = writeln!(s, "  level {l} (mips {}): {}", mips.join(","), terms.join(" + "));
+        let mips = (0..m.mip_count()).filter(|&k| n.level_for_mip(k) == l);
+        let terms = level.terms.iter().map(|t| format!("{:?}{:?}", t.mode, t.grids.as_slice()));
+        s.push_str(&level_line(l, mips, terms));
     }
     let mlp = n.mlp();
     let shape: Vec<String> =
@@ -813,6 +809,18 @@ fn jpeg_lines(m: &Material<'_>, jpeg: &nmat_core::Jpeg<'_>, stored: Stored) -> S
 /// BPPC's denominator: width · height · channels that vary, of mip 0.
 pub fn texel_channels(m: &Material<'_>) -> f64 {
     f64::from(m.width()) * f64::from(m.height()) * m.informative_channels() as f64
+}
+
+/// A level of a neural material, as `nmat info` and `nmat encode --dry-run` list it: its mips and
+/// the terms that read its grids (`  level 0 (mips 0,1,2): Nearest4[0] + Bilinear[1]`).
+pub fn level_line(
+    level: usize,
+    mips: impl Iterator<Item = u32>,
+    terms: impl Iterator<Item = String>,
+) -> String {
+    let mips: Vec<String> = mips.map(|k| k.to_string()).collect();
+    let terms: Vec<String> = terms.collect();
+    format!("  level {level} (mips {}): {}\n", mips.join(","), terms.join(" + "))
 }
 
 /// The source maps and the channels each one occupies, as `info` and `encode --dry-run` print them.

@@ -1,6 +1,6 @@
 //! `nmat encode`: maps → .nmat, neural (a profile, a rate or a PSNR target) or indexed JPEG.
 
-use crate::args::{Address, CodecArg, EffortArg, EncodeArgs, LayoutArg, OnOffArg, SubsamplingArg};
+use crate::args::{Address, CodecArg, EffortArg, EncodeArgs, OnOffArg, SubsamplingArg};
 use crate::common::{Result, encode_with_progress, profile_named, threads, train_options};
 use nmat_cli::output;
 use nmat_core::AddressMode;
@@ -66,7 +66,7 @@ pub fn run(args: EncodeArgs) -> Result<()> {
         storage,
         memory_factor,
         legacy_lod: args.legacy_lod,
-        layout: args.layout.unwrap_or(LayoutArg::BitsFirst).into(),
+        layout: args.layout.map_or(LayoutChoice::default(), Into::into),
         ..EncodeOptions::default()
     };
     let start = Instant::now();
@@ -291,13 +291,9 @@ fn grid_lines(cfg: &nmat_encode::ModelConfig) -> String {
 fn level_lines(cfg: &nmat_encode::ModelConfig) -> String {
     let mut s = String::new();
     for (l, terms) in cfg.levels.iter().enumerate() {
-        let mips: Vec<String> = (cfg.mip_to_level.iter().enumerate())
-            .filter(|&(_, &level)| usize::from(level) == l)
-            .map(|(k, _)| k.to_string())
-            .collect();
-        let terms: Vec<String> =
-            terms.iter().map(|t| format!("{:?}{:?}", t.mode, t.grids.as_slice())).collect();
-        s.push_str(&format!("  level {l} (mips {}): {}\n", mips.join(","), terms.join(" + ")));
+        let mips = (0u32..).zip(&cfg.mip_to_level).filter(|&(_, &level)| usize::from(level) == l);
+        let terms = terms.iter().map(|t| format!("{:?}{:?}", t.mode, t.grids.as_slice()));
+        s.push_str(&output::level_line(l, mips.map(|(k, _)| k), terms));
     }
     s
 }
