@@ -2,13 +2,13 @@
 //! run the MLP in float or integer arithmetic, scale the outputs. Every function here is total for
 //! a parsed material: any coordinate, mip and mask gives a value or a `BadArgument` error.
 
-#[cfg(feature = "alloc")]
-use crate::decoder::TexelAt;
 use crate::error::{Argument, Error};
 use crate::format::channel::{AddressMode, Channel};
 use crate::jpeg::Jpeg;
 use crate::limits::{MAX_CHANNELS, MAX_FRAC_BITS, MAX_GRID_CHANNELS, MAX_GRIDS, MAX_WIDTH};
 use crate::material::{Body, Material, Neural, TermMode};
+#[cfg(feature = "alloc")]
+use crate::neural::latents::Dequantizer;
 use crate::neural::latents::{Footprint, LatentGrid, address, footprint};
 use crate::neural::mlp::{forward_float, forward_int, saturate_i16};
 use crate::neural::posenc::triangle_q;
@@ -223,27 +223,6 @@ impl<'a> Material<'a> {
         *io = [T::default(); MAX_WIDTH];
         let input_frac_bits = n.mlp.input_frac_bits;
         self.gather(n, texel, reads, &mut Inputs { io, next: 0, input_frac_bits });
-    }
-
-    /// [`Material::inputs`] of several texels into `ios`, one each: every texel's latents read
-    /// before any texel's inputs are computed, so their cache misses overlap. (Only the
-    /// [`crate::Decoder`], which needs `alloc`, calls it.)
-    #[cfg(feature = "alloc")]
-    pub(crate) fn inputs_group<T: Feature, const G: usize>(
-        &self,
-        n: &Neural<'_>,
-        texels: &[TexelAt],
-        ios: &mut [[T; MAX_WIDTH]; G],
-    ) {
-        let mut at = [(0, 0, 0); G];
-        let mut reads: [TexelReads; G] = core::array::from_fn(|_| TexelReads::new());
-        for ((a, r), t) in at.iter_mut().zip(&mut reads).zip(texels) {
-            *a = self.address_texel(t.x, t.y, t.mip);
-            self.read_latents(n, *a, r);
-        }
-        for ((io, r), &texel) in ios.iter_mut().zip(&reads).zip(&at).take(texels.len()) {
-            self.gather_into(n, texel, r, io);
-        }
     }
 
     /// The float decode of an (unaddressed) texel for the rows in `rows`, in unit scale (1.0 =
@@ -516,7 +495,7 @@ impl Row {
 impl Reads {
     /// Texel (x, y) (addressed) of a `mip_size` mip on grid number `index`, `grid`.
     #[inline(always)]
-    fn new(
+    pub(crate) fn new(
         index: u8,
         grid: &LatentGrid<'_>,
         (x, y): (u32, u32),
@@ -529,6 +508,41 @@ impl Reads {
             footprint: fp,
             rows: [Row::read(grid, &fp, fp.y0), Row::read(grid, &fp, fp.y1)],
         }
+    }
+
+    /// [`Reads::cells`] with the grid's dequantization prepared: the same values in the grid's
+    /// channels, 0 in the lanes past them.
+    #[cfg(feature = "alloc")]
+    #[inline(always)]
+    pub(crate) fn cells_prepared(
+        &self,
+        grid: &LatentGrid<'_>,
+        dequantizer: &Dequantizer,
+        cells: &mut [[i32; MAX_GRID_CHANNELS]; 4],
+    ) {
+        let fp = &self.footprint;
+        let [c00, c10, c01, c11] = cells;
+        for ((left, right), (y, row)) in
+            [(c00, c10), (c01, c11)].into_iter().zip([fp.y0, fp.y1].into_iter().zip(self.rows))
+        {
+            match row {
+                Row::Pair(codes) => dequantizer.pair(codes, (left, right)),
+                Row::Cells(l, r) => {
+                    for (x, window, out) in [(fp.x0, l, left), (fp.x1, r, right)] {
+                        match window {
+                            Some(codes) => dequantizer.cell(codes, 0, out),
+                            None => grid.cell_values(x, y, out),
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// The footprint's bilinear fractions (fx, fy) in 1/256.
+    #[cfg(feature = "alloc")]
+    pub(crate) fn fractions(&self) -> (i32, i32) {
+        (self.footprint.fx, self.footprint.fy)
     }
 
     /// The dequantized values of the 4 cells into `cells`, in the order (x0, y0), (x1, y0),

@@ -16,6 +16,8 @@
 //! - `packed.rs`: one layer in the prepared layout (`PackedLayer`, private fields behind its
 //!   constructors) and the scalar twin of the integer layer;
 //! - `span.rs`: the inputs of consecutive texels of a row (the gather of a span);
+//! - `texel.rs`: the inputs of single and scattered texels, with each grid's dequantization and
+//!   each level's reads prepared once per decoder (the gather of random access);
 //! - `transcode.rs`: regions decoded straight into BC blocks (`Decoder::transcode_blocks`);
 //! - `kernel/mod.rs`: [`Kernel`], the `Layers` trait every kernel implements, and `run`, the one
 //!   place a kernel is chosen; `kernel/{scalar,avx2,avx512,neon,neon_dot}.rs`: one instruction set
@@ -23,6 +25,7 @@
 
 extern crate alloc;
 
+use alloc::boxed::Box;
 use alloc::vec::Vec;
 use core::ops::Range;
 
@@ -37,12 +40,14 @@ mod kernel;
 mod lanes;
 mod packed;
 mod span;
+mod texel;
 mod transcode;
 
 pub use kernel::Kernel;
 use kernel::{Available, GROUP, Job, Layers};
 use packed::PackedLayer;
 use span::{MAX_X_PERIOD, Slots, SpanGather};
+use texel::TexelPlan;
 pub use transcode::{BcTarget, BlockRegion};
 
 /// The first layer's accumulators for the inputs of a span that repeat along x (the positional
@@ -167,8 +172,8 @@ pub struct Decoder {
 /// What a decoder prepared, by codec.
 #[derive(Clone, Debug)]
 enum Prepared {
-    /// The network's layers, packed for the kernels.
-    Neural(Network),
+    /// The network's layers, packed for the kernels, and the gather of single texels.
+    Neural(Box<Network>),
     /// Nothing to prepare: the JPEG section is decoded as stored.
     Jpeg,
 }
@@ -177,6 +182,8 @@ enum Prepared {
 #[derive(Clone, Debug)]
 struct Network {
     layers: Vec<PackedLayer>,
+    /// The gather of single and scattered texels, prepared.
+    texels: TexelPlan,
 }
 
 /// The first layer's sums over a span's shared features — the `Nearest4` term's, the same for
@@ -268,9 +275,10 @@ impl Decoder {
     /// Prepares `material` for the fastest kernel of this CPU.
     pub fn new(material: &Material<'_>) -> Decoder {
         let prepared = match material.body() {
-            Body::Neural(n) => Prepared::Neural(Network {
+            Body::Neural(n) => Prepared::Neural(Box::new(Network {
                 layers: n.mlp().layers().iter().map(PackedLayer::new).collect(),
-            }),
+                texels: TexelPlan::new(n),
+            })),
             Body::Jpeg(_) => Prepared::Jpeg,
         };
         Decoder { kernel: Available::best(), prepared, identity: identity(material) }
@@ -469,7 +477,7 @@ impl Network {
         let f = neural.last_frac_bits();
         let mut xs = [[0i16; MAX_WIDTH]; GROUP];
         for (group, codes) in texels.chunks(GROUP).zip(out.chunks_mut(GROUP * n)) {
-            material.inputs_group(neural, group, &mut xs);
+            self.texels.inputs_group(material, neural, group, &mut xs);
             self.forward_int_group(kernel, &mut xs, group.len(), rows, None);
             for (x, texel) in xs.iter().zip(codes.chunks_exact_mut(n)) {
                 write_selected(rows, x, texel, |&v| narrow(code(v, f, full_scale)));
@@ -497,7 +505,8 @@ impl Network {
         full_scale: i32,
         narrow: impl Fn(i32) -> T,
     ) -> usize {
-        let mut io = material.inputs(neural, x, y, mip);
+        let mut io = [0; MAX_WIDTH];
+        self.texels.inputs(material, neural, (x, y, mip), &mut io);
         self.forward_int(kernel, &mut io, rows);
         let f = neural.last_frac_bits();
         write_selected(rows, &io, out, |&v| narrow(code(v, f, full_scale)))

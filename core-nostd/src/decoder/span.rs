@@ -24,7 +24,7 @@ use crate::decode::{Feature, RAW_SHIFT};
 use crate::format::channel::AddressMode;
 use crate::limits::{MAX_CHAIN, MAX_GRID_CHANNELS, MAX_TERMS, MAX_WIDTH};
 use crate::material::{Material, Neural, TermMode};
-use crate::neural::latents::{LatentGrid, address, axis};
+use crate::neural::latents::{Dequantizer, LatentGrid, address, axis};
 use crate::neural::posenc::triangle_q;
 
 type Column = [i32; MAX_GRID_CHANNELS];
@@ -91,8 +91,8 @@ pub(super) struct Slot<'a> {
     /// The grid's number in the material, and whether it is sampled bilinearly.
     key: (u8, bool),
     grid: LatentGrid<'a>,
-    /// Dequantization (offset, step) of each channel.
-    quant: [(i32, i32); MAX_GRID_CHANNELS],
+    /// The grid's dequantization, prepared.
+    quant: Dequantizer,
     /// The two cell rows (addressed) and the vertical fraction in 1/256.
     rows: (u32, u32),
     fy: i32,
@@ -124,11 +124,7 @@ impl<'a> Slot<'a> {
     ) -> Slot<'a> {
         let (width, height) = (grid.width().max(1), grid.height().max(1));
         let (j, fy) = axis(y, mip_size.1, height);
-        let mut quant = [(0, 0); MAX_GRID_CHANNELS];
-        for (c, q) in quant.iter_mut().enumerate().take(grid.channels()) {
-            let (offset, step) = grid.quantization(c);
-            *q = (i32::from(offset), i32::from(step));
-        }
+        let quant = Dequantizer::new(grid);
         Slot {
             key: (index, bilinear),
             grid: *grid,
@@ -167,18 +163,20 @@ impl<'a> Slot<'a> {
     }
 
     /// Loads the columns of first cell index `i` (reusing the right one when it moves by one).
-    /// Only the grid's channels are touched: the other lanes stay 0.
+    /// The lanes past the grid's channels are 0 and stay 0. Inlined into the kernel's
+    /// code (compiled for its instruction set, as the dequantization's 16 lanes need).
+    #[inline(always)]
     fn enter(&mut self, i: i64, mode: AddressMode) {
         let width = self.grid.width().max(1);
-        let channels = self.grid.channels();
         let step = self.held == Some(i - 1);
         self.held = Some(i);
         if self.bilinear() {
             // Only the blended columns are kept: `columns[1].0` is the right one.
             let left = if step { self.columns[1].0 } else { self.blended(address(i, width, mode)) };
             let right = self.blended(address(i + 1, width, mode));
+            // All 16 lanes (those past the channels are 0 in both columns, and stay 0).
             let lanes = self.base.iter_mut().zip(&mut self.slope).zip(&left).zip(&right);
-            for (((b, s), &l), &r) in lanes.take(channels) {
+            for (((b, s), &l), &r) in lanes {
                 *b = l.wrapping_mul(256);
                 *s = r.wrapping_sub(l);
             }
@@ -200,36 +198,27 @@ impl<'a> Slot<'a> {
     }
 
     /// The column of cells `column` blended vertically: `gy·top + fy·bottom` per channel.
+    #[inline(always)]
     fn blended(&self, column: u32) -> Column {
         let (mut top, mut bottom) = ([0; MAX_GRID_CHANNELS], [0; MAX_GRID_CHANNELS]);
         cell_values(&self.grid, &self.quant, column, self.rows.0, &mut top);
         cell_values(&self.grid, &self.quant, column, self.rows.1, &mut bottom);
         let (fy, gy) = (self.fy, 256 - self.fy);
-        for (t, &b) in top.iter_mut().zip(&bottom).take(self.grid.channels()) {
+        // All 16 lanes: those past the grid's channels are 0 in both cells.
+        for (t, &b) in top.iter_mut().zip(&bottom) {
             *t = gy.wrapping_mul(*t).wrapping_add(fy.wrapping_mul(b));
         }
         top
     }
 }
 
-/// [`LatentGrid::cell_values`] with the dequantization prepared.
-fn cell_values(
-    grid: &LatentGrid<'_>,
-    quant: &[(i32, i32); MAX_GRID_CHANNELS],
-    x: u32,
-    y: u32,
-    out: &mut Column,
-) {
-    let Some(window) = grid.cells_window(x, y, 1) else {
-        grid.cell_values(x, y, out);
-        return;
-    };
-    let bits = grid.bits_per_latent();
-    let mask = (1u64 << bits) - 1;
-    let mut codes = window;
-    for (slot, &(offset, step)) in out.iter_mut().zip(quant).take(grid.channels()) {
-        *slot = offset + (codes & mask) as i32 * step;
-        codes >>= bits;
+/// [`LatentGrid::cell_values`] with the dequantization prepared: the grid's channels, and 0 in
+/// the lanes past them where the cell's codes fit one window (else those lanes are left alone).
+#[inline(always)]
+fn cell_values(grid: &LatentGrid<'_>, quant: &Dequantizer, x: u32, y: u32, out: &mut Column) {
+    match grid.cells_window(x, y, 1) {
+        Some(window) => quant.cell(window, 0, out),
+        None => grid.cell_values(x, y, out),
     }
 }
 
@@ -383,9 +372,10 @@ impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
                     let [(l0, l1), (r0, r1)] = &slot.columns;
                     let places = features.chunks_exact_mut(channels.max(1));
                     for (cell, places) in [l0, r0, l1, r1].into_iter().zip(places) {
-                        for (v, &latent) in places.iter_mut().zip(cell) {
-                            *v = T::from_latent(latent, f);
-                        }
+                        let lanes: [T; MAX_GRID_CHANNELS] = core::array::from_fn(|c| {
+                            T::from_latent(cell.get(c).map_or(0, |&v| v), f)
+                        });
+                        write_lanes(places, &lanes);
                     }
                 }
                 TermMode::Bilinear => {
@@ -399,10 +389,8 @@ impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
                             *l += v & 0xFFFF;
                         }
                     }
-                    let parts = high.iter().zip(&low).take(channels);
-                    for (v, (&h, &l)) in features.iter_mut().zip(parts) {
-                        *v = T::from_parts(h, l, f);
-                    }
+                    let places = features.get_mut(..channels).unwrap_or(&mut []);
+                    write_lanes(places, &from_parts_lanes(&high, &low, f));
                 }
             }
         }
@@ -456,6 +444,48 @@ impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
     }
 }
 
+/// [`Feature::from_parts`] of all 16 lanes (fixed-length, vector code for i16).
+#[inline(always)]
+pub(super) fn from_parts_lanes<T: Feature>(
+    high: &[i32; MAX_GRID_CHANNELS],
+    low: &[i32; MAX_GRID_CHANNELS],
+    f: u8,
+) -> [T; MAX_GRID_CHANNELS] {
+    let mut lanes = [T::default(); MAX_GRID_CHANNELS];
+    for ((v, &h), &l) in lanes.iter_mut().zip(high).zip(low) {
+        *v = T::from_parts(h, l, f);
+    }
+    lanes
+}
+
+/// The first `places.len()` (at most 16) of `lanes` into `places`, with moves of a length known
+/// at compile time (two overlapping ones of 8 or 4 entries) rather than one per entry.
+#[inline(always)]
+pub(super) fn write_lanes<T: Copy>(places: &mut [T], lanes: &[T; MAX_GRID_CHANNELS]) {
+    fn both<T: Copy, const N: usize>(places: &mut [T], lanes: &[T; MAX_GRID_CHANNELS]) {
+        let n = places.len();
+        let (Some(head), Some(from)) = (places.first_chunk_mut::<N>(), lanes.first_chunk::<N>())
+        else {
+            return;
+        };
+        *head = *from;
+        let tail = places.last_chunk_mut::<N>();
+        let from = lanes.get(n - N..n).and_then(|l| l.first_chunk::<N>());
+        if let (Some(tail), Some(from)) = (tail, from) {
+            *tail = *from;
+        }
+    }
+    match places.len() {
+        8..=MAX_GRID_CHANNELS => both::<T, 8>(places, lanes),
+        4..=7 => both::<T, 4>(places, lanes),
+        _ => {
+            for (v, &lane) in places.iter_mut().zip(lanes) {
+                *v = lane;
+            }
+        }
+    }
+}
+
 /// The positional encoding of x into the (x0, x1, y0, y1) groups of `pe`: looked up in the
 /// one-period `table` when `period` > 0, computed otherwise.
 #[inline(always)]
@@ -490,6 +520,18 @@ fn write_x_features<T: Feature>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every length from 0 to 16 is written exactly: its entries, nothing after them.
+    #[test]
+    fn write_lanes_writes_exactly_the_places() {
+        let lanes: [i16; MAX_GRID_CHANNELS] = core::array::from_fn(|i| i as i16 + 1);
+        for n in 0..=MAX_GRID_CHANNELS {
+            let mut out = [-1i16; 20];
+            write_lanes(&mut out[..n], &lanes);
+            assert_eq!(out[..n], lanes[..n], "length {n}");
+            assert!(out[n..].iter().all(|&v| v == -1), "length {n}");
+        }
+    }
 
     /// Stepping equals dividing for every texel, with grids finer and coarser than the mip, and
     /// restarts correctly after a jump.

@@ -3,6 +3,8 @@
 
 use crate::bytes::{arr, i16_at, u32_at};
 use crate::format::channel::AddressMode;
+#[cfg(feature = "alloc")]
+use crate::limits::MAX_GRID_CHANNELS;
 
 /// A validated view of one latent grid inside the file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -169,6 +171,76 @@ impl<'a> LatentGrid<'a> {
     }
 }
 
+/// A grid's dequantization prepared lane by lane, for all [`MAX_GRID_CHANNELS`] lanes at once
+/// (fixed-length, vector code): lane `c` of a cell whose codes start at bit `s` of a window is
+/// `offset[c] + ((window >> (s + shift[c])) & mask[c]) · step[c]` — [`LatentGrid::dequantize`]'s
+/// value for the grid's channels, 0 in the lanes past them (mask, offset and step 0).
+#[cfg(feature = "alloc")]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Dequantizer {
+    offset: [i32; MAX_GRID_CHANNELS],
+    step: [i32; MAX_GRID_CHANNELS],
+    shift: [u32; MAX_GRID_CHANNELS],
+    mask: [u64; MAX_GRID_CHANNELS],
+    /// Bits of a cell's codes: where the next cell of a window starts.
+    cell_bits: u32,
+}
+
+#[cfg(feature = "alloc")]
+impl Dequantizer {
+    pub(crate) fn new(grid: &LatentGrid<'_>) -> Dequantizer {
+        let bits = grid.bits_per_latent();
+        let mut d = Dequantizer {
+            offset: [0; MAX_GRID_CHANNELS],
+            step: [0; MAX_GRID_CHANNELS],
+            shift: [0; MAX_GRID_CHANNELS],
+            mask: [0; MAX_GRID_CHANNELS],
+            cell_bits: bits * u32::from(grid.channels),
+        };
+        let lanes = d.offset.iter_mut().zip(&mut d.step).zip(&mut d.shift).zip(&mut d.mask);
+        for (c, (((o, s), shift), mask)) in lanes.enumerate().take(grid.channels()) {
+            let (offset, step) = grid.quantization(c);
+            (*o, *s) = (i32::from(offset), i32::from(step));
+            *shift = c as u32 * bits;
+            *mask = (1u64 << bits) - 1;
+        }
+        d
+    }
+
+    /// The values of the cell whose codes start at bit `first` of `window`, into all lanes of
+    /// `out`. Exact: every value `offset + code · step` is an i16 (checked at parse), so the
+    /// wrapping operations never wrap; a lane past the channels shifts by whatever and masks to 0.
+    #[inline(always)]
+    pub(crate) fn cell(&self, window: u64, first: u32, out: &mut [i32; MAX_GRID_CHANNELS]) {
+        // Lane by lane with `get`, every index below the arrays' length (so no check remains):
+        // a chain of `zip`s over the five arrays is not vectorized.
+        for c in 0..MAX_GRID_CHANNELS {
+            let (Some(v), Some(&offset), Some(&step), Some(&shift), Some(&mask)) = (
+                out.get_mut(c),
+                self.offset.get(c),
+                self.step.get(c),
+                self.shift.get(c),
+                self.mask.get(c),
+            ) else {
+                continue;
+            };
+            let code = window.wrapping_shr(first.wrapping_add(shift)) & mask;
+            *v = offset.wrapping_add((code as i32).wrapping_mul(step));
+        }
+    }
+
+    /// The values of two consecutive cells from one window (`LatentGrid::cells_window(…, 2)`).
+    #[inline(always)]
+    pub(crate) fn pair(
+        &self,
+        window: u64,
+        (left, right): (&mut [i32; MAX_GRID_CHANNELS], &mut [i32; MAX_GRID_CHANNELS]),
+    ) {
+        self.cell(window, 0, left);
+        self.cell(window, self.cell_bits, right);
+    }
+}
+
 /// Where a texel of a `mip_w × mip_h` image falls on a grid: the 2×2 cells around it (already
 /// wrapped or clamped) and the bilinear fractions in 1/256 (FORMAT.md §6.2).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -220,5 +292,46 @@ pub fn footprint(
         y1: address(j + 1, gh, mode),
         fx,
         fy,
+    }
+}
+
+#[cfg(all(test, feature = "alloc"))]
+mod tests {
+    use super::*;
+
+    /// The prepared lanes equal `LatentGrid::dequantize` for every latent width and channel count
+    /// whose cells fit a window, one cell or two, and leave 0 past the channels.
+    #[test]
+    fn prepared_dequantization_equals_the_grid_s() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        for bits in 1..=8u8 {
+            for channels in 1..=MAX_GRID_CHANNELS as u8 {
+                if u32::from(bits) * u32::from(channels) > 57 {
+                    continue;
+                }
+                let quant: [u8; 64] = core::array::from_fn(|_| (next() % 64) as u8);
+                let quant = &quant[..4 * usize::from(channels)];
+                let grid = LatentGrid { width: 4, height: 1, channels, bits, quant, data: &[] };
+                let d = Dequantizer::new(&grid);
+                for _ in 0..20 {
+                    let window = next();
+                    let (mut want, mut want_right) = ([0i32; 16], [0i32; 16]);
+                    grid.dequantize_pair(window, (&mut want, &mut want_right));
+                    let (mut got, mut got_right) = ([7i32; 16], [7i32; 16]);
+                    d.cell(window, 0, &mut got);
+                    assert_eq!(got, want, "{bits} bits, {channels} channels");
+                    if 2 * u32::from(bits) * u32::from(channels) <= 57 {
+                        d.pair(window, (&mut got, &mut got_right));
+                        assert_eq!((got, got_right), (want, want_right), "pair, {bits} bits");
+                    }
+                }
+            }
+        }
     }
 }

@@ -71,7 +71,12 @@ fn forward_avx2(l: &PackedLayer, x: &[i16; MAX_WIDTH], y: &mut [i16; MAX_WIDTH],
     let count = l.out_pad() / 8;
     let mut b = 0;
     while b < count {
-        if b + 4 <= count && (blocks >> b) & 0xF == 0xF {
+        // 8 blocks (64 rows) per pass where all are wanted: one broadcast of an input pair serves
+        // 8 multiply-adds (the accumulators and the broadcast fit the 16 registers).
+        if b + 8 <= count && (blocks >> b) & 0xFF == 0xFF {
+            block::<8, 1>(l, x, y, b);
+            b += 8;
+        } else if b + 4 <= count && (blocks >> b) & 0xF == 0xF {
             block::<4, 2>(l, x, y, b);
             b += 4;
         } else {
