@@ -359,6 +359,12 @@ pub(crate) trait Feature: Copy + Default {
     fn from_parts(high: i32, low: i32, input_frac_bits: u8) -> Self {
         Self::from_raw((i64::from(high) << RAW_SHIFT) + i64::from(low), input_frac_bits)
     }
+    /// [`Feature::from_raw`] of one grid's bilinear sample (`value`: within [−2^31, 2^31 − 2^16],
+    /// as [`bilinear`] states).
+    #[cfg(feature = "alloc")]
+    fn from_bilinear(value: i32, input_frac_bits: u8) -> Self {
+        Self::from_raw(i64::from(value), input_frac_bits)
+    }
     /// [`Feature::from_raw`] of a dequantized latent (an i16 on the input grid, FORMAT.md §4).
     fn from_latent(value: i32, input_frac_bits: u8) -> Self {
         Self::from_raw(i64::from(value) << RAW_SHIFT, input_frac_bits)
@@ -378,6 +384,13 @@ impl Feature for i16 {
     fn from_parts(high: i32, low: i32, _: u8) -> i16 {
         let v = high + ((low + (1 << (RAW_SHIFT - 1))) >> RAW_SHIFT);
         v.clamp(i32::from(i16::MIN), i32::from(i16::MAX)) as i16
+    }
+
+    /// In i32: `value + 2^15` stays below 2^31 for a value at most 2^31 − 2^16; the shifted
+    /// value is within the i16 range already.
+    #[cfg(feature = "alloc")]
+    fn from_bilinear(value: i32, _: u8) -> i16 {
+        (value.wrapping_add(1 << (RAW_SHIFT - 1)) >> RAW_SHIFT) as i16
     }
 
     /// A latent is already on the input grid: rounding and saturation leave it unchanged.
@@ -621,4 +634,24 @@ pub(crate) fn write_selected<S, T>(
         n += 1;
     }
     n
+}
+
+#[cfg(all(test, feature = "alloc"))]
+mod tests {
+    use super::*;
+
+    /// The i32 shortcut for one grid's bilinear sample equals the definition's rounding at the
+    /// ends of the sample's range (4 cells of ±32767 or −32768 weighted to 2^16) and between.
+    #[test]
+    fn from_bilinear_equals_from_raw_over_a_sample_s_range() {
+        let (lo, hi) = (i32::MIN, i32::MAX - (1 << 16) + 1);
+        let ends = [lo, lo + 1, -(1 << 15) - 1, -(1 << 15), -1, 0, 1, 1 << 15, hi - 1, hi];
+        let between =
+            (0..10_000i64).map(|k| (i64::from(lo) + k * 429_490_000 % (1i64 << 32)) as i32);
+        for v in ends.into_iter().chain(between.filter(|&v| v <= hi)) {
+            assert_eq!(i16::from_bilinear(v, 12), i16::from_raw(i64::from(v), 12), "{v}");
+            let (a, b) = (f32::from_bilinear(v, 12), f32::from_raw(i64::from(v), 12));
+            assert_eq!(a.to_bits(), b.to_bits(), "{v}");
+        }
+    }
 }

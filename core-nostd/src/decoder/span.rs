@@ -378,6 +378,13 @@ impl<'s, 'a, T: Feature> SpanGather<'s, 'a, T> {
                         write_lanes(places, &lanes);
                     }
                 }
+                TermMode::Bilinear if term.chain.len() == 1 => {
+                    // One grid (NTC): its value is within [−2^31, 2^31 − 2^16] (the definition's
+                    // bound), so the rounding add stays in i32.
+                    let Some(slot) = chain.next() else { continue };
+                    let places = features.get_mut(..channels).unwrap_or(&mut []);
+                    write_lanes(places, &bilinear_lanes(&slot.value, f));
+                }
                 TermMode::Bilinear => {
                     // The chain's sum split as Σ(v >> 16)·2^16 + Σ(v & 0xFFFF): both parts stay
                     // in i32 for any chain (≤ 8 grids), so all 16 lanes add without widening.
@@ -454,6 +461,19 @@ pub(super) fn from_parts_lanes<T: Feature>(
     let mut lanes = [T::default(); MAX_GRID_CHANNELS];
     for ((v, &h), &l) in lanes.iter_mut().zip(high).zip(low) {
         *v = T::from_parts(h, l, f);
+    }
+    lanes
+}
+
+/// The features of one grid's bilinear values in all 16 lanes: [`Feature::from_bilinear`].
+#[inline(always)]
+pub(super) fn bilinear_lanes<T: Feature>(
+    values: &[i32; MAX_GRID_CHANNELS],
+    f: u8,
+) -> [T; MAX_GRID_CHANNELS] {
+    let mut lanes = [T::default(); MAX_GRID_CHANNELS];
+    for (v, &value) in lanes.iter_mut().zip(values) {
+        *v = T::from_bilinear(value, f);
     }
     lanes
 }

@@ -19,7 +19,7 @@ use alloc::vec::Vec;
 
 use crate::decode::{Feature, RAW_SHIFT, Reads, TexelReads};
 use crate::decoder::TexelAt;
-use crate::decoder::span::{from_parts_lanes, write_lanes};
+use crate::decoder::span::{bilinear_lanes, from_parts_lanes, write_lanes};
 use crate::limits::{MAX_CHAIN, MAX_GRID_CHANNELS, MAX_GRIDS, MAX_TERMS, MAX_WIDTH};
 use crate::material::{Material, Neural, TermMode};
 use crate::neural::latents::Dequantizer;
@@ -152,6 +152,14 @@ impl TexelPlan {
             let _ = values.push(value);
         }
         for chain in &level.chains {
+            let end = chain.first + chain.channels;
+            let places = io.get_mut(chain.first..end).unwrap_or(&mut []);
+            let mut grids = chain.slots.iter().filter_map(|&s| values.get(usize::from(s)));
+            if let (1, Some(value)) = (chain.slots.len(), grids.next()) {
+                // One grid (NTC): as in the span gather, the rounding stays in i32.
+                write_lanes(places, &bilinear_lanes(value, f));
+                continue;
+            }
             // The chain's sum split as Σ(v >> 16)·2^16 + Σ(v & 0xFFFF), both in i32 for any chain
             // (≤ 8 grids): all 16 lanes add without widening (as in the span gather).
             let (mut high, mut low) = ([0i32; MAX_GRID_CHANNELS], [0i32; MAX_GRID_CHANNELS]);
@@ -161,8 +169,6 @@ impl TexelPlan {
                     *l += v & 0xFFFF;
                 }
             }
-            let end = chain.first + chain.channels;
-            let places = io.get_mut(chain.first..end).unwrap_or(&mut []);
             write_lanes(places, &from_parts_lanes(&high, &low, f));
         }
         // A wave's value is below 2^14: on the input grid already, like a latent. All lanes are
