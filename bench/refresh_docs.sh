@@ -49,7 +49,8 @@ cpu, lines = None, []
 for p in profiles:
     text = open(f"{out}/{material}-{p}.bench.txt").read()
     cpu = cpu or re.search(r'^machine: (.*)$', text, re.M).group(1)
-    head = re.search(r'\((\d+\.\d+) BPPC\).*kernel (\S+)', text)
+    # "(0.200 BPPC)", or for an entropy-coded file "(0.200 BPPC; 0.300 in memory)": the disk rate.
+    head = re.search(r'\((\d+\.\d+) BPPC[^)]*\).*kernel (\S+)', text)
     bppc, kernel = head.group(1), head.group(2)
     chans = re.search(r'(\d+) channels', text).group(1)
     t = rows(text)
