@@ -275,7 +275,9 @@ pub fn address(i: i64, size: u32, mode: AddressMode) -> u32 {
 }
 
 /// The footprint of texel (x, y) (already addressed into the mip) on a `grid_size` grid. Public so
-/// that encoders train on exactly the positions the decoder reads.
+/// that encoders train on exactly the positions the decoder reads. Inlined, so that a kernel's
+/// gather computes it in its own code (no call, no leaving its instruction set).
+#[inline(always)]
 pub fn footprint(
     grid_size: (u32, u32),
     x: u32,
