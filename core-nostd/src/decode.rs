@@ -452,7 +452,7 @@ fn bilinear(grid: &LatentGrid<'_>, r: &Reads) -> [i32; MAX_GRID_CHANNELS] {
 /// [`bilinear`] of a footprint whose 4 cells are dequantized already (in the order of
 /// [`Reads::cells`]), over its first `channels` channels (the others 0).
 #[inline(always)]
-fn weighted(
+pub(crate) fn weighted(
     cells: &[[i32; MAX_GRID_CHANNELS]; 4],
     r: &Reads,
     channels: usize,
@@ -550,12 +550,6 @@ impl Reads {
                 }
             }
         }
-    }
-
-    /// The footprint's bilinear fractions (fx, fy) in 1/256.
-    #[cfg(feature = "alloc")]
-    pub(crate) fn fractions(&self) -> (i32, i32) {
-        (self.footprint.fx, self.footprint.fy)
     }
 
     /// The dequantized values of the 4 cells into `cells`, in the order (x0, y0), (x1, y0),

@@ -17,7 +17,7 @@ extern crate alloc;
 
 use alloc::vec::Vec;
 
-use crate::decode::{Feature, RAW_SHIFT, Reads, TexelReads};
+use crate::decode::{Feature, RAW_SHIFT, Reads, TexelReads, weighted};
 use crate::decoder::TexelAt;
 use crate::decoder::span::{bilinear_lanes, from_parts_lanes, write_lanes};
 use crate::limits::{MAX_CHAIN, MAX_GRID_CHANNELS, MAX_GRIDS, MAX_TERMS, MAX_WIDTH};
@@ -148,14 +148,20 @@ impl TexelPlan {
                     }
                 }
             }
-            let value = if slot.bilinear { weighted(&cells, r) } else { [0; MAX_GRID_CHANNELS] };
+            // All 16 lanes (fixed-length, vector code): those past the channels are 0 in the cells.
+            let value = if slot.bilinear {
+                weighted(&cells, r, MAX_GRID_CHANNELS)
+            } else {
+                [0; MAX_GRID_CHANNELS]
+            };
             let _ = values.push(value);
         }
         for chain in &level.chains {
             let end = chain.first + chain.channels;
             let places = io.get_mut(chain.first..end).unwrap_or(&mut []);
-            let mut grids = chain.slots.iter().filter_map(|&s| values.get(usize::from(s)));
-            if let (1, Some(value)) = (chain.slots.len(), grids.next()) {
+            if let &[slot] = chain.slots.as_slice()
+                && let Some(value) = values.get(usize::from(slot))
+            {
                 // One grid (NTC): as in the span gather, the rounding stays in i32.
                 write_lanes(places, &bilinear_lanes(value, f));
                 continue;
@@ -282,24 +288,4 @@ fn level_plan(n: &Neural<'_>, terms: &[crate::material::Term]) -> LevelPlan {
     }
     plan.pe_first = first;
     plan
-}
-
-/// The bilinear sample of a footprint from its 4 cells (in the order of `Reads::cells`), in all
-/// 16 lanes (fixed-length, vector code): `Material::gather`'s value where the cells' lanes past the
-/// grid's channels are 0, as they are here.
-#[inline(always)]
-fn weighted(cells: &[[i32; MAX_GRID_CHANNELS]; 4], r: &Reads) -> [i32; MAX_GRID_CHANNELS] {
-    let [c00, c10, c01, c11] = cells;
-    let (fx, fy) = r.fractions();
-    let (gx, gy) = (256 - fx, 256 - fy);
-    let w = [gx * gy, fx * gy, gx * fy, fx * fy];
-    let mut values = [0i32; MAX_GRID_CHANNELS];
-    let lanes = values.iter_mut().zip(c00).zip(c10).zip(c01).zip(c11);
-    for ((((v, &a), &b), &c), &d) in lanes {
-        *v = (w[0].wrapping_mul(a))
-            .wrapping_add(w[1].wrapping_mul(b))
-            .wrapping_add(w[2].wrapping_mul(c))
-            .wrapping_add(w[3].wrapping_mul(d));
-    }
-    values
 }
