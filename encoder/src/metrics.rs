@@ -74,6 +74,9 @@ pub struct ChainQuality {
     pub bppc: f64,
     /// The same of the fixed-rate form decoders hold in memory.
     pub memory_bppc: f64,
+    /// Per channel, the mean of decode minus source over the chain (every sample of every mip,
+    /// unit scale): a network's constant offset, which `nmat_encode` calibrates away.
+    pub mean_error: Vec<f64>,
 }
 
 impl ChainQuality {
@@ -122,6 +125,7 @@ pub fn chain_quality_keeping(
     let (mut total, mut count) = (0.0f64, 0.0f64);
     let mut mse = Vec::new();
     let mut ssim = 0.0;
+    let mut error_sum = vec![0.0f64; c];
     for (mip, src) in set.mips.iter().enumerate() {
         let decoded = decode_mip_with(m, mip as u32, progress);
         let mut per = vec![0.0f64; c];
@@ -129,6 +133,7 @@ pub fn chain_quality_keeping(
             let ch = i % c;
             let e = f64::from(unit_of(m, ch, d) - s);
             per[ch] += e * e;
+            error_sum[ch] += e;
         }
         let n = f64::from(src.width * src.height);
         total += per.iter().sum::<f64>();
@@ -144,7 +149,10 @@ pub fn chain_quality_keeping(
         }
         keep(mip, decoded);
     }
-    ChainQuality { psnr: psnr(total / count), mse, ssim, bppc: m.bppc(), memory_bppc: m.bppc() }
+    let samples = count / c.max(1) as f64;
+    let mean_error = error_sum.into_iter().map(|e| e / samples.max(1.0)).collect();
+    let (bppc, memory_bppc) = (m.bppc(), m.bppc());
+    ChainQuality { psnr: psnr(total / count), mse, ssim, bppc, memory_bppc, mean_error }
 }
 
 /// SSIM (Wang et al. 2004) of one channel: 11×11 Gaussian window (σ = 1.5), K1 = 0.01,

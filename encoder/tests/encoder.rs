@@ -94,6 +94,42 @@ fn training_reaches_a_useful_quality_on_the_procedural_material() {
     }
 }
 
+/// The stored network's output biases are calibrated on the chain: a network after one step is
+/// far off its targets' means, and the file comes out with the mean error over the chain of
+/// every learned channel that no decoded texel clamps (whose outputs all move with its bias)
+/// within a fraction of a code of 0.
+#[test]
+fn output_biases_are_calibrated_to_the_chain_s_mean() {
+    let set = demo::bricks(64);
+    for profile in ["ntc-0.2", "nbc-0.1"] {
+        let out = encode(&set, &options(profile, 1, 3), &mut |_| {}).unwrap();
+        let m = Container::parse(&out.bytes).unwrap();
+        let c = set.channel_count();
+        let mut clamped = vec![false; c];
+        let (mut sum, mut count) = (vec![0f64; c], 0f64);
+        for (mip, src) in set.mips.iter().enumerate() {
+            let decoded = nmat_encode::metrics::decode_mip(&m, mip as u32);
+            for (i, (&d, &s)) in decoded.iter().zip(&src.data).enumerate() {
+                clamped[i % c] |= d == 0.0 || d == 1.0;
+                sum[i % c] += f64::from(d - s);
+            }
+            count += f64::from(src.width * src.height);
+        }
+        let mut checked = 0;
+        for ch in set.learned_channels().into_iter().filter(|&ch| !clamped[ch]) {
+            let mean = sum[ch] / count;
+            eprintln!("{profile}: channel {ch} mean error {:+.2} codes", mean * 255.0);
+            assert!(
+                mean.abs() * 255.0 < 0.25,
+                "{profile}: channel {ch}: {:+.3} codes",
+                mean * 255.0
+            );
+            checked += 1;
+        }
+        assert!(checked >= 2, "{profile}: only {checked} channels without a clamped texel");
+    }
+}
+
 #[test]
 fn integer_and_float_decoders_agree_on_a_trained_material() {
     let set = demo::bricks(64);

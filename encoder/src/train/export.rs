@@ -11,6 +11,12 @@ pub fn frac_bits_for(max_abs: f32) -> u8 {
     ((15.0 - need.log2()).floor() as i32).clamp(1, 14) as u8
 }
 
+/// The largest |bias| of a layer of `inputs` inputs (docs/FORMAT.md §5.3): with i16 inputs and
+/// int8 weights no sum then leaves i32.
+pub fn bias_limit(inputs: usize) -> f64 {
+    f64::from(i32::MAX) - inputs as f64 * 127.0 * 32768.0
+}
+
 /// Exports one trained layer to the file's two arithmetics. `out_rows` maps file rows to trained
 /// rows (`None` = a constant channel: zero weights, zero scale).
 pub fn export_layer(
@@ -24,7 +30,7 @@ pub fn export_layer(
     // The decoder needs its requantization shift ≤ 62: scale ≥ 2^(−32 + in − out), with margin.
     let min_scale = 2f32.powi(-30 + i32::from(in_frac) - i32::from(out_frac));
     let in_lsb = 1.0 / f64::from(1u32 << in_frac);
-    let bias_limit = f64::from(i32::MAX) - n as f64 * 127.0 * 32768.0;
+    let bias_limit = bias_limit(n);
     let (mut weights_i8, mut scales, mut bias) = (Vec::new(), Vec::new(), Vec::new());
     for row in out_rows {
         match row {

@@ -18,7 +18,7 @@ mod options;
 mod rng;
 mod sampler;
 
-pub use export::{export_layer, frac_bits_for};
+pub use export::{bias_limit, export_layer, frac_bits_for};
 pub(crate) use latents::coded_bytes;
 pub use model::Model;
 pub use options::{DEFAULT_STEPS, Effort, Phase, Progress, TrainOptions, mlp_flops_per_sample};
