@@ -595,6 +595,16 @@ pub(crate) fn ranged(ch: &Channel<'_>, v: f32) -> f32 {
     ch.range_min * (1.0 - u) + ch.range_max * u
 }
 
+/// The integer network's input vector of texel (x, y) of `mip` (addressed as every decoder
+/// addresses it; entries past the input width 0), or `None` for a JPEG material: what a trainer
+/// that refits a layer on the decoder's exact activations starts from (`internals`).
+pub fn input_vector(m: &Material<'_>, x: i64, y: i64, mip: u32) -> Option<[i16; MAX_WIDTH]> {
+    match m.body() {
+        Body::Neural(n) => Some(m.inputs(n, x, y, mip)),
+        Body::Jpeg(_) => None,
+    }
+}
+
 /// Output code of a Q.`f` value for a full scale of `max` (255 or 65535). |y·max| < 2^31.
 #[inline(always)]
 pub fn code(y: i16, f: u32, max: i32) -> i32 {

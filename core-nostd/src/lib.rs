@@ -153,6 +153,7 @@ pub use writer::{ChannelSpec, GridSpec, LayerSpec, LevelSpec, MaterialSpec, MlpS
 /// promise, hidden from the documentation.
 #[doc(hidden)]
 pub mod internals {
+    pub use crate::decode::input_vector;
     pub use crate::format::checksum::file_checksum;
     #[cfg(feature = "alloc")]
     pub use crate::format::packed::coded_latents_len;

@@ -20,6 +20,7 @@ mod memhint;
 pub mod metrics;
 pub mod names;
 mod profile;
+mod refit;
 mod role;
 pub mod source_maps;
 pub mod texset;
@@ -300,7 +301,8 @@ impl LayoutTrial {
 }
 
 /// `layout` trained for `set` with `train` (an output margin left open: the profile's), its latents
-/// steered to the layout's coded size (no trial).
+/// steered to the layout's coded size (no trial), its output layer refitted and calibrated on the
+/// chain.
 fn trained(
     set: &TextureSet,
     options: &EncodeOptions,
@@ -308,6 +310,19 @@ fn trained(
     train: &TrainOptions,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Encoded, EncodeError> {
+    let (spec, encoded) = stored(set, options, layout, train, progress)?;
+    let (spec, encoded) = refitted(spec, encoded, set, options)?;
+    calibrated(spec, encoded, set, options)
+}
+
+/// [`trained`] as training leaves it: the spec and its file, before the output layer is refitted.
+fn stored(
+    set: &TextureSet,
+    options: &EncodeOptions,
+    layout: &Layout,
+    train: &TrainOptions,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<(MaterialSpec, Encoded), EncodeError> {
     let mut config = layout.config.clone();
     if options.legacy_lod && config.lod_code != 0 {
         config.lod_code = 1;
@@ -321,8 +336,34 @@ fn trained(
     let spec = to_spec(set, &model, options)?;
     let bytes = spec.to_bytes()?;
     let (packed, quality) = as_stored(&bytes, set, options.storage)?;
-    let encoded = Encoded { bytes, packed, config, quality, trial: None };
-    calibrated(spec, encoded, set, options)
+    Ok((spec, Encoded { bytes, packed, config, quality, trial: None }))
+}
+
+/// `encoded` (of `spec`) with its output layer refitted by least squares on the integer
+/// decoder's hidden activations over the whole chain ([`refit`]), if that decodes better.
+/// Training fits that layer to float activations and to texels drawn at random; the file is
+/// judged on every texel through the integer decoder (docs/ENCODING.md, "The output layer
+/// refit").
+fn refitted(
+    mut spec: MaterialSpec,
+    encoded: Encoded,
+    set: &TextureSet,
+    options: &EncodeOptions,
+) -> Result<(MaterialSpec, Encoded), EncodeError> {
+    let mut mlp = spec.mlp.clone();
+    let changed = refit::refit_output_layer(&mut mlp, &Container::parse(&encoded.bytes)?, set);
+    if !changed {
+        return Ok((spec, encoded));
+    }
+    let trained = core::mem::replace(&mut spec.mlp, mlp);
+    if let Ok(bytes) = spec.to_bytes() {
+        let (packed, quality) = as_stored(&bytes, set, options.storage)?;
+        if quality.psnr > encoded.quality.psnr {
+            return Ok((spec, Encoded { bytes, packed, quality, ..encoded }));
+        }
+    }
+    spec.mlp = trained;
+    Ok((spec, encoded))
 }
 
 /// Rounds of [`calibrated`]: each moves the biases by the mean errors left, while that decodes

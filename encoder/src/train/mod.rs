@@ -20,6 +20,7 @@ mod sampler;
 
 pub use export::{bias_limit, export_layer, frac_bits_for};
 pub(crate) use latents::coded_bytes;
+pub(crate) use layers::row_scale;
 pub use model::Model;
 pub use options::{DEFAULT_STEPS, Effort, Phase, Progress, TrainOptions, mlp_flops_per_sample};
 
