@@ -8,8 +8,8 @@ use nmat_core::{Container, Material};
 use nmat_encode::metrics::ChainQuality;
 use nmat_encode::texset::TextureSet;
 use nmat_encode::{
-    Effort, EncodeError, EncodeOption, EncodeOptions, Encoded, PROFILES, Profile, TrainOptions,
-    encode,
+    Effort, EncodeError, EncodeOption, EncodeOptions, Encoded, PROFILES, Phase, Profile,
+    TrainOptions, encode,
 };
 use std::path::Path;
 
@@ -133,7 +133,10 @@ pub fn encode_with_progress(set: &TextureSet, options: &EncodeOptions) -> Result
     let encoded = encode(set, options, &mut |p| {
         // A layout trial adds its steps to the count.
         progress.set_total(p.steps as u64);
-        progress.set(p.step as u64, &|| format!("train PSNR {:.2} dB ({:?})", p.psnr, p.phase));
+        progress.set(p.step as u64, &|| match p.phase {
+            Phase::Polish => format!("polishing the latents: {:.2} dB over the chain", p.psnr),
+            phase => format!("train PSNR {:.2} dB ({phase:?})", p.psnr),
+        });
     })?;
     progress.finish();
     Ok(encoded)

@@ -40,12 +40,13 @@ pub struct Options {
     pub output_margin: Option<f32>,
     pub layout: Option<String>,
     pub hi_bilinear: Option<String>,
+    pub polish_sweeps: Option<u8>,
 }
 
 impl Options {
     /// `self` where set, else `defaults` — but a JPEG entry does not inherit the neural
     /// codec's options (`profile`, `target_psnr`, `steps`, `effort`, `seed`, `memory_factor`,
-    /// `output_margin`, `layout`, `hi_bilinear`) from the defaults, nor a neural one JPEG's
+    /// `output_margin`, `layout`, `hi_bilinear`, `polish_sweeps`) from the defaults, nor a neural one JPEG's
     /// (`quality`, `subsampling`): `[defaults]` may hold both.
     fn over(&self, defaults: &Options) -> Options {
         let codec = self.codec.clone().or_else(|| defaults.codec.clone());
@@ -60,6 +61,7 @@ impl Options {
             output_margin: defaults.output_margin.filter(|_| !jpeg),
             layout: defaults.layout.clone().filter(|_| !jpeg),
             hi_bilinear: defaults.hi_bilinear.clone().filter(|_| !jpeg),
+            polish_sweeps: defaults.polish_sweeps.filter(|_| !jpeg),
             quality: defaults.quality.filter(|_| jpeg),
             subsampling: defaults.subsampling.clone().filter(|_| jpeg),
             ..defaults.clone()
@@ -82,6 +84,7 @@ impl Options {
             output_margin: self.output_margin.or(defaults.output_margin),
             layout: self.layout.clone().or_else(|| defaults.layout.clone()),
             hi_bilinear: self.hi_bilinear.clone().or_else(|| defaults.hi_bilinear.clone()),
+            polish_sweeps: self.polish_sweeps.or(defaults.polish_sweeps),
         }
     }
 
@@ -108,6 +111,7 @@ impl Options {
         push("output-margin", self.output_margin.map(|v| v.to_string()));
         push("layout", self.layout.clone());
         push("hi-bilinear", self.hi_bilinear.clone());
+        push("polish-sweeps", self.polish_sweeps.map(|v| v.to_string()));
         if self.resize == Some(true) {
             f.push("--resize".into());
         }
@@ -373,7 +377,7 @@ mod tests {
         std::fs::create_dir_all(dir.join("a")).unwrap();
         let jobs = expand(
             "[defaults]\nprofile = \"ntc-0.2\"\nquality = 70\nsteps = 9\nmemory_factor = 1.25\n\
-             output_margin = 0.01\nlayout = \"bits-first\"\nhi_bilinear = \"off\"\n\
+             output_margin = 0.01\nlayout = \"bits-first\"\nhi_bilinear = \"off\"\npolish_sweeps = 1\n\
              [[material]]\ninput = \"a\"\noutput = \"n.nmat\"\n\
              [[material]]\ninput = \"a\"\noutput = \"t.nmat\"\nlayout = \"trial\"\n\
              [[material]]\ninput = \"a\"\noutput = \"j.nmat\"\ncodec = \"jpeg\"\n\
@@ -388,12 +392,12 @@ mod tests {
         assert_eq!(
             args("n.nmat"),
             "--profile ntc-0.2 --steps 9 --memory-factor 1.25 --output-margin 0.01 --layout bits-first \
-             --hi-bilinear off"
+             --hi-bilinear off --polish-sweeps 1"
         );
         assert_eq!(
             args("t.nmat"),
             "--profile ntc-0.2 --steps 9 --memory-factor 1.25 --output-margin 0.01 --layout trial \
-             --hi-bilinear off"
+             --hi-bilinear off --polish-sweeps 1"
         );
         assert_eq!(args("j.nmat"), "--codec jpeg --quality 70");
         // Set on the entry itself: passed on (and `nmat encode` names the conflict).

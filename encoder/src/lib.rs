@@ -19,6 +19,7 @@ pub mod jpeg;
 mod memhint;
 pub mod metrics;
 pub mod names;
+mod polish;
 mod profile;
 mod refit;
 mod role;
@@ -62,6 +63,11 @@ pub struct EncodeOptions {
     /// How a packed layout grows to its in-memory size where there are two ways
     /// (docs/ENCODING.md, "The layout trial"); default [`LayoutChoice::BitsFirst`].
     pub layout: LayoutChoice,
+    /// Sweeps of the latent polish after training (`None`: the profile's,
+    /// [`Profile::polish_sweeps`]): each moves every latent code by ±1 where the integer decoder
+    /// then decodes the chain better, a packed file's coded size kept (docs/ENCODING.md, "The
+    /// latent polish"). Each sweep costs about as much as decoding the chain 100–200 times.
+    pub polish_sweeps: Option<u8>,
 }
 
 /// How a packed file's in-memory layout is grown past the nominal one, where a profile has two
@@ -203,6 +209,7 @@ impl Default for EncodeOptions {
             memory_factor: DEFAULT_MEMORY_FACTOR,
             legacy_lod: false,
             layout: LayoutChoice::default(),
+            polish_sweeps: None,
         }
     }
 }
@@ -267,8 +274,9 @@ pub fn encode(
                 for (k, (db, layout)) in psnr.iter_mut().zip(&candidates).enumerate() {
                     let o = TrainOptions { steps: trial_steps, ..options.train.clone() };
                     let done = k * trial_steps;
-                    *db =
-                        trained(set, options, layout, &o, &mut |p| counted(done, p))?.quality.psnr;
+                    *db = trained(set, options, layout, (&o, 0), &mut |p| counted(done, p))?
+                        .quality
+                        .psnr;
                 }
                 let t = LayoutTrial { resolution_first_db: psnr[0], bits_first_db: psnr[1] };
                 trial = Some(t);
@@ -277,7 +285,9 @@ pub fn encode(
         };
     let layout = candidates.swap_remove(usize::from(bits_first));
     let done = trials * trial_steps;
-    let encoded = trained(set, options, &layout, &options.train, &mut |p| counted(done, p))?;
+    let polish = options.polish_sweeps.unwrap_or(options.profile.polish_sweeps());
+    let train = (&options.train, polish);
+    let encoded = trained(set, options, &layout, train, &mut |p| counted(done, p))?;
     Ok(Encoded { trial, ..encoded })
 }
 
@@ -301,17 +311,22 @@ impl LayoutTrial {
 }
 
 /// `layout` trained for `set` with `train` (an output margin left open: the profile's), its latents
-/// steered to the layout's coded size (no trial), its output layer refitted and calibrated on the
-/// chain.
+/// steered to the layout's coded size (no trial), its output layer refitted, its latents polished
+/// (`polish` sweeps) and its output biases calibrated on the chain.
 fn trained(
     set: &TextureSet,
     options: &EncodeOptions,
     layout: &Layout,
-    train: &TrainOptions,
+    (train, polish): (&TrainOptions, u8),
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Encoded, EncodeError> {
     let (spec, encoded) = stored(set, options, layout, train, progress)?;
     let (spec, encoded) = refitted(spec, encoded, set, options)?;
+    let mut report = |psnr| {
+        let steps = train.steps;
+        progress(Progress { step: steps, steps, psnr, phase: Phase::Polish });
+    };
+    let (spec, encoded) = polished(spec, encoded, set, options, polish, &mut report)?;
     calibrated(spec, encoded, set, options)
 }
 
@@ -365,6 +380,44 @@ fn refitted(
     spec.mlp = trained;
     Ok((spec, encoded))
 }
+
+/// `encoded` (of `spec`) after up to `sweeps` sweeps of the latent polish ([`polish`]), each
+/// kept only if the file then decodes better and, packed, grows by at most [`POLISH_GROWTH`]
+/// (the polish keeps the coded size by an estimate of the coder's contexts, not by the coder).
+fn polished(
+    mut spec: MaterialSpec,
+    mut encoded: Encoded,
+    set: &TextureSet,
+    options: &EncodeOptions,
+    sweeps: u8,
+    report: &mut dyn FnMut(f64),
+) -> Result<(MaterialSpec, Encoded), EncodeError> {
+    let rate = match options.storage {
+        Storage::Packed => polish::Rate::Neutral,
+        Storage::FixedRate => polish::Rate::Free,
+    };
+    for _ in 0..sweeps {
+        report(encoded.quality.psnr);
+        let mut next = spec.clone();
+        let done = polish::polish(&mut next, set, rate)?;
+        if done.error_after >= done.error_before {
+            break;
+        }
+        let bytes = next.to_bytes()?;
+        let (packed, quality) = as_stored(&bytes, set, options.storage)?;
+        let size = |p: &Option<Vec<u8>>, fixed: &[u8]| p.as_ref().map_or(fixed.len(), Vec::len);
+        let grown = size(&packed, &bytes) as f64 / size(&encoded.packed, &encoded.bytes) as f64;
+        if quality.psnr <= encoded.quality.psnr || grown > 1.0 + POLISH_GROWTH {
+            break;
+        }
+        spec = next;
+        encoded = Encoded { bytes, packed, quality, ..encoded };
+    }
+    Ok((spec, encoded))
+}
+
+/// How much a polish sweep may grow a packed file (its coded size is kept by an estimate).
+const POLISH_GROWTH: f64 = 0.01;
 
 /// Rounds of [`calibrated`]: each moves the biases by the mean errors left, while that decodes
 /// better (outputs clamped at an end of their range leave part of a move for the next round).

@@ -32,6 +32,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         memory_factor: nmat_encode::DEFAULT_MEMORY_FACTOR,
         legacy_lod: false,
         layout: Default::default(),
+        polish_sweeps: None,
     };
     let encoded = encode_with_progress(&set, &options)?;
     let path = out.join("demo.nmat");

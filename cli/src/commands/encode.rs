@@ -67,6 +67,7 @@ pub fn run(args: EncodeArgs) -> Result<()> {
         memory_factor,
         legacy_lod: args.legacy_lod,
         layout: args.layout.map_or(LayoutChoice::default(), Into::into),
+        polish_sweeps: args.polish_sweeps,
         ..EncodeOptions::default()
     };
     let start = Instant::now();
@@ -148,6 +149,7 @@ fn encode_jpeg(args: &EncodeArgs, set: &TextureSet, address_mode: AddressMode) -
         ("--layout", args.layout.is_some()),
         ("--hi-bilinear", args.hi_bilinear.is_some()),
         ("--output-margin", args.output_margin.is_some()),
+        ("--polish-sweeps", args.polish_sweeps.is_some()),
         ("--steps", args.train.steps.is_some()),
         ("--effort", args.train.effort != EffortArg::Default),
         ("--seed", args.train.seed != TrainOptions::default().seed),

@@ -150,7 +150,7 @@ impl TrainOptions {
     pub fn latents_train(&self, step: usize) -> bool {
         match self.phase(step) {
             Phase::Joint => true,
-            Phase::FrozenLatents => false,
+            Phase::FrozenLatents | Phase::Polish => false,
             Phase::QuantizationAware => self.qat_lr_latents > 0.0,
         }
     }
@@ -195,7 +195,8 @@ impl Default for TrainOptions {
 pub struct Progress {
     pub step: usize,
     pub steps: usize,
-    /// PSNR of the running training loss (unit scale, all learned channels), dB.
+    /// PSNR of the running training loss (unit scale, all learned channels), dB; in
+    /// [`Phase::Polish`], of the file's decode over the chain before the sweep.
     pub psnr: f64,
     pub phase: Phase,
 }
@@ -208,6 +209,9 @@ pub enum Phase {
     FrozenLatents,
     /// MLP with fake-quantized int8 weights.
     QuantizationAware,
+    /// After training, a sweep of the latent polish (docs/ENCODING.md, "The latent polish"):
+    /// reported at the start of each, with every step done.
+    Polish,
 }
 
 /// Floating-point operations (2 per multiply-add) of the MLP's matrix products per training
