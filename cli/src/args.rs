@@ -452,7 +452,7 @@ pub struct EncodeArgs {
     /// Neural: sweeps of the latent polish after training, 0–8 [default: the profile's, 2 at
     /// ntc-0.2, else 0]. Each moves every latent code by ±1 where the decoder then decodes the
     /// chain better, a packed file's size kept (ntc-0.2: stk-eggkart +0.63 dB, brickfloor +1.17
-    /// at the same rate; each sweep about as long as 150 decodes of the finest mips)
+    /// at the same rate; each sweep about as long as 70 decodes of the finest mips)
     /// (docs/ENCODING.md, "The latent polish").
     #[arg(long, value_parser = clap::value_parser!(u8).range(0..=8))]
     pub polish_sweeps: Option<u8>,

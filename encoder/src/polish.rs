@@ -8,7 +8,7 @@
 //! pull toward the middle code only approximates. The polish measures both exactly enough: the
 //! error by decoding, the bits by the coder's own contexts.
 //!
-//! One grid channel's cells are tried in batches of every third cell on each axis (short of a
+//! One grid channel's cells are tried in batches of every other cell on each axis (short of a
 //! wrapped neighbour): no texel reads two cells of a batch (a texel reads 2×2 neighbouring cells),
 //! so one decode of the mips that read the grid measures every cell of the batch, each texel's
 //! change charged to the one cell of the batch it reads.
@@ -20,7 +20,7 @@ use nmat_core::internals::footprint;
 use nmat_core::{Container, Material, MaterialSpec};
 
 /// Cells of a batch are this far apart on each axis.
-const SPACING: u32 = 3;
+const SPACING: u32 = 2;
 
 /// What a polish did: the chain's summed squared error (unit scale, learned channels) before and
 /// after, and the coded size change the rate model expects (bits).
@@ -147,6 +147,7 @@ impl RateModel {
 
 /// Whether cell `i` of an axis of `n` cells is in the batch of phase `p`: every [`SPACING`]th
 /// cell, short of the last `n % SPACING` (which a wrapped footprint could pair with cell 0).
+/// Two cells of a batch are then never neighbours, so no texel's 2×2 cells hold two.
 fn in_batch(n: u32, i: u32, p: u32) -> bool {
     i % SPACING == p && i < n - n % SPACING
 }
