@@ -330,8 +330,7 @@ fn choose(moved: &[bool], gain: &[f64], cost: &[f64], rate: Rate, balance: &mut 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::train::TrainOptions;
-    use crate::{EncodeOptions, Profile, demo, layouts, metrics, shape_of, stored};
+    use crate::{Storage, demo, metrics};
     use nmat_core::AddressMode;
     use nmat_core::internals::coded_latents_len;
 
@@ -428,18 +427,11 @@ mod tests {
         // error, and its packed file stays within 1 % of its size; without a rate to keep, it
         // lowers the error at least as much.
         let set = demo::bricks(32);
-        let options = EncodeOptions {
-            profile: Profile::by_name("ntc-0.2").unwrap(),
-            train: TrainOptions { steps: 1000, seed: 2, ..TrainOptions::default() },
-            ..EncodeOptions::default()
-        };
-        let layout =
-            layouts(options.profile, &shape_of(&set), options.storage, 1.0).unwrap().swap_remove(0);
-        let (spec, encoded) = stored(&set, &options, &layout, &options.train, &mut |_| {}).unwrap();
+        let (spec, encoded) = crate::refit::tests::trained_spec(&set, 1000, 2);
         let mut neutral = spec.clone();
         let done = polish(&mut neutral, &set, Rate::Neutral).unwrap();
         let bytes = neutral.to_bytes().unwrap();
-        let (packed, quality) = crate::as_stored(&bytes, &set, options.storage).unwrap();
+        let (packed, quality) = crate::as_stored(&bytes, &set, Storage::Packed).unwrap();
         let size = |p: &Option<Vec<u8>>, fixed: &[u8]| p.as_ref().map_or(fixed.len(), Vec::len);
         let grown = size(&packed, &bytes) as f64 / size(&encoded.packed, &encoded.bytes) as f64;
         eprintln!(

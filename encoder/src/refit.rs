@@ -259,7 +259,7 @@ fn solve(l: &[f64], n: usize, rhs: &[f64]) -> Vec<f64> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::train::TrainOptions;
     use crate::{EncodeOptions, Profile, demo, layouts, metrics, shape_of, stored};
@@ -341,21 +341,30 @@ mod tests {
         assert!(at - best < 0.01 * (-best), "{at} against {best}");
     }
 
+    /// `set` trained at `ntc-0.2` for `steps` with `seed`, as training leaves it (before the
+    /// refit): its spec and file.
+    pub(crate) fn trained_spec(
+        set: &TextureSet,
+        steps: usize,
+        seed: u64,
+    ) -> (nmat_core::MaterialSpec, crate::Encoded) {
+        let options = EncodeOptions {
+            profile: Profile::by_name("ntc-0.2").unwrap(),
+            train: TrainOptions { steps, seed, ..TrainOptions::default() },
+            ..EncodeOptions::default()
+        };
+        let layout =
+            layouts(options.profile, &shape_of(set), options.storage, 1.0).unwrap().swap_remove(0);
+        stored(set, &options, &layout, &options.train, &mut |_| {}).unwrap()
+    }
+
     #[test]
     fn a_refit_recovers_an_output_layer_wiped_out() {
         // A trained material whose output rows are all zeroed decodes to flat ranges; refitted
         // on its hidden activations, it decodes at least as well as the trained layer did (the
         // least-squares layer on the integer decoder's own activations, over the whole chain).
         let set = demo::bricks(32);
-        let options = EncodeOptions {
-            profile: Profile::by_name("ntc-0.2").unwrap(),
-            train: TrainOptions { steps: 150, seed: 4, ..TrainOptions::default() },
-            ..EncodeOptions::default()
-        };
-        let layout =
-            layouts(options.profile, &shape_of(&set), options.storage, 1.0).unwrap().swap_remove(0);
-        let (mut spec, encoded) =
-            stored(&set, &options, &layout, &options.train, &mut |_| {}).unwrap();
+        let (mut spec, encoded) = trained_spec(&set, 150, 4);
         let trained = encoded.quality.psnr;
         let last = spec.mlp.layers.last_mut().unwrap();
         last.weights_i8.iter_mut().for_each(|w| *w = 0);
