@@ -66,7 +66,7 @@ pub struct EncodeOptions {
     /// Sweeps of the latent polish after training (`None`: the profile's,
     /// [`Profile::polish_sweeps`]): each moves every latent code by ±1 where the integer decoder
     /// then decodes the chain better, a packed file's coded size kept (docs/ENCODING.md, "The
-    /// latent polish"). Each sweep costs about as much as decoding the chain 100–200 times.
+    /// latent polish"). Each sweep costs about as much as decoding the finest mips 65 times.
     pub polish_sweeps: Option<u8>,
 }
 
@@ -405,13 +405,15 @@ fn polished(
         }
         let bytes = next.to_bytes()?;
         let (packed, quality) = as_stored(&bytes, set, options.storage)?;
-        let size = |p: &Option<Vec<u8>>, fixed: &[u8]| p.as_ref().map_or(fixed.len(), Vec::len);
-        let grown = size(&packed, &bytes) as f64 / size(&encoded.packed, &encoded.bytes) as f64;
-        if quality.psnr <= encoded.quality.psnr || grown > 1.0 + POLISH_GROWTH {
+        let size = encoded.file().len() as f64;
+        let candidate =
+            Encoded { bytes, packed, quality, config: encoded.config.clone(), trial: None };
+        let grown = candidate.file().len() as f64 / size;
+        if candidate.quality.psnr <= encoded.quality.psnr || grown > 1.0 + POLISH_GROWTH {
             break;
         }
         spec = next;
-        encoded = Encoded { bytes, packed, quality, ..encoded };
+        encoded = Encoded { trial: encoded.trial, ..candidate };
     }
     Ok((spec, encoded))
 }

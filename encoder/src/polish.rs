@@ -23,12 +23,11 @@ use nmat_core::{Container, Material, MaterialSpec};
 const SPACING: u32 = 2;
 
 /// What a polish did: the chain's summed squared error (unit scale, learned channels) before and
-/// after, and the coded size change the rate model expects (bits).
+/// after.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct Polished {
     pub(crate) error_before: f64,
     pub(crate) error_after: f64,
-    pub(crate) bits: f64,
 }
 
 /// How the polish weighs the coded size.
@@ -180,7 +179,6 @@ pub(crate) fn polish(
     let error_before = total(&err);
     // Bits saved so far and not yet spent (≤ 0 where the rate is neutral).
     let mut balance = 0.0;
-    let mut bits = 0.0;
     for g in 0..spec.grids.len() {
         let grid = &spec.grids[g];
         let (gw, gh) = (u32::from(grid.width), u32::from(grid.height));
@@ -240,9 +238,7 @@ pub(crate) fn polish(
                     let keep = choose(&moved, &gain, &cost, rate, &mut balance);
                     let codes = &mut spec.grids[g].codes;
                     for (cell, (&kept, &was_moved)) in keep.iter().zip(&moved).enumerate() {
-                        if kept {
-                            bits += cost[cell];
-                        } else if was_moved {
+                        if was_moved && !kept {
                             let code = &mut codes[cell * channels + channel];
                             *code = code.wrapping_add_signed(-step);
                         }
@@ -258,7 +254,7 @@ pub(crate) fn polish(
             }
         }
     }
-    Ok(Polished { error_before, error_after: total(&err), bits })
+    Ok(Polished { error_before, error_after: total(&err) })
 }
 
 /// A mip's decode after a batch's move: its texels' squared errors, and for each texel the moved

@@ -120,8 +120,7 @@ pub(crate) fn refit_output_layer(
     let g = normal.full();
     let Some(chol) = cholesky(&g, n) else { return false };
     let Some(layer) = mlp.layers.last_mut() else { return false };
-    let min_scale =
-        2f32.powi(-30 + i32::from(last.in_frac_bits()) - i32::from(last.out_frac_bits()));
+    let min_scale = crate::train::min_row_scale(last.in_frac_bits(), last.out_frac_bits());
     let bias_limit = crate::train::bias_limit(inputs);
     let mut changed = false;
     for (k, &o) in rows.iter().enumerate() {

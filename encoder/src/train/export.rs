@@ -17,6 +17,12 @@ pub fn bias_limit(inputs: usize) -> f64 {
     f64::from(i32::MAX) - inputs as f64 * 127.0 * 32768.0
 }
 
+/// The smallest row scale between Q-formats `in_frac` and `out_frac`: the decoder needs its
+/// requantization shift ≤ 62, so scale ≥ 2^(−32 + in − out), with margin.
+pub fn min_row_scale(in_frac: u8, out_frac: u8) -> f32 {
+    2f32.powi(-30 + i32::from(in_frac) - i32::from(out_frac))
+}
+
 /// Exports one trained layer to the file's two arithmetics. `out_rows` maps file rows to trained
 /// rows (`None` = a constant channel: zero weights, zero scale).
 pub fn export_layer(
@@ -27,8 +33,7 @@ pub fn export_layer(
     activation: Activation,
 ) -> LayerSpec {
     let n = l.inputs;
-    // The decoder needs its requantization shift ≤ 62: scale ≥ 2^(−32 + in − out), with margin.
-    let min_scale = 2f32.powi(-30 + i32::from(in_frac) - i32::from(out_frac));
+    let min_scale = min_row_scale(in_frac, out_frac);
     let in_lsb = 1.0 / f64::from(1u32 << in_frac);
     let bias_limit = bias_limit(n);
     let (mut weights_i8, mut scales, mut bias) = (Vec::new(), Vec::new(), Vec::new());

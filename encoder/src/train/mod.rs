@@ -18,7 +18,7 @@ mod options;
 mod rng;
 mod sampler;
 
-pub use export::{bias_limit, export_layer, frac_bits_for};
+pub use export::{bias_limit, export_layer, frac_bits_for, min_row_scale};
 pub(crate) use latents::coded_bytes;
 pub(crate) use layers::row_scale;
 pub use model::Model;
