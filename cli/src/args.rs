@@ -427,7 +427,9 @@ pub struct EncodeArgs {
     /// Neural, packed: the in-memory (fixed-rate) layout may be this many times the profile's
     /// nominal size, 1–2: larger latent grids, kept to the nominal rate on disk by training
     /// (docs/ENCODING.md, "Rate control"); 1: the nominal layout, whose packed file lands below
-    /// the nominal rate [default: 1.5].
+    /// the nominal rate [default: 1.5]. A polished file that lands more than 0.3 % under the
+    /// nominal rate is trained again at 2 and polished down to it, kept where it decodes better
+    /// (docs/ENCODING.md, "The regrown layout").
     #[arg(long, conflicts_with = "fixed_rate")]
     pub memory_factor: Option<f64>,
     /// Neural, packed ntc-0.2: how the in-memory layout grows past the nominal one — one more

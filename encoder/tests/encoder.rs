@@ -371,9 +371,14 @@ fn the_layout_trial_keeps_the_way_whose_short_training_decoded_better() {
     };
     eprintln!("trial: {trial:?}; kept {:?}", bits(&kept.config));
     assert!(tried.bytes == kept.bytes, "the file is the kept way trained in full");
-    // Progress counts the trials' steps with the training's, and ends at their sum.
+    // Progress counts the trials' steps with the training's, and ends at their sum; a file more
+    // than 0.3 % under its nominal size is trained once more on a larger layout (kept only where
+    // it decodes better: docs/ENCODING.md, "The regrown layout"), whose steps count too.
     assert!(counted.windows(2).all(|w| w[0].0 <= w[1].0), "{counted:?}");
-    assert_eq!(counted.last(), Some(&(steps + 2 * quarter, steps + 2 * quarter)));
+    let nominal = shape.budget_bits(0.2) / 8.0;
+    let regrown = (tried.file().len() as f64) < nominal * (1.0 - 0.003);
+    let total = steps + 2 * quarter + if regrown { steps } else { 0 };
+    assert_eq!(counted.last(), Some(&(total, total)));
 }
 
 #[test]
