@@ -161,7 +161,7 @@ pub fn layouts(
         });
     }
     let nominal = configure(profile, shape);
-    let bytes = shape.budget_bits(profile.bppc()) / 8.0;
+    let bytes = nominal_bytes(profile, shape);
     // A material too small for the rate (its smallest model is above it) has no latent bytes to
     // steer: it keeps the nominal model.
     let too_small = nominal.byte_budget(shape).total() as f64 > bytes * (1.0 + RATE_TOLERANCE);
@@ -246,6 +246,23 @@ impl Encoded {
     pub fn file(&self) -> &[u8] {
         self.packed.as_deref().unwrap_or(&self.bytes)
     }
+
+    /// `spec` written and measured as `storage` stores it, with this encode's layout and trial.
+    fn rewritten(
+        &self,
+        spec: &MaterialSpec,
+        set: &TextureSet,
+        storage: Storage,
+    ) -> Result<Encoded, EncodeError> {
+        let bytes = spec.to_bytes()?;
+        let (packed, quality) = as_stored(&bytes, set, storage)?;
+        Ok(Encoded { bytes, packed, quality, config: self.config.clone(), trial: self.trial })
+    }
+}
+
+/// The size in bytes of a file at `profile`'s nominal rate (disk rate of a packed file).
+fn nominal_bytes(profile: Profile, shape: &MaterialShape) -> f64 {
+    shape.budget_bits(profile.bppc()) / 8.0
 }
 
 /// Trains a model for `set` and writes it. Deterministic: the same set, options and seed give the
@@ -333,7 +350,7 @@ fn underfilled(
     polish: u8,
 ) -> Option<Layout> {
     let shape = shape_of(set);
-    let nominal = shape.budget_bits(options.profile.bppc()) / 8.0;
+    let nominal = nominal_bytes(options.profile, &shape);
     let under = (encoded.file().len() as f64) < nominal * (1.0 - UNDERFILL);
     if options.storage != Storage::Packed
         || polish == 0
@@ -362,7 +379,7 @@ fn regrown(
     let (spec, encoded) = refitted(spec, encoded, set, options)?;
     let steps = options.train.steps;
     let mut report = |psnr| progress(Progress { step: steps, steps, psnr, phase: Phase::Polish });
-    let nominal = shape_of(set).budget_bits(options.profile.bppc()) / 8.0;
+    let nominal = nominal_bytes(options.profile, &shape_of(set));
     match rate_polished(spec, encoded, set, options, nominal, &mut report)? {
         Some((spec, encoded)) => Ok(Some(calibrated(spec, encoded, set, options)?)),
         None => Ok(None),
@@ -399,9 +416,7 @@ fn rate_polished(
             polish::Rate::Neutral
         };
         polish::polish(&mut spec, set, rate)?;
-        let bytes = spec.to_bytes()?;
-        let (packed, quality) = as_stored(&bytes, set, options.storage)?;
-        encoded = Encoded { bytes, packed, quality, ..encoded };
+        encoded = encoded.rewritten(&spec, set, options.storage)?;
         let fits = encoded.file().len() as f64 <= nominal * (1.0 + POLISH_GROWTH);
         if fits && best.as_ref().is_none_or(|(_, b)| b.quality.psnr < encoded.quality.psnr) {
             best = Some((spec.clone(), encoded.clone()));
@@ -522,17 +537,13 @@ fn polished(
         if done.error_after >= done.error_before {
             break;
         }
-        let bytes = next.to_bytes()?;
-        let (packed, quality) = as_stored(&bytes, set, options.storage)?;
-        let size = encoded.file().len() as f64;
-        let candidate =
-            Encoded { bytes, packed, quality, config: encoded.config.clone(), trial: None };
-        let grown = candidate.file().len() as f64 / size;
+        let candidate = encoded.rewritten(&next, set, options.storage)?;
+        let grown = candidate.file().len() as f64 / encoded.file().len() as f64;
         if candidate.quality.psnr <= encoded.quality.psnr || grown > 1.0 + POLISH_GROWTH {
             break;
         }
         spec = next;
-        encoded = Encoded { trial: encoded.trial, ..candidate };
+        encoded = candidate;
     }
     Ok((spec, encoded))
 }
@@ -746,7 +757,7 @@ mod tests {
         let mut first = layouts(options.profile, &shape, options.storage, 1.5).unwrap();
         let layout = first.swap_remove(0);
         assert!(layout.latent_bytes.is_some(), "the default layout is steered");
-        let nominal = shape.budget_bits(options.profile.bppc()) / 8.0;
+        let nominal = nominal_bytes(options.profile, &shape);
         let file = |share: f64| Encoded {
             bytes: vec![0; (nominal * share) as usize],
             packed: None,
