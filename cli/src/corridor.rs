@@ -147,7 +147,7 @@ pub fn request(l: &Lookup, mips: bool) -> SampleRequest {
 /// One frame's measurements.
 pub struct Row {
     pub stats: FrameStats,
-    /// Marking, decoding, resolving (the CPU's stages; the GPU times the frame as a whole).
+    /// Marking, decoding, resolving (on the GPU between timestamps; none on the wall clock).
     pub stages: Option<[f64; 3]>,
     /// The frame with the cache: the stages' sum.
     pub cached_ms: f64,

@@ -155,7 +155,11 @@ pub struct GpuTileCache {
     args: wgpu::Buffer,
     /// The counters copied at the end of a frame, for `read_stats`.
     stats: wgpu::Buffer,
+    /// The material records as the mark and resolve passes read them (a uniform block).
+    records: wgpu::Buffer,
     layout: wgpu::BindGroupLayout,
+    /// The resolve pass's layout: the codes read-only.
+    resolve_layout: wgpu::BindGroupLayout,
     passes: Passes,
     /// The bind groups of the passes that read no lookups; of the plan and finish passes.
     frame_bind: wgpu::BindGroup,
@@ -168,17 +172,50 @@ pub struct GpuTileCache {
     frame: AtomicU32,
 }
 
-/// The shader of the cache's passes (cache.wgsl).
-pub(crate) fn passes_source() -> String {
+/// The material records of a cache of `materials` materials as the passes read them: a uniform
+/// block (`nmat_cache_records`, binding 5; every lookup reads its material's record, which never
+/// changes: a uniform read is served near the cores, an atomic load of the table is not) with
+/// the accessor cache_sample.wgsl asks for.
+fn records_wgsl(materials: usize) -> String {
+    format!(
+        "@group(0) @binding(5) var<uniform> nmat_cache_records: array<vec4<u32>, {}>;\n\
+         fn nmat_cache_record_word(material: u32, i: u32) -> u32 {{\n\
+         \x20   let w = NMAT_CACHE_MAT_WORDS * material + i;\n\
+         \x20   return nmat_cache_records[w / 4u][w % 4u];\n\
+         }}\n",
+        record_vec4s(materials)
+    )
+}
+
+/// The `vec4<u32>`s of the records' uniform block: 16 per material (a record is 64 words), 16 KiB
+/// for the most materials, the smallest limit a device may have for a uniform binding.
+fn record_vec4s(materials: usize) -> usize {
+    (CacheMaterial::WORDS * materials).div_ceil(4)
+}
+
+/// The cache's generated declarations and the filter, after a pass module's own file.
+fn cache_module(own: &str, materials: usize) -> String {
     [
         layout::cache_state_wgsl(),
         layout::cache_table_wgsl(),
         layout::wgsl_struct::<CacheParams>("NmatCacheParams"),
-        include_str!("shaders/cache.wgsl").to_string(),
+        records_wgsl(materials),
+        own.to_string(),
+        include_str!("shaders/cache_lookup.wgsl").to_string(),
         include_str!("shaders/cache_sample.wgsl").to_string(),
         include_str!("shaders/filter.wgsl").to_string(),
     ]
     .join("\n")
+}
+
+/// The shader of the cache's passes but the resolve (cache.wgsl), for `materials` materials.
+pub(crate) fn passes_source(materials: usize) -> String {
+    cache_module(include_str!("shaders/cache.wgsl"), materials)
+}
+
+/// The shader of the resolve pass (cache_resolve.wgsl), for `materials` materials.
+pub(crate) fn resolve_source(materials: usize) -> String {
+    cache_module(include_str!("shaders/cache_resolve.wgsl"), materials)
 }
 
 /// The shader of the neural decode of new tiles (cache_decode.wgsl).
@@ -193,9 +230,17 @@ pub(crate) fn decode_source() -> String {
 }
 
 /// The uniform block of cache.wgsl.
-fn cache_params(count: u32, in_offset: u32, channels: u32, out_offset: u32) -> Vec<u8> {
+fn cache_params(
+    count: u32,
+    in_offset: u32,
+    channels: u32,
+    out_offset: u32,
+    materials: usize,
+) -> Vec<u8> {
     let out_channels = channels.count_ones();
-    CacheParams { count, in_offset, channels, out_channels, out_offset, pad: [0; 3] }.bytes()
+    let materials = materials as u32;
+    CacheParams { count, in_offset, channels, out_channels, out_offset, materials, pad: [0; 2] }
+        .bytes()
 }
 
 impl Context {
@@ -321,11 +366,18 @@ impl Context {
         let stats = buffer("nmat cache stats", COUNTER_BYTES, U::MAP_READ | U::COPY_DST);
         let args = buffer("nmat cache dispatches", args_bytes, U::STORAGE | U::INDIRECT);
         let empty = buffer("nmat cache no lookups", 32, U::STORAGE);
-        let (layout, passes) = self.cache_passes(device)?;
+        let (layout, resolve_layout, passes) = self.cache_passes(device, materials.len())?;
         let uniform = |bytes: &[u8]| uniform_buffer(device, bytes);
+        let mut record_words = vec![0u32; 4 * record_vec4s(materials.len())];
+        for (k, record) in records.iter().enumerate() {
+            layout::write(&mut record_words, CacheMaterial::WORDS * k, record);
+        }
+        let records = uniform(&words_to_bytes(&record_words));
         let params = uniform(&[0; 32]);
-        let frame_bind = bind(device, &layout, [&table, &state, &empty, &codes], &params);
-        let plan_bind = bind(device, &layout, [&table, &state, &empty, &args], &params);
+        let frame = [&table, &state, &empty, &codes];
+        let frame_bind = bind(device, &layout, frame, &params, &records);
+        let plan = [&table, &state, &empty, &args];
+        let plan_bind = bind(device, &layout, plan, &params, &records);
         // The decode dispatches of each material, reading its queue.
         let mut decodes = Vec::new();
         let neural = self.cache_decode_pipeline(device)?;
@@ -376,7 +428,9 @@ impl Context {
             codes,
             args,
             stats,
+            records,
             layout,
+            resolve_layout,
             passes,
             frame_bind,
             plan_bind,
@@ -389,43 +443,56 @@ impl Context {
         })
     }
 
-    /// The layout and pipelines of cache.wgsl.
+    /// The layouts (the passes', the resolve pass's) and pipelines of cache.wgsl and
+    /// cache_resolve.wgsl for `materials` materials.
     fn cache_passes(
         &self,
         device: &wgpu::Device,
-    ) -> Result<(wgpu::BindGroupLayout, Passes), GpuError> {
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("nmat cache"),
-            entries: &[
-                storage_entry(0, false),
-                storage_entry(1, false),
-                storage_entry(2, true),
-                storage_entry(3, false),
-                uniform_entry(4),
-            ],
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("nmat cache"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let source = passes_source();
-        let pipeline = |entry: &str| {
-            try_pipeline(device, &source, entry, Some(&pipeline_layout)).ok_or(GpuError::Kernel {
+        materials: usize,
+    ) -> Result<(wgpu::BindGroupLayout, wgpu::BindGroupLayout, Passes), GpuError> {
+        let layout_of = |codes_read_only: bool| {
+            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("nmat cache"),
+                entries: &[
+                    storage_entry(0, false),
+                    storage_entry(1, false),
+                    storage_entry(2, true),
+                    storage_entry(3, codes_read_only),
+                    uniform_entry(4),
+                    uniform_entry(5),
+                ],
+            })
+        };
+        let (layout, resolve_layout) = (layout_of(false), layout_of(true));
+        let pipeline_layout = |layout| {
+            device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some("nmat cache"),
+                bind_group_layouts: &[Some(layout)],
+                immediate_size: 0,
+            })
+        };
+        let pipeline = |source: &str, layout: &wgpu::PipelineLayout, entry: &str| {
+            try_pipeline(device, source, entry, Some(layout)).ok_or(GpuError::Kernel {
                 kernel: crate::Kernel::Reference,
                 reason: "the device refused the tile cache's shader",
             })
         };
+        let (source, passes_layout) = (passes_source(materials), pipeline_layout(&layout));
+        let pass = |entry: &str| pipeline(&source, &passes_layout, entry);
         let passes = Passes {
-            mark: pipeline("nmat_cache_mark")?,
-            compact: pipeline("nmat_cache_compact")?,
-            plan: pipeline("nmat_cache_plan")?,
-            allocate: pipeline("nmat_cache_allocate")?,
-            finish: pipeline("nmat_cache_finish")?,
-            clear: pipeline("nmat_cache_clear")?,
-            resolve: pipeline("nmat_cache_resolve")?,
+            mark: pass("nmat_cache_mark")?,
+            compact: pass("nmat_cache_compact")?,
+            plan: pass("nmat_cache_plan")?,
+            allocate: pass("nmat_cache_allocate")?,
+            finish: pass("nmat_cache_finish")?,
+            clear: pass("nmat_cache_clear")?,
+            resolve: pipeline(
+                &resolve_source(materials),
+                &pipeline_layout(&resolve_layout),
+                "nmat_cache_resolve",
+            )?,
         };
-        Ok((layout, passes))
+        Ok((layout, resolve_layout, passes))
     }
 
     /// The neural decode of new tiles (cache_decode.wgsl), in the decode kernels' layout.
@@ -443,17 +510,18 @@ impl Context {
     }
 }
 
-/// A bind group of cache.wgsl's layout.
+/// A bind group of cache.wgsl's (or cache_resolve.wgsl's) layout.
 fn bind(
     device: &wgpu::Device,
     layout: &wgpu::BindGroupLayout,
     buffers: [&wgpu::Buffer; 4],
     uniform: &wgpu::Buffer,
+    records: &wgpu::Buffer,
 ) -> wgpu::BindGroup {
     let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
         .iter()
         .copied()
-        .chain([uniform])
+        .chain([uniform, records])
         .enumerate()
         .map(|(binding, b)| wgpu::BindGroupEntry {
             binding: binding as u32,
@@ -498,10 +566,10 @@ impl GpuTileCache {
     ) -> Result<(), GpuError> {
         let bytes = CacheLookup::BYTES * u64::from(count);
         let in_offset = check_requests(device, lookups, offset, bytes)?;
-        let params = cache_params(count, in_offset, 0xFFFF, 0);
+        let params = cache_params(count, in_offset, 0xFFFF, 0, self.materials.len());
         let uniform = uniform_buffer(device, &params);
-        let group =
-            bind(device, &self.layout, [&self.table, &self.state, lookups, &self.codes], &uniform);
+        let buffers = [&self.table, &self.state, lookups, &self.codes];
+        let group = bind(device, &self.layout, buffers, &uniform, &self.records);
         dispatch(encoder, &self.passes.mark, &group, groups_of_64(count));
         Ok(())
     }
@@ -560,9 +628,11 @@ impl GpuTileCache {
         let in_offset = check_requests(device, lookups, offset, bytes)?;
         let values = u64::from(count) * u64::from(channels.0.count_ones());
         let out_word = check_output(device, out, out_offset, 4 * values)?;
-        let params = cache_params(count, in_offset, u32::from(channels.0), out_word);
+        let materials = self.materials.len();
+        let params = cache_params(count, in_offset, u32::from(channels.0), out_word, materials);
         let uniform = uniform_buffer(device, &params);
-        let group = bind(device, &self.layout, [&self.table, out, lookups, &self.codes], &uniform);
+        let buffers = [&self.table, out, lookups, &self.codes];
+        let group = bind(device, &self.resolve_layout, buffers, &uniform, &self.records);
         dispatch(encoder, &self.passes.resolve, &group, groups_of_64(count));
         Ok(values)
     }
@@ -649,6 +719,9 @@ impl GpuTileCache {
              @group({g}) @binding({b}) var<storage, read> nmat_cache_table: array<u32>;\n\
              @group({g}) @binding({}) var<storage, read> nmat_cache_codes: array<u32>;\n\
              fn nmat_cache_word(i: u32) -> u32 {{ return nmat_cache_table[i]; }}\n\
+             fn nmat_cache_record_word(material: u32, i: u32) -> u32 {{\n\
+             \x20   return nmat_cache_table[NMAT_CACHE_WORDS + NMAT_CACHE_MAT_WORDS * material + i];\n\
+             }}\n\
              fn nmat_cache_code_word(i: u32) -> u32 {{ return nmat_cache_codes[i]; }}\n\
              fn nmat_fetch(x: i32, y: i32, mip: u32, mask: u32) {{ nmat_cache_read(x, y, mip, mask); }}\n\n{}\n{}\n{}",
             b + 1,

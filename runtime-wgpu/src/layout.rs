@@ -162,7 +162,9 @@ shader_layout! {
         channels: u32,
         out_channels: u32,
         out_offset: u32,
-        pad: [u32; 3],
+        /// The cache's materials (a lookup of another index is no lookup).
+        materials: u32,
+        pad: [u32; 2],
     }
 }
 
@@ -735,7 +737,8 @@ mod tests {
         let sources = [
             ("main", crate::context::shader_source()),
             ("jpeg", jpeg_wgsl()),
-            ("cache passes", crate::cache::passes_source()),
+            ("cache passes", crate::cache::passes_source(1)),
+            ("cache resolve", crate::cache::resolve_source(crate::cache::MAX_CACHE_MATERIALS)),
             ("cache decode", crate::cache::decode_source()),
             ("sampling module", bindings.module()),
             ("cache sampling module", crate::GpuTileCache::sample_module(bindings)),

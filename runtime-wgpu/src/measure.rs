@@ -63,52 +63,94 @@ pub fn time_once(
     queue: &wgpu::Queue,
     record: impl FnOnce(&mut wgpu::CommandEncoder) -> Result<(), GpuError>,
 ) -> Result<(f64, Clock), GpuError> {
+    let mut record = Some(record);
+    let mut stage = |encoder: &mut wgpu::CommandEncoder| match record.take() {
+        Some(record) => record(encoder),
+        None => Ok(()),
+    };
+    let timed = time_stages(device, queue, &mut [&mut stage])?;
+    Ok((timed.seconds, timed.clock))
+}
+
+/// A stage of [`time_stages`]: it records its work into the encoder.
+pub type Stage<'a> = &'a mut dyn FnMut(&mut wgpu::CommandEncoder) -> Result<(), GpuError>;
+
+/// What [`time_stages`] measured.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Stages {
+    /// The whole submission's work.
+    pub seconds: f64,
+    /// Each stage's seconds, between GPU timestamps written after the stage before it (their
+    /// sum is `seconds`); `None` on the wall clock, which times only the whole.
+    pub stages: Option<Vec<f64>>,
+    pub clock: Clock,
+}
+
+/// Seconds of each of `stages` (each records its work into the same command encoder, in order),
+/// submitted once as [`time_once`]: a GPU timestamp before the first stage and after each, so
+/// a frame's passes (a tile cache's mark, decode, resolve) are timed apart in one submission.
+pub fn time_stages(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    stages: &mut [Stage<'_>],
+) -> Result<Stages, GpuError> {
     let wait = |device: &wgpu::Device| {
         device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Map(e.to_string()))
     };
     let timestamps = device.features().contains(TIMESTAMP_FEATURES);
     let mut encoder = device.create_command_encoder(&Default::default());
+    let count = stages.len() as u32 + 1;
     let queries = timestamps.then(|| {
         device.create_query_set(&wgpu::QuerySetDescriptor {
             label: Some("nmat timing"),
             ty: wgpu::QueryType::Timestamp,
-            count: 2,
+            count,
         })
     });
     if let Some(q) = &queries {
         encoder.write_timestamp(q, 0);
     }
-    record(&mut encoder)?;
+    for (k, stage) in stages.iter_mut().enumerate() {
+        stage(&mut encoder)?;
+        if let Some(q) = &queries {
+            encoder.write_timestamp(q, k as u32 + 1);
+        }
+    }
     let Some(q) = &queries else {
         let start = Instant::now();
         queue.submit([encoder.finish()]);
         wait(device)?;
-        return Ok((start.elapsed().as_secs_f64(), Clock::WallClock));
+        let seconds = start.elapsed().as_secs_f64();
+        return Ok(Stages { seconds, stages: None, clock: Clock::WallClock });
     };
-    encoder.write_timestamp(q, 1);
+    let bytes = 8 * u64::from(count);
     let resolve = device.create_buffer(&wgpu::BufferDescriptor {
         label: Some("nmat timestamps"),
-        size: 16,
+        size: bytes,
         usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
         mapped_at_creation: false,
     });
     let back = device.create_buffer(&wgpu::BufferDescriptor {
         label: Some("nmat timestamps readback"),
-        size: 16,
+        size: bytes,
         usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
         mapped_at_creation: false,
     });
-    encoder.resolve_query_set(q, 0..2, &resolve, 0);
-    encoder.copy_buffer_to_buffer(&resolve, 0, &back, 0, 16);
+    encoder.resolve_query_set(q, 0..count, &resolve, 0);
+    encoder.copy_buffer_to_buffer(&resolve, 0, &back, 0, bytes);
     queue.submit([encoder.finish()]);
-    let bytes = read_back(device, &back, 16)?;
-    let tick = |k: usize| {
-        let mut word = [0u8; 8];
-        word.copy_from_slice(&bytes[8 * k..8 * k + 8]);
-        u64::from_le_bytes(word)
-    };
-    let ns = tick(1).saturating_sub(tick(0)) as f64 * f64::from(queue.get_timestamp_period());
-    Ok((ns * 1e-9, Clock::Timestamps))
+    let ticks: Vec<u64> = read_back(device, &back, bytes)?
+        .chunks_exact(8)
+        .map(|b| u64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]))
+        .collect();
+    let period = f64::from(queue.get_timestamp_period()) * 1e-9;
+    let seconds = |from: usize, to: usize| ticks[to].saturating_sub(ticks[from]) as f64 * period;
+    let each = (1..ticks.len()).map(|k| seconds(k - 1, k)).collect();
+    Ok(Stages {
+        seconds: seconds(0, ticks.len() - 1),
+        stages: Some(each),
+        clock: Clock::Timestamps,
+    })
 }
 
 /// The adapter's peak rates, measured by [`probe_peak`].

@@ -34,3 +34,53 @@ fn peaks_and_timings_are_positive_and_scale_with_the_work() {
     assert!(seconds.is_finite() && seconds >= 0.0);
     assert_eq!(clock, want);
 }
+
+/// `time_stages` times each stage apart in one submission: an empty stage takes less than one
+/// that clears 64 MiB, and the stages add up to the whole; a failing stage is passed through.
+#[test]
+fn stages_are_timed_apart_and_add_up() {
+    let (device, queue) = device();
+    let size = 64 << 20;
+    let buffer = device.create_buffer(&nmat_wgpu::wgpu::BufferDescriptor {
+        label: Some("cleared"),
+        size,
+        usage: nmat_wgpu::wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut calls = 0;
+    let timed = measure::time_stages(
+        &device,
+        &queue,
+        &mut [
+            &mut |_| {
+                calls += 1;
+                Ok(())
+            },
+            &mut |encoder| {
+                for _ in 0..4 {
+                    encoder.clear_buffer(&buffer, 0, Some(size));
+                }
+                Ok(())
+            },
+            &mut |_| Ok(()),
+        ],
+    )
+    .unwrap();
+    assert_eq!(calls, 1, "each stage is recorded once");
+    assert!(timed.seconds.is_finite() && timed.seconds > 0.0, "{timed:?}");
+    if timed.clock == Clock::WallClock {
+        assert_eq!(timed.stages, None);
+    } else {
+        let stages = timed.stages.clone().unwrap();
+        assert_eq!(stages.len(), 3, "{timed:?}");
+        let sum: f64 = stages.iter().sum();
+        assert!((sum - timed.seconds).abs() <= 1e-9 + 1e-6 * timed.seconds, "{timed:?}");
+        assert!(stages[1] > stages[0] && stages[1] > stages[2], "{timed:?}");
+    }
+    let failed = measure::time_stages(
+        &device,
+        &queue,
+        &mut [&mut |_| Ok(()), &mut |_| Err(nmat_wgpu::GpuError::Map("refused".to_string()))],
+    );
+    assert!(matches!(failed, Err(nmat_wgpu::GpuError::Map(m)) if m == "refused"));
+}

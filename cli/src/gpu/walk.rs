@@ -1,7 +1,8 @@
 //! `nmat walk --gpu`: the same walk through nmat-wgpu's tile cache (`GpuTileCache`): per frame
 //! the G-buffer of lookups is uploaded (untimed: a renderer writes it on the GPU), then one
 //! submission records begin → mark → decode missing → resolve → end, timed between GPU
-//! timestamps where the adapter has them (else submit to completion). Every Nth frame also
+//! timestamps where the adapter has them, a timestamp after marking and after decoding too (so
+//! the frame's three stages are timed apart, as the CPU walk's are); else submit to completion. Every Nth frame also
 //! resolves every lookup with `nmat_sample` (decoding its texels, no cache; neural materials
 //! only) and checks the two images are bit-identical.
 
@@ -100,21 +101,29 @@ pub fn walk(opts: &Options, materials: &[Material<'_>], mips: bool) -> Result<Wa
         queue.write_buffer(&lookups, 0, &CacheLookup::bytes(&items));
         queue.submit([]);
         wait()?;
-        let (seconds, c) = measure::time_once(&device, &queue, |encoder| {
-            cache.record_begin_frame(encoder);
-            cache.record_mark(&device, encoder, (&lookups, 0, count))?;
-            cache.record_decode_missing(encoder);
-            let channels = ChannelMask(0b111);
-            cache.record_resolve(
-                &device,
-                encoder,
-                (&lookups, 0, count),
-                channels,
-                (&cached_out, 0),
-            )?;
-            cache.record_end_frame(encoder);
-            Ok(())
-        })?;
+        let channels = ChannelMask(0b111);
+        let timed = measure::time_stages(
+            &device,
+            &queue,
+            &mut [
+                &mut |encoder| {
+                    cache.record_begin_frame(encoder);
+                    cache.record_mark(&device, encoder, (&lookups, 0, count))
+                },
+                &mut |encoder| {
+                    cache.record_decode_missing(encoder);
+                    Ok(())
+                },
+                &mut |encoder| {
+                    let out = (&cached_out, 0);
+                    cache.record_resolve(&device, encoder, (&lookups, 0, count), channels, out)?;
+                    cache.record_end_frame(encoder);
+                    Ok(())
+                },
+            ],
+        )?;
+        let (seconds, c) = (timed.seconds, timed.clock);
+        let stages = timed.stages.map(|st| [st[0] * 1e3, st[1] * 1e3, st[2] * 1e3]);
         clock = c;
         let stats = cache.read_stats(&device)?;
         let (mut direct_ms, mut identical) = (None, None);
@@ -139,7 +148,7 @@ pub fn walk(opts: &Options, materials: &[Material<'_>], mips: bool) -> Result<Wa
                     == read_buffer(&device, &queue, &direct_out)?,
             );
         }
-        rows.push(Row { stats, stages: None, cached_ms: seconds * 1e3, direct_ms, identical });
+        rows.push(Row { stats, stages, cached_ms: seconds * 1e3, direct_ms, identical });
     }
     Ok(Walk {
         adapter: format!("{} ({:?})", info.name, info.backend),

@@ -1,7 +1,9 @@
 // The tile cache's passes (cache.rs records them; docs/GPU.md, "The tile cache"): mark → compact
 // and evict → plan → allocate → finish → clear → (decode: cache_decode.wgsl, jpeg.wgsl) →
-// resolve. The table and the codes are laid out as cache_sample.wgsl says; `nmat_cache_rw` is
-// the state below, or the resolved values in `nmat_cache_resolve`.
+// resolve (cache_resolve.wgsl). The table and the codes are laid out as cache_sample.wgsl says;
+// `nmat_cache_rw` is the state below. cache.rs prepends the material records
+// (`nmat_cache_records`, a uniform block: read by every lookup, they never change) and
+// cache_lookup.wgsl follows this file.
 //
 // The state (NMAT_CACHE_STATE_*, generated from nmat-wgpu's layout.rs like every layout these
 // passes read): the free slots, the new tiles (marked this frame and not cached), the new tiles
@@ -26,20 +28,23 @@ fn nmat_cache_word(i: u32) -> u32 {
     return atomicLoad(&nmat_cache_table[i]);
 }
 
+// (cache_sample.wgsl's reader needs it; no pass of this module reads codes: the resolve pass
+// has its own module, with the codes read-only.)
 fn nmat_cache_code_word(i: u32) -> u32 {
     return atomicLoad(&nmat_cache_codes[i]);
 }
 
 // The mark pass runs the filter with a fetch that marks tiles instead of reading them: it marks
-// exactly the texels' tiles a lookup reads.
-var<private> nmat_cache_marking: bool;
+// exactly the texels' tiles a lookup reads. A lookup's taps mostly share a page: the last page
+// it marked is not loaded again (0, the table's first word, is never a page).
+var<private> nmat_cache_marked_page: u32;
 
 fn nmat_fetch(x: i32, y: i32, mip: u32, mask: u32) {
-    if (!nmat_cache_marking) {
-        nmat_cache_read(x, y, mip, mask);
+    let page = nmat_cache_page(x, y, mip).x;
+    if (page == nmat_cache_marked_page) {
         return;
     }
-    let page = nmat_cache_page(x, y, mip).x;
+    nmat_cache_marked_page = page;
     if ((atomicLoad(&nmat_cache_table[page]) & NMAT_CACHE_MARK) != 0u) {
         return;
     }
@@ -75,29 +80,6 @@ fn nmat_cache_dispatch(at: u32, groups: u32) {
     atomicStore(&nmat_cache_codes[at + NMAT_CACHE_DISPATCH_Z], 1u);
 }
 
-fn nmat_cache_index(id: vec3<u32>, groups: vec3<u32>) -> u32 {
-    return id.x + id.y * groups.x * 64u;
-}
-
-// Lookups are 8 words: u, v, lod (f32 bits), material (its index; past the list: no lookup),
-// filter (NMAT_NEAREST …), three random numbers for NMAT_STOCHASTIC (f32 bits).
-fn nmat_cache_lookup(i: u32) -> array<f32, 16> {
-    let at = nmat_cache_params.in_offset + NMAT_LOOKUP_WORDS * i;
-    let material = nmat_cache_lookups[at + NMAT_LOOKUP_MATERIAL];
-    if (material >= nmat_cache_word(NMAT_CACHE_MATERIALS)) {
-        return array<f32, 16>();
-    }
-    let uv = bitcast<vec2<f32>>(vec2<u32>(nmat_cache_lookups[at + NMAT_LOOKUP_U], nmat_cache_lookups[at + NMAT_LOOKUP_V]));
-    let lod = bitcast<f32>(nmat_cache_lookups[at + NMAT_LOOKUP_LOD]);
-    let rnd = bitcast<vec3<f32>>(vec3<u32>(
-        nmat_cache_lookups[at + NMAT_LOOKUP_RANDOM_0],
-        nmat_cache_lookups[at + NMAT_LOOKUP_RANDOM_1],
-        nmat_cache_lookups[at + NMAT_LOOKUP_RANDOM_2],
-    ));
-    let mode = nmat_cache_lookups[at + NMAT_LOOKUP_FILTER];
-    return nmat_cache_sample(material, uv, lod, rnd, mode, nmat_cache_params.channels);
-}
-
 // Marks the tiles each lookup reads (one invocation per lookup); counts marked tiles and hits.
 @compute @workgroup_size(64)
 fn nmat_cache_mark(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
@@ -105,7 +87,6 @@ fn nmat_cache_mark(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_wo
     if (i >= nmat_cache_params.count) {
         return;
     }
-    nmat_cache_marking = true;
     _ = nmat_cache_lookup(i);
 }
 
@@ -227,29 +208,5 @@ fn nmat_cache_clear(
     let first = ((nmat_cache_word(page) & ~NMAT_CACHE_MARK) - 1u) * words;
     for (var w = lid; w < words; w += 64u) {
         atomicStore(&nmat_cache_codes[first + w], 0u);
-    }
-}
-
-// One invocation per lookup: the filtered values of the channels in `channels` (f32 bits, in
-// channel order, `out_channels` per lookup) into `nmat_cache_rw` from word `out_offset`; texels
-// of tiles the cache lacks count as resolve misses.
-@compute @workgroup_size(64)
-fn nmat_cache_resolve(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
-    let i = nmat_cache_index(id, groups);
-    if (i >= nmat_cache_params.count) {
-        return;
-    }
-    nmat_cache_marking = false;
-    nmat_cache_misses = 0u;
-    let values = nmat_cache_lookup(i);
-    if (nmat_cache_misses != 0u) {
-        atomicAdd(&nmat_cache_table[NMAT_CACHE_RESOLVE_MISSES], nmat_cache_misses);
-    }
-    var at = nmat_cache_params.out_offset + i * nmat_cache_params.out_channels;
-    for (var c = 0u; c < 16u; c++) {
-        if (((nmat_cache_params.channels >> c) & 1u) != 0u) {
-            atomicStore(&nmat_cache_rw[at], bitcast<u32>(values[c]));
-            at += 1u;
-        }
     }
 }

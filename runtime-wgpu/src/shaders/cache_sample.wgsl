@@ -1,8 +1,9 @@
 // The tile cache's material accessors (filter.wgsl says what they provide): texels are read from
 // the cache's tiles, not decoded. Whoever includes this file declares `nmat_cache_word(i)` (word
-// i of the table) and `nmat_cache_code_word(i)` (word i of the codes) and `nmat_fetch`, which
-// calls `nmat_cache_read` (cache.rs writes both buffers; every name starts with `nmat_`, `Nmat`
-// or `NMAT_`, as in the sampling module).
+// i of the table), `nmat_cache_record_word(material, i)` (word i of a material's record: the
+// table's, or the passes' uniform copy of it), `nmat_cache_code_word(i)` (word i of the codes)
+// and `nmat_fetch`, which calls `nmat_cache_read` (cache.rs writes the buffers; every name
+// starts with `nmat_`, `Nmat` or `NMAT_`, as in the sampling module).
 //
 // The table (cache.rs writes it) is read through the constants nmat-wgpu's layout.rs generates
 // and prepends to this file: NMAT_CACHE_* (its head: this frame's counters, then the materials,
@@ -24,7 +25,7 @@ var<private> nmat_cache_misses: u32;
 
 // Word `i` of the record of the material being filtered.
 fn nmat_cache_record(i: u32) -> u32 {
-    return nmat_cache_word(NMAT_CACHE_WORDS + NMAT_CACHE_MAT_WORDS * nmat_cache_material + i);
+    return nmat_cache_record_word(nmat_cache_material, i);
 }
 
 fn nmat_channel_count() -> u32 {
@@ -71,24 +72,41 @@ fn nmat_cache_page(x: i32, y: i32, mip: u32) -> vec4<u32> {
     return vec4<u32>(page, ax, ay, m);
 }
 
+// The page `nmat_cache_read` read last (0, the table's first word, is never a page), and where its
+// tile's codes start (a byte of the codes; 0xFFFFFFFF: not in the cache). A lookup's taps mostly
+// share a page, and the table does not change while lookups are resolved.
+var<private> nmat_cache_read_page: u32;
+var<private> nmat_cache_read_first: u32;
+
 // The codes of texel (x, y) of `mip` (channels in `mask`) into `nmat_codes`, read from its tile;
 // a tile the cache does not hold reads as codes 0 and counts in `nmat_cache_misses`.
 fn nmat_cache_read(x: i32, y: i32, mip: u32, mask: u32) {
     let p = nmat_cache_page(x, y, mip);
-    let entry = nmat_cache_word(p.x) & ~NMAT_CACHE_MARK;
+    if (p.x != nmat_cache_read_page) {
+        nmat_cache_read_page = p.x;
+        let entry = nmat_cache_word(p.x) & ~NMAT_CACHE_MARK;
+        nmat_cache_read_first = select(0xFFFFFFFFu, (entry - 1u) * nmat_cache_word(NMAT_CACHE_SLOT_WORDS) * 4u, entry != 0u);
+    }
     for (var c = 0u; c < 16u; c++) {
         nmat_codes[c] = 0u;
     }
-    if (entry == 0u) {
+    if (nmat_cache_read_first == 0xFFFFFFFFu) {
         nmat_cache_misses += 1u;
         return;
     }
     let n = nmat_channel_count();
-    let first = (entry - 1u) * nmat_cache_word(NMAT_CACHE_SLOT_WORDS) * 4u + ((p.z % 16u) * 16u + p.y % 16u) * n;
+    let first = nmat_cache_read_first + ((p.z % 16u) * 16u + p.y % 16u) * n;
+    // Each word of the texel's codes is loaded once.
+    var word_at = 0xFFFFFFFFu;
+    var word = 0u;
     for (var c = 0u; c < n; c++) {
         if (((mask >> c) & 1u) != 0u) {
             let byte = first + c;
-            nmat_codes[c] = (nmat_cache_code_word(byte / 4u) >> (8u * (byte % 4u))) & 255u;
+            if (byte / 4u != word_at) {
+                word_at = byte / 4u;
+                word = nmat_cache_code_word(word_at);
+            }
+            nmat_codes[c] = (word >> (8u * (byte % 4u))) & 255u;
         }
     }
 }
