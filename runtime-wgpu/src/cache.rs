@@ -18,8 +18,8 @@ use crate::gpu::{
 use crate::jpeg::JpegMap;
 use crate::layout::{
     self, CacheArgs, CacheDecodeParams, CacheHeader, CacheMaterial, CacheParams, CacheState,
-    ChannelRange, DecodeArgs, DispatchArgs, JpegParams, MAX_MIPS, PAGE_MARK, PageRange, QueueEntry,
-    QueueHead, ShaderLayout, words_to_bytes,
+    ChannelRange, DecodeArgs, DispatchArgs, JpegParams, MAX_MIPS, PAGE_MARK, PageRange, Params,
+    QueueEntry, QueueHead, ShaderLayout, words_to_bytes,
 };
 use crate::upload::GpuBody;
 use crate::{Context, GpuError, GpuMaterial, SampleBindings};
@@ -389,12 +389,31 @@ impl Context {
                 (at + size_of::<DispatchArgs>() * per_tile.ilog2() as usize) as u64
             };
             let GpuBody::Jpeg(maps) = &m.body else {
-                let words =
-                    CacheDecodeParams { queue_at, slot_words: slot_words as u32, pad: [0; 2] };
-                let params = uniform(&words.bytes());
+                // Four workgroups per tile: through the material's tiled kernel where it has
+                // one (tiled.wgsl, `tiled_cache`), else one texel per invocation
+                // (cache_decode.wgsl).
+                let (pipeline, params) = match self.cache_tiled_pipeline(device, m) {
+                    Some(pipeline) => {
+                        let channels = m.channel_count as u32;
+                        let params = Params {
+                            mode: 2,
+                            channel_mask: (1 << channels) - 1,
+                            out_channels: channels,
+                            row_words: slot_words as u32,
+                            in_offset: queue_at,
+                            ..Params::default()
+                        };
+                        (pipeline, params.bytes())
+                    }
+                    None => {
+                        let slot_words = slot_words as u32;
+                        let params = CacheDecodeParams { queue_at, slot_words, pad: [0; 2] };
+                        (neural.clone(), params.bytes())
+                    }
+                };
+                let params = uniform(&params);
                 let bind = self.bind_with(device, Some(m), Some(&state), &codes, &params);
-                // Four workgroups per tile (cache_decode.wgsl).
-                decodes.push(Decode { pipeline: neural.clone(), bind, args: args(4) });
+                decodes.push(Decode { pipeline, bind, args: args(4) });
                 continue;
             };
             let jpeg = self.jpeg_pipelines(device)?;
@@ -493,6 +512,24 @@ impl Context {
             )?,
         };
         Ok((layout, resolve_layout, passes))
+    }
+
+    /// The `tiled_cache` entry of `m`'s tiled kernel (tiled.wgsl), built once per material
+    /// shape; `None` for the other kernels, or where the device refuses it.
+    fn cache_tiled_pipeline(
+        &self,
+        device: &wgpu::Device,
+        m: &GpuMaterial,
+    ) -> Option<wgpu::ComputePipeline> {
+        let source = m.cache_source.as_ref()?;
+        // Keyed apart from the kernel's own pipeline (same source, another entry).
+        let key = format!("{source}// tiled_cache\n");
+        let mut cache = self.tiled.lock().unwrap_or_else(|e| e.into_inner());
+        let pipeline = cache.entry(key).or_insert_with_key(|key| {
+            try_pipeline(device, key, "tiled_cache", Some(&self.pipeline_layout))
+                .map(std::sync::Arc::new)
+        });
+        pipeline.as_deref().cloned()
     }
 
     /// The neural decode of new tiles (cache_decode.wgsl), in the decode kernels' layout.

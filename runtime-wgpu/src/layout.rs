@@ -67,7 +67,8 @@ shader_layout! {
     /// bc.wgsl, the tiled and matrix kernels).
     struct Params {
         /// 0: decode `count` requests from `requests`; 1: decode the rectangle (x0, y0, width,
-        /// height) of `mip` in row-major order.
+        /// height) of `mip` in row-major order; 2 (the tiled kernels' `tiled_cache`): the tile
+        /// cache's decode queue at word `in_offset` of `requests`, `row_words` words a slot.
         mode: u32,
         count: u32,
         mip: u32,

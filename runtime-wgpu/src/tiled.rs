@@ -101,7 +101,7 @@ impl Shape {
         };
         format!(
             "const P: u32 = {}u;\nconst WMAX: u32 = {}u;\nconst CH: u32 = {}u;\n\
-             fn layers(lid: u32) {{\n{calls}}}\n{}\n{}\n{products}\n{}\n{}",
+             fn layers(lid: u32) {{\n{calls}}}\n{}\n{}\n{products}\n{}\n{}\n",
             self.texels,
             self.wmax,
             self.channels,
@@ -109,7 +109,7 @@ impl Shape {
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),
             include_str!("shaders/tiled.wgsl"),
-        )
+        ) + &crate::layout::cache_state_wgsl()
     }
 }
 

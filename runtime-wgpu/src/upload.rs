@@ -68,7 +68,7 @@ impl Context {
         let mut rejected = Vec::new();
         // `kernel`, prepared and checked against the CPU on the probe.
         let mut exact = |kernel: Kernel| -> Result<GpuMaterial, &'static str> {
-            let tiled = self.prepare(device, (m, n), kernel)?;
+            let (tiled, cache_source) = self.prepare(device, (m, n), kernel)?;
             let mut desc = desc.clone();
             if kernel != Kernel::Reference {
                 tiled::append_tables(&mut desc, n, kernel == Kernel::Dot4);
@@ -77,7 +77,11 @@ impl Context {
                 break_last_row(&mut desc);
             }
             let desc = storage_init(device, "nmat desc", &desc);
-            let gm = GpuMaterial::new(m, desc, latents.clone(), kernel, GpuBody::Neural(tiled));
+            let body = GpuBody::Neural(tiled);
+            let gm = GpuMaterial {
+                cache_source,
+                ..GpuMaterial::new(m, desc, latents.clone(), kernel, body)
+            };
             let codes = self.decode_requests(device, queue, &gm, &probe.requests, ChannelMask::ALL);
             match codes {
                 Ok(codes) if codes == probe.codes => Ok(gm),
@@ -149,16 +153,16 @@ impl Context {
     }
 
     /// The tiled or matrix pipeline of `kernel` for `m` and its texels per workgroup (`None`:
-    /// the reference kernel), or why the device cannot run it.
-    #[allow(clippy::type_complexity)]
+    /// the reference kernel), and for a tiled kernel its source (the tile cache decodes
+    /// through its `tiled_cache` entry); or why the device cannot run it.
     fn prepare(
         &self,
         device: &wgpu::Device,
         (m, n): (&Material<'_>, &Neural<'_>),
         kernel: Kernel,
-    ) -> Result<Option<(Arc<wgpu::ComputePipeline>, u32)>, &'static str> {
+    ) -> Result<(NetworkPipeline, Option<String>), &'static str> {
         let (source, entry, texels) = match kernel {
-            Kernel::Reference => return Ok(None),
+            Kernel::Reference => return Ok((None, None)),
             Kernel::Matrix => {
                 let shape = matrix::Shape::new((m, n), device)?;
                 (shape.source(), "matrix", shape.texels())
@@ -171,14 +175,16 @@ impl Context {
             }
         };
         let mut cache = self.tiled.lock().unwrap_or_else(|e| e.into_inner());
-        let pipeline = cache.entry(source).or_insert_with_key(|source| {
+        let pipeline = cache.entry(source.clone()).or_insert_with_key(|source| {
             try_pipeline(device, source, entry, Some(&self.pipeline_layout)).map(Arc::new)
         });
         let refused = match kernel {
             Kernel::Dot4 => "the device refused the shader (its WGSL may lack dot4I8Packed)",
             _ => "the device refused the shader",
         };
-        pipeline.clone().map(|p| Some((p, texels))).ok_or(refused)
+        let pipeline = pipeline.clone().ok_or(refused)?;
+        let tiled = matches!(kernel, Kernel::Dot4 | Kernel::Int32);
+        Ok((Some((pipeline, texels)), tiled.then_some(source)))
     }
 
     /// Makes `kernel`'s uploads compute wrong codes (the last layer's first row requantized to
@@ -434,6 +440,7 @@ impl GpuMaterial {
             kernel,
             rejected: Vec::new(),
             body,
+            cache_source: None,
         }
     }
 }
@@ -456,6 +463,9 @@ pub struct GpuMaterial {
     /// Kernels whose codes on the upload's probe differed from the CPU's, and why.
     pub(crate) rejected: Vec<(Kernel, &'static str)>,
     pub(crate) body: GpuBody,
+    /// The source of a tiled kernel's pipeline (tiled.wgsl for this material's shape), whose
+    /// `tiled_cache` entry decodes the tile cache's new tiles; `None` for the other kernels.
+    pub(crate) cache_source: Option<String>,
 }
 
 /// The tiled or matrix kernel's pipeline and texels per workgroup (`None`: the reference

@@ -2,8 +2,8 @@
 //! neural (wrap; clamp with 10 channels) and JPEG (4:2:0) materials in one cache and every
 //! filter: the same counters frame after frame, the same tiles with the CPU's codes byte for
 //! byte, resolved values equal to the CPU's (to f32 rounding) and to the sampling module's
-//! `nmat_sample` bit for bit; the engine's module resolves like the recorded pass; a cache too
-//! small overflows as documented; refusals. Coordinates are dyadic, so the f32 footprints of the
+//! `nmat_sample` bit for bit; the engine's module resolves like the recorded pass; new tiles
+//! decode alike through every kernel; a cache too small overflows as documented; refusals. Coordinates are dyadic, so the f32 footprints of the
 //! GPU and the f64 ones of the CPU pick the same texels (filter.wgsl).
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
@@ -16,7 +16,7 @@ use nmat_core::{
 };
 use nmat_tests::fixtures_dir;
 use nmat_tests::generate::Rng;
-use nmat_wgpu::{CacheLookup, Context, GpuError, GpuTileCache, SampleBindings};
+use nmat_wgpu::{CacheLookup, Context, GpuError, GpuTileCache, Kernel, SampleBindings};
 
 mod common;
 use common::{buffer, device, submit_and_read};
@@ -355,6 +355,46 @@ fn frames_match_the_cpu_cache_tile_for_tile_and_value_for_value() {
                 );
             }
         }
+    }
+}
+
+/// A cache decodes its new tiles through each material's kernel (the tiled kernels' own
+/// `tiled_cache` entry, the others one texel per invocation): whatever kernel the neural
+/// materials were uploaded with, the tiles hold the CPU's codes (edge tiles and small mips
+/// included: the fixtures are 64² and 96 × 80, so their chains end in partial tiles).
+#[test]
+fn new_tiles_decode_alike_through_every_kernel() {
+    let (device, queue) = device();
+    let ctx = Context::new(&device);
+    let bytes = fixture_bytes();
+    let materials: Vec<Material<'_>> = bytes.iter().map(|b| Container::parse(b).unwrap()).collect();
+    let refs: Vec<&Material<'_>> = materials.iter().collect();
+    let frame = lookups(&materials, 5, 300);
+    for kernel in Kernel::ALL {
+        let mut gpus = Vec::new();
+        for m in &materials {
+            let forced = (m.codec() == nmat_core::Codec::Neural).then_some(kernel);
+            match ctx.upload_with(&device, &queue, m, forced) {
+                Ok(gm) => gpus.push(gm),
+                Err(GpuError::Kernel { kernel: Kernel::Dot4, .. })
+                    if std::env::var_os("NMAT_REQUIRE_DOT4").is_none() => {}
+                Err(GpuError::Kernel { kernel: Kernel::Matrix, .. })
+                    if std::env::var_os("NMAT_REQUIRE_MATRIX").is_none() => {}
+                Err(e) => panic!("{kernel:?}: {e}"),
+            }
+        }
+        if gpus.len() < materials.len() {
+            eprintln!("{} kernel not tested here", kernel.name());
+            continue;
+        }
+        let gpu_refs: Vec<_> = gpus.iter().collect();
+        let cache = ctx.create_tile_cache(&device, &gpu_refs, 512).unwrap();
+        let mut cpu = TileCache::with_capacity(&refs, 512).unwrap();
+        let (cpu_stats, keys, _) = cpu_frame(&mut cpu, &frame);
+        let (gpu_stats, _) = gpu_frame(&device, &queue, &cache, &frame);
+        assert_eq!(gpu_stats, cpu_stats, "{kernel:?}");
+        assert!(cpu_stats.decoded > 0);
+        assert_tiles(&device, &queue, &cache, &materials, &keys);
     }
 }
 

@@ -101,3 +101,60 @@ fn tiled(
         out_codes[params.out_offset + first / 4u * n + w] = word;
     }
 }
+
+// The tile cache's decode of a material's new tiles through this kernel (cache.rs; `params.mode`
+// 2, as the JPEG kernel's): the material's decode queue from word `params.in_offset` of
+// `requests` (the cache's state; its entries as cache.wgsl lays them out), four workgroups per
+// tile, each 64 texels of it (rows 4k … 4k + 3 of the 16 × 16 tile) in batches of P; the codes of
+// every channel (`params.channel_mask` all of them) written as whole words into the tile's slot
+// of `out_codes` (`params.row_words` words a slot), 0 for the texels of an edge tile outside
+// its mip. Bit-identical with cache_decode.wgsl, which decodes one texel per invocation.
+@compute @workgroup_size(64)
+fn tiled_cache(
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+) {
+    let g = wg.x + wg.y * groups.x;
+    let q = params.in_offset;
+    if (g / 4u >= bitcast<u32>(requests[q + NMAT_CACHE_QUEUE_COUNT])) {
+        return;
+    }
+    let entry = q + NMAT_CACHE_QUEUE_WORDS + NMAT_CACHE_ENTRY_WORDS * (g / 4u);
+    let slot = bitcast<u32>(requests[entry + NMAT_CACHE_ENTRY_SLOT]);
+    let tile = bitcast<u32>(requests[entry + NMAT_CACHE_ENTRY_KEY]);
+    let mip = tile >> 26u;
+    let x0 = 16u * (tile & 0x1FFFu);
+    let y0 = 16u * ((tile >> 13u) & 0x1FFFu);
+    let full = vec2<u32>(nmat_desc[NMAT_DESC_WIDTH], nmat_desc[NMAT_DESC_HEIGHT]);
+    let size = max(full >> vec2<u32>(mip), vec2<u32>(1u));
+    let inputs = nmat_desc[nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_INPUTS];
+    let n = params.out_channels;
+    for (var b = 0u; b < 64u / P; b++) {
+        // The batch's first texel in the tile (row-major, 16 a row).
+        let t0 = 64u * (g % 4u) + b * P;
+        for (var t = lid; t < P; t += 64u) {
+            let x = x0 + (t0 + t) % 16u;
+            let y = y0 + (t0 + t) / 16u;
+            if (x < size.x && y < size.y) {
+                nmat_features(i32(x), i32(y), mip);
+                put_features(t, inputs);
+            }
+        }
+        workgroupBarrier();
+        layers(lid);
+        // P · n bytes: a whole number of words (P is a multiple of 4), starting on one.
+        let first = slot * params.row_words + t0 * n / 4u;
+        for (var w = lid; w < P * n / 4u; w += 64u) {
+            var word = 0u;
+            for (var k = 0u; k < 4u; k++) {
+                let t = t0 + (4u * w + k) / n;
+                if (x0 + t % 16u < size.x && y0 + t / 16u < size.y) {
+                    word |= tile_codes[4u * w + k] << (8u * k);
+                }
+            }
+            out_codes[first + w] = word;
+        }
+        workgroupBarrier();
+    }
+}
