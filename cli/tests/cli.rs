@@ -871,7 +871,42 @@ fn walk_gpu_counts_the_tiles_the_cpu_counts_or_says_how_to_build_it() {
     for cpu in rows.iter().filter(|r| r[1] == "1") {
         let gpu = rows.iter().find(|r| r[1] == "GPU" && r[0] == cpu[0] && r[2] == cpu[2]).unwrap();
         assert_eq!(gpu[3..10], cpu[3..10], "frame {} (mips {})", cpu[2], cpu[0]);
-        assert!(gpu[13].parse::<f64>().unwrap() > 0.0);
+        let frame_ms = gpu[13].parse::<f64>().unwrap();
+        assert!(frame_ms > 0.0);
+        // Timed between GPU timestamps, the frame's three stages are timed apart and add up.
+        if out.contains("GPU timestamps") {
+            let stages: f64 = gpu[10..13].iter().map(|v| v.parse::<f64>().unwrap()).sum();
+            assert!((stages - frame_ms).abs() <= 1e-3 * frame_ms + 1e-6, "{gpu:?}");
+        }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `nmat transcode --gpu` writes the CPU's files byte for byte (every texture of a mip from one
+/// decode on the GPU), where the binary has the `gpu` feature.
+#[test]
+fn transcode_gpu_writes_the_cpus_files() {
+    let fixture =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/ntc_pbr10_96x80_clamp.nmat");
+    let dir = temp_dir("transcode-gpu");
+    let (cpu_dir, gpu_dir) = (dir.join("cpu"), dir.join("gpu"));
+    let f = fixture.to_str().unwrap();
+    let o = nmat(&["transcode", f, "-o", gpu_dir.to_str().unwrap(), "--gpu"]);
+    let out = text(&o);
+    if out.contains("built without GPU support") {
+        assert!(!o.status.success() && out.contains("--features gpu"), "{out}");
+        std::fs::remove_dir_all(&dir).unwrap();
+        return;
+    }
+    assert!(o.status.success(), "{out}");
+    let o = nmat(&["transcode", f, "-o", cpu_dir.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    let names = files_in(&cpu_dir);
+    assert_eq!(names.len(), 6);
+    assert_eq!(files_in(&gpu_dir), names);
+    for name in &names {
+        let (c, g) = (std::fs::read(cpu_dir.join(name)), std::fs::read(gpu_dir.join(name)));
+        assert!(c.unwrap() == g.unwrap(), "{name} differs");
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }

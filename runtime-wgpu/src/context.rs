@@ -14,7 +14,8 @@ use std::sync::{Arc, Mutex};
 pub struct Context {
     /// The reference decode kernel (`main` in decode.wgsl).
     pub(crate) pipeline: wgpu::ComputePipeline,
-    pub(crate) transcode: wgpu::ComputePipeline,
+    /// BC encoding of decoded codes (`encode_codes` in bc.wgsl).
+    pub(crate) encode_codes: wgpu::ComputePipeline,
     pub(crate) encode: wgpu::ComputePipeline,
     pub(crate) layout: wgpu::BindGroupLayout,
     pub(crate) pipeline_layout: wgpu::PipelineLayout,
@@ -102,7 +103,7 @@ impl Context {
         });
         Context {
             pipeline: pipeline("main"),
-            transcode: pipeline("transcode"),
+            encode_codes: pipeline("encode_codes"),
             encode: pipeline("encode_pixels"),
             layout,
             pipeline_layout,

@@ -128,7 +128,7 @@ impl Context {
     /// after the previous pass's, so a later call's decode cannot overwrite codes an earlier
     /// call's store has yet to read. A call that needs more replaces it (the commands already
     /// recorded keep the old one alive).
-    fn texture_codes(&self, device: &wgpu::Device, bytes: u64) -> wgpu::Buffer {
+    pub(crate) fn texture_codes(&self, device: &wgpu::Device, bytes: u64) -> wgpu::Buffer {
         let mut slot = self.texture_codes.lock().unwrap_or_else(|e| e.into_inner());
         match &*slot {
             Some(buffer) if buffer.size() >= bytes => buffer.clone(),

@@ -1,19 +1,18 @@
-//! Decoding straight into BC blocks on the GPU: one dispatch decodes each 4×4 block's texels
-//! (16 invocations, one texel each, into workgroup memory) and encodes the block, writing BC1,
-//! BC4 or BC5 blocks byte-identical with the CPU's `Decoder::transcode_blocks` into a buffer that
-//! can be copied into a BC texture. The encoders are `bc.wgsl`, ports of `nmat_core::bc`.
+//! Decoding straight into BC blocks on the GPU: a region's texels are decoded once by the
+//! material's kernel (the fastest exact one `upload` measured) for every texture asked, then each
+//! texture's blocks are encoded from those codes, one invocation per block, as BC1, BC4 or BC5
+//! blocks byte-identical with the CPU's `Decoder::transcode_blocks`, into a buffer that can be
+//! copied into a BC texture. The encoders are `bc.wgsl`, ports of `nmat_core::bc`.
 
 use crate::gpu::{MAX_GROUPS, check_output, dispatch, read_back};
 use crate::layout::Params;
 use crate::{Context, GpuError, GpuMaterial};
-use nmat_core::BlockRegion;
 use nmat_core::bc::{BLOCK_PIXELS, BcFormat, BcTexture};
+use nmat_core::{BlockRegion, ChannelMask};
 use wgpu::util::DeviceExt;
 
-/// Blocks per workgroup of `transcode` (64 invocations, 16 per block).
-const BLOCKS_PER_GROUP: u64 = 4;
-/// Blocks per workgroup of `encode_pixels` (one invocation each).
-const PIXEL_BLOCKS_PER_GROUP: u64 = 64;
+/// Blocks per workgroup of `encode_codes` and `encode_pixels` (one invocation each).
+const BLOCKS_PER_GROUP: u64 = 64;
 
 /// BC blocks submitted to the queue; [`PendingBlocks::wait`] maps them.
 pub struct PendingBlocks {
@@ -85,6 +84,10 @@ impl GpuMaterial {
     }
 }
 
+/// Where a texture's blocks go: a buffer, the byte of the first block, and the row pitch in
+/// bytes (see [`Context::record_transcode`]).
+pub type BlockTarget<'a> = (&'a wgpu::Buffer, u64, u64);
+
 impl Context {
     /// Records, into the caller's `encoder` (nothing is submitted), the decode of `region` of
     /// `mip` and its encoding as blocks of `texture` (BC1, BC4 or BC5): block row `r` of the
@@ -92,7 +95,8 @@ impl Context {
     /// bytes equal the CPU's `Decoder::transcode_blocks` with the same arguments. `out` needs
     /// `STORAGE` usage (and `COPY_SRC` to be copied into a texture: then `row_pitch` must be a
     /// multiple of 256, see [`aligned_row_pitch`]); `offset` and `row_pitch` are multiples of 4.
-    /// Everything is checked before anything is recorded.
+    /// Everything is checked before anything is recorded. Several textures of one material:
+    /// [`Context::record_transcode_textures`] decodes their texels once.
     #[allow(clippy::too_many_arguments)] // a material, what, where, and the output with its layout
     pub fn record_transcode(
         &self,
@@ -102,65 +106,113 @@ impl Context {
         texture: &BcTexture,
         mip: u32,
         region: BlockRegion,
-        (out, offset, row_pitch): (&wgpu::Buffer, u64, u64),
+        out: BlockTarget<'_>,
+    ) -> Result<(), GpuError> {
+        self.record_transcode_textures(device, encoder, gm, mip, region, &[(texture, out)])
+    }
+
+    /// Records the blocks of `region` of `mip` of every texture of `targets` (each as
+    /// [`Context::record_transcode`] writes one) with one decode of the region: its texels
+    /// are decoded once by the material's kernel (the channels any texture takes from the
+    /// network; constant channels are not decoded, as on the CPU) into a buffer the `Context`
+    /// keeps for such passes, then each texture's blocks are encoded from those codes, one
+    /// invocation per block. Everything is checked before anything is recorded.
+    pub fn record_transcode_textures(
+        &self,
+        device: &wgpu::Device,
+        encoder: &mut wgpu::CommandEncoder,
+        gm: &GpuMaterial,
+        mip: u32,
+        region: BlockRegion,
+        targets: &[(&BcTexture, BlockTarget<'_>)],
     ) -> Result<(), GpuError> {
         gm.neural()?;
-        let format = shader_format(texture.format)?;
-        let mut params = Params { format, mip, ..Params::default() };
-        for (k, &c) in texture.channel_list().iter().enumerate() {
-            let constant = gm
-                .constant_codes
-                .get(usize::from(c))
-                .ok_or(GpuError::Channels { mask: 1u16.checked_shl(u32::from(c)).unwrap_or(0) })?;
-            match constant {
-                Some(code) => {
-                    params.constants |= u32::from(*code) << (8 * k);
-                    params.constant_mask |= 1 << k;
-                }
-                None => {
-                    params.components |= u32::from(c) << (8 * k);
-                    params.channel_mask |= 1 << c;
-                }
-            }
-        }
-        // Components the format does not read: constant 0.
-        params.constant_mask |= 0b1111 & !((1 << texture.format.components()) - 1);
         let all = gm.blocks(mip).ok_or(GpuError::Blocks { mip, region })?;
         if u64::from(region.x) + u64::from(region.width) > u64::from(all.width)
             || u64::from(region.y) + u64::from(region.height) > u64::from(all.height)
         {
             return Err(GpuError::Blocks { mip, region });
         }
-        let block_bytes = texture.format.block_bytes() as u64;
-        let row_bytes = u64::from(region.width) * block_bytes;
-        if row_pitch < row_bytes || !row_pitch.is_multiple_of(4) {
-            return Err(GpuError::RowPitch { row_pitch, min: row_bytes.next_multiple_of(4) });
-        }
-        let span = match region.height {
-            0 => 0,
-            h => u64::from(h - 1) * row_pitch + row_bytes,
-        };
-        let out_offset = check_output(device, out, offset, span)?;
         let count = u64::from(region.width) * u64::from(region.height);
         let groups = count.div_ceil(BLOCKS_PER_GROUP);
+        let too_large = |limit: u64| GpuError::TooLarge { texels: count * 16, limit };
         if groups > u64::from(MAX_GROUPS) * u64::from(MAX_GROUPS) {
-            return Err(GpuError::TooLarge {
-                texels: count * 16,
-                limit: u64::from(MAX_GROUPS).pow(2) * BLOCKS_PER_GROUP * 16,
-            });
+            return Err(too_large(u64::from(MAX_GROUPS).pow(2) * BLOCKS_PER_GROUP * 16));
         }
-        let fit = |n: u64| {
-            u32::try_from(n)
-                .map_err(|_| GpuError::TooLarge { texels: count * 16, limit: u64::from(u32::MAX) })
+        let fit = |n: u64| u32::try_from(n).map_err(|_| too_large(u64::from(u32::MAX)));
+        // The texels of the region inside the mip, decoded once for every texture.
+        let (mw, mh) = gm.mip_sizes[mip as usize];
+        let x = 4 * region.x;
+        let y = 4 * region.y;
+        let width = (4 * u64::from(region.width)).min(u64::from(mw.saturating_sub(x))) as u32;
+        let height = (4 * u64::from(region.height)).min(u64::from(mh.saturating_sub(y))) as u32;
+        let mut decoded = 0u16;
+        let mut encodes = Vec::new();
+        for &(texture, (out, offset, row_pitch)) in targets {
+            let format = shader_format(texture.format)?;
+            let mut params = Params { format, mip, ..Params::default() };
+            // Component k's channel, or its constant code.
+            let mut channels = [None; 4];
+            for (k, &c) in texture.channel_list().iter().enumerate() {
+                let constant = gm.constant_codes.get(usize::from(c)).ok_or(GpuError::Channels {
+                    mask: 1u16.checked_shl(u32::from(c)).unwrap_or(0),
+                })?;
+                match constant {
+                    Some(code) => {
+                        params.constants |= u32::from(*code) << (8 * k);
+                        params.constant_mask |= 1 << k;
+                    }
+                    None => {
+                        channels[k] = Some(c);
+                        decoded |= 1 << c;
+                    }
+                }
+            }
+            // Components the format does not read: constant 0.
+            params.constant_mask |= 0b1111 & !((1 << texture.format.components()) - 1);
+            let block_bytes = texture.format.block_bytes() as u64;
+            let row_bytes = u64::from(region.width) * block_bytes;
+            if row_pitch < row_bytes || !row_pitch.is_multiple_of(4) {
+                return Err(GpuError::RowPitch { row_pitch, min: row_bytes.next_multiple_of(4) });
+            }
+            let span = match region.height {
+                0 => 0,
+                h => u64::from(h - 1) * row_pitch + row_bytes,
+            };
+            params.out_offset = check_output(device, out, offset, span)?;
+            params.count = fit(count)?;
+            params.width = region.width.max(1);
+            params.row_words = fit(row_pitch / 4)?;
+            params.x0 = width;
+            params.y0 = height;
+            encodes.push((params, channels, out));
+        }
+        // Where each decoded channel lies among a texel's codes.
+        for (params, channels, _) in &mut encodes {
+            params.out_channels = decoded.count_ones();
+            for (k, c) in channels.iter().enumerate() {
+                if let Some(c) = c {
+                    let slot = (decoded & ((1u16 << c) - 1)).count_ones();
+                    params.components |= slot << (8 * k);
+                }
+            }
+        }
+        if count == 0 || targets.is_empty() {
+            return Ok(());
+        }
+        let codes = if decoded == 0 {
+            None
+        } else {
+            let bytes = u64::from(width) * u64::from(height) * u64::from(decoded.count_ones());
+            let codes = self.texture_codes(device, bytes.next_multiple_of(4).max(4));
+            let rect = (x, y, width, height);
+            self.record_region(device, encoder, gm, mip, rect, ChannelMask(decoded), (&codes, 0))?;
+            Some(codes)
         };
-        params.count = fit(count)?;
-        params.x0 = region.x;
-        params.y0 = region.y;
-        params.width = region.width.max(1);
-        params.row_words = fit(row_pitch / 4)?;
-        params.out_offset = out_offset;
-        let bind = self.bind(device, Some(gm), None, out, &params);
-        dispatch(encoder, &self.transcode, &bind, groups);
+        for (params, _, out) in &encodes {
+            let bind = self.bind(device, None, codes.as_ref(), out, params);
+            dispatch(encoder, &self.encode_codes, &bind, groups);
+        }
         Ok(())
     }
 
@@ -207,11 +259,47 @@ impl Context {
         texture: &BcTexture,
         mip: u32,
     ) -> Result<Vec<u8>, GpuError> {
+        let mut blocks = self.transcode_textures_mip(device, queue, gm, &[*texture], mip)?;
+        Ok(blocks.pop().unwrap_or_default())
+    }
+
+    /// Blocking convenience: every block of `mip` of each of `textures`, as
+    /// [`Context::transcode_mip`] gives one, from one decode of the mip and one submission.
+    pub fn transcode_textures_mip(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        gm: &GpuMaterial,
+        textures: &[BcTexture],
+        mip: u32,
+    ) -> Result<Vec<Vec<u8>>, GpuError> {
         let region = gm.blocks(mip).ok_or(GpuError::Blocks {
             mip,
             region: BlockRegion { x: 0, y: 0, width: 0, height: 0 },
         })?;
-        self.submit_transcode(device, queue, gm, texture, mip, region)?.wait(device)
+        // Each texture's blocks at a word boundary of one buffer.
+        let mut spans = Vec::new();
+        let mut len = 0u64;
+        for t in textures {
+            let row_bytes = u64::from(region.width) * t.format.block_bytes() as u64;
+            let bytes = row_bytes * u64::from(region.height);
+            spans.push((len, row_bytes, bytes));
+            len = (len + bytes).next_multiple_of(4);
+        }
+        let (blocks, readback) = output_buffers(device, len)?;
+        let targets: Vec<(&BcTexture, BlockTarget<'_>)> = textures
+            .iter()
+            .zip(&spans)
+            .map(|(t, &(offset, row_bytes, _))| (t, (&blocks, offset, row_bytes.max(4))))
+            .collect();
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("nmat transcode"),
+        });
+        self.record_transcode_textures(device, &mut encoder, gm, mip, region, &targets)?;
+        encoder.copy_buffer_to_buffer(&blocks, 0, &readback, 0, readback.size());
+        queue.submit([encoder.finish()]);
+        let bytes = PendingBlocks { blocks, readback, len: len as usize }.wait(device)?;
+        Ok(spans.iter().map(|&(at, _, n)| bytes[at as usize..(at + n) as usize].to_vec()).collect())
     }
 
     /// Encodes blocks of RGBA pixels given by the caller (each with its `valid` mask, as
@@ -229,9 +317,9 @@ impl Context {
         let count = blocks.len() as u64;
         let too_large = GpuError::TooLarge {
             texels: count * 16,
-            limit: u64::from(MAX_GROUPS).pow(2) * PIXEL_BLOCKS_PER_GROUP * 16,
+            limit: u64::from(MAX_GROUPS).pow(2) * BLOCKS_PER_GROUP * 16,
         };
-        let groups = count.div_ceil(PIXEL_BLOCKS_PER_GROUP);
+        let groups = count.div_ceil(BLOCKS_PER_GROUP);
         let input_bytes = count * 17 * 4;
         let max_binding = device.limits().max_storage_buffer_binding_size;
         if groups > u64::from(MAX_GROUPS).pow(2) || input_bytes > max_binding {

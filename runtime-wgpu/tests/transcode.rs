@@ -94,7 +94,8 @@ fn gpu_encoders_write_the_cores_bytes_for_any_block() {
 }
 
 /// Every texture of `m` in BC1, BC4 and BC5 (each map in each format, and the default layout's
-/// textures the GPU encodes), every mip: the GPU's blocks equal the CPU's.
+/// textures the GPU encodes), every mip, all textures of a mip in one call: the GPU's blocks
+/// equal the CPU's.
 fn check_material(
     ctx: &Context,
     device: &wgpu::Device,
@@ -110,9 +111,12 @@ fn check_material(
     }
     textures
         .extend(layout_with(m, |_| None).into_iter().filter(|t| GPU_FORMATS.contains(&t.format)));
-    for texture in &textures {
-        for mip in 0..m.mip_count() {
-            let gpu = ctx.transcode_mip(device, queue, &gm, texture, mip).unwrap();
+    for mip in 0..m.mip_count() {
+        // All of them from one decode of the mip (each texture's channels at their place among
+        // the decoded ones).
+        let all = ctx.transcode_textures_mip(device, queue, &gm, &textures, mip).unwrap();
+        assert_eq!(all.len(), textures.len());
+        for (texture, gpu) in textures.iter().zip(all) {
             let region = BlockRegion::mip(m, mip);
             let row = region.width as usize * texture.format.block_bytes();
             let mut want = vec![0u8; row * region.height as usize];

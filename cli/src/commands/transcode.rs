@@ -66,23 +66,23 @@ pub fn run(args: TranscodeArgs) -> Result<()> {
     let start = Instant::now();
     let decoder = nmat_core::Decoder::new(&m);
     let gpu = if args.gpu { Some(crate::gpu::transcoder(&m)?) } else { None };
-    // One decode of the chain per texture on the GPU, one for all the others on the CPU.
+    // One decode of the chain for the GPU's textures, one for all the others on the CPU.
     let chain = output::cost_of_mips(&m, 0..m.mip_count());
     let on_gpu =
         plan.iter().filter(|n| gpu.is_some() && crate::gpu::encodes(n.texture.format)).count();
-    let passes = (on_gpu + usize::from(on_gpu < plan.len())) as u64;
+    let passes = (usize::from(on_gpu > 0) + usize::from(on_gpu < plan.len())) as u64;
     let cost = nmat_core::DecodeCost { texels: chain.texels * passes, macs: chain.macs * passes };
     let written = with_decode_progress("transcode", cost, |progress| {
         output::write_all_or_nothing(&args.output, |dir| {
             // The GPU's textures first (with --gpu), then all the others in one CPU pass.
-            let mut images = Vec::new();
-            for named in &plan {
-                images.push(match &gpu {
-                    Some(levels_of) => levels_of(&named.texture, &mut *progress)?
-                        .map(|levels| transcode::image(&m, &named.texture, levels)),
-                    None => None,
-                });
-            }
+            let images: Vec<Option<_>> = match &gpu {
+                Some(levels_of) => levels_of(&textures, &mut *progress)?
+                    .into_iter()
+                    .zip(&textures)
+                    .map(|(levels, t)| levels.map(|levels| transcode::image(&m, t, levels)))
+                    .collect(),
+                None => plan.iter().map(|_| None).collect(),
+            };
             let on_cpu: Vec<_> = plan
                 .iter()
                 .zip(&images)

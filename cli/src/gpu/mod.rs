@@ -25,10 +25,11 @@ pub use on::*;
 /// Whether this build has the GPU paths (the `gpu` feature).
 pub const BUILT: bool = cfg!(feature = "gpu");
 
-/// Every mip of a texture transcoded on the GPU (`None` for a format the GPU does not encode),
-/// reporting texels done.
-pub type Levels =
-    Box<dyn Fn(&nmat_core::bc::BcTexture, &mut dyn FnMut(u64)) -> Result<Option<Vec<Vec<u8>>>>>;
+/// Every mip of each texture transcoded on the GPU, one decode of the chain for all of them
+/// (`None` for a texture whose format the GPU does not encode), reporting texels done.
+pub type Levels = Box<
+    dyn Fn(&[nmat_core::bc::BcTexture], &mut dyn FnMut(u64)) -> Result<Vec<Option<Vec<Vec<u8>>>>>,
+>;
 
 /// What [`bench_row`] reports a measurement to: adapter, seconds, texels, what was decoded.
 pub type BenchRow<'a> = dyn Fn(&str, f64, u64, &str) + 'a;

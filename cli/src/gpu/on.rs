@@ -32,16 +32,22 @@ pub fn encodes(format: BcFormat) -> bool {
 /// `nmat transcode --gpu`: the transcoder of `m`'s textures on the GPU.
 pub fn transcoder(m: &Material<'_>) -> Result<Levels> {
     let (device, queue, ctx, gm) = device::upload(m, "transcoding")?;
-    Ok(Box::new(move |texture, progress| {
-        if !encodes(texture.format) {
-            return Ok(None);
+    Ok(Box::new(move |textures, progress| {
+        let on_gpu: Vec<_> = textures.iter().copied().filter(|t| encodes(t.format)).collect();
+        let mut levels: Vec<Vec<Vec<u8>>> = vec![Vec::new(); on_gpu.len()];
+        if !on_gpu.is_empty() {
+            // Per mip, every texture from one decode and one submission.
+            for (mip, &(w, h)) in gm.mip_sizes().iter().enumerate() {
+                let blocks =
+                    ctx.transcode_textures_mip(&device, &queue, &gm, &on_gpu, mip as u32)?;
+                for (texture_levels, mip_blocks) in levels.iter_mut().zip(blocks) {
+                    texture_levels.push(mip_blocks);
+                }
+                progress(u64::from(w) * u64::from(h));
+            }
         }
-        let mut levels = Vec::new();
-        for (mip, &(w, h)) in gm.mip_sizes().iter().enumerate() {
-            levels.push(ctx.transcode_mip(&device, &queue, &gm, texture, mip as u32)?);
-            progress(u64::from(w) * u64::from(h));
-        }
-        Ok(Some(levels))
+        let mut levels = levels.into_iter();
+        Ok(textures.iter().map(|t| if encodes(t.format) { levels.next() } else { None }).collect())
     }))
 }
 

@@ -5,8 +5,8 @@
 // from the core) is prepended to this file by context.rs.
 //
 // Entry points (bindings and `Params` of decode.wgsl, which comes first):
-//   `transcode`: params.count blocks of a region of mip params.mip (x0, y0 and width in blocks),
-//     16 invocations per block decode one texel each into workgroup memory, then one encodes it.
+//   `encode_codes`: params.count blocks of a region whose texels the material's kernel decoded
+//     into `requests` first (Context::record_transcode), one invocation per block.
 //   `encode_pixels`: params.count blocks of RGBA8 pixels from `requests` (17 words per block: 16
 //     pixels, R in the low byte, then the valid mask), one invocation per block.
 // Blocks are written to `out_codes` from word params.out_offset, block row r at
@@ -552,49 +552,41 @@ fn write_block(block: u32, words: vec4<u32>) {
     }
 }
 
-var<workgroup> tile: array<u32, 64>;
-
+// BC blocks of texels decoded first (`Context::record_transcode`: the region's texels decoded by
+// the material's kernel into `requests`, codes four per word, `params.out_channels` per texel in
+// channel order, row-major over the `params.x0` × `params.y0` texels of the region that lie in
+// the mip): one invocation per block of the region (`params.width` blocks a row, `params.count`
+// in all). Component k is the code at slot (params.components >> 8k) & 15 of its texel, or the
+// constant (params.constants, params.constant_mask); texels outside the mip are 0 and not valid,
+// as the CPU's `transcode_blocks` has them.
 @compute @workgroup_size(64)
-fn transcode(
-    @builtin(local_invocation_index) li: u32,
-    @builtin(workgroup_id) wg: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-) {
-    let block = (wg.x + wg.y * groups.x) * 4u + li / 16u;
-    let texel = li % 16u;
-    let live = block < params.count;
-    let bx = params.x0 + block % params.width;
-    let by = params.y0 + block / params.width;
-    let mip = params.mip;
-    let mw = max(nmat_desc[NMAT_DESC_WIDTH] >> mip, 1u);
-    let mh = max(nmat_desc[NMAT_DESC_HEIGHT] >> mip, 1u);
-    let x = 4u * bx + texel % 4u;
-    let y = 4u * by + texel / 4u;
-    var pixel = 0u;
-    if (live && x < mw && y < mh) {
-        if (params.channel_mask != 0u) {
-            nmat_decode(i32(x), i32(y), mip, params.channel_mask);
-        }
-        for (var k = 0u; k < 4u; k++) {
-            var code = (params.constants >> (8u * k)) & 255u;
-            if (((params.constant_mask >> k) & 1u) == 0u) {
-                code = nmat_codes[(params.components >> (8u * k)) & 15u];
-            }
-            pixel |= code << (8u * k);
-        }
+fn encode_codes(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    let block = gid.x + gid.y * groups.x * 64u;
+    if (block >= params.count) {
+        return;
     }
-    tile[li] = pixel;
-    workgroupBarrier();
-    if (live && texel == 0u) {
-        var valid = 0u;
-        for (var i = 0u; i < 16u; i++) {
-            px[i] = tile[li + i];
-            if (4u * bx + i % 4u < mw && 4u * by + i / 4u < mh) {
-                valid |= 1u << i;
+    let bx = block % params.width;
+    let by = block / params.width;
+    var valid = 0u;
+    for (var i = 0u; i < 16u; i++) {
+        let x = 4u * bx + i % 4u;
+        let y = 4u * by + i / 4u;
+        var pixel = 0u;
+        if (x < params.x0 && y < params.y0) {
+            valid |= 1u << i;
+            let first = (y * params.x0 + x) * params.out_channels;
+            for (var k = 0u; k < 4u; k++) {
+                var code = (params.constants >> (8u * k)) & 255u;
+                if (((params.constant_mask >> k) & 1u) == 0u) {
+                    let at = first + ((params.components >> (8u * k)) & 15u);
+                    code = (bitcast<u32>(requests[at / 4u]) >> (8u * (at % 4u))) & 255u;
+                }
+                pixel |= code << (8u * k);
             }
         }
-        write_block(block, encode_block(valid));
+        px[i] = pixel;
     }
+    write_block(block, encode_block(valid));
 }
 
 @compute @workgroup_size(64)
