@@ -2,8 +2,9 @@
 # Runs on the lent GPU what scripts/gpu-prepare.sh built (docs/GPU.md, "On a lent GPU"): unpacks the
 # Vulkan loaders of .gl/, warms the GPU up, runs every nmat-wgpu test executable with the
 # cooperative-matrix and dot4 kernels required, then `nmat bench --gpu --region 1024` on each
-# carried material. Every step under a timeout (a shader can hang); outputs in $OUT (default
-# /tmp/gpu-run). Exit status: the number of steps that failed.
+# carried material, `nmat walk --gpu` at 1080p and `nmat transcode` on the GPU and the CPU. Every
+# step under a timeout (a shader can hang); outputs in $OUT (default /tmp/gpu-run). Exit status:
+# the number of steps that failed.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 out=${OUT:-/tmp/gpu-run}
@@ -51,5 +52,25 @@ for m in .devcarry/materials/*.nmat; do
   [ -f "$m" ] || continue
   step "bench-$(basename "$m" .nmat)" 300 .devcarry/nmat bench "$m" --gpu --region 1024 --runs 5
 done
+# A frame through the GPU tile cache (mark, decode and resolve timed apart: docs/PERFORMANCE.md,
+# "The same walk on the GPU") with up to four carried neural materials, and with the JPEG ones;
+# BC transcoding of the first neural material on the GPU against the CPU on every core (the same
+# files, compared).
+neural=() jpeg=()
+for m in .devcarry/materials/*.nmat; do
+  [ -f "$m" ] || continue
+  case "$(basename "$m")" in *jpeg*) jpeg+=("$m") ;; *) neural+=("$m") ;; esac
+done
+if [ "${#neural[@]}" -gt 0 ]; then
+  step walk 300 .devcarry/nmat walk "${neural[@]:0:4}" --gpu --threads "$(nproc)" --frames 30 \
+    --direct-every 15 --csv "$out/walk.csv"
+  step transcode-gpu 120 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-gpu" --gpu
+  step transcode-cpu 120 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-cpu"
+  step transcode-same 30 diff -r "$out/transcode-gpu" "$out/transcode-cpu"
+fi
+if [ "${#jpeg[@]}" -gt 0 ]; then
+  step walk-jpeg 300 .devcarry/nmat walk "${jpeg[@]:0:4}" --gpu --threads "$(nproc)" --frames 30 \
+    --direct-every 0 --csv "$out/walk-jpeg.csv"
+fi
 echo "failed steps: $failed" | tee -a "$out/summary.txt"
 exit "$failed"
