@@ -6,6 +6,7 @@
 //! (cache.wgsl, cache_decode.wgsl, jpeg.wgsl) and their buffers are documented in the shaders;
 //! the design and its measurements are in docs/GPU.md, "The tile cache".
 
+use std::sync::Mutex;
 use std::sync::atomic::{AtomicU32, Ordering};
 
 use nmat_core::{ChannelMask, Filter, FrameStats, TILE_SIZE, TileKey};
@@ -170,7 +171,30 @@ pub struct GpuTileCache {
     pages: u32,
     slot_words: u32,
     frame: AtomicU32,
+    /// The bind groups (with their parameters) of the last mark and resolve calls, most recent
+    /// first: a frame that marks and resolves the same lookups into the same output as an
+    /// earlier one allocates nothing.
+    binds: Mutex<Vec<(BindKey, wgpu::BindGroup)>>,
+    /// Bind groups made for mark and resolve calls so far (a test reads it).
+    binds_made: AtomicU32,
 }
+
+/// What a mark or resolve call binds: its pass (0 mark, 1 resolve), the lookups (buffer, first
+/// word, count), the channels, the output (resolve) and its first word.
+#[derive(Clone, PartialEq, Eq)]
+struct BindKey {
+    pass: u8,
+    lookups: wgpu::Buffer,
+    in_offset: u32,
+    count: u32,
+    channels: u32,
+    out: Option<wgpu::Buffer>,
+    out_offset: u32,
+}
+
+/// Bind groups a cache keeps for its mark and resolve calls (two per frame: a few frames'
+/// worth of different buffers or counts).
+const KEPT_BINDS: usize = 8;
 
 /// The material records of a cache of `materials` materials as the passes read them: a uniform
 /// block (`nmat_cache_records`, binding 5; every lookup reads its material's record, which never
@@ -459,6 +483,8 @@ impl Context {
             pages,
             slot_words: slot_words as u32,
             frame: AtomicU32::new(0),
+            binds: Mutex::default(),
+            binds_made: AtomicU32::new(0),
         })
     }
 
@@ -595,6 +621,9 @@ impl GpuTileCache {
     /// (`STORAGE` usage, offset a multiple of 4): every tile each lookup's filter reads is
     /// marked (the same tiles `nmat_core::TileCache::mark` marks for the same request, where
     /// u · width and v · height are exact in f32 — filter.wgsl). Several calls may mark one frame.
+    /// A call with the buffer, offset and count of one of the last few mark or resolve calls
+    /// reuses its bind group, so a frame loop over the same G-buffer allocates nothing after its
+    /// first frame (the cache holds a reference to those buffers until other calls replace them).
     pub fn record_mark(
         &self,
         device: &wgpu::Device,
@@ -603,10 +632,19 @@ impl GpuTileCache {
     ) -> Result<(), GpuError> {
         let bytes = CacheLookup::BYTES * u64::from(count);
         let in_offset = check_requests(device, lookups, offset, bytes)?;
-        let params = cache_params(count, in_offset, 0xFFFF, 0, self.materials.len());
-        let uniform = uniform_buffer(device, &params);
-        let buffers = [&self.table, &self.state, lookups, &self.codes];
-        let group = bind(device, &self.layout, buffers, &uniform, &self.records);
+        let key = BindKey {
+            pass: 0,
+            lookups: lookups.clone(),
+            in_offset,
+            count,
+            channels: 0xFFFF,
+            out: None,
+            out_offset: 0,
+        };
+        let group = self.bind_for(device, key, |uniform| {
+            let buffers = [&self.table, &self.state, lookups, &self.codes];
+            bind(device, &self.layout, buffers, uniform, &self.records)
+        });
         dispatch(encoder, &self.passes.mark, &group, groups_of_64(count));
         Ok(())
     }
@@ -649,7 +687,8 @@ impl GpuTileCache {
     /// value of each channel in `channels` as an `f32`, channel by channel (a channel its
     /// material lacks, or a lookup with no material, gives 0) — `Material::sample`'s values for
     /// the same request, computed in f32 (to f32 rounding, filter.wgsl), from the cache's codes.
-    /// Returns the number of values written.
+    /// Returns the number of values written. Like [`GpuTileCache::record_mark`], a call with
+    /// the same buffers, offsets, count and channels as a recent one allocates nothing.
     pub fn record_resolve(
         &self,
         device: &wgpu::Device,
@@ -665,13 +704,52 @@ impl GpuTileCache {
         let in_offset = check_requests(device, lookups, offset, bytes)?;
         let values = u64::from(count) * u64::from(channels.0.count_ones());
         let out_word = check_output(device, out, out_offset, 4 * values)?;
-        let materials = self.materials.len();
-        let params = cache_params(count, in_offset, u32::from(channels.0), out_word, materials);
-        let uniform = uniform_buffer(device, &params);
-        let buffers = [&self.table, out, lookups, &self.codes];
-        let group = bind(device, &self.resolve_layout, buffers, &uniform, &self.records);
+        let key = BindKey {
+            pass: 1,
+            lookups: lookups.clone(),
+            in_offset,
+            count,
+            channels: u32::from(channels.0),
+            out: Some(out.clone()),
+            out_offset: out_word,
+        };
+        let group = self.bind_for(device, key, |uniform| {
+            let buffers = [&self.table, out, lookups, &self.codes];
+            bind(device, &self.resolve_layout, buffers, uniform, &self.records)
+        });
         dispatch(encoder, &self.passes.resolve, &group, groups_of_64(count));
         Ok(values)
+    }
+
+    /// The bind group of a mark or resolve call: a kept one for the same `key`, else one made
+    /// by `make` with the call's parameters (kept, the oldest dropped past [`KEPT_BINDS`]).
+    fn bind_for(
+        &self,
+        device: &wgpu::Device,
+        key: BindKey,
+        make: impl FnOnce(&wgpu::Buffer) -> wgpu::BindGroup,
+    ) -> wgpu::BindGroup {
+        let mut binds = self.binds.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(at) = binds.iter().position(|(k, _)| *k == key) {
+            let kept = binds.remove(at);
+            let group = kept.1.clone();
+            binds.insert(0, kept);
+            return group;
+        }
+        let materials = self.materials.len();
+        let params =
+            cache_params(key.count, key.in_offset, key.channels, key.out_offset, materials);
+        let group = make(&uniform_buffer(device, &params));
+        self.binds_made.fetch_add(1, Ordering::Relaxed);
+        binds.insert(0, (key, group.clone()));
+        binds.truncate(KEPT_BINDS);
+        group
+    }
+
+    /// Bind groups made for mark and resolve calls so far. For tests only.
+    #[doc(hidden)]
+    pub fn bind_groups_made_for_testing(&self) -> u32 {
+        self.binds_made.load(Ordering::Relaxed)
     }
 
     /// Ends the frame: its counters are copied for [`GpuTileCache::read_stats`] (recorded).

@@ -80,18 +80,33 @@ fn gpu_frame(
 ) -> (FrameStats, Vec<u32>) {
     let input = lookup_buffer(device, queue, lookups);
     let count = lookups.len() as u32;
+    gpu_frame_with(device, queue, cache, (&input, count), &output_buffer(device, count))
+}
+
+/// A buffer for the 16 resolved values of `count` lookups.
+fn output_buffer(device: &wgpu::Device, count: u32) -> wgpu::Buffer {
     let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
-    let out = buffer(device, 64 * u64::from(count).max(1), usage, None);
+    buffer(device, 64 * u64::from(count).max(1), usage, None)
+}
+
+/// [`gpu_frame`] with the lookups already in `input`, resolved into `out`.
+fn gpu_frame_with(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    cache: &GpuTileCache,
+    (input, count): (&wgpu::Buffer, u32),
+    out: &wgpu::Buffer,
+) -> (FrameStats, Vec<u32>) {
     let mut encoder = device.create_command_encoder(&Default::default());
     cache.record_begin_frame(&mut encoder);
-    cache.record_mark(device, &mut encoder, (&input, 0, count)).unwrap();
+    cache.record_mark(device, &mut encoder, (input, 0, count)).unwrap();
     cache.record_decode_missing(&mut encoder);
     let written = cache
-        .record_resolve(device, &mut encoder, (&input, 0, count), ChannelMask::ALL, (&out, 0))
+        .record_resolve(device, &mut encoder, (input, 0, count), ChannelMask::ALL, (out, 0))
         .unwrap();
     assert_eq!(written, 16 * u64::from(count));
     cache.record_end_frame(&mut encoder);
-    let values = to_words(&submit_and_read(device, queue, encoder, &out));
+    let values = to_words(&submit_and_read(device, queue, encoder, out));
     (cache.read_stats(device).unwrap(), values)
 }
 
@@ -396,6 +411,35 @@ fn new_tiles_decode_alike_through_every_kernel() {
         assert!(cpu_stats.decoded > 0);
         assert_tiles(&device, &queue, &cache, &materials, &keys);
     }
+}
+
+/// Frames that mark and resolve the same lookups into the same output make their bind groups
+/// once: no allocation per frame after the first (another count or channel mask makes new ones),
+/// and the kept bind groups resolve as fresh ones do.
+#[test]
+fn repeated_frames_reuse_their_bind_groups() {
+    let (device, queue) = device();
+    let ctx = Context::new(&device);
+    let bytes = fixture_bytes();
+    let materials: Vec<Material<'_>> = bytes.iter().map(|b| Container::parse(b).unwrap()).collect();
+    let gpus: Vec<_> = materials.iter().map(|m| ctx.upload(&device, &queue, m).unwrap()).collect();
+    let gpu_refs: Vec<_> = gpus.iter().collect();
+    let cache = ctx.create_tile_cache(&device, &gpu_refs, 512).unwrap();
+    let frame = lookups(&materials, 6, 200);
+    let input = lookup_buffer(&device, &queue, &frame);
+    let out = output_buffer(&device, 200);
+    let (_, first) = gpu_frame_with(&device, &queue, &cache, (&input, 200), &out);
+    assert_eq!(cache.bind_groups_made_for_testing(), 2, "a mark and a resolve");
+    for _ in 0..3 {
+        let (stats, values) = gpu_frame_with(&device, &queue, &cache, (&input, 200), &out);
+        assert_eq!(values, first);
+        assert!(stats.marked > 0 && stats.decoded == 0);
+    }
+    assert_eq!(cache.bind_groups_made_for_testing(), 2, "nothing made after the first frame");
+    // Fewer lookups of the same buffer: new bind groups; values as a fresh frame of them gives.
+    let (_, fewer) = gpu_frame_with(&device, &queue, &cache, (&input, 100), &out);
+    assert_eq!(cache.bind_groups_made_for_testing(), 4);
+    assert_eq!(fewer[..16 * 100], first[..16 * 100]);
 }
 
 #[test]
