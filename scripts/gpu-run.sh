@@ -56,21 +56,23 @@ done
 # "The same walk on the GPU") with up to four carried neural materials, and with the JPEG ones;
 # BC transcoding of the first neural material on the GPU against the CPU on every core (the same
 # files, compared).
+# (WALK_SIZE and WALK_FRAMES make the walk smaller for a dry run on a software adapter.)
+walk_size=${WALK_SIZE:-1920x1080} walk_frames=${WALK_FRAMES:-30}
 neural=() jpeg=()
 for m in .devcarry/materials/*.nmat; do
   [ -f "$m" ] || continue
   case "$(basename "$m")" in *jpeg*) jpeg+=("$m") ;; *) neural+=("$m") ;; esac
 done
 if [ "${#neural[@]}" -gt 0 ]; then
-  step walk 300 .devcarry/nmat walk "${neural[@]:0:4}" --gpu --threads "$(nproc)" --frames 30 \
-    --direct-every 15 --csv "$out/walk.csv"
+  step walk 300 .devcarry/nmat walk "${neural[@]:0:4}" --gpu --threads "$(nproc)" \
+    --size "$walk_size" --frames "$walk_frames" --direct-every 15 --csv "$out/walk.csv"
   step transcode-gpu 120 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-gpu" --gpu
   step transcode-cpu 120 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-cpu"
   step transcode-same 30 diff -r "$out/transcode-gpu" "$out/transcode-cpu"
 fi
 if [ "${#jpeg[@]}" -gt 0 ]; then
-  step walk-jpeg 300 .devcarry/nmat walk "${jpeg[@]:0:4}" --gpu --threads "$(nproc)" --frames 30 \
-    --direct-every 0 --csv "$out/walk-jpeg.csv"
+  step walk-jpeg 300 .devcarry/nmat walk "${jpeg[@]:0:4}" --gpu --threads "$(nproc)" \
+    --size "$walk_size" --frames "$walk_frames" --direct-every 0 --csv "$out/walk-jpeg.csv"
 fi
 echo "failed steps: $failed" | tee -a "$out/summary.txt"
 exit "$failed"
