@@ -1,6 +1,7 @@
 //! The matrix kernel (matrix.wgsl): layers as 16×16×16 cooperative matrix multiply-adds (tensor
 //! cores), a pipeline per material shape. docs/GPU.md ("The matrix kernel") argues exactness.
 
+use crate::measure::Part;
 use nmat_core::{Material, Neural};
 use std::fmt::Write as _;
 
@@ -133,13 +134,16 @@ impl Shape {
         self.batch() * self.batches
     }
 
-    /// The WGSL of the pipeline (entry point `matrix`).
-    pub fn source(&self) -> String {
+    /// The WGSL of the pipeline (entry point `matrix`); only `part` of the work where it is not
+    /// [`Part::Whole`] (for timing: the codes are then wrong).
+    pub fn source_part(&self, part: Part) -> String {
         let (mut stage, mut layers) = (String::new(), String::new());
         for (l, &(kpad, opad, woff)) in self.layers.iter().enumerate() {
             let ws = kpad + self.pads.1;
             let _ = writeln!(stage, "    stage(lid, {l}u, {kpad}u, {opad}u, {woff}u, {ws}u);");
-            layers += &self.layer(l, kpad, opad, woff);
+            if part != Part::Features {
+                layers += &self.layer(l, kpad, opad, woff);
+            }
         }
         format!(
             "enable f16;\nenable wgpu_cooperative_matrix;\n\
@@ -148,6 +152,7 @@ impl Shape {
              const SS: u32 = {}u;\nconst SB: u32 = 16u * SS;\n\
              const PER_LANE: u32 = 256u * TB / SG;\n\
              const WMAX: u32 = {}u;\nconst CH: u32 = {}u;\nconst WTOTAL: u32 = {}u;\n\
+             const FEATURES: bool = {};\n\
              fn stage_weights(lid: u32) {{\n{stage}    workgroupBarrier();\n}}\n\
              fn layers(lane: u32, warp: u32) {{\n{layers}}}\n{}\n{}\n{}\n{}",
             self.batch(),
@@ -160,6 +165,7 @@ impl Shape {
             self.wmax,
             self.channels,
             self.total,
+            part != Part::Layers,
             crate::layout::texel_wgsl(),
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),
@@ -287,11 +293,16 @@ mod tests {
                 // Networks up to 64 wide keep the 4 subgroups in 48 KiB.
                 assert_eq!(shape.warps, LAYOUT.0, "{}", cfg.name);
             }
-            let source = shape.source();
+            let source = shape.source_part(Part::Whole);
             let spirv = compile(&source).unwrap_or_else(|e| panic!("{}: {e}", cfg.name));
             // OpCooperativeMatrixMulAddKHR (4459) and OpCooperativeMatrixLoadKHR (4457).
             let has = |op: u32| spirv.iter().any(|&w| w & 0xFFFF == op && w >> 16 >= 4);
             assert!(has(4459) && has(4457), "{}: no cooperative matrix instructions", cfg.name);
+            // The pipelines that time a part alone compile too.
+            for part in [Part::Features, Part::Layers] {
+                let source = shape.source_part(part);
+                compile(&source).unwrap_or_else(|e| panic!("{} {part:?}: {e}", cfg.name));
+            }
         }
         assert_eq!(refused, 1);
     }

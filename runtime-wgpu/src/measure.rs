@@ -9,6 +9,28 @@ use crate::layout::words_to_bytes;
 use std::time::Instant;
 use wgpu::util::DeviceExt;
 
+/// Which part of a tiled or matrix kernel's work a pipeline does: all of it, or — to time where
+/// a kernel's time goes, its codes then not the material's — only the input features (every
+/// texel's latents, positional encoding and LOD, staged for the layers) or only the layers (on
+/// the zeros workgroup memory starts with). [`crate::Context::upload_part_for_timing`] builds
+/// such a material; `nmat bench --gpu` prints a row for each part of each such kernel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Part {
+    Whole,
+    Features,
+    Layers,
+}
+
+impl Part {
+    pub fn name(self) -> &'static str {
+        match self {
+            Part::Whole => "whole",
+            Part::Features => "input features only",
+            Part::Layers => "layers only",
+        }
+    }
+}
+
 /// How a time was taken.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Clock {

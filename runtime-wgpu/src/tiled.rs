@@ -2,6 +2,7 @@
 //! tables it reads. docs/GPU.md ("The tiled kernel") argues the arithmetic.
 
 use crate::layout::{self, LayerRecord, NeuralHeader, RequantRow, ShaderLayout};
+use crate::measure::Part;
 use nmat_core::{Layer, Material, Neural};
 use std::fmt::Write as _;
 
@@ -84,10 +85,14 @@ impl Shape {
         Some(Shape { texels, wmax, channels, layers })
     }
 
-    /// The WGSL of the pipeline: this shape's constants and layer calls, then `decode`.
-    pub fn source(&self, kernel: Kernel) -> String {
+    /// The WGSL of the pipeline: this shape's constants and layer calls, then `decode`; only
+    /// `part` of the work where it is not [`Part::Whole`] (for timing: the codes are then wrong).
+    pub fn source_part(&self, kernel: Kernel, part: Part) -> String {
         let mut calls = String::new();
         for (l, &(kw, groups)) in self.layers.iter().enumerate() {
+            if part == Part::Features {
+                break;
+            }
             let last = l + 1 == self.layers.len();
             let _ = writeln!(
                 calls,
@@ -101,10 +106,12 @@ impl Shape {
         };
         format!(
             "const P: u32 = {}u;\nconst WMAX: u32 = {}u;\nconst CH: u32 = {}u;\n\
+             const FEATURES: bool = {};\n\
              fn layers(lid: u32) {{\n{calls}}}\n{}\n{}\n{products}\n{}\n{}\n",
             self.texels,
             self.wmax,
             self.channels,
+            part != Part::Layers,
             crate::layout::texel_wgsl(),
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),
@@ -206,13 +213,16 @@ mod tests {
             for kernel in [Kernel::Int32, Kernel::Dot4] {
                 let n = m.neural().expect("a neural fixture");
                 let shape = Shape::new((&m, n), kernel, 16384).expect("a shape in 16 KiB");
-                let source = shape.source(kernel);
-                let module = naga::front::wgsl::parse_str(&source)
-                    .unwrap_or_else(|e| panic!("{}: {}", cfg.name, e.emit_to_string(&source)));
-                let flags = naga::valid::ValidationFlags::all();
-                naga::valid::Validator::new(flags, naga::valid::Capabilities::all())
-                    .validate(&module)
-                    .unwrap_or_else(|e| panic!("{}: {}", cfg.name, e.emit_to_string(&source)));
+                // The kernel, and the pipelines that time its parts alone.
+                for part in [Part::Whole, Part::Features, Part::Layers] {
+                    let source = shape.source_part(kernel, part);
+                    let module = naga::front::wgsl::parse_str(&source)
+                        .unwrap_or_else(|e| panic!("{}: {}", cfg.name, e.emit_to_string(&source)));
+                    let flags = naga::valid::ValidationFlags::all();
+                    naga::valid::Validator::new(flags, naga::valid::Capabilities::all())
+                        .validate(&module)
+                        .unwrap_or_else(|e| panic!("{}: {}", cfg.name, e.emit_to_string(&source)));
+                }
             }
         }
     }

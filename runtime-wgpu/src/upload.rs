@@ -152,26 +152,62 @@ impl Context {
         Ok(seconds / texels as f64)
     }
 
+    /// `m` decoded by only `part` of `kernel`'s work (a tiled or matrix kernel,
+    /// [`measure::Part`]), to time where the kernel's time goes (`nmat bench --gpu`). Its codes
+    /// are **not** the material's: no probe is made, and it must not be used to decode. For
+    /// measuring only.
+    #[doc(hidden)]
+    pub fn upload_part_for_timing(
+        &self,
+        device: &wgpu::Device,
+        m: &Material<'_>,
+        kernel: Kernel,
+        part: measure::Part,
+    ) -> Result<GpuMaterial, GpuError> {
+        let Body::Neural(n) = m.body() else { return Err(GpuError::Codec) };
+        let refused = |reason| GpuError::Kernel { kernel, reason };
+        if kernel == Kernel::Reference {
+            return Err(refused("the reference kernel is not split into parts"));
+        }
+        let (mut desc, latents) = network_words(m, n)?;
+        let (tiled, _) = self.prepare_part(device, (m, n), kernel, part).map_err(refused)?;
+        tiled::append_tables(&mut desc, n, kernel == Kernel::Dot4);
+        let desc = storage_init(device, "nmat desc (timing)", &desc);
+        let latents = storage_init(device, "nmat latents (timing)", &latents);
+        Ok(GpuMaterial::new(m, desc, latents, kernel, GpuBody::Neural(tiled)))
+    }
+
     /// The tiled or matrix pipeline of `kernel` for `m` and its texels per workgroup (`None`:
     /// the reference kernel), and for a tiled kernel its source (the tile cache decodes
     /// through its `tiled_cache` entry); or why the device cannot run it.
     fn prepare(
         &self,
         device: &wgpu::Device,
+        m: (&Material<'_>, &Neural<'_>),
+        kernel: Kernel,
+    ) -> Result<(NetworkPipeline, Option<String>), &'static str> {
+        self.prepare_part(device, m, kernel, measure::Part::Whole)
+    }
+
+    /// [`Context::prepare`] for `part` of the kernel's work.
+    fn prepare_part(
+        &self,
+        device: &wgpu::Device,
         (m, n): (&Material<'_>, &Neural<'_>),
         kernel: Kernel,
+        part: measure::Part,
     ) -> Result<(NetworkPipeline, Option<String>), &'static str> {
         let (source, entry, texels) = match kernel {
             Kernel::Reference => return Ok((None, None)),
             Kernel::Matrix => {
                 let shape = matrix::Shape::new((m, n), device)?;
-                (shape.source(), "matrix", shape.texels())
+                (shape.source_part(part), "matrix", shape.texels())
             }
             Kernel::Dot4 | Kernel::Int32 => {
                 let bytes = device.limits().max_compute_workgroup_storage_size;
                 let shape = tiled::Shape::new((m, n), kernel, bytes)
                     .ok_or("the network is too wide for the device's workgroup memory")?;
-                (shape.source(kernel), "tiled", shape.texels)
+                (shape.source_part(kernel, part), "tiled", shape.texels)
             }
         };
         let mut cache = self.tiled.lock().unwrap_or_else(|e| e.into_inner());
@@ -183,7 +219,7 @@ impl Context {
             _ => "the device refused the shader",
         };
         let pipeline = pipeline.clone().ok_or(refused)?;
-        let tiled = matches!(kernel, Kernel::Dot4 | Kernel::Int32);
+        let tiled = matches!(kernel, Kernel::Dot4 | Kernel::Int32) && part == measure::Part::Whole;
         Ok((Some((pipeline, texels)), tiled.then_some(source)))
     }
 

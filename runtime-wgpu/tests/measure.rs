@@ -84,3 +84,41 @@ fn stages_are_timed_apart_and_add_up() {
     );
     assert!(matches!(failed, Err(nmat_wgpu::GpuError::Map(m)) if m == "refused"));
 }
+
+/// A kernel's parts for timing (`upload_part_for_timing`) run and give other codes than the
+/// whole kernel: the features alone leave every code 0 (the layers' output is never written),
+/// the layers alone give every texel the same codes (they run on zeros); the reference kernel
+/// and a JPEG material have no parts.
+#[test]
+fn kernel_parts_for_timing_do_only_their_part() {
+    use nmat_core::{ChannelMask, Container};
+    use nmat_wgpu::measure::Part;
+    use nmat_wgpu::{Context, GpuError, Kernel};
+    let (device, queue) = device();
+    let ctx = Context::new(&device);
+    let fixtures = nmat_tests::fixtures_dir();
+    let bytes = std::fs::read(fixtures.join("ntc_pbr10_96x80_clamp.nmat")).unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    let c = m.channel_count();
+    for kernel in [Kernel::Int32, Kernel::Dot4] {
+        let Ok(whole) = ctx.upload_with(&device, &queue, &m, Some(kernel)) else {
+            assert!(std::env::var_os("NMAT_REQUIRE_DOT4").is_none() && kernel == Kernel::Dot4);
+            continue;
+        };
+        let want = ctx.decode_mip(&device, &queue, &whole, 0, ChannelMask::ALL).unwrap();
+        assert!(want.chunks(c).any(|t| t != &want[..c]), "a material with varying texels");
+        let features = ctx.upload_part_for_timing(&device, &m, kernel, Part::Features).unwrap();
+        let got = ctx.decode_mip(&device, &queue, &features, 0, ChannelMask::ALL).unwrap();
+        assert_eq!(got.len(), want.len());
+        assert!(got.iter().all(|&v| v == 0), "{kernel:?}: features alone write no code");
+        let layers = ctx.upload_part_for_timing(&device, &m, kernel, Part::Layers).unwrap();
+        let got = ctx.decode_mip(&device, &queue, &layers, 0, ChannelMask::ALL).unwrap();
+        assert!(got != want && got.chunks(c).all(|t| t == &got[..c]), "{kernel:?}: layers alone");
+    }
+    let refused = ctx.upload_part_for_timing(&device, &m, Kernel::Reference, Part::Layers);
+    assert!(matches!(refused, Err(GpuError::Kernel { kernel: Kernel::Reference, .. })));
+    let jpeg = std::fs::read(fixtures.join("jpeg/pattern_420_37x21.nmat")).unwrap();
+    let jpeg = Container::parse(&jpeg).unwrap();
+    let refused = ctx.upload_part_for_timing(&device, &jpeg, Kernel::Dot4, Part::Features);
+    assert!(matches!(refused, Err(GpuError::Codec)));
+}

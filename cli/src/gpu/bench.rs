@@ -8,7 +8,7 @@ use super::device;
 use crate::common::{Result, macs};
 use nmat_cli::stats::median;
 use nmat_core::{ChannelMask, Material};
-use nmat_wgpu::measure::{self, Clock};
+use nmat_wgpu::measure::{self, Clock, Part};
 use nmat_wgpu::wgpu;
 use nmat_wgpu::{Context, GpuError, GpuMaterial, Kernel, TexelRequest};
 use std::time::Instant;
@@ -48,6 +48,16 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
         .filter(|&k| k != gm.kernel())
         .filter_map(|k| ctx.upload_with(&device, &queue, m, Some(k)).ok())
         .collect();
+    // Where each tiled or matrix kernel's time goes: its input features alone and its layers
+    // alone (pipelines made for timing only: their codes are not the material's).
+    let mut parts = Vec::new();
+    for kernel in std::iter::once(&gm).chain(&others).map(GpuMaterial::kernel) {
+        for part in [Part::Features, Part::Layers] {
+            if let Ok(timed) = ctx.upload_part_for_timing(&device, m, kernel, part) {
+                parts.push((part, timed));
+            }
+        }
+    }
     let c = m.channel_count();
     let (w, h) = m.mip_size(0);
     let side = (region.min(w).max(1), region.min(h).max(1));
@@ -151,6 +161,18 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
             format!("region {}×{}, all channels, {} kernel", side.0, side.1, other.kernel().name());
         rows.push((name, texels(side), c, Work::Region(side, all), other));
     }
+    for (part, timed) in &parts {
+        let name = format!(
+            "region {}×{}, {} kernel: {} (for timing; codes not valid)",
+            side.0,
+            side.1,
+            timed.kernel().name(),
+            part.name()
+        );
+        rows.push((name, texels(side), c, Work::Region(side, all), timed));
+    }
+    let features_only =
+        |gm: &GpuMaterial| parts.iter().any(|(p, t)| *p == Part::Features && std::ptr::eq(t, gm));
     for (name, n, outputs, work, gm) in &rows {
         let gpu = Gpu {
             ctx: &ctx,
@@ -163,7 +185,8 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
         };
         let seconds = median_time(&device, &queue, runs, &|e| gpu.record(e, work))?;
         let rate = *n as f64 / seconds;
-        let macs_per_texel = macs(m, *outputs);
+        // (The input features alone make no multiply-adds of the network.)
+        let macs_per_texel = if features_only(gm) { 0 } else { macs(m, *outputs) };
         println!(
             "  | {name} | {n} | {macs_per_texel} | {:.1} | {:.3} | {:.2} |",
             seconds * 1e6,

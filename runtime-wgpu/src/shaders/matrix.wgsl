@@ -18,8 +18,9 @@
 // Prepended by matrix.rs (per material shape): the `enable` directives, `const P`, `const NW`,
 // `const BATCHES`, `const SG` (a subgroup's invocations), `const WMAX` (the widest layer rounded
 // up to 16), `const CH` (channels), `const WTOTAL` (staged weights), the strides `AS` and `SS`,
-// `const SB` (16 · SS), `const PER_LANE`, `fn stage_weights(lid)`
-// calling `stage` per layer and `fn layers(lane, warp)`: per layer its products with the block
+// `const SB` (16 · SS), `const PER_LANE`, `const FEATURES` (true but in a pipeline that times
+// the layers alone), `fn stage_weights(lid)` calling `stage` per layer and `fn layers(lane,
+// warp)` (empty in a pipeline that times the features alone): per layer its products with the block
 // counts and offsets as literals (the accumulators of all its row blocks live in registers),
 // calling `finish` per row block. Then texel.wgsl, decode.wgsl, requant.wgsl and this file.
 // Weights and row tables are the tiled kernels' (tiled.wgsl), the bias without the dot4
@@ -147,7 +148,7 @@ fn matrix(
         if (first >= params.count) {
             break;
         }
-        for (var t = lid; t < P; t += SG * NW) {
+        for (var t = lid; t < P && FEATURES; t += SG * NW) {
             if (first + t < params.count) {
                 features(t, first + t, inputs);
             }

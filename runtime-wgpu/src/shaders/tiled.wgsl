@@ -6,9 +6,10 @@
 // with the CPU.
 //
 // Prepended by tiled.rs (per material shape): `const P` (texels per workgroup, a multiple of 4
-// up to 64), `const WMAX` (the widest layer rounded up to 4), `const CH` (channels) and
-// `fn layers(lid)`, which calls `layer` once per layer with its widths as literals, a barrier
-// after each. Then texel.wgsl (the decoder, `nmat_features`), decode.wgsl (bindings), one of
+// up to 64), `const WMAX` (the widest layer rounded up to 4), `const CH` (channels), `const
+// FEATURES` (true but in a pipeline that times the layers alone) and `fn layers(lid)`, which
+// calls `layer` once per layer with its widths as literals, a barrier after each (none in a
+// pipeline that times the features alone). Then texel.wgsl (the decoder, `nmat_features`), decode.wgsl (bindings), one of
 // tiled_i32.wgsl / tiled_dot4.wgsl (where activations live and how a tile's products are
 // formed), requant.wgsl (`requant_with`), then this file.
 //
@@ -78,7 +79,8 @@ fn tiled(
 ) {
     let first = (wg.x + wg.y * groups.x) * P;
     let inputs = nmat_desc[nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_INPUTS];
-    for (var t = lid; t < P; t += 64u) {
+    // (FEATURES is false only in a pipeline made for timing the layers alone.)
+    for (var t = lid; t < P && FEATURES; t += 64u) {
         let index = first + t;
         if (index < params.count) {
             let texel = texel_of(index);
