@@ -832,6 +832,18 @@ fn bench_gpu_prints_the_gpu_table_or_says_how_to_build_it() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// Whether `o` is a `--gpu` command's refusal by a binary built without the `gpu` feature (then
+/// it says how to build one, and `dir` is removed): the test has nothing more to check.
+fn built_without_gpu(o: &std::process::Output, dir: &Path) -> bool {
+    let out = text(o);
+    if !out.contains("built without GPU support") {
+        return false;
+    }
+    assert!(!o.status.success() && out.contains("--features gpu"), "{out}");
+    std::fs::remove_dir_all(dir).unwrap();
+    true
+}
+
 /// `nmat walk --gpu` walks through the GPU's tile cache too, frame for frame with the same tiles
 /// as the CPU's, where the binary has the `gpu` feature; says how to get it where it has not.
 #[test]
@@ -856,9 +868,7 @@ fn walk_gpu_counts_the_tiles_the_cpu_counts_or_says_how_to_build_it() {
         "--gpu",
     ]);
     let out = text(&o);
-    if out.contains("built without GPU support") {
-        assert!(!o.status.success() && out.contains("--features gpu"), "{out}");
-        std::fs::remove_dir_all(&dir).unwrap();
+    if built_without_gpu(&o, &dir) {
         return;
     }
     assert!(o.status.success(), "{out}");
@@ -892,13 +902,10 @@ fn transcode_gpu_writes_the_cpus_files() {
     let (cpu_dir, gpu_dir) = (dir.join("cpu"), dir.join("gpu"));
     let f = fixture.to_str().unwrap();
     let o = nmat(&["transcode", f, "-o", gpu_dir.to_str().unwrap(), "--gpu"]);
-    let out = text(&o);
-    if out.contains("built without GPU support") {
-        assert!(!o.status.success() && out.contains("--features gpu"), "{out}");
-        std::fs::remove_dir_all(&dir).unwrap();
+    if built_without_gpu(&o, &dir) {
         return;
     }
-    assert!(o.status.success(), "{out}");
+    assert!(o.status.success(), "{}", text(&o));
     let o = nmat(&["transcode", f, "-o", cpu_dir.to_str().unwrap()]);
     assert!(o.status.success(), "{}", text(&o));
     let names = files_in(&cpu_dir);
