@@ -637,7 +637,8 @@ impl GpuTileCache {
             lookups: lookups.clone(),
             in_offset,
             count,
-            channels: 0xFFFF,
+            // No channel: marking runs the filter for the texels it reads, not their values.
+            channels: 0,
             out: None,
             out_offset: 0,
         };
