@@ -51,8 +51,8 @@ pub enum GpuError {
     /// [`MAX_CACHE_MATERIALS`], no slot, or more tiles than one storage binding holds.
     Cache { reason: &'static str },
     /// A JPEG material (docs/FORMAT.md §11) given to a path that decodes neural materials only
-    /// (`nmat_sample`, textures, BC transcoding): decode its regions or requests, or decode it
-    /// on the CPU (`nmat_core`).
+    /// (`nmat_sample`): decode its regions or requests, use the tile cache, or decode it on the
+    /// CPU (`nmat_core`).
     Codec,
 }
 

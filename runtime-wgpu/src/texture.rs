@@ -46,7 +46,6 @@ impl Context {
         map: &MapChannels,
         target: TextureTarget<'_>,
     ) -> Result<(), GpuError> {
-        gm.neural()?;
         let (first, count) = (u32::from(map.first), u32::from(map.count));
         let mask = ChannelMask((((1u64 << count.min(16)) - 1) << first.min(16)) as u16);
         if !(1..=4).contains(&count) || (first + count) as usize > gm.channel_count() {

@@ -126,7 +126,6 @@ impl Context {
         region: BlockRegion,
         targets: &[(&BcTexture, BlockTarget<'_>)],
     ) -> Result<(), GpuError> {
-        gm.neural()?;
         let all = gm.blocks(mip).ok_or(GpuError::Blocks { mip, region })?;
         if u64::from(region.x) + u64::from(region.width) > u64::from(all.width)
             || u64::from(region.y) + u64::from(region.height) > u64::from(all.height)

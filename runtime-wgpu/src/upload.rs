@@ -534,7 +534,8 @@ impl GpuMaterial {
         &self.mip_sizes
     }
     /// The material's codec. A JPEG material decodes through regions and requests (submitted or
-    /// recorded); `nmat_sample`, textures and BC transcoding refuse it with [`GpuError::Codec`].
+    /// recorded), into textures, into BC blocks and through the tile cache; `nmat_sample`
+    /// refuses it with [`GpuError::Codec`].
     pub fn codec(&self) -> nmat_core::Codec {
         match self.body {
             GpuBody::Neural(_) => nmat_core::Codec::Neural,

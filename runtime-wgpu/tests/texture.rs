@@ -70,15 +70,26 @@ fn read_texture(
         .collect()
 }
 
-/// What the texture must hold: the CPU's codes of `map` in the region at the origin (missing
-/// components 0, alpha 255 for RGBA), zeros elsewhere.
+/// What the texture must hold: the CPU's codes of `map` in [`RECT`] of mip 1 at the origin
+/// (missing components 0, alpha 255 for RGBA), zeros elsewhere.
 fn expected(m: &nmat_core::Material<'_>, map: &MapChannels, bytes: u32) -> Vec<u8> {
+    expected_at(m, map, bytes, 1, RECT)
+}
+
+/// [`expected`] for the region `rect` of `mip`.
+fn expected_at(
+    m: &nmat_core::Material<'_>,
+    map: &MapChannels,
+    bytes: u32,
+    mip: u32,
+    rect: (u32, u32, u32, u32),
+) -> Vec<u8> {
     let (first, count) = (u32::from(map.first), u32::from(map.count));
     let mask = ChannelMask((((1u32 << count) - 1) << first) as u16);
     let mut want = vec![0u8; (SIZE.0 * SIZE.1 * bytes) as usize];
-    for j in 0..RECT.3 {
-        for i in 0..RECT.2 {
-            let r = TexelRequest { x: (RECT.0 + i) as i32, y: (RECT.1 + j) as i32, mip: 1 };
+    for j in 0..rect.3 {
+        for i in 0..rect.2 {
+            let r = TexelRequest { x: (rect.0 + i) as i32, y: (rect.1 + j) as i32, mip };
             let codes = cpu_codes(m, &[r], mask);
             let at = (((ORIGIN.1 + j) * SIZE.0 + ORIGIN.0 + i) * bytes) as usize;
             for c in 0..bytes as usize {
@@ -131,6 +142,27 @@ fn maps_decode_into_storage_textures_like_the_cpu() {
         ctx.record_map_to_texture(&device, &mut encoder, &gm, 1, RECT, gray, at).unwrap();
         let got = read_texture(&device, &queue, encoder, &r8, 1);
         assert!(got == expected(&m, gray, 1), "{gray:?} into R8Unorm");
+    }
+}
+
+/// A JPEG material's maps decode into textures too (the region through the JPEG kernel).
+#[test]
+fn jpeg_maps_decode_into_storage_textures_like_the_cpu() {
+    let (device, queue) = device();
+    let ctx = Context::new(&device);
+    let path = nmat_tests::fixtures_dir().join("jpeg/pattern_420_37x21.nmat");
+    let bytes = std::fs::read(path).unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    let gm = ctx.upload(&device, &queue, &m).unwrap();
+    let usage = wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_SRC;
+    let rect = (2, 1, 30, 17);
+    for map in maps(&m) {
+        let target = texture(&device, wgpu::TextureFormat::Rgba8Unorm, usage);
+        let mut encoder = device.create_command_encoder(&Default::default());
+        let at = TextureTarget { texture: &target, mip_level: 0, origin: ORIGIN };
+        ctx.record_map_to_texture(&device, &mut encoder, &gm, 0, rect, &map, at).unwrap();
+        let got = read_texture(&device, &queue, encoder, &target, 4);
+        assert!(got == expected_at(&m, &map, 4, 0, rect), "{map:?}");
     }
 }
 
