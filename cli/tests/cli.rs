@@ -893,27 +893,31 @@ fn walk_gpu_counts_the_tiles_the_cpu_counts_or_says_how_to_build_it() {
 }
 
 /// `nmat transcode --gpu` writes the CPU's files byte for byte (every texture of a mip from one
-/// decode on the GPU), where the binary has the `gpu` feature.
+/// decode on the GPU), for a neural and a JPEG material, where the binary has the `gpu` feature.
 #[test]
 fn transcode_gpu_writes_the_cpus_files() {
-    let fixture =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/ntc_pbr10_96x80_clamp.nmat");
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures");
     let dir = temp_dir("transcode-gpu");
-    let (cpu_dir, gpu_dir) = (dir.join("cpu"), dir.join("gpu"));
-    let f = fixture.to_str().unwrap();
-    let o = nmat(&["transcode", f, "-o", gpu_dir.to_str().unwrap(), "--gpu"]);
-    if built_without_gpu(&o, &dir) {
-        return;
-    }
-    assert!(o.status.success(), "{}", text(&o));
-    let o = nmat(&["transcode", f, "-o", cpu_dir.to_str().unwrap()]);
-    assert!(o.status.success(), "{}", text(&o));
-    let names = files_in(&cpu_dir);
-    assert_eq!(names.len(), 6);
-    assert_eq!(files_in(&gpu_dir), names);
-    for name in &names {
-        let (c, g) = (std::fs::read(cpu_dir.join(name)), std::fs::read(gpu_dir.join(name)));
-        assert!(c.unwrap() == g.unwrap(), "{name} differs");
+    for (k, (name, files)) in
+        [("ntc_pbr10_96x80_clamp.nmat", 6), ("jpeg/pattern_420_37x21.nmat", 1)].iter().enumerate()
+    {
+        let (cpu_dir, gpu_dir) = (dir.join(format!("cpu{k}")), dir.join(format!("gpu{k}")));
+        let f = fixtures.join(name);
+        let f = f.to_str().unwrap();
+        let o = nmat(&["transcode", f, "-o", gpu_dir.to_str().unwrap(), "--gpu"]);
+        if built_without_gpu(&o, &dir) {
+            return;
+        }
+        assert!(o.status.success(), "{}", text(&o));
+        let o = nmat(&["transcode", f, "-o", cpu_dir.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", text(&o));
+        let names = files_in(&cpu_dir);
+        assert_eq!(names.len(), *files, "{name}");
+        assert_eq!(files_in(&gpu_dir), names);
+        for file in &names {
+            let (c, g) = (std::fs::read(cpu_dir.join(file)), std::fs::read(gpu_dir.join(file)));
+            assert!(c.unwrap() == g.unwrap(), "{name}: {file} differs");
+        }
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
