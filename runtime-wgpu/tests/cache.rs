@@ -413,6 +413,37 @@ fn new_tiles_decode_alike_through_every_kernel() {
     }
 }
 
+/// A frame of a few trilinear lookups, so that each tile is marked by one lookup's taps alone (in
+/// a dense frame a neighbour's lookup marks it too): the marked tiles, counters and codes are the
+/// CPU's.
+#[test]
+fn sparse_lookups_mark_every_tile_their_filter_reads() {
+    let (device, queue) = device();
+    let ctx = Context::new(&device);
+    let bytes = fixture_bytes();
+    let materials: Vec<Material<'_>> = bytes.iter().map(|b| Container::parse(b).unwrap()).collect();
+    let refs: Vec<&Material<'_>> = materials.iter().collect();
+    let gpus: Vec<_> = materials.iter().map(|m| ctx.upload(&device, &queue, m).unwrap()).collect();
+    let gpu_refs: Vec<_> = gpus.iter().collect();
+    let cache = ctx.create_tile_cache(&device, &gpu_refs, 512).unwrap();
+    let mut cpu = TileCache::with_capacity(&refs, 512).unwrap();
+    // Trilinear lookups between two mips of the chain: each reads tiles of two mips.
+    let frame: Vec<_> = lookups(&materials, 7, 400)
+        .into_iter()
+        .filter(|(i, r)| {
+            let last = materials[*i].mip_count() as f32 - 1.0;
+            r.filter == Filter::Trilinear && r.lod.fract() != 0.0 && r.lod > 0.0 && r.lod < last
+        })
+        .take(6)
+        .collect();
+    assert_eq!(frame.len(), 6);
+    let (cpu_stats, keys, cpu_values) = cpu_frame(&mut cpu, &frame);
+    let (gpu_stats, gpu_values) = gpu_frame(&device, &queue, &cache, &frame);
+    assert_eq!(gpu_stats, cpu_stats);
+    assert_tiles(&device, &queue, &cache, &materials, &keys);
+    assert_values_close(&materials, &frame, &gpu_values, &cpu_values, |_| true);
+}
+
 /// Frames that mark and resolve the same lookups into the same output make their bind groups
 /// once: no allocation per frame after the first (another count or channel mask makes new ones),
 /// and the kept bind groups resolve as fresh ones do.
