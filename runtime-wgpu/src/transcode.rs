@@ -113,8 +113,8 @@ impl Context {
 
     /// Records the blocks of `region` of `mip` of every texture of `targets` (each as
     /// [`Context::record_transcode`] writes one) with one decode of the region: its texels
-    /// are decoded once by the material's kernel (the channels any texture takes from the
-    /// network; constant channels are not decoded, as on the CPU) into a buffer the `Context`
+    /// are decoded once by the material's kernel (the channels any texture takes; constant
+    /// channels are not decoded, as on the CPU) into a buffer the `Context`
     /// keeps for such passes, then each texture's blocks are encoded from those codes, one
     /// invocation per block. Everything is checked before anything is recorded.
     pub fn record_transcode_textures(
