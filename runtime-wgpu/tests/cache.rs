@@ -28,6 +28,24 @@ fn fixture_bytes() -> Vec<Vec<u8>> {
         .collect()
 }
 
+/// The fixtures of [`fixture_bytes`] parsed.
+fn parse(bytes: &[Vec<u8>]) -> Vec<Material<'_>> {
+    bytes.iter().map(|b| Container::parse(b).unwrap()).collect()
+}
+
+/// `materials` uploaded (each with the kernel `upload` picks) and a GPU cache of `slots` tiles
+/// over them.
+fn gpu_cache(
+    ctx: &Context,
+    (device, queue): (&wgpu::Device, &wgpu::Queue),
+    materials: &[Material<'_>],
+    slots: u32,
+) -> (Vec<nmat_wgpu::GpuMaterial>, GpuTileCache) {
+    let gpus: Vec<_> = materials.iter().map(|m| ctx.upload(device, queue, m).unwrap()).collect();
+    let cache = ctx.create_tile_cache(device, &gpus.iter().collect::<Vec<_>>(), slots).unwrap();
+    (gpus, cache)
+}
+
 /// `count` lookups over the materials: u, v in multiples of 1/1024 across the edges, lod in
 /// quarters past both ends of the chain, every filter, dyadic random numbers.
 fn lookups(materials: &[Material<'_>], seed: u64, count: usize) -> Vec<(usize, SampleRequest)> {
@@ -298,11 +316,9 @@ fn frames_match_the_cpu_cache_tile_for_tile_and_value_for_value() {
     let (device, queue) = device();
     let ctx = Context::new(&device);
     let bytes = fixture_bytes();
-    let materials: Vec<Material<'_>> = bytes.iter().map(|b| Container::parse(b).unwrap()).collect();
+    let materials = parse(&bytes);
     let refs: Vec<&Material<'_>> = materials.iter().collect();
-    let gpus: Vec<_> = materials.iter().map(|m| ctx.upload(&device, &queue, m).unwrap()).collect();
-    let gpu_refs: Vec<_> = gpus.iter().collect();
-    let cache = ctx.create_tile_cache(&device, &gpu_refs, 512).unwrap();
+    let (gpus, cache) = gpu_cache(&ctx, (&device, &queue), &materials, 512);
     assert_eq!(cache.capacity(), 512);
     let mut cpu = TileCache::with_capacity(&refs, 512).unwrap();
 
@@ -382,7 +398,7 @@ fn new_tiles_decode_alike_through_every_kernel() {
     let (device, queue) = device();
     let ctx = Context::new(&device);
     let bytes = fixture_bytes();
-    let materials: Vec<Material<'_>> = bytes.iter().map(|b| Container::parse(b).unwrap()).collect();
+    let materials = parse(&bytes);
     let refs: Vec<&Material<'_>> = materials.iter().collect();
     let frame = lookups(&materials, 5, 300);
     for kernel in Kernel::ALL {
@@ -421,11 +437,9 @@ fn sparse_lookups_mark_every_tile_their_filter_reads() {
     let (device, queue) = device();
     let ctx = Context::new(&device);
     let bytes = fixture_bytes();
-    let materials: Vec<Material<'_>> = bytes.iter().map(|b| Container::parse(b).unwrap()).collect();
+    let materials = parse(&bytes);
     let refs: Vec<&Material<'_>> = materials.iter().collect();
-    let gpus: Vec<_> = materials.iter().map(|m| ctx.upload(&device, &queue, m).unwrap()).collect();
-    let gpu_refs: Vec<_> = gpus.iter().collect();
-    let cache = ctx.create_tile_cache(&device, &gpu_refs, 512).unwrap();
+    let (_gpus, cache) = gpu_cache(&ctx, (&device, &queue), &materials, 512);
     let mut cpu = TileCache::with_capacity(&refs, 512).unwrap();
     // Trilinear lookups between two mips of the chain: each reads tiles of two mips.
     let frame: Vec<_> = lookups(&materials, 7, 400)
@@ -452,10 +466,8 @@ fn repeated_frames_reuse_their_bind_groups() {
     let (device, queue) = device();
     let ctx = Context::new(&device);
     let bytes = fixture_bytes();
-    let materials: Vec<Material<'_>> = bytes.iter().map(|b| Container::parse(b).unwrap()).collect();
-    let gpus: Vec<_> = materials.iter().map(|m| ctx.upload(&device, &queue, m).unwrap()).collect();
-    let gpu_refs: Vec<_> = gpus.iter().collect();
-    let cache = ctx.create_tile_cache(&device, &gpu_refs, 512).unwrap();
+    let materials = parse(&bytes);
+    let (_gpus, cache) = gpu_cache(&ctx, (&device, &queue), &materials, 512);
     let frame = lookups(&materials, 6, 200);
     let input = lookup_buffer(&device, &queue, &frame);
     let out = output_buffer(&device, 200);
@@ -478,12 +490,10 @@ fn a_full_cache_overflows_counts_its_misses_and_keeps_what_it_holds_exact() {
     let (device, queue) = device();
     let ctx = Context::new(&device);
     let bytes = fixture_bytes();
-    let materials: Vec<Material<'_>> = bytes.iter().map(|b| Container::parse(b).unwrap()).collect();
+    let materials = parse(&bytes);
     let refs: Vec<&Material<'_>> = materials.iter().collect();
-    let gpus: Vec<_> = materials.iter().map(|m| ctx.upload(&device, &queue, m).unwrap()).collect();
-    let gpu_refs: Vec<_> = gpus.iter().collect();
     let slots = 5;
-    let cache = ctx.create_tile_cache(&device, &gpu_refs, slots).unwrap();
+    let (_gpus, cache) = gpu_cache(&ctx, (&device, &queue), &materials, slots);
     let mut cpu = TileCache::with_capacity(&refs, 1024).unwrap();
     let frame = lookups(&materials, 4, 600);
     let (big, keys, cpu_values) = cpu_frame(&mut cpu, &frame);
