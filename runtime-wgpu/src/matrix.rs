@@ -138,6 +138,9 @@ impl Shape {
     /// [`Part::Whole`] (for timing: the codes are then wrong).
     pub fn source_part(&self, part: Part) -> String {
         let (mut stage, mut layers) = (String::new(), String::new());
+        if part == Part::Features {
+            layers += "    features_sink(lane, warp);\n    workgroupBarrier();\n";
+        }
         for (l, &(kpad, opad, woff)) in self.layers.iter().enumerate() {
             let ws = kpad + self.pads.1;
             let _ = writeln!(stage, "    stage(lid, {l}u, {kpad}u, {opad}u, {woff}u, {ws}u);");
@@ -152,7 +155,7 @@ impl Shape {
              const SS: u32 = {}u;\nconst SB: u32 = 16u * SS;\n\
              const PER_LANE: u32 = 256u * TB / SG;\n\
              const WMAX: u32 = {}u;\nconst CH: u32 = {}u;\nconst WTOTAL: u32 = {}u;\n\
-             const FEATURES: bool = {};\n\
+             const PART: u32 = {}u;\n{}\
              fn stage_weights(lid: u32) {{\n{stage}    workgroupBarrier();\n}}\n\
              fn layers(lane: u32, warp: u32) {{\n{layers}}}\n{}\n{}\n{}\n{}",
             self.batch(),
@@ -165,7 +168,8 @@ impl Shape {
             self.wmax,
             self.channels,
             self.total,
-            part != Part::Layers,
+            part.code(),
+            Part::STAND_IN_WGSL,
             crate::layout::texel_wgsl(),
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),

@@ -11,8 +11,9 @@ use wgpu::util::DeviceExt;
 
 /// Which part of a tiled or matrix kernel's work a pipeline does: all of it, or — to time where
 /// a kernel's time goes, its codes then not the material's — only the input features (every
-/// texel's latents, positional encoding and LOD, staged for the layers) or only the layers (on
-/// the zeros workgroup memory starts with). [`crate::Context::upload_part_for_timing`] builds
+/// texel's latents, positional encoding and LOD, staged for the layers, then folded into its
+/// codes so that no compiler drops them as never read) or only the layers (on cheap stand-in
+/// features that vary by texel). [`crate::Context::upload_part_for_timing`] builds
 /// such a material; `nmat bench --gpu` prints a row for each part of each such kernel.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Part {
@@ -22,6 +23,27 @@ pub enum Part {
 }
 
 impl Part {
+    /// `const PART` of a tiled or matrix kernel's source: 0 whole, 1 the features alone, 2 the
+    /// layers alone.
+    pub(crate) fn code(self) -> u32 {
+        match self {
+            Part::Whole => 0,
+            Part::Features => 1,
+            Part::Layers => 2,
+        }
+    }
+
+    /// What a part pipeline's source adds (tiled.wgsl and matrix.wgsl call it where
+    /// `PART == 2u`): stand-in input features for timing the layers alone, cheap, varying by
+    /// texel and row (so that no compiler folds the layers over constants), in i16's range.
+    pub(crate) const STAND_IN_WGSL: &'static str = "\
+fn stand_in_features(index: u32, inputs: u32) {
+    for (var k = 0u; k < inputs; k++) {
+        nmat_act_a[k] = i32(((index + 1u) * 0x9E3779B1u + k * 0x85EBCA77u) >> 18u) - 8192;
+    }
+}
+";
+
     pub fn name(self) -> &'static str {
         match self {
             Part::Whole => "whole",

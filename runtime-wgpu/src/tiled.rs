@@ -89,6 +89,9 @@ impl Shape {
     /// `part` of the work where it is not [`Part::Whole`] (for timing: the codes are then wrong).
     pub fn source_part(&self, kernel: Kernel, part: Part) -> String {
         let mut calls = String::new();
+        if part == Part::Features {
+            calls += "    features_sink(lid);\n    workgroupBarrier();\n";
+        }
         for (l, &(kw, groups)) in self.layers.iter().enumerate() {
             if part == Part::Features {
                 break;
@@ -106,12 +109,13 @@ impl Shape {
         };
         format!(
             "const P: u32 = {}u;\nconst WMAX: u32 = {}u;\nconst CH: u32 = {}u;\n\
-             const FEATURES: bool = {};\n\
+             const PART: u32 = {}u;\n{}\
              fn layers(lid: u32) {{\n{calls}}}\n{}\n{}\n{products}\n{}\n{}\n",
             self.texels,
             self.wmax,
             self.channels,
-            part != Part::Layers,
+            part.code(),
+            Part::STAND_IN_WGSL,
             crate::layout::texel_wgsl(),
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),

@@ -18,9 +18,10 @@
 // Prepended by matrix.rs (per material shape): the `enable` directives, `const P`, `const NW`,
 // `const BATCHES`, `const SG` (a subgroup's invocations), `const WMAX` (the widest layer rounded
 // up to 16), `const CH` (channels), `const WTOTAL` (staged weights), the strides `AS` and `SS`,
-// `const SB` (16 · SS), `const PER_LANE`, `const FEATURES` (true but in a pipeline that times
-// the layers alone), `fn stage_weights(lid)` calling `stage` per layer and `fn layers(lane,
-// warp)` (empty in a pipeline that times the features alone): per layer its products with the block
+// `const SB` (16 · SS), `const PER_LANE`, `const PART` (0; 1 or 2 in a pipeline that times the
+// features or the layers alone, with `stand_in_features`), `fn stage_weights(lid)` calling
+// `stage` per layer and `fn layers(lane, warp)` (`features_sink` instead in a pipeline timing the
+// features): per layer its products with the block
 // counts and offsets as literals (the accumulators of all its row blocks live in registers),
 // calling `finish` per row block. Then texel.wgsl, decode.wgsl, requant.wgsl and this file.
 // Weights and row tables are the tiled kernels' (tiled.wgsl), the bias without the dot4
@@ -123,10 +124,31 @@ fn finish(lane: u32, warp: u32, l: u32, ob: u32, last: bool, frac: u32) {
 // The input features of texel `index` of the request list or rectangle into activation column
 // `t`, zeros up to WMAX.
 fn features(t: u32, index: u32, inputs: u32) {
-    let texel = texel_of(index);
-    nmat_features(texel.x, texel.y, bitcast<u32>(texel.z));
+    if (PART == 2u) {
+        // A pipeline that times the layers alone (matrix.rs).
+        stand_in_features(index, inputs);
+    } else {
+        let texel = texel_of(index);
+        nmat_features(texel.x, texel.y, bitcast<u32>(texel.z));
+    }
     for (var k = 0u; k < WMAX; k++) {
         put_activation(k, t, select(0, nmat_act_a[min(k, 127u)], k < inputs));
+    }
+}
+
+// For a pipeline that times the input features alone (matrix.rs, `PART == 1u`, called in place
+// of the layers): each texel's staged activations folded into its codes, so that no compiler
+// drops them as never read.
+fn features_sink(lane: u32, warp: u32) {
+    let n = params.out_channels;
+    for (var t = warp * SG + lane; t < P; t += SG * NW) {
+        var x = 0.0;
+        for (var k = 0u; k < WMAX; k++) {
+            x += f32(act_hi[k * AS + t]) + f32(act_lo[k * AS + t]);
+        }
+        for (var c = 0u; c < n; c++) {
+            tile_codes[t * n + c] = u32(abs(x)) & 255u;
+        }
     }
 }
 
@@ -148,7 +170,7 @@ fn matrix(
         if (first >= params.count) {
             break;
         }
-        for (var t = lid; t < P && FEATURES; t += SG * NW) {
+        for (var t = lid; t < P; t += SG * NW) {
             if (first + t < params.count) {
                 features(t, first + t, inputs);
             }

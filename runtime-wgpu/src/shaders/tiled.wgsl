@@ -7,9 +7,9 @@
 //
 // Prepended by tiled.rs (per material shape): `const P` (texels per workgroup, a multiple of 4
 // up to 64), `const WMAX` (the widest layer rounded up to 4), `const CH` (channels), `const
-// FEATURES` (true but in a pipeline that times the layers alone) and `fn layers(lid)`, which
-// calls `layer` once per layer with its widths as literals, a barrier after each (none in a
-// pipeline that times the features alone). Then texel.wgsl (the decoder, `nmat_features`), decode.wgsl (bindings), one of
+// PART` (0; 1 or 2 in a pipeline that times the features or the layers alone, with
+// `stand_in_features`) and `fn layers(lid)`, which calls `layer` once per layer with its widths
+// as literals, a barrier after each (`features_sink` instead in a pipeline timing the features). Then texel.wgsl (the decoder, `nmat_features`), decode.wgsl (bindings), one of
 // tiled_i32.wgsl / tiled_dot4.wgsl (where activations live and how a tile's products are
 // formed), requant.wgsl (`requant_with`), then this file.
 //
@@ -69,6 +69,22 @@ fn layer(lid: u32, l: u32, kw: u32, row_groups: u32, src: u32, last: bool) {
     }
 }
 
+// For a pipeline that times the input features alone (tiled.rs, `PART == 1u`, called in place
+// of the layers): each texel's staged features folded into its codes, so that no compiler drops
+// them as never read.
+fn features_sink(lid: u32) {
+    let n = params.out_channels;
+    for (var t = lid; t < P; t += 64u) {
+        var x = 0u;
+        for (var j = 0u; j < WMAX / 4u; j++) {
+            x ^= feature_word(j, t);
+        }
+        for (var c = 0u; c < n; c++) {
+            tile_codes[t * n + c] = (x >> (8u * (c % 4u))) & 255u;
+        }
+    }
+}
+
 // Decodes `params.count` texels as `main` does (same requests, rectangle and packed output), P
 // per workgroup.
 @compute @workgroup_size(64)
@@ -79,12 +95,16 @@ fn tiled(
 ) {
     let first = (wg.x + wg.y * groups.x) * P;
     let inputs = nmat_desc[nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_INPUTS];
-    // (FEATURES is false only in a pipeline made for timing the layers alone.)
-    for (var t = lid; t < P && FEATURES; t += 64u) {
+    for (var t = lid; t < P; t += 64u) {
         let index = first + t;
         if (index < params.count) {
-            let texel = texel_of(index);
-            nmat_features(texel.x, texel.y, bitcast<u32>(texel.z));
+            if (PART == 2u) {
+                // A pipeline that times the layers alone (tiled.rs).
+                stand_in_features(index, inputs);
+            } else {
+                let texel = texel_of(index);
+                nmat_features(texel.x, texel.y, bitcast<u32>(texel.z));
+            }
             put_features(t, inputs);
         }
     }

@@ -57,6 +57,11 @@ fn mac4(src: u32, t0: u32, w0: u32, kw: u32) -> array<vec4<i32>, 4> {
     return acc;
 }
 
+// Rows 4j … 4j + 3 of texel t in buffer 0 as one word (tiled.wgsl's `features_sink`).
+fn feature_word(j: u32, t: u32) -> u32 {
+    return hi_tile[j * P + t] ^ lo_tile[j * P + t];
+}
+
 // The tile's outputs (row o0 + r, texel t0 + j) into buffer `dst`, one word pair per texel.
 fn put_outputs(dst: u32, o0: u32, t0: u32, v: array<vec4<i32>, 4>) {
     for (var j = 0u; j < 4u; j++) {

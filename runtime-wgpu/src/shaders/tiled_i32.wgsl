@@ -32,6 +32,12 @@ fn mac4(src: u32, t0: u32, w0: u32, kw: u32) -> array<vec4<i32>, 4> {
     return acc;
 }
 
+// Rows 4j … 4j + 3 of texel t in buffer 0 as one word (tiled.wgsl's `features_sink`).
+fn feature_word(j: u32, t: u32) -> u32 {
+    let i = 4u * j * P + t;
+    return bitcast<u32>(tile[i] ^ tile[i + P] ^ tile[i + 2u * P] ^ tile[i + 3u * P]);
+}
+
 // The tile's outputs (row o0 + r, texel t0 + j) into buffer `dst`.
 fn put_outputs(dst: u32, o0: u32, t0: u32, v: array<vec4<i32>, 4>) {
     for (var r = 0u; r < 4u; r++) {
