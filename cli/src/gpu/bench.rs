@@ -102,22 +102,22 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
         (
             format!("region {}×{} of mip 0, all {c} channels", side.0, side.1),
             texels(side),
-            c,
+            macs(m, c),
             region,
             &gm,
         ),
-        (format!("whole chain, {} mips", m.mip_count()), chain, c, Work::Chain, &gm),
+        (format!("whole chain, {} mips", m.mip_count()), chain, macs(m, c), Work::Chain, &gm),
         (
             format!("{} random requests over the chain", requests.len()),
             texels(side),
-            c,
+            macs(m, c),
             Work::Requests,
             &gm,
         ),
         (
             format!("region {}×{}, channel 0", side.0, side.1),
             texels(side),
-            1,
+            macs(m, 1),
             Work::Region(side, ChannelMask(1)),
             &gm,
         ),
@@ -127,7 +127,7 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
         rows.push((
             format!("region {}×{}, channels 0-2", side.0, side.1),
             texels(side),
-            3,
+            macs(m, 3),
             Work::Region(side, mask),
             &gm,
         ));
@@ -154,12 +154,12 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
             side.1,
             if decodes == 1 { "" } else { "s" }
         );
-        rows.push((name, texels(side) * decodes, c, Work::Sample(side, mode), &gm));
+        rows.push((name, texels(side) * decodes, macs(m, c), Work::Sample(side, mode), &gm));
     }
     for other in &others {
         let name =
             format!("region {}×{}, all channels, {} kernel", side.0, side.1, other.kernel().name());
-        rows.push((name, texels(side), c, Work::Region(side, all), other));
+        rows.push((name, texels(side), macs(m, c), Work::Region(side, all), other));
     }
     for (part, timed) in &parts {
         let name = format!(
@@ -169,11 +169,11 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
             timed.kernel().name(),
             part.name()
         );
-        rows.push((name, texels(side), c, Work::Region(side, all), timed));
+        // (The input features alone make no multiply-adds of the network.)
+        let macs = if *part == Part::Features { 0 } else { macs(m, c) };
+        rows.push((name, texels(side), macs, Work::Region(side, all), timed));
     }
-    let features_only =
-        |gm: &GpuMaterial| parts.iter().any(|(p, t)| *p == Part::Features && std::ptr::eq(t, gm));
-    for (name, n, outputs, work, gm) in &rows {
+    for (name, n, macs_per_texel, work, gm) in &rows {
         let gpu = Gpu {
             ctx: &ctx,
             device: &device,
@@ -185,13 +185,11 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
         };
         let seconds = median_time(&device, &queue, runs, &|e| gpu.record(e, work))?;
         let rate = *n as f64 / seconds;
-        // (The input features alone make no multiply-adds of the network.)
-        let macs_per_texel = if features_only(gm) { 0 } else { macs(m, *outputs) };
         println!(
             "  | {name} | {n} | {macs_per_texel} | {:.1} | {:.3} | {:.2} |",
             seconds * 1e6,
             rate / 1e6,
-            100.0 * rate * macs_per_texel as f64 / peak.i32_mad_per_s
+            100.0 * rate * *macs_per_texel as f64 / peak.i32_mad_per_s
         );
     }
     if !refused.is_empty() {

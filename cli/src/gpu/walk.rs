@@ -2,9 +2,9 @@
 //! the G-buffer of lookups is uploaded (untimed: a renderer writes it on the GPU), then one
 //! submission records begin → mark → decode missing → resolve → end, timed between GPU
 //! timestamps where the adapter has them, a timestamp after marking and after decoding too (so
-//! the frame's three stages are timed apart, as the CPU walk's are); else submit to completion. Every Nth frame also
-//! resolves every lookup with `nmat_sample` (decoding its texels, no cache; neural materials
-//! only) and checks the two images are bit-identical.
+//! the frame's three stages are timed apart, as the CPU walk's are); else submit to completion.
+//! Every Nth frame also resolves every lookup with `nmat_sample` (decoding its texels, no cache;
+//! neural materials only) and checks the two images are bit-identical.
 
 use super::Walk;
 use super::device;

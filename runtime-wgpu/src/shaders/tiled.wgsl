@@ -9,7 +9,8 @@
 // up to 64), `const WMAX` (the widest layer rounded up to 4), `const CH` (channels), `const
 // PART` (0; 1 or 2 in a pipeline that times the features or the layers alone, with
 // `stand_in_features`) and `fn layers(lid)`, which calls `layer` once per layer with its widths
-// as literals, a barrier after each (`features_sink` instead in a pipeline timing the features). Then texel.wgsl (the decoder, `nmat_features`), decode.wgsl (bindings), one of
+// as literals, a barrier after each (`features_sink` instead in a pipeline timing the
+// features). Then texel.wgsl (the decoder, `nmat_features`), decode.wgsl (bindings), one of
 // tiled_i32.wgsl / tiled_dot4.wgsl (where activations live and how a tile's products are
 // formed), requant.wgsl (`requant_with`), then this file.
 //
