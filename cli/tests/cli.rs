@@ -873,6 +873,12 @@ fn walk_gpu_counts_the_tiles_the_cpu_counts_or_says_how_to_build_it() {
     }
     assert!(o.status.success(), "{out}");
     assert!(out.contains("| yes | GPU | 4 |") && out.contains("| no | GPU | 4 |"), "{out}");
+    // The GPU line names, per material, what decodes its new tiles.
+    let (_, tiles) = out.split_once("tiles decoded by: ").unwrap();
+    let (tiles, _) = tiles.split_once(" |").unwrap();
+    let tiles: Vec<&str> = tiles.split(", ").collect();
+    let kernels = ["reference", "tiled i32", "tiled dot4", "matrix"];
+    assert!(tiles.len() == 2 && kernels.contains(&tiles[0]) && tiles[1] == "JPEG", "{out}");
     let rows = std::fs::read_to_string(&csv).unwrap();
     let rows: Vec<Vec<&str>> = rows.lines().skip(1).map(|r| r.split(',').collect()).collect();
     assert_eq!(rows.len(), 16, "4 frames × (CPU, GPU) × (mips, no mips)");

@@ -6,10 +6,10 @@
 //! (cache.wgsl, cache_decode.wgsl, jpeg.wgsl) and their buffers are documented in the shaders;
 //! the design and its measurements are in docs/GPU.md, "The tile cache".
 
-use std::sync::Mutex;
 use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::{Arc, Mutex};
 
-use nmat_core::{ChannelMask, Filter, FrameStats, TILE_SIZE, TileKey};
+use nmat_core::{ChannelMask, Filter, FrameStats, Material, TILE_SIZE, TileKey};
 use wgpu::util::DeviceExt;
 
 use crate::gpu::{
@@ -413,11 +413,11 @@ impl Context {
                 (at + size_of::<DispatchArgs>() * per_tile.ilog2() as usize) as u64
             };
             let GpuBody::Jpeg(maps) = &m.body else {
-                // Four workgroups per tile: through the material's tiled kernel where it has
-                // one (tiled.wgsl, `tiled_cache`), else one texel per invocation
-                // (cache_decode.wgsl).
-                let (pipeline, params) = match self.cache_tiled_pipeline(device, m) {
-                    Some(pipeline) => {
+                // Through the material's tile decoder where it has one (tiled.wgsl's
+                // `tiled_cache`, four workgroups a tile; matrix.wgsl's `matrix_cache`, one),
+                // else one texel per invocation (cache_decode.wgsl, four workgroups a tile).
+                let (pipeline, params, per_tile) = match &m.tile_decoder {
+                    Some(decoder) => {
                         let channels = m.channel_count as u32;
                         let params = Params {
                             mode: 2,
@@ -427,17 +427,17 @@ impl Context {
                             in_offset: queue_at,
                             ..Params::default()
                         };
-                        (pipeline, params.bytes())
+                        (decoder.pipeline.as_ref().clone(), params.bytes(), decoder.per_tile)
                     }
                     None => {
                         let slot_words = slot_words as u32;
                         let params = CacheDecodeParams { queue_at, slot_words, pad: [0; 2] };
-                        (neural.clone(), params.bytes())
+                        (neural.clone(), params.bytes(), 4)
                     }
                 };
                 let params = uniform(&params);
                 let bind = self.bind_with(device, Some(m), Some(&state), &codes, &params);
-                decodes.push(Decode { pipeline, bind, args: args(4) });
+                decodes.push(Decode { pipeline, bind, args: args(per_tile) });
                 continue;
             };
             let jpeg = self.jpeg_pipelines(device)?;
@@ -540,22 +540,119 @@ impl Context {
         Ok((layout, resolve_layout, passes))
     }
 
-    /// The `tiled_cache` entry of `m`'s tiled kernel (tiled.wgsl), built once per material
-    /// shape; `None` for the other kernels, or where the device refuses it.
-    fn cache_tiled_pipeline(
+    /// `gm` (uploaded with the tiled or matrix kernel `entry` belongs to) with that kernel's tile
+    /// entry as its tile decoder where the entry decodes the probe tiles ([`probe_tiles`]) as
+    /// the CPU does; without one (the tile cache then decodes its tiles one texel per
+    /// invocation) where it does not, or where the device refuses the entry, logged like a
+    /// kernel whose probe fails.
+    pub(crate) fn with_tile_decoder(
         &self,
         device: &wgpu::Device,
-        m: &GpuMaterial,
-    ) -> Option<wgpu::ComputePipeline> {
-        let source = m.cache_source.as_ref()?;
-        // Keyed apart from the kernel's own pipeline (same source, another entry).
-        let key = format!("{source}// tiled_cache\n");
+        queue: &wgpu::Queue,
+        m: &Material<'_>,
+        gm: GpuMaterial,
+        entry: Option<TileEntry>,
+    ) -> GpuMaterial {
+        let Some(entry) = entry else { return gm };
+        let checked = self.tile_pipeline(device, &entry).ok_or("the device refused it").and_then(
+            |pipeline| {
+                let decoder = TileDecoder { pipeline, per_tile: entry.per_tile };
+                match self.probe_tile_decoder(device, queue, m, &gm, &decoder) {
+                    Ok(true) => Ok(decoder),
+                    Ok(false) => Err("its codes on the probe tiles differ from the CPU's"),
+                    Err(_) => Err("the probe decode failed"),
+                }
+            },
+        );
+        match checked {
+            Ok(decoder) => GpuMaterial { tile_decoder: Some(decoder), ..gm },
+            Err(reason) => {
+                log::warn!(
+                    "nmat-wgpu: the {} kernel's tile entry is not used (tiles decode one texel \
+                     per invocation): {reason}",
+                    gm.kernel.name()
+                );
+                gm
+            }
+        }
+    }
+
+    /// The pipeline of a kernel's tile entry, built once per material shape (keyed apart from
+    /// the kernel's own pipeline: same source, another entry); `None` where the device refuses
+    /// it. Broken on purpose after [`Context::break_tile_decoders_for_testing`].
+    fn tile_pipeline(
+        &self,
+        device: &wgpu::Device,
+        entry: &TileEntry,
+    ) -> Option<Arc<wgpu::ComputePipeline>> {
+        let mut source = entry.source.clone();
+        if self.tile_fault.load(Ordering::Relaxed) {
+            // Every word a tile entry stores gets its lowest bit flipped (cache_tile.wgsl).
+            source =
+                source.replace("out_codes[first + w] = word;", "out_codes[first + w] = word ^ 1u;");
+        }
+        let key = format!("{source}// {}\n", entry.entry);
         let mut cache = self.tiled.lock().unwrap_or_else(|e| e.into_inner());
         let pipeline = cache.entry(key).or_insert_with_key(|key| {
-            try_pipeline(device, key, "tiled_cache", Some(&self.pipeline_layout))
-                .map(std::sync::Arc::new)
+            try_pipeline(device, key, entry.entry, Some(&self.pipeline_layout)).map(Arc::new)
         });
-        pipeline.as_deref().cloned()
+        pipeline.clone()
+    }
+
+    /// Whether `decoder` decodes [`probe_tiles`] of `m` (uploaded as `gm`) as the CPU does:
+    /// every texel and channel of each tile into its own slot of a fresh buffer, through a queue
+    /// laid out as the cache's, then read back (waits for the device).
+    fn probe_tile_decoder(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        m: &Material<'_>,
+        gm: &GpuMaterial,
+        decoder: &TileDecoder,
+    ) -> Result<bool, GpuError> {
+        let tiles = probe_tiles(m);
+        let n = m.channel_count() as u32;
+        let row_words = TILE_SIZE * TILE_SIZE * n / 4;
+        let mut words = vec![0u32; QueueHead::WORDS];
+        layout::write(&mut words, 0, &QueueHead { count: tiles.len() as u32, pad: [0; 3] });
+        for (slot, key) in tiles.iter().enumerate() {
+            let key = u32::from(key.mip) << 26 | u32::from(key.y) << 13 | u32::from(key.x);
+            words.extend_from_slice(QueueEntry { slot: slot as u32, key }.words());
+        }
+        let requests = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("nmat tile probe queue"),
+            contents: &words_to_bytes(&words),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let out = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("nmat tile probe codes"),
+            size: 4 * u64::from(row_words) * tiles.len() as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let params = Params {
+            mode: 2,
+            channel_mask: (1 << n) - 1,
+            out_channels: n,
+            row_words,
+            in_offset: 0,
+            ..Params::default()
+        };
+        let bind = self.bind(device, Some(gm), Some(&requests), &out, &params);
+        let mut encoder = device.create_command_encoder(&Default::default());
+        let groups = u64::from(decoder.per_tile) * tiles.len() as u64;
+        dispatch(&mut encoder, &decoder.pipeline, &bind, groups);
+        queue.submit([encoder.finish()]);
+        let got = read_buffer(device, queue, &out)?;
+        let want: Vec<u8> = tiles.iter().flat_map(|&key| cpu_tile_codes(m, key)).collect();
+        Ok(got == want)
+    }
+
+    /// Makes the tile entries of the materials uploaded from now on store wrong codes, so that
+    /// a test can see their probe reject them ([`GpuMaterial::tile_kernel`]). For tests only.
+    #[doc(hidden)]
+    pub fn break_tile_decoders_for_testing(&self) {
+        self.tile_fault.store(true, Ordering::Relaxed);
     }
 
     /// The neural decode of new tiles (cache_decode.wgsl), in the decode kernels' layout.
@@ -571,6 +668,65 @@ impl Context {
             },
         )
     }
+}
+
+/// The entry of a tiled or matrix kernel's source that decodes the tile cache's new tiles
+/// (cache_tile.wgsl): tiled.wgsl's `tiled_cache` or matrix.wgsl's `matrix_cache`.
+pub(crate) struct TileEntry {
+    pub source: String,
+    pub entry: &'static str,
+    /// Workgroups per tile: 4 (`tiled_cache`) or 1 (`matrix_cache`).
+    pub per_tile: u32,
+}
+
+/// A material's tile entry, built and checked against the CPU at upload.
+#[derive(Clone)]
+pub(crate) struct TileDecoder {
+    pipeline: Arc<wgpu::ComputePipeline>,
+    per_tile: u32,
+}
+
+/// The most tiles [`Context::upload`] decodes through a kernel's tile entry before the tile
+/// cache uses it.
+const PROBE_TILES: usize = 8;
+
+/// The tiles a tile entry decodes before it is used: the first and the last tile of mip 0 and
+/// the last tile of mips spread over the chain (edge tiles where a mip is not a multiple of 16,
+/// and the 1 × 1 mip), [`PROBE_TILES`] at most.
+fn probe_tiles(m: &Material<'_>) -> Vec<TileKey> {
+    let mips = m.mip_count();
+    let spread = (PROBE_TILES - 1) as u32;
+    let mut keys = vec![TileKey { material: 0, mip: 0, x: 0, y: 0 }];
+    for k in 0..spread.min(mips) {
+        let mip = if mips <= spread { k } else { k * (mips - 1) / (spread - 1) };
+        let (w, h) = m.mip_size(mip);
+        let (x, y) = ((w - 1) / TILE_SIZE, (h - 1) / TILE_SIZE);
+        let key = TileKey { material: 0, mip: mip as u8, x: x as u16, y: y as u16 };
+        if !keys.contains(&key) {
+            keys.push(key);
+        }
+    }
+    keys
+}
+
+/// The CPU's codes of tile `key` of `m`: 16 × 16 texels, every channel, 0 past the mip's edge
+/// (a slot of the cache).
+fn cpu_tile_codes(m: &Material<'_>, key: TileKey) -> Vec<u8> {
+    let n = m.channel_count();
+    let mip = u32::from(key.mip);
+    let (w, h) = m.mip_size(mip);
+    let mut out = vec![0u8; (TILE_SIZE * TILE_SIZE) as usize * n];
+    for (t, texel) in out.chunks_exact_mut(n).enumerate() {
+        let t = t as u32;
+        let x = u32::from(key.x) * TILE_SIZE + t % TILE_SIZE;
+        let y = u32::from(key.y) * TILE_SIZE + t / TILE_SIZE;
+        if x < w && y < h {
+            // A texel inside the mip always decodes; a failure leaves zeros, which the probe
+            // then finds unequal unless the GPU wrote zeros too.
+            let _ = m.decode_texel_u8(i64::from(x), i64::from(y), mip, ChannelMask::ALL, texel);
+        }
+    }
+    out
 }
 
 /// A bind group of cache.wgsl's (or cache_resolve.wgsl's) layout.

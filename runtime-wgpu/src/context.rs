@@ -8,6 +8,7 @@ use crate::upload::NetworkPipeline;
 use crate::{GpuError, GpuMaterial, Kernel, jpeg};
 use nmat_core::ChannelMask;
 use std::collections::HashMap;
+use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex};
 
 /// The cached pipelines (decode, BC transcode, BC encode of given pixels). Create one per device.
@@ -37,6 +38,8 @@ pub struct Context {
     pub(crate) choices: Mutex<HashMap<String, Kernel>>,
     /// A kernel made to compute wrong codes ([`Context::break_kernel_for_testing`]).
     pub(crate) fault: Mutex<Option<Kernel>>,
+    /// Tile entries made to store wrong codes ([`Context::break_tile_decoders_for_testing`]).
+    pub(crate) tile_fault: AtomicBool,
     /// The JPEG request passes' work buffer and its shape, shared by every JPEG material's calls
     /// (replaced by a larger one when a material needs more; jpeg.rs, `WorkShape`).
     pub(crate) jpeg_work: Mutex<Option<(wgpu::Buffer, jpeg::WorkShape)>>,
@@ -115,6 +118,7 @@ impl Context {
             jpeg: Mutex::default(),
             choices: Mutex::default(),
             fault: Mutex::default(),
+            tile_fault: AtomicBool::new(false),
             jpeg_work: Mutex::default(),
             jpeg_scratch: Mutex::default(),
         }

@@ -523,6 +523,12 @@ pub(crate) fn cache_state_wgsl() -> String {
     .concat()
 }
 
+/// The tile cache's decode queue as the tiled and matrix kernels' cache entries read it
+/// (cache_tile.wgsl, with the queue's generated declarations).
+pub(crate) fn cache_tile_wgsl() -> String {
+    cache_state_wgsl() + include_str!("shaders/cache_tile.wgsl")
+}
+
 /// `T` as a WGSL `struct` named `name`, every field a `u32` (arrays become `name_k` fields: a
 /// uniform block's arrays would take 16 bytes per element in WGSL).
 pub(crate) fn wgsl_struct<T: ShaderLayout>(name: &str) -> String {
@@ -632,13 +638,19 @@ mod tests {
         ("bc.wgsl", include_str!("shaders/bc.wgsl")),
         ("cache.wgsl", include_str!("shaders/cache.wgsl")),
         ("cache_decode.wgsl", include_str!("shaders/cache_decode.wgsl")),
+        ("cache_lookup.wgsl", include_str!("shaders/cache_lookup.wgsl")),
+        ("cache_resolve.wgsl", include_str!("shaders/cache_resolve.wgsl")),
         ("cache_sample.wgsl", include_str!("shaders/cache_sample.wgsl")),
+        ("cache_tile.wgsl", include_str!("shaders/cache_tile.wgsl")),
         ("decode.wgsl", include_str!("shaders/decode.wgsl")),
         ("filter.wgsl", include_str!("shaders/filter.wgsl")),
         ("jpeg.wgsl", include_str!("shaders/jpeg.wgsl")),
         ("matrix.wgsl", include_str!("shaders/matrix.wgsl")),
+        ("probe.wgsl", include_str!("shaders/probe.wgsl")),
+        ("probe_dot4.wgsl", include_str!("shaders/probe_dot4.wgsl")),
         ("requant.wgsl", include_str!("shaders/requant.wgsl")),
         ("sample.wgsl", include_str!("shaders/sample.wgsl")),
+        ("store.wgsl", include_str!("shaders/store.wgsl")),
         ("texel.wgsl", include_str!("shaders/texel.wgsl")),
         ("tiled.wgsl", include_str!("shaders/tiled.wgsl")),
         ("tiled_dot4.wgsl", include_str!("shaders/tiled_dot4.wgsl")),

@@ -134,6 +134,12 @@ impl Shape {
         self.batch() * self.batches
     }
 
+    /// Whether the source's `matrix_cache` entry can decode the tile cache's tiles: a batch
+    /// divides a tile's 256 texels.
+    pub fn decodes_tiles(&self) -> bool {
+        256 % self.batch() == 0
+    }
+
     /// The WGSL of the pipeline (entry point `matrix`); only `part` of the work where it is not
     /// [`Part::Whole`] (for timing: the codes are then wrong).
     pub fn source_part(&self, part: Part) -> String {
@@ -157,7 +163,7 @@ impl Shape {
              const WMAX: u32 = {}u;\nconst CH: u32 = {}u;\nconst WTOTAL: u32 = {}u;\n\
              const PART: u32 = {}u;\n{}\
              fn stage_weights(lid: u32) {{\n{stage}    workgroupBarrier();\n}}\n\
-             fn layers(lane: u32, warp: u32) {{\n{layers}}}\n{}\n{}\n{}\n{}",
+             fn layers(lane: u32, warp: u32) {{\n{layers}}}\n{}\n{}\n{}\n{}\n{}",
             self.batch(),
             self.warps,
             self.blocks,
@@ -174,6 +180,7 @@ impl Shape {
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),
             include_str!("shaders/matrix.wgsl"),
+            crate::layout::cache_tile_wgsl(),
         )
     }
 
@@ -299,6 +306,14 @@ mod tests {
             }
             let source = shape.source_part(Part::Whole);
             let spirv = compile(&source).unwrap_or_else(|e| panic!("{}: {e}", cfg.name));
+            // The tile cache's entry is in the module naga validated.
+            assert!(shape.decodes_tiles(), "{}", cfg.name);
+            let module = naga::front::wgsl::parse_str(&source).unwrap();
+            let entries: Vec<&str> = module.entry_points.iter().map(|e| e.name.as_str()).collect();
+            assert!(
+                entries.contains(&"matrix") && entries.contains(&"matrix_cache"),
+                "{entries:?}"
+            );
             // OpCooperativeMatrixMulAddKHR (4459) and OpCooperativeMatrixLoadKHR (4457).
             let has = |op: u32| spirv.iter().any(|&w| w & 0xFFFF == op && w >> 16 >= 4);
             assert!(has(4459) && has(4457), "{}: no cooperative matrix instructions", cfg.name);

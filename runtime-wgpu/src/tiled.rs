@@ -120,7 +120,7 @@ impl Shape {
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),
             include_str!("shaders/tiled.wgsl"),
-        ) + &crate::layout::cache_state_wgsl()
+        ) + &crate::layout::cache_tile_wgsl()
     }
 }
 

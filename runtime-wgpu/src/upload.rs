@@ -2,6 +2,7 @@
 //! material, and the fastest of the exact kernels picked by measurement (docs/GPU.md, "The
 //! kernels, and how `upload` picks one").
 
+use crate::cache::{TileDecoder, TileEntry};
 use crate::gpu::try_pipeline;
 use crate::layout::words_to_bytes;
 use crate::layout::{
@@ -23,8 +24,11 @@ impl Context {
     /// by measurement (a region decoded through each, timed once per network shape and
     /// `Context`; on a software adapter, which the measuring would cost seconds, the first in
     /// [`Kernel::ALL`] from its end). A kernel whose probe differs is logged (`log::warn!`) and
-    /// listed by [`GpuMaterial::rejected`]. Pipelines are shared by materials of the same network
-    /// shape. Waits for the probe decodes (a few milliseconds on a GPU).
+    /// listed by [`GpuMaterial::rejected`]. The chosen kernel's tile entry (the tile cache's
+    /// decode of new tiles) is probed too, on a few whole tiles; where it differs the tiles
+    /// decode one texel per invocation ([`GpuMaterial::tile_kernel`], logged). Pipelines are
+    /// shared by materials of the same network shape. Waits for the probe decodes (a few
+    /// milliseconds on a GPU).
     pub fn upload(
         &self,
         device: &wgpu::Device,
@@ -67,8 +71,8 @@ impl Context {
         let probe = Probe::new(m);
         let mut rejected = Vec::new();
         // `kernel`, prepared and checked against the CPU on the probe.
-        let mut exact = |kernel: Kernel| -> Result<GpuMaterial, &'static str> {
-            let (tiled, cache_source) = self.prepare(device, (m, n), kernel)?;
+        let mut exact = |kernel: Kernel| -> Result<(GpuMaterial, Option<TileEntry>), &'static str> {
+            let (tiled, tile_entry) = self.prepare(device, (m, n), kernel)?;
             let mut desc = desc.clone();
             if kernel != Kernel::Reference {
                 tiled::append_tables(&mut desc, n, kernel == Kernel::Dot4);
@@ -78,13 +82,10 @@ impl Context {
             }
             let desc = storage_init(device, "nmat desc", &desc);
             let body = GpuBody::Neural(tiled);
-            let gm = GpuMaterial {
-                cache_source,
-                ..GpuMaterial::new(m, desc, latents.clone(), kernel, body)
-            };
+            let gm = GpuMaterial::new(m, desc, latents.clone(), kernel, body);
             let codes = self.decode_requests(device, queue, &gm, &probe.requests, ChannelMask::ALL);
             match codes {
-                Ok(codes) if codes == probe.codes => Ok(gm),
+                Ok(codes) if codes == probe.codes => Ok((gm, tile_entry)),
                 Ok(_) => {
                     let reason = "its codes on the probe differ from the CPU's";
                     log::warn!("nmat-wgpu: the {} kernel is not used: {reason}", kernel.name());
@@ -95,7 +96,9 @@ impl Context {
             }
         };
         if let Some(kernel) = kernel {
-            return exact(kernel).map_err(|reason| GpuError::Kernel { kernel, reason });
+            let (gm, entry) =
+                exact(kernel).map_err(|reason| GpuError::Kernel { kernel, reason })?;
+            return Ok(self.with_tile_decoder(device, queue, m, gm, entry));
         }
         let software = device.adapter_info().device_type == wgpu::DeviceType::Cpu;
         let key = shape_key(m, n);
@@ -106,8 +109,8 @@ impl Context {
             known.into_iter().chain(Kernel::ALL.into_iter().rev().filter(|&k| Some(k) != known));
         let mut candidates = Vec::new();
         for kernel in order {
-            if let Ok(gm) = exact(kernel) {
-                candidates.push(gm);
+            if let Ok(candidate) = exact(kernel) {
+                candidates.push(candidate);
                 if software || known.is_some() {
                     break;
                 }
@@ -117,10 +120,10 @@ impl Context {
             let out = timing_buffer(device, m);
             // The better of two timings each: a device's first submissions can read slow.
             let time = |gm| self.time_region(device, queue, gm, &out).unwrap_or(f64::INFINITY);
-            let times: Vec<f64> = candidates.iter().map(|gm| time(gm).min(time(gm))).collect();
+            let times: Vec<f64> = candidates.iter().map(|(gm, _)| time(gm).min(time(gm))).collect();
             let best =
                 (0..candidates.len()).min_by(|&a, &b| times[a].total_cmp(&times[b])).unwrap_or(0);
-            let kernel = candidates[best].kernel;
+            let kernel = candidates[best].0.kernel;
             self.choices.lock().unwrap_or_else(|e| e.into_inner()).insert(key, kernel);
             candidates.swap_remove(best)
         } else {
@@ -129,7 +132,8 @@ impl Context {
                 reason: "no kernel's codes on the probe equal the CPU's",
             })?
         };
-        Ok(GpuMaterial { rejected, ..chosen })
+        let (gm, entry) = chosen;
+        Ok(self.with_tile_decoder(device, queue, m, GpuMaterial { rejected, ..gm }, entry))
     }
 
     /// Seconds per texel of a region of mip 0 (up to 1024 × 1024 texels, repeated to at least
@@ -178,14 +182,14 @@ impl Context {
     }
 
     /// The tiled or matrix pipeline of `kernel` for `m` and its texels per workgroup (`None`:
-    /// the reference kernel), and for a tiled kernel its source (the tile cache decodes
-    /// through its `tiled_cache` entry); or why the device cannot run it.
+    /// the reference kernel), and the entry of its source that can decode the tile cache's new
+    /// tiles; or why the device cannot run it.
     fn prepare(
         &self,
         device: &wgpu::Device,
         m: (&Material<'_>, &Neural<'_>),
         kernel: Kernel,
-    ) -> Result<(NetworkPipeline, Option<String>), &'static str> {
+    ) -> Result<(NetworkPipeline, Option<TileEntry>), &'static str> {
         self.prepare_part(device, m, kernel, measure::Part::Whole)
     }
 
@@ -196,20 +200,26 @@ impl Context {
         (m, n): (&Material<'_>, &Neural<'_>),
         kernel: Kernel,
         part: measure::Part,
-    ) -> Result<(NetworkPipeline, Option<String>), &'static str> {
-        let (source, entry, texels) = match kernel {
+    ) -> Result<(NetworkPipeline, Option<TileEntry>), &'static str> {
+        // The entry point, texels per workgroup and the tile cache's entry (with its workgroups
+        // per tile) where the source has one.
+        let (source, entry, texels, tiles) = match kernel {
             Kernel::Reference => return Ok((None, None)),
             Kernel::Matrix => {
                 let shape = matrix::Shape::new((m, n), device)?;
-                (shape.source_part(part), "matrix", shape.texels())
+                let tiles = shape.decodes_tiles().then_some(("matrix_cache", 1));
+                (shape.source_part(part), "matrix", shape.texels(), tiles)
             }
             Kernel::Dot4 | Kernel::Int32 => {
                 let bytes = device.limits().max_compute_workgroup_storage_size;
                 let shape = tiled::Shape::new((m, n), kernel, bytes)
                     .ok_or("the network is too wide for the device's workgroup memory")?;
-                (shape.source_part(kernel, part), "tiled", shape.texels)
+                (shape.source_part(kernel, part), "tiled", shape.texels, Some(("tiled_cache", 4)))
             }
         };
+        let tiles = tiles.filter(|_| part == measure::Part::Whole);
+        let tile_entry =
+            tiles.map(|(entry, per_tile)| TileEntry { source: source.clone(), entry, per_tile });
         let mut cache = self.tiled.lock().unwrap_or_else(|e| e.into_inner());
         let pipeline = cache.entry(source.clone()).or_insert_with_key(|source| {
             try_pipeline(device, source, entry, Some(&self.pipeline_layout)).map(Arc::new)
@@ -219,8 +229,7 @@ impl Context {
             _ => "the device refused the shader",
         };
         let pipeline = pipeline.clone().ok_or(refused)?;
-        let tiled = matches!(kernel, Kernel::Dot4 | Kernel::Int32) && part == measure::Part::Whole;
-        Ok((Some((pipeline, texels)), tiled.then_some(source)))
+        Ok((Some((pipeline, texels)), tile_entry))
     }
 
     /// Makes `kernel`'s uploads compute wrong codes (the last layer's first row requantized to
@@ -476,7 +485,7 @@ impl GpuMaterial {
             kernel,
             rejected: Vec::new(),
             body,
-            cache_source: None,
+            tile_decoder: None,
         }
     }
 }
@@ -499,9 +508,9 @@ pub struct GpuMaterial {
     /// Kernels whose codes on the upload's probe differed from the CPU's, and why.
     pub(crate) rejected: Vec<(Kernel, &'static str)>,
     pub(crate) body: GpuBody,
-    /// The source of a tiled kernel's pipeline (tiled.wgsl for this material's shape), whose
-    /// `tiled_cache` entry decodes the tile cache's new tiles; `None` for the other kernels.
-    pub(crate) cache_source: Option<String>,
+    /// The entry of its kernel that decodes the tile cache's new tiles, checked against the CPU
+    /// at upload; `None`: one texel per invocation (cache_decode.wgsl, or JPEG's MCU kernel).
+    pub(crate) tile_decoder: Option<TileDecoder>,
 }
 
 /// The tiled or matrix kernel's pipeline and texels per workgroup (`None`: the reference
@@ -523,6 +532,13 @@ impl GpuMaterial {
     /// The kernel that decodes this material's regions and requests.
     pub fn kernel(&self) -> Kernel {
         self.kernel
+    }
+    /// The kernel that decodes this material's new tiles in a [`crate::GpuTileCache`]: its own
+    /// tiled or matrix kernel, through that kernel's tile entry, where the entry decoded the
+    /// upload's probe tiles as the CPU does ([`Context::upload`]); else [`Kernel::Reference`]
+    /// (one texel per invocation; also for JPEG materials, whose tiles the JPEG kernel decodes).
+    pub fn tile_kernel(&self) -> Kernel {
+        if self.tile_decoder.is_some() { self.kernel } else { Kernel::Reference }
     }
     /// The kernels [`Context::upload`] did not use because their codes on its probe differed
     /// from the CPU's (a driver that computes differently), with the reason; usually empty.

@@ -418,6 +418,13 @@ fn new_tiles_decode_alike_through_every_kernel() {
             eprintln!("{} kernel not tested here", kernel.name());
             continue;
         }
+        for (gm, m) in gpus.iter().zip(&materials) {
+            // A tiled or matrix kernel decodes the tiles through its own tile entry (its probe
+            // tiles passed); the reference kernel and JPEG one texel per invocation.
+            let own = m.codec() == nmat_core::Codec::Neural && kernel != Kernel::Reference;
+            let want = if own { kernel } else { Kernel::Reference };
+            assert_eq!(gm.tile_kernel(), want, "{kernel:?}");
+        }
         let gpu_refs: Vec<_> = gpus.iter().collect();
         let cache = ctx.create_tile_cache(&device, &gpu_refs, 512).unwrap();
         let mut cpu = TileCache::with_capacity(&refs, 512).unwrap();
@@ -427,6 +434,32 @@ fn new_tiles_decode_alike_through_every_kernel() {
         assert!(cpu_stats.decoded > 0);
         assert_tiles(&device, &queue, &cache, &materials, &keys);
     }
+}
+
+/// A kernel's tile entry that stores wrong codes (broken on purpose: every word's lowest bit
+/// flipped) fails its probe tiles at upload: the material keeps its kernel for regions and
+/// requests, its tiles decode one texel per invocation, and the cache's tiles are the CPU's.
+#[test]
+fn a_tile_entry_that_decodes_wrong_is_not_used() {
+    let (device, queue) = device();
+    let ctx = Context::new(&device);
+    ctx.break_tile_decoders_for_testing();
+    let bytes = fixture_bytes();
+    let materials = parse(&bytes);
+    let refs: Vec<&Material<'_>> = materials.iter().collect();
+    let (gpus, cache) = gpu_cache(&ctx, (&device, &queue), &materials, 512);
+    for (gm, m) in gpus.iter().zip(&materials) {
+        if m.codec() == nmat_core::Codec::Neural {
+            assert_ne!(gm.kernel(), Kernel::Reference, "upload picks a tiled or matrix kernel");
+        }
+        assert_eq!(gm.tile_kernel(), Kernel::Reference);
+    }
+    let mut cpu = TileCache::with_capacity(&refs, 512).unwrap();
+    let frame = lookups(&materials, 8, 300);
+    let (cpu_stats, keys, _) = cpu_frame(&mut cpu, &frame);
+    let (gpu_stats, _) = gpu_frame(&device, &queue, &cache, &frame);
+    assert_eq!(gpu_stats, cpu_stats);
+    assert_tiles(&device, &queue, &cache, &materials, &keys);
 }
 
 /// A frame of a few trilinear lookups, so that each tile is marked by one lookup's taps alone (in

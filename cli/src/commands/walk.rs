@@ -172,10 +172,11 @@ fn gpu_walk(
 ) -> Result<()> {
     let walk = crate::gpu::walk(opts, materials, mips)?;
     println!(
-        "| | GPU: {}{}, {} | | | | | | | | | | | | |",
+        "| | GPU: {}{}, {}; tiles decoded by: {} | | | | | | | | | | | | |",
         walk.adapter,
         if walk.software { ", a software rasterizer on the CPU: not a GPU's numbers" } else { "" },
-        walk.clock
+        walk.clock,
+        walk.tile_kernels.join(", ")
     );
     report(csv, &walk.rows, mips, "GPU", whole)
 }

@@ -40,5 +40,7 @@ pub struct Walk {
     /// A software rasterizer on the CPU (lavapipe): not a GPU's numbers.
     pub software: bool,
     pub clock: &'static str,
+    /// Per material, the kernel that decodes its new tiles (`GpuMaterial::tile_kernel`).
+    pub tile_kernels: Vec<&'static str>,
     pub rows: Vec<Row>,
 }

@@ -154,6 +154,13 @@ pub fn walk(opts: &Options, materials: &[Material<'_>], mips: bool) -> Result<Wa
         adapter: format!("{} ({:?})", info.name, info.backend),
         software: info.device_type == nmat_wgpu::DeviceType::Cpu,
         clock: clock.name(),
+        tile_kernels: gpus
+            .iter()
+            .map(|g| match g.codec() {
+                nmat_core::Codec::Jpeg => "JPEG",
+                nmat_core::Codec::Neural => g.tile_kernel().name(),
+            })
+            .collect(),
         rows,
     })
 }

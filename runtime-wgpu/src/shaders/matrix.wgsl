@@ -23,7 +23,8 @@
 // `stage` per layer and `fn layers(lane, warp)` (`features_sink` instead in a pipeline timing the
 // features): per layer its products with the block
 // counts and offsets as literals (the accumulators of all its row blocks live in registers),
-// calling `finish` per row block. Then texel.wgsl, decode.wgsl, requant.wgsl and this file.
+// calling `finish` per row block. Then texel.wgsl, decode.wgsl, requant.wgsl, this file and
+// cache_tile.wgsl.
 // Weights and row tables are the tiled kernels' (tiled.wgsl), the bias without the dot4
 // kernel's 128 · Σ w.
 
@@ -131,6 +132,11 @@ fn features(t: u32, index: u32, inputs: u32) {
         let texel = texel_of(index);
         nmat_features(texel.x, texel.y, bitcast<u32>(texel.z));
     }
+    put_features(t, inputs);
+}
+
+// nmat_act_a[0..inputs) into activation column `t`, zeros up to WMAX.
+fn put_features(t: u32, inputs: u32) {
     for (var k = 0u; k < WMAX; k++) {
         put_activation(k, t, select(0, nmat_act_a[min(k, 127u)], k < inputs));
     }
@@ -188,6 +194,44 @@ fn matrix(
             }
             out_codes[params.out_offset + first / 4u * n + w] = word;
         }
+        workgroupBarrier();
+    }
+}
+
+// The tile cache's decode of a material's new tiles through this kernel (cache.rs; `params.mode`
+// 2; the queue, the tiles and their slots as cache_tile.wgsl reads and writes them): one
+// workgroup per tile, which stages the weights once and takes the tile's 256 texels in batches of
+// P (matrix.rs builds this entry only where P divides 256). Bit-identical with
+// cache_decode.wgsl, which decodes one texel per invocation: a texel outside an edge tile's mip
+// leaves its activation column as it was (finite values: each texel's column meets only its own
+// products) and its codes are not written.
+@compute @workgroup_size(SG * NW)
+fn matrix_cache(
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(subgroup_id) warp: u32,
+    @builtin(subgroup_invocation_id) lane: u32,
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+) {
+    let g = wg.x + wg.y * groups.x;
+    if (g >= nmat_queued_count()) {
+        return;
+    }
+    stage_weights(lid);
+    let tile = nmat_queued_tile(g);
+    let inputs = nmat_desc[nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_INPUTS];
+    for (var b = 0u; b < 256u / P; b++) {
+        let t0 = b * P;
+        for (var t = lid; t < P; t += SG * NW) {
+            if (nmat_tile_has(tile, t0 + t)) {
+                let xy = nmat_tile_texel(tile, t0 + t);
+                nmat_features(i32(xy.x), i32(xy.y), tile.mip);
+                put_features(t, inputs);
+            }
+        }
+        workgroupBarrier();
+        layers(lane, warp);
+        nmat_store_batch(tile, t0, lid, SG * NW);
         workgroupBarrier();
     }
 }

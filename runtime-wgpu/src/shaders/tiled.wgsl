@@ -12,7 +12,7 @@
 // as literals, a barrier after each (`features_sink` instead in a pipeline timing the
 // features). Then texel.wgsl (the decoder, `nmat_features`), decode.wgsl (bindings), one of
 // tiled_i32.wgsl / tiled_dot4.wgsl (where activations live and how a tile's products are
-// formed), requant.wgsl (`requant_with`), then this file.
+// formed), requant.wgsl (`requant_with`), this file, then cache_tile.wgsl.
 //
 // Per layer (its record's NMAT_LAYER_PACKED_AT) its packed weights in `nmat_desc`: rows padded
 // to a multiple of 4 rows and 4 columns, 4 int8 weights per word (column 4j + b in byte b of
@@ -126,12 +126,9 @@ fn tiled(
 }
 
 // The tile cache's decode of a material's new tiles through this kernel (cache.rs; `params.mode`
-// 2, as the JPEG kernel's): the material's decode queue from word `params.in_offset` of
-// `requests` (the cache's state; its entries as cache.wgsl lays them out), four workgroups per
-// tile, each 64 texels of it (rows 4k … 4k + 3 of the 16 × 16 tile) in batches of P; the codes of
-// every channel (`params.channel_mask` all of them) written as whole words into the tile's slot
-// of `out_codes` (`params.row_words` words a slot), 0 for the texels of an edge tile outside
-// its mip. Bit-identical with cache_decode.wgsl, which decodes one texel per invocation.
+// 2; the queue, the tiles and their slots as cache_tile.wgsl reads and writes them): four
+// workgroups per tile, each 64 texels of it (rows 4k … 4k + 3 of the 16 × 16 tile) in batches of
+// P. Bit-identical with cache_decode.wgsl, which decodes one texel per invocation.
 @compute @workgroup_size(64)
 fn tiled_cache(
     @builtin(local_invocation_index) lid: u32,
@@ -139,45 +136,24 @@ fn tiled_cache(
     @builtin(num_workgroups) groups: vec3<u32>,
 ) {
     let g = wg.x + wg.y * groups.x;
-    let q = params.in_offset;
-    if (g / 4u >= bitcast<u32>(requests[q + NMAT_CACHE_QUEUE_COUNT])) {
+    if (g / 4u >= nmat_queued_count()) {
         return;
     }
-    let entry = q + NMAT_CACHE_QUEUE_WORDS + NMAT_CACHE_ENTRY_WORDS * (g / 4u);
-    let slot = bitcast<u32>(requests[entry + NMAT_CACHE_ENTRY_SLOT]);
-    let tile = bitcast<u32>(requests[entry + NMAT_CACHE_ENTRY_KEY]);
-    let mip = tile >> 26u;
-    let x0 = 16u * (tile & 0x1FFFu);
-    let y0 = 16u * ((tile >> 13u) & 0x1FFFu);
-    let full = vec2<u32>(nmat_desc[NMAT_DESC_WIDTH], nmat_desc[NMAT_DESC_HEIGHT]);
-    let size = max(full >> vec2<u32>(mip), vec2<u32>(1u));
+    let tile = nmat_queued_tile(g / 4u);
     let inputs = nmat_desc[nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_INPUTS];
-    let n = params.out_channels;
     for (var b = 0u; b < 64u / P; b++) {
-        // The batch's first texel in the tile (row-major, 16 a row).
+        // The batch's first texel in the tile.
         let t0 = 64u * (g % 4u) + b * P;
         for (var t = lid; t < P; t += 64u) {
-            let x = x0 + (t0 + t) % 16u;
-            let y = y0 + (t0 + t) / 16u;
-            if (x < size.x && y < size.y) {
-                nmat_features(i32(x), i32(y), mip);
+            if (nmat_tile_has(tile, t0 + t)) {
+                let xy = nmat_tile_texel(tile, t0 + t);
+                nmat_features(i32(xy.x), i32(xy.y), tile.mip);
                 put_features(t, inputs);
             }
         }
         workgroupBarrier();
         layers(lid);
-        // P · n bytes: a whole number of words (P is a multiple of 4), starting on one.
-        let first = slot * params.row_words + t0 * n / 4u;
-        for (var w = lid; w < P * n / 4u; w += 64u) {
-            var word = 0u;
-            for (var k = 0u; k < 4u; k++) {
-                let t = t0 + (4u * w + k) / n;
-                if (x0 + t % 16u < size.x && y0 + t / 16u < size.y) {
-                    word |= tile_codes[4u * w + k] << (8u * k);
-                }
-            }
-            out_codes[first + w] = word;
-        }
+        nmat_store_batch(tile, t0, lid, 64u);
         workgroupBarrier();
     }
 }

@@ -1,0 +1,62 @@
+// The tile cache's decode queue as the fast kernels' cache entries read it (tiled.wgsl's
+// `tiled_cache`, matrix.wgsl's `matrix_cache`; cache.rs, `params.mode` 2): the material's queue
+// from word `params.in_offset` of `requests` (the cache's state, laid out by cache.wgsl), and
+// each tile's codes, every channel (`params.out_channels` of them, texel then channel), into its
+// slot of `out_codes`, `params.row_words` words a slot. A batch is P texels of a tile (row-major,
+// 16 a row), P a multiple of 4 dividing 256, staged in the kernel's `tile_codes`.
+
+// A queued tile: its slot, its mip, its first texel and the mip's size.
+struct NmatQueuedTile {
+    slot: u32,
+    mip: u32,
+    origin: vec2<u32>,
+    size: vec2<u32>,
+}
+
+// Tiles in the material's queue.
+fn nmat_queued_count() -> u32 {
+    return bitcast<u32>(requests[params.in_offset + NMAT_CACHE_QUEUE_COUNT]);
+}
+
+// Tile `k` of the queue (k below `nmat_queued_count()`); its key is mip << 26 | row << 13 |
+// column.
+fn nmat_queued_tile(k: u32) -> NmatQueuedTile {
+    let entry = params.in_offset + NMAT_CACHE_QUEUE_WORDS + NMAT_CACHE_ENTRY_WORDS * k;
+    let key = bitcast<u32>(requests[entry + NMAT_CACHE_ENTRY_KEY]);
+    let mip = key >> 26u;
+    let full = vec2<u32>(nmat_desc[NMAT_DESC_WIDTH], nmat_desc[NMAT_DESC_HEIGHT]);
+    return NmatQueuedTile(
+        bitcast<u32>(requests[entry + NMAT_CACHE_ENTRY_SLOT]),
+        mip,
+        16u * vec2<u32>(key & 0x1FFFu, (key >> 13u) & 0x1FFFu),
+        max(full >> vec2<u32>(mip), vec2<u32>(1u)),
+    );
+}
+
+// Texel `i` of `tile` (0 … 255), in mip coordinates.
+fn nmat_tile_texel(tile: NmatQueuedTile, i: u32) -> vec2<u32> {
+    return tile.origin + vec2<u32>(i % 16u, i / 16u);
+}
+
+// Whether texel `i` of `tile` lies inside its mip (an edge tile's others are not decoded).
+fn nmat_tile_has(tile: NmatQueuedTile, i: u32) -> bool {
+    return all(nmat_tile_texel(tile, i) < tile.size);
+}
+
+// The codes of texels t0 … t0 + P − 1 of `tile` from `tile_codes` into its slot: P · n bytes, a
+// whole number of words starting on one, each written whole (0 for a texel outside the mip);
+// invocation `lid` of `invocations` writes every invocations-th word.
+fn nmat_store_batch(tile: NmatQueuedTile, t0: u32, lid: u32, invocations: u32) {
+    let n = params.out_channels;
+    let first = tile.slot * params.row_words + t0 * n / 4u;
+    for (var w = lid; w < P * n / 4u; w += invocations) {
+        var word = 0u;
+        for (var k = 0u; k < 4u; k++) {
+            let t = t0 + (4u * w + k) / n;
+            if (nmat_tile_has(tile, t)) {
+                word |= tile_codes[4u * w + k] << (8u * k);
+            }
+        }
+        out_codes[first + w] = word;
+    }
+}
