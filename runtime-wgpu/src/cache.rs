@@ -13,8 +13,8 @@ use nmat_core::{ChannelMask, Filter, FrameStats, Material, TILE_SIZE, TileKey};
 use wgpu::util::DeviceExt;
 
 use crate::gpu::{
-    check_output, check_requests, dispatch, read_back, read_buffer, spread, storage_entry,
-    try_pipeline, uniform_buffer, uniform_entry,
+    Bound, check_output, check_requests, dispatch, dispatch_bound, read_back, read_buffer, spread,
+    storage_entry, try_pipeline, uniform_buffer, uniform_entry,
 };
 use crate::jpeg::JpegMap;
 use crate::layout::{
@@ -115,10 +115,10 @@ struct CachedMaterial {
     first_page: Vec<u32>,
 }
 
-/// A decode dispatch of the frame: pipeline, bind group, and where its indirect arguments lie.
+/// A decode dispatch of the frame: pipeline, bindings, and where its indirect arguments lie.
 struct Decode {
     pipeline: wgpu::ComputePipeline,
-    bind: wgpu::BindGroup,
+    bound: Bound,
     args: u64,
 }
 
@@ -435,9 +435,8 @@ impl Context {
                         (neural.clone(), params.bytes(), 4)
                     }
                 };
-                let params = uniform(&params);
-                let bind = self.bind_with(device, Some(m), Some(&state), &codes, &params);
-                decodes.push(Decode { pipeline, bind, args: args(per_tile) });
+                let bound = self.bind_fixed(device, [&m.desc, &m.latents, &state, &codes], &params);
+                decodes.push(Decode { pipeline, bound, args: args(per_tile) });
                 continue;
             };
             let jpeg = self.jpeg_pipelines(device)?;
@@ -454,15 +453,10 @@ impl Context {
                     in_offset: queue_at,
                     ..JpegParams::default()
                 };
-                let bind = self.bind_with(
-                    device,
-                    Some(m),
-                    Some(&state),
-                    &codes,
-                    &uniform(&params.bytes()),
-                );
+                let buffers = [&m.desc, &m.latents, &state, &codes];
+                let bound = self.bind_fixed(device, buffers, &params.bytes());
                 let pipeline = jpeg.decode.clone();
-                decodes.push(Decode { pipeline, bind, args: args(columns * rows) });
+                decodes.push(Decode { pipeline, bound, args: args(columns * rows) });
             }
         }
         Ok(GpuTileCache {
@@ -593,9 +587,9 @@ impl Context {
         }
         let key = format!("{source}// {}\n", entry.entry);
         let mut cache = self.tiled.lock().unwrap_or_else(|e| e.into_inner());
-        let pipeline = cache.entry(key).or_insert_with_key(|key| {
-            try_pipeline(device, key, entry.entry, Some(&self.pipeline_layout)).map(Arc::new)
-        });
+        let pipeline = cache
+            .entry(key)
+            .or_insert_with_key(|key| self.pipeline(device, key, entry.entry).map(Arc::new));
         pipeline.clone()
     }
 
@@ -641,7 +635,7 @@ impl Context {
         let bind = self.bind(device, Some(gm), Some(&requests), &out, &params);
         let mut encoder = device.create_command_encoder(&Default::default());
         let groups = u64::from(decoder.per_tile) * tiles.len() as u64;
-        dispatch(&mut encoder, &decoder.pipeline, &bind, groups);
+        dispatch_bound(&mut encoder, &decoder.pipeline, &bind, groups);
         queue.submit([encoder.finish()]);
         let got = read_buffer(device, queue, &out)?;
         let want: Vec<u8> = tiles.iter().flat_map(|&key| cpu_tile_codes(m, key)).collect();
@@ -661,12 +655,10 @@ impl Context {
         device: &wgpu::Device,
     ) -> Result<wgpu::ComputePipeline, GpuError> {
         let source = decode_source();
-        try_pipeline(device, &source, "nmat_cache_decode", Some(&self.pipeline_layout)).ok_or(
-            GpuError::Kernel {
-                kernel: crate::Kernel::Reference,
-                reason: "the device refused the tile cache's decode shader",
-            },
-        )
+        self.pipeline(device, &source, "nmat_cache_decode").ok_or(GpuError::Kernel {
+            kernel: crate::Kernel::Reference,
+            reason: "the device refused the tile cache's decode shader",
+        })
     }
 }
 
@@ -834,7 +826,10 @@ impl GpuTileCache {
         pass.dispatch_workgroups_indirect(&self.args, offset_of!(CacheArgs, clear) as u64);
         for d in &self.decodes {
             pass.set_pipeline(&d.pipeline);
-            pass.set_bind_group(0, &d.bind, &[]);
+            pass.set_bind_group(0, &d.bound.group, &[]);
+            if let Some(bytes) = &d.bound.immediates {
+                pass.set_immediates(0, bytes);
+            }
             pass.dispatch_workgroups_indirect(&self.args, d.args);
         }
     }

@@ -1,14 +1,14 @@
 //! [`Context`]: a device's pipelines, pools and caches, and the bind group every decode,
 //! transcode and encode entry point of the main shader shares.
 
-use crate::gpu::{WORKGROUP, storage_entry, uniform_buffer, uniform_entry};
-use crate::layout::ShaderLayout;
+use crate::gpu::{Bound, WORKGROUP, storage_entry, try_pipeline, uniform_buffer, uniform_entry};
+use crate::layout::{JpegParams, ShaderLayout};
 use crate::submit::Pool;
 use crate::upload::NetworkPipeline;
 use crate::{GpuError, GpuMaterial, Kernel, jpeg};
 use nmat_core::ChannelMask;
 use std::collections::HashMap;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
 
 /// The cached pipelines (decode, BC transcode, BC encode of given pixels). Create one per device.
@@ -20,11 +20,22 @@ pub struct Context {
     pub(crate) encode: wgpu::ComputePipeline,
     pub(crate) layout: wgpu::BindGroupLayout,
     pub(crate) pipeline_layout: wgpu::PipelineLayout,
+    /// Whether dispatches take their parameters as immediates ([`immediates_usable`]) rather
+    /// than from a uniform buffer (binding 4) made per call.
+    pub(crate) immediates: bool,
+    /// With immediates: the bind groups of the last [`KEPT_BINDS`] distinct buffer sets, most
+    /// recent first, so that calls on the same buffers allocate nothing.
+    pub(crate) binds: Mutex<Vec<([wgpu::Buffer; 4], wgpu::BindGroup)>>,
+    /// Bind groups made for dispatches so far (a test reads it).
+    pub(crate) binds_made: AtomicU32,
     /// Tiled and matrix pipelines by source (one per kernel and material shape); `None` where
     /// the device refused the source.
     pub(crate) tiled: Mutex<HashMap<String, Option<Arc<wgpu::ComputePipeline>>>>,
     /// Store pipelines of `record_map_to_texture` by texture format.
     pub(crate) stores: Mutex<HashMap<wgpu::TextureFormat, Option<Arc<wgpu::ComputePipeline>>>>,
+    /// With immediates: the store pass's bind groups of recent targets (texture, mip level, the
+    /// codes buffer), most recent first.
+    pub(crate) store_binds: Mutex<Vec<StoreBind>>,
     /// The codes between the two passes of `record_map_to_texture`, shared by all its calls
     /// (replaced by a larger one when a call needs more).
     pub(crate) texture_codes: Mutex<Option<wgpu::Buffer>>,
@@ -48,6 +59,35 @@ pub struct Context {
     pub(crate) jpeg_scratch: Mutex<Option<u32>>,
 }
 
+/// A kept store bind group and what it binds: the target texture, its mip level, the codes.
+pub(crate) type StoreBind = ((wgpu::Texture, u32, wgpu::Buffer), wgpu::BindGroup);
+
+/// Bind groups a [`Context`] keeps (with immediates): a frame's worth of distinct buffer sets
+/// (materials, request lists, outputs).
+const KEPT_BINDS: usize = 16;
+
+/// Bytes of the largest parameter block a dispatch of the decode kernels' layout takes
+/// ([`JpegParams`]; `Params` and `CacheDecodeParams` are shorter).
+pub const IMMEDIATE_BYTES: u32 = 4 * JpegParams::WORDS as u32;
+
+/// Whether `device` takes the decode kernels' parameters as immediates: wgpu's `IMMEDIATES`
+/// enabled with room for [`IMMEDIATE_BYTES`] (Vulkan, Metal and DirectX 12 have them;
+/// `default_device` asks for them).
+pub fn immediates_usable(device: &wgpu::Device) -> bool {
+    device.features().contains(wgpu::Features::IMMEDIATES)
+        && device.limits().max_immediate_size >= IMMEDIATE_BYTES
+}
+
+/// `source` with its parameters (the uniform at binding 4) declared as immediates where
+/// `immediates`: the same struct, read the same way.
+pub(crate) fn with_parameters(source: &str, immediates: bool) -> String {
+    if immediates {
+        source.replace("@group(0) @binding(4) var<uniform> ", "var<immediate> ")
+    } else {
+        source.to_string()
+    }
+}
+
 /// The shader: BC1's single-colour table from the core, the decoder, the BC encoders.
 pub(crate) fn shader_source() -> String {
     let table: Vec<String> = (0..=255u8)
@@ -69,24 +109,28 @@ pub(crate) fn shader_source() -> String {
 
 impl Context {
     pub fn new(device: &wgpu::Device) -> Context {
+        let immediates = immediates_usable(device);
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("nmat decode"),
-            source: wgpu::ShaderSource::Wgsl(shader_source().into()),
+            source: wgpu::ShaderSource::Wgsl(with_parameters(&shader_source(), immediates).into()),
         });
+        let mut entries = vec![
+            storage_entry(0, true),
+            storage_entry(1, true),
+            storage_entry(2, true),
+            storage_entry(3, false),
+        ];
+        if !immediates {
+            entries.push(uniform_entry(4));
+        }
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("nmat decode"),
-            entries: &[
-                storage_entry(0, true),
-                storage_entry(1, true),
-                storage_entry(2, true),
-                storage_entry(3, false),
-                uniform_entry(4),
-            ],
+            entries: &entries,
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("nmat decode"),
             bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
+            immediate_size: if immediates { IMMEDIATE_BYTES } else { 0 },
         });
         let pipeline = |entry: &str| {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
@@ -110,8 +154,12 @@ impl Context {
             encode: pipeline("encode_pixels"),
             layout,
             pipeline_layout,
+            immediates,
+            binds: Mutex::default(),
+            binds_made: AtomicU32::new(0),
             tiled: Mutex::default(),
             stores: Mutex::default(),
+            store_binds: Mutex::default(),
             texture_codes: Mutex::default(),
             empty,
             pool: Pool::default(),
@@ -124,7 +172,8 @@ impl Context {
         }
     }
 
-    /// A bind group of the five bindings every entry point declares.
+    /// The bindings of a dispatch of the decode kernels' layout — the material's descriptor and
+    /// latents (or none), the requests (or none), the output — and its parameters.
     pub(crate) fn bind(
         &self,
         device: &wgpu::Device,
@@ -132,35 +181,72 @@ impl Context {
         requests: Option<&wgpu::Buffer>,
         out: &wgpu::Buffer,
         params: &impl ShaderLayout,
-    ) -> wgpu::BindGroup {
-        let uniform = uniform_buffer(device, &params.bytes());
-        self.bind_with(device, material, requests, out, &uniform)
-    }
-
-    /// A bind group of the five bindings, with the parameters in `uniform`.
-    pub(crate) fn bind_with(
-        &self,
-        device: &wgpu::Device,
-        material: Option<&GpuMaterial>,
-        requests: Option<&wgpu::Buffer>,
-        out: &wgpu::Buffer,
-        uniform: &wgpu::Buffer,
-    ) -> wgpu::BindGroup {
+    ) -> Bound {
         let (desc, latents) =
             material.map_or((&self.empty, &self.empty), |m| (&m.desc, &m.latents));
-        self.bind_buffers(device, [desc, latents, requests.unwrap_or(&self.empty), out], uniform)
+        let buffers = [desc, latents, requests.unwrap_or(&self.empty), out];
+        self.bind_buffers(device, buffers, &params.bytes())
     }
 
-    /// A bind group of the five bindings: four storage buffers, then the parameters.
+    /// The bindings of a dispatch: four storage buffers, and the parameters `bytes` — as
+    /// immediates with a bind group kept for the same buffers (nothing allocated), or where the
+    /// device has no immediates in a uniform buffer and a bind group made for this call.
     pub(crate) fn bind_buffers(
         &self,
         device: &wgpu::Device,
         buffers: [&wgpu::Buffer; 4],
-        uniform: &wgpu::Buffer,
+        bytes: &[u8],
+    ) -> Bound {
+        if !self.immediates {
+            return self.bind_fixed(device, buffers, bytes);
+        }
+        let mut binds = self.binds.lock().unwrap_or_else(|e| e.into_inner());
+        let at = binds.iter().position(|(kept, _)| kept.iter().zip(buffers).all(|(k, b)| k == b));
+        let group = match at {
+            Some(at) => {
+                let kept = binds.remove(at);
+                let group = kept.1.clone();
+                binds.insert(0, kept);
+                group
+            }
+            None => {
+                let group = self.make_group(device, buffers, None);
+                binds.insert(0, (buffers.map(Clone::clone), group.clone()));
+                binds.truncate(KEPT_BINDS);
+                group
+            }
+        };
+        Bound { group, immediates: Some(bytes.to_vec()) }
+    }
+
+    /// The bindings of dispatches whose caller keeps them (the tile cache's decodes): a bind
+    /// group made for them, with the parameters `bytes` as immediates or in a uniform buffer.
+    pub(crate) fn bind_fixed(
+        &self,
+        device: &wgpu::Device,
+        buffers: [&wgpu::Buffer; 4],
+        bytes: &[u8],
+    ) -> Bound {
+        if self.immediates {
+            let group = self.make_group(device, buffers, None);
+            return Bound { group, immediates: Some(bytes.to_vec()) };
+        }
+        let uniform = uniform_buffer(device, bytes);
+        Bound { group: self.make_group(device, buffers, Some(&uniform)), immediates: None }
+    }
+
+    /// A bind group of the decode kernels' layout: four storage buffers, and the uniform where
+    /// the layout has one.
+    pub(crate) fn make_group(
+        &self,
+        device: &wgpu::Device,
+        buffers: [&wgpu::Buffer; 4],
+        uniform: Option<&wgpu::Buffer>,
     ) -> wgpu::BindGroup {
+        self.binds_made.fetch_add(1, Ordering::Relaxed);
         let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
-            .iter()
-            .chain([&uniform])
+            .into_iter()
+            .chain(uniform)
             .enumerate()
             .map(|(binding, b)| wgpu::BindGroupEntry {
                 binding: binding as u32,
@@ -172,6 +258,39 @@ impl Context {
             layout: &self.layout,
             entries: &entries,
         })
+    }
+
+    /// The pipeline of `entry` in `source` (a shader of the decode kernels' layout, declaring its
+    /// parameters at binding 4) in this context's layout; `None` where the device refuses it.
+    pub(crate) fn pipeline(
+        &self,
+        device: &wgpu::Device,
+        source: &str,
+        entry: &str,
+    ) -> Option<wgpu::ComputePipeline> {
+        let source = with_parameters(source, self.immediates);
+        try_pipeline(device, &source, entry, Some(&self.pipeline_layout))
+    }
+
+    /// Whether dispatches take their parameters as immediates ([`immediates_usable`]): then a
+    /// recorded call on buffers a recent call bound allocates nothing.
+    pub fn uses_immediates(&self) -> bool {
+        self.immediates
+    }
+
+    /// Drops the bind groups kept for recent calls (with immediates, those of the last 16
+    /// distinct sets of buffers and of the last 8 texture targets), and with them the
+    /// references they hold to those buffers and textures: e.g. after dropping a material or an
+    /// output whose memory should be freed now.
+    pub fn release_kept_bind_groups(&self) {
+        self.binds.lock().unwrap_or_else(|e| e.into_inner()).clear();
+        self.store_binds.lock().unwrap_or_else(|e| e.into_inner()).clear();
+    }
+
+    /// Bind groups made for dispatches so far. For tests only.
+    #[doc(hidden)]
+    pub fn bind_groups_made_for_testing(&self) -> u32 {
+        self.binds_made.load(Ordering::Relaxed)
     }
 
     /// The decode pipeline of a neural material's kernel (`tiled`) and its texels per workgroup.

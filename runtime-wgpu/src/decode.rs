@@ -1,7 +1,7 @@
 //! Decoding regions and requests with the material's kernel: submitted (the codes come back
 //! through a [`PendingDecode`]) or recorded into the caller's encoder (the codes stay on the GPU).
 
-use crate::gpu::{MAX_GROUPS, check_output, check_requests, dispatch};
+use crate::gpu::{MAX_GROUPS, check_output, check_requests, dispatch_bound};
 use crate::layout::Params;
 use crate::upload::{GpuBody, NetworkPipeline};
 use crate::{Context, GpuError, GpuMaterial, PendingDecode};
@@ -100,7 +100,7 @@ impl Context {
             GpuBody::Neural(tiled) => {
                 let groups = self.decode_groups(device, tiled, &params)?;
                 let bind = self.bind(device, Some(gm), None, out, &params);
-                dispatch(encoder, self.decode_pipeline(tiled).0, &bind, groups);
+                dispatch_bound(encoder, self.decode_pipeline(tiled).0, &bind, groups);
             }
         }
         Ok(len)
@@ -137,7 +137,7 @@ impl Context {
             GpuBody::Neural(tiled) => {
                 let groups = self.decode_groups(device, tiled, &params)?;
                 let bind = self.bind(device, Some(gm), Some(requests), out, &params);
-                dispatch(encoder, self.decode_pipeline(tiled).0, &bind, groups);
+                dispatch_bound(encoder, self.decode_pipeline(tiled).0, &bind, groups);
             }
             GpuBody::Jpeg(maps) => {
                 let requests = Some(requests);

@@ -1,5 +1,6 @@
 //! [`default_device`]: a device for tools and tests, with what the kernels can use.
 
+use crate::context::IMMEDIATE_BYTES;
 use crate::{MATRIX_FEATURES, matrix_usable, measure};
 
 /// Creates a device on the first adapter wgpu finds (any backend, software adapters included),
@@ -18,23 +19,28 @@ pub async fn default_device() -> Option<(wgpu::Device, wgpu::Queue, wgpu::Adapte
     // Cooperative matrices (the matrix kernel) where the adapter has the configuration it uses.
     let matrices = adapter.features().contains(MATRIX_FEATURES)
         && matrix_usable(&adapter.cooperative_matrix_properties());
+    // Immediates (dispatch parameters with no buffer per call) where there is room for them.
+    let immediates = adapter.features().contains(wgpu::Features::IMMEDIATES)
+        && adapter.limits().max_immediate_size >= IMMEDIATE_BYTES;
     let (device, queue) = adapter
         .request_device(&wgpu::DeviceDescriptor {
             label: Some("nmat"),
             // BC textures (for transcoded blocks), timestamp queries (for measuring), the
-            // adapter's own format features (R8Unorm storage textures) and cooperative matrices
-            // where the adapter has them, nothing else.
+            // adapter's own format features (R8Unorm storage textures), immediates and
+            // cooperative matrices where the adapter has them, nothing else.
             required_features: adapter.features()
                 & (wgpu::Features::TEXTURE_COMPRESSION_BC
                     | measure::TIMESTAMP_FEATURES
                     | wgpu::Features::TEXTURE_ADAPTER_SPECIFIC_FORMAT_FEATURES)
-                | if matrices { MATRIX_FEATURES } else { wgpu::Features::empty() },
+                | if matrices { MATRIX_FEATURES } else { wgpu::Features::empty() }
+                | if immediates { wgpu::Features::IMMEDIATES } else { wgpu::Features::empty() },
             // Downlevel limits, but all the workgroup memory the adapter has: the tiled kernel
             // decodes more texels per workgroup with more.
             required_limits: wgpu::Limits {
                 max_compute_workgroup_storage_size: adapter
                     .limits()
                     .max_compute_workgroup_storage_size,
+                max_immediate_size: if immediates { IMMEDIATE_BYTES } else { 0 },
                 ..wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits())
             },
             experimental_features: if matrices {

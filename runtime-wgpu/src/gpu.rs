@@ -165,6 +165,14 @@ pub(crate) fn try_pipeline(
     clean.then_some(pipeline)
 }
 
+/// A bind group of the decode kernels' layout (context.rs) and the dispatch's parameters where
+/// they are not in it: set as immediates (a device with them) before the dispatch.
+#[derive(Clone)]
+pub(crate) struct Bound {
+    pub group: wgpu::BindGroup,
+    pub immediates: Option<Vec<u8>>,
+}
+
 /// Records one dispatch of `groups` workgroups (spread over x and y past the per-dimension limit).
 pub(crate) fn dispatch(
     encoder: &mut wgpu::CommandEncoder,
@@ -172,12 +180,26 @@ pub(crate) fn dispatch(
     bind: &wgpu::BindGroup,
     groups: u64,
 ) {
+    let bound = Bound { group: bind.clone(), immediates: None };
+    dispatch_bound(encoder, pipeline, &bound, groups);
+}
+
+/// [`dispatch`] with a [`Bound`]: its immediates set first where it has them.
+pub(crate) fn dispatch_bound(
+    encoder: &mut wgpu::CommandEncoder,
+    pipeline: &wgpu::ComputePipeline,
+    bound: &Bound,
+    groups: u64,
+) {
     let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
         label: Some("nmat"),
         timestamp_writes: None,
     });
     pass.set_pipeline(pipeline);
-    pass.set_bind_group(0, bind, &[]);
+    pass.set_bind_group(0, &bound.group, &[]);
+    if let Some(bytes) = &bound.immediates {
+        pass.set_immediates(0, bytes);
+    }
     if groups > 0 {
         let (gx, gy) = spread(groups);
         pass.dispatch_workgroups(gx, gy, 1);

@@ -11,7 +11,7 @@ use std::sync::Arc;
 use nmat_core::internals::huffman_decoding;
 use nmat_core::{Jpeg, Material};
 
-use crate::gpu::{MAX_GROUPS, dispatch, try_pipeline, uniform_buffer};
+use crate::gpu::{MAX_GROUPS, dispatch_bound};
 use crate::layout::{
     self, HuffmanRecord, JpegHeader, JpegMapRecord, JpegParams, JpegStreamRecord, MipSize, Params,
     ShaderLayout,
@@ -206,8 +206,7 @@ impl Context {
         let mut slot = self.jpeg.lock().unwrap_or_else(|e| e.into_inner());
         if slot.is_none() {
             let source = crate::layout::jpeg_wgsl();
-            let layout = Some(&self.pipeline_layout);
-            let entry = |name| try_pipeline(device, &source, name, layout);
+            let entry = |name| self.pipeline(device, &source, name);
             let names = ["jpeg_main", "jpeg_clear", "jpeg_mark", "jpeg_resolve", "jpeg_reset"];
             if let [Some(decode), Some(clear), Some(mark), Some(resolve), Some(reset)] =
                 names.map(entry)
@@ -251,7 +250,7 @@ impl Context {
         let words = len.div_ceil(4);
         let clear = JpegParams { clear_words: words as u32, ..JpegParams::from(params) };
         let bind = self.bind(device, Some(gm), requests, out, &clear);
-        dispatch(encoder, &pipelines.clear, &bind, words.div_ceil(64));
+        dispatch_bound(encoder, &pipelines.clear, &bind, words.div_ceil(64));
         for (k, map) in maps.maps.iter().enumerate() {
             let (first, count, (mw, mh)) = (map.first_channel, map.channel_count, map.mcu);
             if params.channel_mask & (((1 << count) - 1) << first) == 0 || params.count == 0 {
@@ -274,7 +273,7 @@ impl Context {
                 return Err(too_large);
             }
             let bind = self.bind(device, Some(gm), requests, out, &p);
-            dispatch(encoder, &pipelines.decode, &bind, groups);
+            dispatch_bound(encoder, &pipelines.decode, &bind, groups);
         }
         Ok(())
     }
@@ -310,17 +309,17 @@ impl Context {
                 slot_words: map.slot_words,
                 ..p
             };
-            let uniform = uniform_buffer(device, &params.bytes());
             // Mark, decode and reset read the material and write the work buffer; resolve reads
             // the work buffer (as the section) and writes the output.
-            let on_work = self.bind_buffers(device, [desc, section, requests, work], &uniform);
-            let to_out = self.bind_buffers(device, [desc, work, requests, out], &uniform);
+            let bytes = params.bytes();
+            let on_work = self.bind_buffers(device, [desc, section, requests, work], &bytes);
+            let to_out = self.bind_buffers(device, [desc, work, requests, out], &bytes);
             let per_request = u64::from(n).div_ceil(64);
             encoder.clear_buffer(work, 0, Some(4));
-            dispatch(encoder, &pipelines.mark, &on_work, per_request);
-            dispatch(encoder, &pipelines.decode, &on_work, u64::from(n.min(map.slots)));
-            dispatch(encoder, &pipelines.resolve, &to_out, per_request);
-            dispatch(encoder, &pipelines.reset, &on_work, per_request);
+            dispatch_bound(encoder, &pipelines.mark, &on_work, per_request);
+            dispatch_bound(encoder, &pipelines.decode, &on_work, u64::from(n.min(map.slots)));
+            dispatch_bound(encoder, &pipelines.resolve, &to_out, per_request);
+            dispatch_bound(encoder, &pipelines.reset, &on_work, per_request);
             start += n;
         }
     }

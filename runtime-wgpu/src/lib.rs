@@ -34,6 +34,11 @@
 //! [`Context::record_region`] and [`Context::record_requests`] (requests read from the caller's
 //! buffer, e.g. written by its own pass) add a dispatch to the caller's command encoder that
 //! writes the codes, packed four per `u32`, into the caller's buffer; nothing is submitted.
+//! Where the device has wgpu's `IMMEDIATES` with room for [`IMMEDIATE_BYTES`]
+//! ([`immediates_usable`]; [`default_device`] asks for them), every dispatch takes its
+//! parameters as immediates and the bind groups of recent buffer sets are kept, so that a frame
+//! loop recording on the same buffers allocates nothing; elsewhere each recorded call makes a
+//! small uniform buffer and a bind group.
 //! Upload picks, of the [`Kernel`]s the device runs (tiled: 4 rows × 4 texels per invocation
 //! over workgroup memory, with `dot4I8Packed` where the device's WGSL has it; matrix: tensor
 //! cores through wgpu's cooperative matrices, where the device has them), the fastest by
@@ -70,7 +75,7 @@ mod transcode;
 mod upload;
 
 pub use cache::{CacheLookup, GpuTileCache, MAX_CACHE_MATERIALS};
-pub use context::Context;
+pub use context::{Context, IMMEDIATE_BYTES, immediates_usable};
 pub use decode::TexelRequest;
 pub use device::default_device;
 pub use error::GpuError;

@@ -1,7 +1,7 @@
 //! Submit-then-map decodes: the buffers they reuse (a pool per [`Context`]) and the
 //! [`PendingDecode`] that maps the result.
 
-use crate::gpu::{dispatch, read_back};
+use crate::gpu::{Bound, dispatch_bound, read_back};
 use crate::layout::{Params, ShaderLayout};
 use crate::upload::GpuBody;
 use crate::{Context, GpuError, GpuMaterial};
@@ -70,19 +70,20 @@ impl Context {
                 return Ok(self.finish(queue, encoder, scratch, len));
             }
         };
-        queue.write_buffer(&scratch.uniform, 0, &params.bytes());
-        if scratch.bind.as_ref().is_none_or(|(id, _)| *id != gm.id) {
-            let bind = self.bind_with(
-                device,
-                Some(gm),
-                Some(&scratch.requests),
-                &scratch.out,
-                &scratch.uniform,
-            );
-            scratch.bind = Some((gm.id, bind));
+        // The parameters as immediates, or written into the set's uniform.
+        let bytes = params.bytes();
+        if !self.immediates {
+            queue.write_buffer(&scratch.uniform, 0, &bytes);
         }
-        if let Some((_, bind)) = &scratch.bind {
-            dispatch(&mut encoder, self.decode_pipeline(tiled).0, bind, groups);
+        if scratch.bind.as_ref().is_none_or(|(id, _)| *id != gm.id) {
+            let buffers = [&gm.desc, &gm.latents, &scratch.requests, &scratch.out];
+            let uniform = (!self.immediates).then_some(&scratch.uniform);
+            scratch.bind = Some((gm.id, self.make_group(device, buffers, uniform)));
+        }
+        if let Some((_, group)) = &scratch.bind {
+            let immediates = self.immediates.then_some(bytes);
+            let bound = Bound { group: group.clone(), immediates };
+            dispatch_bound(&mut encoder, self.decode_pipeline(tiled).0, &bound, groups);
         }
         Ok(self.finish(queue, encoder, scratch, len))
     }

@@ -23,6 +23,9 @@ pub struct TextureTarget<'a> {
     pub origin: (u32, u32),
 }
 
+/// Store bind groups a [`Context`] keeps (with immediates): targets of a frame's calls.
+const KEPT_STORE_BINDS: usize = 8;
+
 /// The formats [`TextureTarget`] takes.
 const FORMATS: [(wgpu::TextureFormat, &str); 2] =
     [(wgpu::TextureFormat::Rgba8Unorm, "rgba8unorm"), (wgpu::TextureFormat::R8Unorm, "r8unorm")];
@@ -34,7 +37,9 @@ impl Context {
     /// unorm8 (the code / 255, exactly the CPU's code). Everything is checked before anything is
     /// recorded (`GpuError::Channels` for a map outside the material, `GpuError::Texture` for
     /// the target). The codes pass through a buffer the `Context` keeps for all such calls (grown
-    /// when a call needs more); each call creates only its small uniform and bind groups.
+    /// when a call needs more). With immediates ([`Context::uses_immediates`]) a call into a
+    /// texture and level a recent call wrote allocates nothing; else each call creates a small
+    /// uniform, a view and bind groups.
     #[allow(clippy::too_many_arguments)] // a material, what, and where the texels go
     pub fn record_map_to_texture(
         &self,
@@ -84,12 +89,46 @@ impl Context {
         // Checks the region (inside the mip) before anything is recorded.
         self.record_region(device, encoder, gm, mip, rect, mask, (&buffer, 0))?;
         let words = [target.origin.0, target.origin.1, width, height, count, 0, 0, 0];
-        let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        let bytes = words_to_bytes(&words);
+        let bind = self.store_bind(device, &store, &buffer, target, &bytes);
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("nmat store"),
-            contents: &words_to_bytes(&words),
-            usage: wgpu::BufferUsages::UNIFORM,
+            timestamp_writes: None,
         });
-        let view = texture.create_view(&wgpu::TextureViewDescriptor {
+        pass.set_pipeline(&store);
+        pass.set_bind_group(0, &bind, &[]);
+        if self.immediates {
+            pass.set_immediates(0, &bytes);
+        }
+        if width > 0 && height > 0 {
+            pass.dispatch_workgroups(width.div_ceil(8), height.div_ceil(8), 1);
+        }
+        Ok(())
+    }
+
+    /// The store pass's bind group for `target`'s mip level and the codes in `buffer`: with
+    /// immediates (the parameters `bytes` set at the dispatch) one kept for the same texture,
+    /// level and buffer where a recent call made it; else a view, a uniform holding `bytes`
+    /// and a bind group made for this call.
+    fn store_bind(
+        &self,
+        device: &wgpu::Device,
+        store: &wgpu::ComputePipeline,
+        buffer: &wgpu::Buffer,
+        target: TextureTarget<'_>,
+        bytes: &[u8],
+    ) -> wgpu::BindGroup {
+        let key = (target.texture.clone(), target.mip_level, buffer.clone());
+        let mut kept = self.store_binds.lock().unwrap_or_else(|e| e.into_inner());
+        if self.immediates
+            && let Some(at) = kept.iter().position(|(k, _)| *k == key)
+        {
+            let entry = kept.remove(at);
+            let group = entry.1.clone();
+            kept.insert(0, entry);
+            return group;
+        }
+        let view = target.texture.create_view(&wgpu::TextureViewDescriptor {
             label: Some("nmat target"),
             dimension: Some(wgpu::TextureViewDimension::D2),
             base_mip_level: target.mip_level,
@@ -98,28 +137,35 @@ impl Context {
             array_layer_count: Some(1),
             ..Default::default()
         });
-        let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        let uniform = (!self.immediates).then(|| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("nmat store"),
+                contents: bytes,
+                usage: wgpu::BufferUsages::UNIFORM,
+            })
+        });
+        let mut entries = vec![
+            wgpu::BindGroupEntry { binding: 0, resource: buffer.as_entire_binding() },
+            wgpu::BindGroupEntry {
+                binding: 2,
+                resource: wgpu::BindingResource::TextureView(&view),
+            },
+        ];
+        if let Some(uniform) = &uniform {
+            entries
+                .push(wgpu::BindGroupEntry { binding: 1, resource: uniform.as_entire_binding() });
+        }
+        self.binds_made.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("nmat store"),
             layout: &store.get_bind_group_layout(0),
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: buffer.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: uniform.as_entire_binding() },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: wgpu::BindingResource::TextureView(&view),
-                },
-            ],
+            entries: &entries,
         });
-        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: Some("nmat store"),
-            timestamp_writes: None,
-        });
-        pass.set_pipeline(&store);
-        pass.set_bind_group(0, &bind, &[]);
-        if width > 0 && height > 0 {
-            pass.dispatch_workgroups(width.div_ceil(8), height.div_ceil(8), 1);
+        if self.immediates {
+            kept.insert(0, (key, group.clone()));
+            kept.truncate(KEPT_STORE_BINDS);
         }
-        Ok(())
+        group
     }
 
     /// The buffer between the decode and the store pass, at least `bytes` long. One buffer serves
@@ -156,6 +202,11 @@ impl Context {
             .entry(format)
             .or_insert_with(|| {
                 let source = include_str!("shaders/store.wgsl").replace("FORMAT", name);
+                let source = if self.immediates {
+                    source.replace("@group(0) @binding(1) var<uniform> ", "var<immediate> ")
+                } else {
+                    source
+                };
                 try_pipeline(device, &source, "store_texels", None).map(Arc::new)
             })
             .clone()

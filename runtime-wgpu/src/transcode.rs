@@ -4,7 +4,7 @@
 //! blocks byte-identical with the CPU's `Decoder::transcode_blocks`, into a buffer that can be
 //! copied into a BC texture. The encoders are `bc.wgsl`, ports of `nmat_core::bc`.
 
-use crate::gpu::{MAX_GROUPS, check_output, dispatch, read_back};
+use crate::gpu::{MAX_GROUPS, check_output, dispatch_bound, read_back};
 use crate::layout::Params;
 use crate::{Context, GpuError, GpuMaterial};
 use nmat_core::bc::{BLOCK_PIXELS, BcFormat, BcTexture};
@@ -210,7 +210,7 @@ impl Context {
         };
         for (params, _, out) in &encodes {
             let bind = self.bind(device, None, codes.as_ref(), out, params);
-            dispatch(encoder, &self.encode_codes, &bind, groups);
+            dispatch_bound(encoder, &self.encode_codes, &bind, groups);
         }
         Ok(())
     }
@@ -351,7 +351,7 @@ impl Context {
         let bind = self.bind(device, None, Some(&input), &out, &params);
         let mut encoder = device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nmat encode") });
-        dispatch(&mut encoder, &self.encode, &bind, groups);
+        dispatch_bound(&mut encoder, &self.encode, &bind, groups);
         encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, readback.size());
         queue.submit([encoder.finish()]);
         PendingBlocks { blocks: out, readback, len: (count * block_bytes) as usize }.wait(device)

@@ -3,7 +3,6 @@
 //! kernels, and how `upload` picks one").
 
 use crate::cache::{TileDecoder, TileEntry};
-use crate::gpu::try_pipeline;
 use crate::layout::words_to_bytes;
 use crate::layout::{
     self, ChannelRange, GridRecord, LayerRecord, LevelRecord, NeuralHeader, Quantizer, RequantRow,
@@ -221,9 +220,9 @@ impl Context {
         let tile_entry =
             tiles.map(|(entry, per_tile)| TileEntry { source: source.clone(), entry, per_tile });
         let mut cache = self.tiled.lock().unwrap_or_else(|e| e.into_inner());
-        let pipeline = cache.entry(source.clone()).or_insert_with_key(|source| {
-            try_pipeline(device, source, entry, Some(&self.pipeline_layout)).map(Arc::new)
-        });
+        let pipeline = cache
+            .entry(source.clone())
+            .or_insert_with_key(|source| self.pipeline(device, source, entry).map(Arc::new));
         let refused = match kernel {
             Kernel::Dot4 => "the device refused the shader (its WGSL may lack dot4I8Packed)",
             _ => "the device refused the shader",

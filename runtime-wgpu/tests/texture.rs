@@ -109,38 +109,51 @@ fn pbr10() -> Vec<u8> {
 #[test]
 fn maps_decode_into_storage_textures_like_the_cpu() {
     let (device, queue) = device();
-    let ctx = Context::new(&device);
+    maps_into_textures(&device, &queue);
+}
+
+/// The same on a device without immediates: the store pass reads its parameters from a uniform.
+#[test]
+fn maps_decode_into_storage_textures_without_immediates() {
+    let (device, queue) = common::device_without_immediates();
+    maps_into_textures(&device, &queue);
+}
+
+/// Every map of [`pbr10`] into its own `Rgba8Unorm` texture (and a gray one into `R8Unorm`
+/// where the device has that storage format), compared with the CPU.
+fn maps_into_textures(device: &wgpu::Device, queue: &wgpu::Queue) {
+    let ctx = Context::new(device);
     let bytes = pbr10();
     let m = Container::parse(&bytes).unwrap();
-    let gm = ctx.upload(&device, &queue, &m).unwrap();
+    let gm = ctx.upload(device, queue, &m).unwrap();
     let usage = wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_SRC;
     let all = maps(&m);
     assert!(all.iter().any(|map| map.count == 1) && all.iter().any(|map| map.count == 3));
     // Every map recorded into one encoder (their codes pass through the same buffer), then read.
     let targets: Vec<wgpu::Texture> =
-        all.iter().map(|_| texture(&device, wgpu::TextureFormat::Rgba8Unorm, usage)).collect();
+        all.iter().map(|_| texture(device, wgpu::TextureFormat::Rgba8Unorm, usage)).collect();
     let mut encoder = device.create_command_encoder(&Default::default());
     for (map, target) in all.iter().zip(&targets) {
         let at = TextureTarget { texture: target, mip_level: 0, origin: ORIGIN };
-        ctx.record_map_to_texture(&device, &mut encoder, &gm, 1, RECT, map, at).unwrap();
+        ctx.record_map_to_texture(device, &mut encoder, &gm, 1, RECT, map, at).unwrap();
     }
     queue.submit([encoder.finish()]);
     for (map, target) in all.iter().zip(&targets) {
         let encoder = device.create_command_encoder(&Default::default());
-        let got = read_texture(&device, &queue, encoder, target, 4);
+        let got = read_texture(device, queue, encoder, target, 4);
         assert!(got == expected(&m, map, 4), "{map:?} into Rgba8Unorm");
     }
     // One channel into R8Unorm, where the device has that storage format.
     let gray = all.iter().find(|map| map.count == 1).unwrap();
     let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-    let r8 = texture(&device, wgpu::TextureFormat::R8Unorm, usage);
+    let r8 = texture(device, wgpu::TextureFormat::R8Unorm, usage);
     if pollster::block_on(scope.pop()).is_some() {
         eprintln!("R8Unorm storage textures not tested: the device refuses them");
     } else {
         let mut encoder = device.create_command_encoder(&Default::default());
         let at = TextureTarget { texture: &r8, mip_level: 0, origin: ORIGIN };
-        ctx.record_map_to_texture(&device, &mut encoder, &gm, 1, RECT, gray, at).unwrap();
-        let got = read_texture(&device, &queue, encoder, &r8, 1);
+        ctx.record_map_to_texture(device, &mut encoder, &gm, 1, RECT, gray, at).unwrap();
+        let got = read_texture(device, queue, encoder, &r8, 1);
         assert!(got == expected(&m, gray, 1), "{gray:?} into R8Unorm");
     }
 }
@@ -163,6 +176,38 @@ fn jpeg_maps_decode_into_storage_textures_like_the_cpu() {
         ctx.record_map_to_texture(&device, &mut encoder, &gm, 0, rect, &map, at).unwrap();
         let got = read_texture(&device, &queue, encoder, &target, 4);
         assert!(got == expected_at(&m, &map, 4, 0, rect), "{map:?}");
+    }
+}
+
+/// Frames that write a map into the same texture level (mip 0 and mip 1 of the material in
+/// turn) make their bind groups in the first frame only where the device has immediates; every
+/// frame's texels are the CPU's.
+#[test]
+fn repeated_calls_into_the_same_target_make_no_bind_group() {
+    let (device, queue) = device();
+    let ctx = Context::new(&device);
+    let bytes = pbr10();
+    let m = Container::parse(&bytes).unwrap();
+    let gm = ctx.upload(&device, &queue, &m).unwrap();
+    let usage = wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_SRC;
+    let target = texture(&device, wgpu::TextureFormat::Rgba8Unorm, usage);
+    let map = maps(&m)[0];
+    let mut made = 0;
+    for frame in 0..4 {
+        let mip = frame % 2;
+        let mut encoder = device.create_command_encoder(&Default::default());
+        let at = TextureTarget { texture: &target, mip_level: 0, origin: ORIGIN };
+        ctx.record_map_to_texture(&device, &mut encoder, &gm, mip, RECT, &map, at).unwrap();
+        let got = read_texture(&device, &queue, encoder, &target, 4);
+        assert!(got == expected_at(&m, &map, 4, mip, RECT), "frame {frame}");
+        if frame == 0 {
+            made = ctx.bind_groups_made_for_testing();
+        }
+    }
+    if ctx.uses_immediates() {
+        assert_eq!(ctx.bind_groups_made_for_testing(), made);
+    } else {
+        eprintln!("this device has no immediates: the bind groups are made per call");
     }
 }
 

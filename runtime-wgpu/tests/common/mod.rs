@@ -100,3 +100,16 @@ pub fn random_requests(
         })
         .collect()
 }
+
+/// A device on the first adapter with downlevel limits and no feature at all: no immediates
+/// (dispatch parameters then come from a uniform buffer per call), no timestamps, no
+/// cooperative matrices.
+#[allow(dead_code)]
+pub fn device_without_immediates() -> (wgpu::Device, wgpu::Queue) {
+    let instance =
+        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+    let adapter = pollster::block_on(instance.request_adapter(&Default::default())).unwrap();
+    let limits = wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits());
+    let descriptor = wgpu::DeviceDescriptor { required_limits: limits, ..Default::default() };
+    pollster::block_on(adapter.request_device(&descriptor)).unwrap()
+}
