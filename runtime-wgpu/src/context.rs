@@ -66,8 +66,9 @@ pub(crate) type StoreBind = ((wgpu::Texture, u32, wgpu::Buffer), wgpu::BindGroup
 /// (materials, request lists, outputs).
 const KEPT_BINDS: usize = 16;
 
-/// Bytes of the largest parameter block a dispatch of the decode kernels' layout takes
-/// ([`JpegParams`]; `Params` and `CacheDecodeParams` are shorter).
+/// Bytes of the largest parameter block a dispatch of the decode kernels takes (the JPEG
+/// passes'; the others' are shorter): what a device needs for `max_immediate_size` so that
+/// dispatches take their parameters as immediates.
 pub const IMMEDIATE_BYTES: u32 = 4 * JpegParams::WORDS as u32;
 
 /// Whether `device` takes the decode kernels' parameters as immediates: wgpu's `IMMEDIATES`
