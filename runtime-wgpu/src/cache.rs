@@ -13,8 +13,8 @@ use nmat_core::{ChannelMask, Filter, FrameStats, Material, TILE_SIZE, TileKey};
 use wgpu::util::DeviceExt;
 
 use crate::gpu::{
-    Bound, check_output, check_requests, dispatch, dispatch_bound, read_back, read_buffer, spread,
-    storage_entry, try_pipeline, uniform_buffer, uniform_entry,
+    Bound, check_output, check_requests, dispatch, dispatch_bound, read_back, read_buffer,
+    read_buffer_within, spread, storage_entry, try_pipeline, uniform_buffer, uniform_entry,
 };
 use crate::jpeg::JpegMap;
 use crate::layout::{
@@ -546,19 +546,24 @@ impl Context {
         m: &Material<'_>,
         gm: GpuMaterial,
         entry: Option<TileEntry>,
-    ) -> GpuMaterial {
-        let Some(entry) = entry else { return gm };
-        let checked = self.tile_pipeline(device, &entry).ok_or("the device refused it").and_then(
-            |pipeline| {
+    ) -> Result<GpuMaterial, GpuError> {
+        let Some(entry) = entry else { return Ok(gm) };
+        let checked = match self.tile_pipeline(device, &entry) {
+            None => Err("the device refused it"),
+            Some(pipeline) => {
                 let decoder = TileDecoder { pipeline, per_tile: entry.per_tile };
                 match self.probe_tile_decoder(device, queue, m, &gm, &decoder) {
-                    Ok(true) => Ok(decoder),
-                    Ok(false) => Err("its codes on the probe tiles differ from the CPU's"),
+                    Ok(Some(true)) => Ok(decoder),
+                    Ok(Some(false)) => Err("its codes on the probe tiles differ from the CPU's"),
+                    Ok(None) => {
+                        let seconds = self.probe_wait().as_secs() as u32;
+                        return Err(GpuError::Hung { kernel: gm.kernel, seconds });
+                    }
                     Err(_) => Err("the probe decode failed"),
                 }
-            },
-        );
-        match checked {
+            }
+        };
+        Ok(match checked {
             Ok(decoder) => GpuMaterial { tile_decoder: Some(decoder), ..gm },
             Err(reason) => {
                 log::warn!(
@@ -568,7 +573,7 @@ impl Context {
                 );
                 gm
             }
-        }
+        })
     }
 
     /// The pipeline of a kernel's tile entry, built once per material shape (keyed apart from
@@ -595,7 +600,8 @@ impl Context {
 
     /// Whether `decoder` decodes [`probe_tiles`] of `m` (uploaded as `gm`) as the CPU does:
     /// every texel and channel of each tile into its own slot of a fresh buffer, through a queue
-    /// laid out as the cache's, then read back (waits for the device).
+    /// laid out as the cache's, then read back (waits for the device as long as for a kernel's
+    /// probe; `None` where it had not finished).
     fn probe_tile_decoder(
         &self,
         device: &wgpu::Device,
@@ -603,7 +609,7 @@ impl Context {
         m: &Material<'_>,
         gm: &GpuMaterial,
         decoder: &TileDecoder,
-    ) -> Result<bool, GpuError> {
+    ) -> Result<Option<bool>, GpuError> {
         let tiles = probe_tiles(m);
         let n = m.channel_count() as u32;
         let row_words = TILE_SIZE * TILE_SIZE * n / 4;
@@ -637,9 +643,11 @@ impl Context {
         let groups = u64::from(decoder.per_tile) * tiles.len() as u64;
         dispatch_bound(&mut encoder, &decoder.pipeline, &bind, groups);
         queue.submit([encoder.finish()]);
-        let got = read_buffer(device, queue, &out)?;
+        let Some(got) = read_buffer_within(device, queue, &out, self.probe_wait())? else {
+            return Ok(None);
+        };
         let want: Vec<u8> = tiles.iter().flat_map(|&key| cpu_tile_codes(m, key)).collect();
-        Ok(got == want)
+        Ok(Some(got == want))
     }
 
     /// Makes the tile entries of the materials uploaded from now on store wrong codes, so that

@@ -51,6 +51,9 @@ pub struct Context {
     pub(crate) fault: Mutex<Option<Kernel>>,
     /// Tile entries made to store wrong codes ([`Context::break_tile_decoders_for_testing`]).
     pub(crate) tile_fault: AtomicBool,
+    /// How long a probe decode is waited for, where a test set it
+    /// ([`Context::limit_probe_wait_for_testing`]).
+    pub(crate) probe_wait: Mutex<Option<std::time::Duration>>,
     /// The JPEG request passes' work buffer and its shape, shared by every JPEG material's calls
     /// (replaced by a larger one when a material needs more; jpeg.rs, `WorkShape`).
     pub(crate) jpeg_work: Mutex<Option<(wgpu::Buffer, jpeg::WorkShape)>>,
@@ -168,6 +171,7 @@ impl Context {
             choices: Mutex::default(),
             fault: Mutex::default(),
             tile_fault: AtomicBool::new(false),
+            probe_wait: Mutex::default(),
             jpeg_work: Mutex::default(),
             jpeg_scratch: Mutex::default(),
         }

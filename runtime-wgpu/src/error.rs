@@ -54,6 +54,11 @@ pub enum GpuError {
     /// (`nmat_sample`): decode its regions or requests, use the tile cache, or decode it on the
     /// CPU (`nmat_core`).
     Codec,
+    /// A kernel's probe at upload ([`Context::upload`]) did not finish within the probe time
+    /// limit: the kernel may never finish on this device (a driver or shader compiler fault).
+    /// The device's queue may stay busy with it; recreate the device, or upload with another
+    /// kernel ([`Context::upload_with`]) on a new one.
+    Hung { kernel: Kernel, seconds: u32 },
 }
 
 impl std::fmt::Display for GpuError {
@@ -107,6 +112,12 @@ impl std::fmt::Display for GpuError {
             GpuError::RequestBuffer { reason } => write!(f, "request buffer: {reason}"),
             GpuError::Texture { reason } => write!(f, "target texture: {reason}"),
             GpuError::Cache { reason } => write!(f, "tile cache: {reason}"),
+            GpuError::Hung { kernel, seconds } => write!(
+                f,
+                "the {} kernel's probe did not finish within {seconds} s: it may hang on this \
+                 device, whose queue may stay busy (recreate the device)",
+                kernel.name()
+            ),
             GpuError::Kernel { kernel, reason } => {
                 write!(f, "the {} kernel does not run on this device: {reason}", kernel.name())
             }

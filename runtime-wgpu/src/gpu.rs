@@ -111,17 +111,51 @@ pub fn read_buffer(
     read_back(device, &back, source.size())
 }
 
+/// [`read_buffer`], waiting at most `timeout` for the device (`None` where it had not finished).
+pub(crate) fn read_buffer_within(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    source: &wgpu::Buffer,
+    timeout: std::time::Duration,
+) -> Result<Option<Vec<u8>>, GpuError> {
+    let back = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("nmat readback"),
+        size: source.size(),
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut encoder = device.create_command_encoder(&Default::default());
+    encoder.copy_buffer_to_buffer(source, 0, &back, 0, source.size());
+    queue.submit([encoder.finish()]);
+    read_back_within(device, &back, source.size(), Some(timeout))
+}
+
 /// Maps the first `bytes` of `buffer` (blocking on the device) and returns them.
 pub(crate) fn read_back(
     device: &wgpu::Device,
     buffer: &wgpu::Buffer,
     bytes: u64,
 ) -> Result<Vec<u8>, GpuError> {
+    read_back_within(device, buffer, bytes, None)?
+        .ok_or_else(|| GpuError::Map("the wait ended before the device".into()))
+}
+
+/// [`read_back`], waiting at most `timeout` for the device: `None` where it had not finished
+/// (the buffer is then left mapping, not to be reused).
+pub(crate) fn read_back_within(
+    device: &wgpu::Device,
+    buffer: &wgpu::Buffer,
+    bytes: u64,
+    timeout: Option<std::time::Duration>,
+) -> Result<Option<Vec<u8>>, GpuError> {
     let (tx, rx) = mpsc::channel();
     buffer.map_async(wgpu::MapMode::Read, ..bytes, move |r| {
         let _ = tx.send(r);
     });
-    device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Map(e.to_string()))?;
+    match device.poll(wgpu::PollType::Wait { submission_index: None, timeout }) {
+        Err(wgpu::PollError::Timeout) => return Ok(None),
+        other => other.map_err(|e| GpuError::Map(e.to_string()))?,
+    };
     rx.recv()
         .map_err(|e| GpuError::Map(e.to_string()))?
         .map_err(|e| GpuError::Map(e.to_string()))?;
@@ -129,7 +163,7 @@ pub(crate) fn read_back(
     let bytes = view.to_vec();
     drop(view);
     buffer.unmap();
-    Ok(bytes)
+    Ok(Some(bytes))
 }
 
 /// The compute pipeline of `entry` in `source` (with `layout`, or the one wgpu derives), or

@@ -1,7 +1,7 @@
 //! Submit-then-map decodes: the buffers they reuse (a pool per [`Context`]) and the
 //! [`PendingDecode`] that maps the result.
 
-use crate::gpu::{Bound, dispatch_bound, read_back};
+use crate::gpu::{Bound, dispatch_bound, read_back, read_back_within};
 use crate::layout::{Params, ShaderLayout};
 use crate::upload::GpuBody;
 use crate::{Context, GpuError, GpuMaterial};
@@ -135,6 +135,27 @@ impl PendingDecode {
         bytes.truncate(self.len);
         self.give_back();
         Ok(bytes)
+    }
+
+    /// [`PendingDecode::wait`], waiting at most `timeout` for the device: `None` where it had
+    /// not finished (its buffers, left mapping, are then not reused).
+    pub(crate) fn wait_within(
+        mut self,
+        device: &wgpu::Device,
+        timeout: std::time::Duration,
+    ) -> Result<Option<Vec<u8>>, GpuError> {
+        let bytes = (self.len as u64).next_multiple_of(4).max(4);
+        match read_back_within(device, &self.readback, bytes, Some(timeout))? {
+            Some(mut codes) => {
+                codes.truncate(self.len);
+                self.give_back();
+                Ok(Some(codes))
+            }
+            None => {
+                self.scratch = None;
+                Ok(None)
+            }
+        }
     }
 
     /// Returns the buffers to the context's pool (at most [`POOL`] are kept).

@@ -12,6 +12,7 @@ use crate::{Context, GpuError, Kernel, TexelRequest, jpeg, matrix, measure, tile
 use nmat_core::{Body, ChannelMask, Material, Neural, TermMode};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
 use wgpu::util::DeviceExt;
 
 impl Context {
@@ -69,6 +70,9 @@ impl Context {
         let latents = storage_init(device, "nmat latents", &latents);
         let probe = Probe::new(m);
         let mut rejected = Vec::new();
+        let wait = self.probe_wait();
+        // A kernel whose probe did not finish in time (the queue may still be running it).
+        let hung = std::cell::Cell::new(None);
         // `kernel`, prepared and checked against the CPU on the probe.
         let mut exact = |kernel: Kernel| -> Result<(GpuMaterial, Option<TileEntry>), &'static str> {
             let (tiled, tile_entry) = self.prepare(device, (m, n), kernel)?;
@@ -82,22 +86,32 @@ impl Context {
             let desc = storage_init(device, "nmat desc", &desc);
             let body = GpuBody::Neural(tiled);
             let gm = GpuMaterial::new(m, desc, latents.clone(), kernel, body);
-            let codes = self.decode_requests(device, queue, &gm, &probe.requests, ChannelMask::ALL);
+            let codes = self
+                .submit_requests(device, queue, &gm, &probe.requests, ChannelMask::ALL)
+                .and_then(|pending| pending.wait_within(device, wait));
             match codes {
-                Ok(codes) if codes == probe.codes => Ok((gm, tile_entry)),
-                Ok(_) => {
+                Ok(Some(codes)) if codes == probe.codes => Ok((gm, tile_entry)),
+                Ok(Some(_)) => {
                     let reason = "its codes on the probe differ from the CPU's";
                     log::warn!("nmat-wgpu: the {} kernel is not used: {reason}", kernel.name());
                     rejected.push((kernel, reason));
                     Err(reason)
                 }
+                Ok(None) => {
+                    hung.set(Some(kernel));
+                    Err("its probe did not finish in time")
+                }
                 Err(_) => Err("the probe decode failed"),
             }
         };
+        let seconds = wait.as_secs() as u32;
         if let Some(kernel) = kernel {
-            let (gm, entry) =
-                exact(kernel).map_err(|reason| GpuError::Kernel { kernel, reason })?;
-            return Ok(self.with_tile_decoder(device, queue, m, gm, entry));
+            let chosen = exact(kernel);
+            if hung.get().is_some() {
+                return Err(GpuError::Hung { kernel, seconds });
+            }
+            let (gm, entry) = chosen.map_err(|reason| GpuError::Kernel { kernel, reason })?;
+            return self.with_tile_decoder(device, queue, m, gm, entry);
         }
         let software = device.adapter_info().device_type == wgpu::DeviceType::Cpu;
         let key = shape_key(m, n);
@@ -108,7 +122,13 @@ impl Context {
             known.into_iter().chain(Kernel::ALL.into_iter().rev().filter(|&k| Some(k) != known));
         let mut candidates = Vec::new();
         for kernel in order {
-            if let Ok(candidate) = exact(kernel) {
+            let candidate = exact(kernel);
+            if let Some(kernel) = hung.get() {
+                // Later probes would queue behind it: stop, and say which.
+                log::warn!("nmat-wgpu: the {} kernel's probe did not finish", kernel.name());
+                return Err(GpuError::Hung { kernel, seconds });
+            }
+            if let Ok(candidate) = candidate {
                 candidates.push(candidate);
                 if software || known.is_some() {
                     break;
@@ -132,7 +152,19 @@ impl Context {
             })?
         };
         let (gm, entry) = chosen;
-        Ok(self.with_tile_decoder(device, queue, m, GpuMaterial { rejected, ..gm }, entry))
+        self.with_tile_decoder(device, queue, m, GpuMaterial { rejected, ..gm }, entry)
+    }
+
+    /// How long [`Context::upload`] waits for a probe decode: [`PROBE_WAIT`], or what a test set.
+    pub(crate) fn probe_wait(&self) -> Duration {
+        self.probe_wait.lock().map_or(PROBE_WAIT, |w| w.unwrap_or(PROBE_WAIT))
+    }
+
+    /// Makes [`Context::upload`] wait at most `wait` for each probe decode, so that a test can
+    /// see a probe that does not finish in time reported ([`GpuError::Hung`]). For tests only.
+    #[doc(hidden)]
+    pub fn limit_probe_wait_for_testing(&self, wait: Duration) {
+        *self.probe_wait.lock().unwrap_or_else(|e| e.into_inner()) = Some(wait);
     }
 
     /// Seconds per texel of a region of mip 0 (up to 1024 × 1024 texels, repeated to at least
@@ -376,6 +408,11 @@ fn storage_init(device: &wgpu::Device, label: &str, words: &[u32]) -> wgpu::Buff
         usage: wgpu::BufferUsages::STORAGE,
     })
 }
+
+/// How long [`Context::upload`] waits for a kernel's probe decode (a few milliseconds on a GPU,
+/// under a second on a software adapter) before it reports the kernel as hung
+/// ([`GpuError::Hung`]) instead of waiting for ever.
+pub const PROBE_WAIT: Duration = Duration::from_secs(20);
 
 /// The most texels [`Context::upload`] decodes to check a kernel against the CPU.
 pub const PROBE_TEXELS: usize = 1024;

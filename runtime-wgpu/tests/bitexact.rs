@@ -185,3 +185,42 @@ fn a_kernel_that_differs_from_the_cpu_on_the_probe_is_not_used() {
     }
     assert!(runs >= 3, "{runs} kernels run here");
 }
+
+/// No hang: a probe decode that has not finished when the upload's wait for it ends is reported
+/// as `GpuError::Hung`, naming the kernel, instead of being waited for without end (a kernel
+/// that never finishes on some driver). A wait of zero cannot see lavapipe finish a probe of
+/// hundreds of texels (a race the device could win is retried). The device stays usable: once
+/// the probe has run, a fresh upload with the normal wait decodes as the CPU does.
+#[test]
+fn a_probe_that_does_not_finish_in_time_is_reported_not_waited_for() {
+    let (device, queue) = device();
+    let bytes = std::fs::read(fixtures_dir().join("ntc_pbr10_96x80_clamp.nmat")).unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    let mut reported = Vec::new();
+    for forced in [None, Some(Kernel::Reference)] {
+        for _attempt in 0..5 {
+            let ctx = Context::new(&device);
+            ctx.limit_probe_wait_for_testing(std::time::Duration::ZERO);
+            match ctx.upload_with(&device, &queue, &m, forced) {
+                Err(GpuError::Hung { kernel, seconds: 0 }) => {
+                    reported.push((forced, kernel));
+                    break;
+                }
+                Ok(_) => eprintln!("{forced:?}: the device finished first; again"),
+                Err(e) => panic!("{forced:?}: {e}"),
+            }
+        }
+    }
+    // The default upload stops at the first kernel it probes (the fastest first: not the
+    // reference one); a forced kernel is named as itself.
+    assert_eq!(reported.len(), 2, "{reported:?}");
+    assert_ne!(reported[0].1, Kernel::Reference);
+    assert_eq!(reported[1].1, Kernel::Reference);
+    let message = GpuError::Hung { kernel: Kernel::Reference, seconds: 20 }.to_string();
+    assert!(message.contains("reference kernel's probe did not finish within 20 s"), "{message}");
+    device.poll(wgpu::PollType::wait_indefinitely()).unwrap();
+    let ctx = Context::new(&device);
+    let gm = ctx.upload(&device, &queue, &m).unwrap();
+    let gpu = ctx.decode_chain(&device, &queue, &gm, ChannelMask::ALL).unwrap();
+    assert!(gpu == decode_all_u8(&m));
+}
