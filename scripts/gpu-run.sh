@@ -52,6 +52,18 @@ for m in .devcarry/materials/*.nmat; do
   [ -f "$m" ] || continue
   step "bench-$(basename "$m" .nmat)" 300 .devcarry/nmat bench "$m" --gpu --region 1024 --runs 5
 done
+# The tiled kernels with fewer texels per workgroup (more workgroups per core) on the first
+# neural material: does occupancy hold them back? (docs/GPU.md, "The kernels, and how upload
+# picks one")
+for m in .devcarry/materials/*.nmat; do
+  case "$m" in *jpeg*) continue ;; esac
+  [ -f "$m" ] || continue
+  for p in 16 32; do
+    NMAT_WGPU_TILED_TEXELS=$p step "bench-texels-$p" 120 .devcarry/nmat bench "$m" --gpu \
+      --region 1024 --runs 3
+  done
+  break
+done
 # A frame through the GPU tile cache (mark, decode and resolve timed apart: docs/PERFORMANCE.md,
 # "The same walk on the GPU") with up to four carried neural materials, and with the JPEG ones;
 # BC transcoding of the first neural material on the GPU against the CPU on every core (the same

@@ -43,7 +43,8 @@ impl Kernel {
     }
 }
 
-/// Texels per workgroup the tiled kernel tries, largest first.
+/// Texels per workgroup the tiled kernel tries, largest first (`NMAT_WGPU_TILED_TEXELS=P`, one
+/// of them, asks for fewer: for measuring).
 const TEXELS: [u32; 5] = [64, 32, 16, 8, 4];
 /// Words per row in a layer's row table (a [`RequantRow`]).
 const ROW_WORDS: usize = std::mem::size_of::<RequantRow>() / 4;
@@ -77,7 +78,13 @@ impl Shape {
             Kernel::Int32 => 8 * wmax + 4 * channels,
             Kernel::Reference | Kernel::Matrix => return None,
         };
-        let texels = TEXELS.into_iter().find(|p| p * per_texel <= workgroup_bytes)?;
+        let fits = |p: &u32| p * per_texel <= workgroup_bytes;
+        // The most that fit, or fewer where `NMAT_WGPU_TILED_TEXELS` asks (for measuring).
+        let asked = std::env::var("NMAT_WGPU_TILED_TEXELS").ok().and_then(|v| v.parse().ok());
+        let texels = match asked.filter(|p| TEXELS.contains(p) && fits(p)) {
+            Some(p) => p,
+            None => TEXELS.into_iter().find(fits)?,
+        };
         let layers = layers
             .iter()
             .map(|l| (l.inputs().div_ceil(4) as u32, l.outputs().div_ceil(4) as u32))

@@ -569,6 +569,14 @@ impl GpuMaterial {
     pub fn kernel(&self) -> Kernel {
         self.kernel
     }
+    /// Texels a workgroup of its kernel decodes (`None`: the reference kernel, 64 a workgroup
+    /// one per invocation; and JPEG materials, an MCU a workgroup).
+    pub fn workgroup_texels(&self) -> Option<u32> {
+        match &self.body {
+            GpuBody::Neural(Some((_, texels))) => Some(*texels),
+            _ => None,
+        }
+    }
     /// The kernel that decodes this material's new tiles in a [`crate::GpuTileCache`]: its own
     /// tiled or matrix kernel, through that kernel's tile entry, where the entry decoded the
     /// upload's probe tiles as the CPU does ([`Context::upload`]); else [`Kernel::Reference`]

@@ -81,9 +81,11 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
         mapped_at_creation: false,
     });
     println!(
-        "  kernel: {} (of the kernels whose codes equal the CPU's on upload's probe, the fastest \
-         measured on this device; docs/GPU.md)",
-        gm.kernel().name()
+        "  kernel: {}{} (of the kernels whose codes equal the CPU's on upload's probe, the \
+         fastest measured on this device; docs/GPU.md); tiles decoded by: {}",
+        gm.kernel().name(),
+        gm.workgroup_texels().map_or(String::new(), |p| format!(", {p} texels a workgroup")),
+        gm.tile_kernel().name()
     );
     for (kernel, reason) in gm.rejected() {
         println!("  not used: the {} kernel ({reason})", kernel.name());
