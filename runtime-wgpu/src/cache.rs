@@ -638,7 +638,9 @@ impl Context {
             in_offset: 0,
             ..Params::default()
         };
-        let bind = self.bind(device, Some(gm), Some(&requests), &out, &params);
+        // Bound for this probe only (not kept: its buffers go when it returns).
+        let buffers = [&gm.desc, &gm.latents, &requests, &out];
+        let bind = self.bind_fixed(device, buffers, &params.bytes());
         let mut encoder = device.create_command_encoder(&Default::default());
         let groups = u64::from(decoder.per_tile) * tiles.len() as u64;
         dispatch_bound(&mut encoder, &decoder.pipeline, &bind, groups);

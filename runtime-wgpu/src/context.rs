@@ -292,6 +292,13 @@ impl Context {
         self.store_binds.lock().unwrap_or_else(|e| e.into_inner()).clear();
     }
 
+    /// Drops the kept bind groups that bind `buffer` (one of the `Context`'s own that is no
+    /// longer needed, e.g. upload's timing output), so that they do not keep it alive.
+    pub(crate) fn forget_bindings_of(&self, buffer: &wgpu::Buffer) {
+        let mut binds = self.binds.lock().unwrap_or_else(|e| e.into_inner());
+        binds.retain(|(kept, _)| !kept.contains(buffer));
+    }
+
     /// Bind groups made for dispatches so far. For tests only.
     #[doc(hidden)]
     pub fn bind_groups_made_for_testing(&self) -> u32 {

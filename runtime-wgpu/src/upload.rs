@@ -140,6 +140,7 @@ impl Context {
             // The better of two timings each: a device's first submissions can read slow.
             let time = |gm| self.time_region(device, queue, gm, &out).unwrap_or(f64::INFINITY);
             let times: Vec<f64> = candidates.iter().map(|(gm, _)| time(gm).min(time(gm))).collect();
+            self.forget_bindings_of(&out);
             let best =
                 (0..candidates.len()).min_by(|&a, &b| times[a].total_cmp(&times[b])).unwrap_or(0);
             let kernel = candidates[best].0.kernel;
