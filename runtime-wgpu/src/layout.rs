@@ -655,6 +655,7 @@ mod tests {
         ("tiled.wgsl", include_str!("shaders/tiled.wgsl")),
         ("tiled_dot4.wgsl", include_str!("shaders/tiled_dot4.wgsl")),
         ("tiled_i32.wgsl", include_str!("shaders/tiled_i32.wgsl")),
+        ("unrolled.wgsl", include_str!("shaders/unrolled.wgsl")),
     ];
 
     /// No shader reads a descriptor, the cache's table, state, queues or lookups at a bare number

@@ -40,7 +40,8 @@
 //! loop recording on the same buffers allocates nothing; elsewhere each recorded call makes a
 //! small uniform buffer and a bind group.
 //! Upload picks, of the [`Kernel`]s the device runs (tiled: 4 rows × 4 texels per invocation
-//! over workgroup memory, with `dot4I8Packed` where the device's WGSL has it; matrix: tensor
+//! over workgroup memory, with `dot4I8Packed` where the device's WGSL has it; unrolled: one
+//! texel per invocation, the network's sums written out with `dot4I8Packed`; matrix: tensor
 //! cores through wgpu's cooperative matrices, where the device has them), the fastest by
 //! measurement among those whose codes on a probe of the material equal the CPU's; all give the
 //! same codes. To decode where a material is drawn, an engine includes the decoder in its
@@ -72,6 +73,7 @@ mod submit;
 mod texture;
 mod tiled;
 mod transcode;
+mod unrolled;
 mod upload;
 
 pub use cache::{CacheLookup, GpuTileCache, MAX_CACHE_MATERIALS};

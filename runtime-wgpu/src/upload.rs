@@ -8,7 +8,7 @@ use crate::layout::{
     self, ChannelRange, GridRecord, LayerRecord, LevelRecord, NeuralHeader, Quantizer, RequantRow,
     RowConstants, ShaderLayout,
 };
-use crate::{Context, GpuError, Kernel, TexelRequest, jpeg, matrix, measure, tiled};
+use crate::{Context, GpuError, Kernel, TexelRequest, jpeg, matrix, measure, tiled, unrolled};
 use nmat_core::{Body, ChannelMask, Material, Neural, TermMode};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -78,7 +78,7 @@ impl Context {
             let (tiled, tile_entry) = self.prepare(device, (m, n), kernel)?;
             let mut desc = desc.clone();
             if kernel != Kernel::Reference {
-                tiled::append_tables(&mut desc, n, kernel == Kernel::Dot4);
+                tiled::append_tables(&mut desc, n, kernel.dot4());
             }
             if *self.fault.lock().unwrap_or_else(|e| e.into_inner()) == Some(kernel) {
                 break_last_row(&mut desc);
@@ -207,7 +207,7 @@ impl Context {
         }
         let (mut desc, latents) = network_words(m, n)?;
         let (tiled, _) = self.prepare_part(device, (m, n), kernel, part).map_err(refused)?;
-        tiled::append_tables(&mut desc, n, kernel == Kernel::Dot4);
+        tiled::append_tables(&mut desc, n, kernel.dot4());
         let desc = storage_init(device, "nmat desc (timing)", &desc);
         let latents = storage_init(device, "nmat latents (timing)", &latents);
         Ok(GpuMaterial::new(m, desc, latents, kernel, GpuBody::Neural(tiled)))
@@ -242,6 +242,10 @@ impl Context {
                 let tiles = shape.decodes_tiles().then_some(("matrix_cache", 1));
                 (shape.source_part(part), "matrix", shape.texels(), tiles)
             }
+            Kernel::Unrolled => {
+                let shape = unrolled::Shape::new((m, n))?;
+                (shape.source_part(part), "unrolled", 64, Some(("unrolled_cache", 4)))
+            }
             Kernel::Dot4 | Kernel::Int32 => {
                 let bytes = device.limits().max_compute_workgroup_storage_size;
                 let shape = tiled::Shape::new((m, n), kernel, bytes)
@@ -257,7 +261,9 @@ impl Context {
             .entry(source.clone())
             .or_insert_with_key(|source| self.pipeline(device, source, entry).map(Arc::new));
         let refused = match kernel {
-            Kernel::Dot4 => "the device refused the shader (its WGSL may lack dot4I8Packed)",
+            Kernel::Dot4 | Kernel::Unrolled => {
+                "the device refused the shader (its WGSL may lack dot4I8Packed)"
+            }
             _ => "the device refused the shader",
         };
         let pipeline = pipeline.clone().ok_or(refused)?;

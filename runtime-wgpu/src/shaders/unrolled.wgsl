@@ -1,0 +1,148 @@
+// The unrolled kernel (docs/GPU.md, "The kernels"): one texel per invocation, no workgroup
+// memory between layers and no barrier until the codes are written: unrolled.rs generates
+// `network(t)` for the material's shape, each row's sum written out over the layer's input
+// words, so that a layer's inputs are named values a GPU keeps in registers (not a private
+// array indexed at run time, which GPUs keep in slow per-thread memory) and each weight word is
+// loaded at a constant offset from the row's start; the rows are a loop whose values pass
+// through `nmat_act_b` into the next layer's words. Products from `dot4I8Packed` exactly as in
+// the tiled dot4 kernel
+// (tiled_dot4.wgsl): an i16 activation a = 256 · h + l is held as the signed byte h and the byte
+// l − 128 (= l ^ 128), four rows per word, and per word of four weights
+//   (dot4I8Packed(w, h) << 8) + dot4I8Packed(w, l ^ 128)
+// is added to the row's sum; 128 · Σ w is folded into the row's bias (tiled.rs), and the sum
+// equals the CPU's accumulator (each partial sum's magnitude stays below 2^30; the total is the
+// exact accumulator, which the format keeps inside i32). Requantization, hardGELU and codes as
+// in the tiled kernels (requant.wgsl). Bit-identical with `nmat_decode` (texel.wgsl).
+//
+// Prepended by unrolled.rs: `const P` (64: texels per workgroup, one per invocation), `const
+// CH` (channels), `const PART` (as in tiled.wgsl) and `fn network(t)`. Then texel.wgsl,
+// decode.wgsl, requant.wgsl, this file and cache_tile.wgsl.
+
+// The codes of this workgroup, one per u32, in output order (texel, then channel).
+var<workgroup> tile_codes: array<u32, P * CH>;
+
+// The high and low byte words of four activations (row 4j + b in byte b).
+fn nmat_u_split4(a: vec4<i32>) -> vec2<u32> {
+    let h = vec4<u32>(bitcast<vec4<u32>>(a >> vec4<u32>(8u)) & vec4<u32>(255u));
+    let l = (bitcast<vec4<u32>>(a) & vec4<u32>(255u)) ^ vec4<u32>(128u);
+    return vec2<u32>(
+        h.x | (h.y << 8u) | (h.z << 16u) | (h.w << 24u),
+        l.x | (l.y << 8u) | (l.z << 16u) | (l.w << 24u),
+    );
+}
+
+// Features 4j … 4j + 3 of nmat_act_a (0 at and past `inputs`) as a high and a low word.
+fn nmat_u_features(j: u32, inputs: u32) -> vec2<u32> {
+    var a = vec4<i32>(0);
+    for (var b = 0u; b < 4u; b++) {
+        let k = 4u * j + b;
+        a[b] = select(0, nmat_act_a[min(k, 127u)], k < inputs);
+    }
+    return nmat_u_split4(a);
+}
+
+// Four weights (word `w`) times four activations (high and low words `x`), as 256 · Σ w · h +
+// Σ w · (l − 128).
+fn nmat_u_mac(w: u32, x: vec2<u32>) -> i32 {
+    return (dot4I8Packed(w, x.x) << 8u) + dot4I8Packed(w, x.y);
+}
+
+// Output row `o` of the layer whose row table starts at `ra`: its sum `acc` biased,
+// requantized and, where `gelu`, activated (hardGELU at `frac` fraction bits).
+fn nmat_u_row(ra: u32, o: u32, frac: u32, gelu: bool, acc: i32) -> i32 {
+    let row = requant_table(ra + NMAT_REQUANT_WORDS * o);
+    var z = requant_with(acc + row.bias, row);
+    if (gelu) {
+        z = nmat_hard_gelu(z, frac);
+    }
+    return z;
+}
+
+// Channel `o`'s code (`frac` fraction bits) of texel `t` into tile_codes, where the mask
+// selects it.
+fn nmat_u_code(t: u32, o: u32, frac: u32, z: i32) {
+    let mask = params.channel_mask;
+    if ((mask & (1u << o)) != 0u) {
+        let slot = countOneBits(mask & ((1u << o) - 1u));
+        let code = clamp((z * 255 + (1 << (frac - 1u))) >> frac, 0, 255);
+        tile_codes[t * params.out_channels + slot] = u32(code);
+    }
+}
+
+// For a pipeline that times the input features alone (`PART == 1u`, in place of `network`): the
+// texel's features folded into its codes, so that no compiler drops them as never read.
+fn features_sink(t: u32) {
+    let inputs = nmat_desc[nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_INPUTS];
+    var x = 0u;
+    for (var j = 0u; j < (inputs + 3u) / 4u; j++) {
+        let f = nmat_u_features(j, inputs);
+        x ^= f.x ^ f.y;
+    }
+    for (var c = 0u; c < params.out_channels; c++) {
+        tile_codes[t * params.out_channels + c] = (x >> (8u * (c % 4u))) & 255u;
+    }
+}
+
+// Decodes `params.count` texels as `main` does (same requests, rectangle and packed output), one
+// per invocation.
+@compute @workgroup_size(64)
+fn unrolled(
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+) {
+    let first = (wg.x + wg.y * groups.x) * P;
+    let index = first + lid;
+    if (index < params.count) {
+        if (PART == 2u) {
+            // A pipeline that times the layers alone (unrolled.rs).
+            let inputs = nmat_desc[nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_INPUTS];
+            stand_in_features(index, inputs);
+        } else {
+            let texel = texel_of(index);
+            nmat_features(texel.x, texel.y, bitcast<u32>(texel.z));
+        }
+        if (PART == 1u) {
+            features_sink(lid);
+        } else {
+            network(lid);
+        }
+    }
+    workgroupBarrier();
+    let n = params.out_channels;
+    let texels = select(0u, min(params.count - first, P), first < params.count);
+    let count = texels * n;
+    for (var w = lid; 4u * w < count; w += 64u) {
+        var word = 0u;
+        for (var k = 0u; k < 4u; k++) {
+            if (4u * w + k < count) {
+                word |= tile_codes[4u * w + k] << (8u * k);
+            }
+        }
+        out_codes[params.out_offset + first / 4u * n + w] = word;
+    }
+}
+
+// The tile cache's decode of a material's new tiles through this kernel (cache.rs; `params.mode`
+// 2; the queue, the tiles and their slots as cache_tile.wgsl reads and writes them): four
+// workgroups per tile, one texel of it per invocation. Bit-identical with cache_decode.wgsl.
+@compute @workgroup_size(64)
+fn unrolled_cache(
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+) {
+    let g = wg.x + wg.y * groups.x;
+    if (g / 4u >= nmat_queued_count()) {
+        return;
+    }
+    let tile = nmat_queued_tile(g / 4u);
+    let t0 = 64u * (g % 4u);
+    if (nmat_tile_has(tile, t0 + lid)) {
+        let xy = nmat_tile_texel(tile, t0 + lid);
+        nmat_features(i32(xy.x), i32(xy.y), tile.mip);
+        network(lid);
+    }
+    workgroupBarrier();
+    nmat_store_batch(tile, t0, lid, 64u);
+}

@@ -1,0 +1,160 @@
+//! The unrolled kernel (unrolled.wgsl): one texel per invocation, the network written out per
+//! material shape so that activations live in registers and weights are read at constant
+//! offsets; products from `dot4I8Packed` on the tiled dot4 kernel's tables (tiled.rs).
+
+use crate::measure::Part;
+use nmat_core::{Activation, Material, Neural};
+use std::fmt::Write as _;
+
+/// The most weight words per row (four int8 weights each) a layer may have to be unrolled: a
+/// row's sum is written out word by word, and its inputs held as named values (two registers a
+/// word), so the widest layer the format allows (128 inputs: 32 words) is the limit.
+const MAX_WORDS: usize = 32;
+
+/// One layer as the generated code needs it.
+struct Layer {
+    inputs: usize,
+    outputs: usize,
+    frac: u32,
+    gelu: bool,
+}
+
+/// What an unrolled pipeline is specialised to: every width a literal in its source.
+pub(crate) struct Shape {
+    channels: u32,
+    layers: Vec<Layer>,
+}
+
+impl Shape {
+    /// The shape of `m`'s network, or why it is not unrolled (a layer wider than [`MAX_WORDS`]
+    /// words, or none).
+    pub fn new((m, n): (&Material<'_>, &Neural<'_>)) -> Result<Shape, &'static str> {
+        let layers: Vec<Layer> = n
+            .mlp()
+            .layers()
+            .iter()
+            .map(|l| Layer {
+                inputs: l.inputs(),
+                outputs: l.outputs(),
+                frac: u32::from(l.out_frac_bits()),
+                gelu: l.activation() == Activation::HardGelu,
+            })
+            .collect();
+        let widest = layers.iter().map(|l| l.inputs.div_ceil(4)).max();
+        if widest.is_none_or(|words| words > MAX_WORDS) {
+            return Err("the network's layers are too wide to unroll");
+        }
+        Ok(Shape { channels: m.channel_count() as u32, layers })
+    }
+
+    /// The WGSL of the pipeline (entry points `unrolled` and `unrolled_cache`); only `part` of
+    /// the work where it is not [`Part::Whole`] (for timing: the codes are then wrong).
+    pub fn source_part(&self, part: Part) -> String {
+        format!(
+            "const P: u32 = 64u;\nconst CH: u32 = {}u;\nconst PART: u32 = {}u;\n{}{}\n{}\n{}\n{}\n{}\n{}",
+            self.channels,
+            part.code(),
+            Part::STAND_IN_WGSL,
+            self.network(),
+            crate::layout::texel_wgsl(),
+            crate::layout::decode_wgsl(),
+            include_str!("shaders/requant.wgsl"),
+            include_str!("shaders/unrolled.wgsl"),
+            crate::layout::cache_tile_wgsl(),
+        )
+    }
+
+    /// `fn network(t)`: texel `t`'s input features (in nmat_act_a) through every layer, its
+    /// codes into tile_codes. Layer l's inputs are the words `x{l}_{j}` (high, low), named values
+    /// a GPU keeps in registers; each output row's sum over them is written out (one load of a
+    /// weight word and two `dot4I8Packed` per word), the rows taken by a loop, their values
+    /// through `nmat_act_b` (free once the features are made) into the next layer's words.
+    fn network(&self) -> String {
+        let mut s = String::from("fn network(t: u32) {\n");
+        let first = &self.layers[0];
+        for j in 0..first.inputs.div_ceil(4) {
+            let _ = writeln!(s, "    let x0_{j} = nmat_u_features({j}u, {}u);", first.inputs);
+        }
+        for (l, layer) in self.layers.iter().enumerate() {
+            let kw = layer.inputs.div_ceil(4);
+            let terms: Vec<String> =
+                (0..kw).map(|j| format!("nmat_u_mac(nmat_desc[w + {j}u], x{l}_{j})")).collect();
+            let _ = writeln!(
+                s,
+                "    let lb{l} = nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_WORDS * {l}u;\n    \
+                 let wa{l} = nmat_desc[lb{l} + NMAT_LAYER_PACKED_AT];\n    \
+                 let ra{l} = nmat_desc[lb{l} + NMAT_LAYER_REQUANT_AT];\n    \
+                 for (var o = 0u; o < {}u; o++) {{\n        \
+                 let w = wa{l} + o * {kw}u;\n        \
+                 nmat_act_b[o] = nmat_u_row(ra{l}, o, {}u, {}, {});\n    }}",
+                layer.outputs,
+                layer.frac,
+                layer.gelu,
+                terms.join(" + ")
+            );
+            if l + 1 == self.layers.len() {
+                let _ = writeln!(
+                    s,
+                    "    for (var o = 0u; o < {}u; o++) {{\n        \
+                     nmat_u_code(t, o, {}u, nmat_act_b[o]);\n    }}",
+                    layer.outputs.min(self.channels as usize),
+                    layer.frac
+                );
+                continue;
+            }
+            for g in 0..layer.outputs.div_ceil(4) {
+                let z: Vec<String> =
+                    (4 * g..4 * g + 4)
+                        .map(|o| {
+                            if o < layer.outputs { format!("nmat_act_b[{o}]") } else { "0".into() }
+                        })
+                        .collect();
+                let _ = writeln!(
+                    s,
+                    "    let x{}_{g} = nmat_u_split4(vec4<i32>({}));",
+                    l + 1,
+                    z.join(", ")
+                );
+            }
+        }
+        s + "}\n"
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nmat_core::Container;
+    use nmat_tests::generate::{FixtureConfig, generate, golden_configs};
+
+    /// Every golden fixture's network, and the widest the format allows (three hidden layers of
+    /// 128), unrolls into WGSL that naga validates, with both entry points, in each part.
+    #[test]
+    fn the_unrolled_kernel_validates_for_every_fixture_shape() {
+        let mut configs = golden_configs();
+        configs.push(FixtureConfig {
+            hidden: vec![128, 128, 128],
+            ..FixtureConfig::ntc("widest", 9, 32, 32, 16)
+        });
+        for cfg in configs {
+            let bytes = generate(&cfg).to_bytes().unwrap();
+            let m = Container::parse(&bytes).unwrap();
+            let n = m.neural().expect("a neural fixture");
+            let shape = Shape::new((&m, n)).unwrap();
+            for part in [Part::Whole, Part::Features, Part::Layers] {
+                let source = shape.source_part(part);
+                let module = naga::front::wgsl::parse_str(&source)
+                    .unwrap_or_else(|e| panic!("{}: {}", cfg.name, e.emit_to_string(&source)));
+                let flags = naga::valid::ValidationFlags::all();
+                naga::valid::Validator::new(flags, naga::valid::Capabilities::all())
+                    .validate(&module)
+                    .unwrap_or_else(|e| {
+                        panic!("{} {part:?}: {}", cfg.name, e.emit_to_string(&source))
+                    });
+                let entries: Vec<&str> =
+                    module.entry_points.iter().map(|e| e.name.as_str()).collect();
+                assert!(entries.contains(&"unrolled") && entries.contains(&"unrolled_cache"));
+            }
+        }
+    }
+}
