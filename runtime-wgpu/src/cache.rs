@@ -556,7 +556,7 @@ impl Context {
                     Ok(Some(true)) => Ok(decoder),
                     Ok(Some(false)) => Err("its codes on the probe tiles differ from the CPU's"),
                     Ok(None) => {
-                        let seconds = self.probe_wait().as_secs() as u32;
+                        let seconds = self.probe_wait(device).as_secs() as u32;
                         return Err(GpuError::Hung { kernel: gm.kernel, seconds });
                     }
                     Err(_) => Err("the probe decode failed"),
@@ -645,7 +645,7 @@ impl Context {
         let groups = u64::from(decoder.per_tile) * tiles.len() as u64;
         dispatch_bound(&mut encoder, &decoder.pipeline, &bind, groups);
         queue.submit([encoder.finish()]);
-        let Some(got) = read_buffer_within(device, queue, &out, self.probe_wait())? else {
+        let Some(got) = read_buffer_within(device, queue, &out, self.probe_wait(device))? else {
             return Ok(None);
         };
         let want: Vec<u8> = tiles.iter().flat_map(|&key| cpu_tile_codes(m, key)).collect();

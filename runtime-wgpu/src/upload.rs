@@ -70,7 +70,7 @@ impl Context {
         let latents = storage_init(device, "nmat latents", &latents);
         let probe = Probe::new(m);
         let mut rejected = Vec::new();
-        let wait = self.probe_wait();
+        let wait = self.probe_wait(device);
         // A kernel whose probe did not finish in time (the queue may still be running it).
         let hung = std::cell::Cell::new(None);
         // `kernel`, prepared and checked against the CPU on the probe.
@@ -156,9 +156,12 @@ impl Context {
         self.with_tile_decoder(device, queue, m, GpuMaterial { rejected, ..gm }, entry)
     }
 
-    /// How long [`Context::upload`] waits for a probe decode: [`PROBE_WAIT`], or what a test set.
-    pub(crate) fn probe_wait(&self) -> Duration {
-        self.probe_wait.lock().map_or(PROBE_WAIT, |w| w.unwrap_or(PROBE_WAIT))
+    /// How long [`Context::upload`] waits for a probe decode on `device`: [`PROBE_WAIT`] (ten
+    /// times that on a software adapter, which runs shaders on a loaded CPU), or what a test set.
+    pub(crate) fn probe_wait(&self, device: &wgpu::Device) -> Duration {
+        let software = device.adapter_info().device_type == wgpu::DeviceType::Cpu;
+        let wait = if software { 10 * PROBE_WAIT } else { PROBE_WAIT };
+        self.probe_wait.lock().map_or(wait, |w| w.unwrap_or(wait))
     }
 
     /// Makes [`Context::upload`] wait at most `wait` for each probe decode, so that a test can
@@ -416,9 +419,9 @@ fn storage_init(device: &wgpu::Device, label: &str, words: &[u32]) -> wgpu::Buff
     })
 }
 
-/// How long [`Context::upload`] waits for a kernel's probe decode (a few milliseconds on a GPU,
-/// under a second on a software adapter) before it reports the kernel as hung
-/// ([`GpuError::Hung`]) instead of waiting for ever.
+/// How long [`Context::upload`] waits for a kernel's probe decode (a few milliseconds on a GPU)
+/// before it reports the kernel as hung ([`GpuError::Hung`]) instead of waiting for ever; ten
+/// times as long on a software adapter.
 pub const PROBE_WAIT: Duration = Duration::from_secs(20);
 
 /// The most texels [`Context::upload`] decodes to check a kernel against the CPU.
