@@ -877,7 +877,8 @@ fn walk_gpu_counts_the_tiles_the_cpu_counts_or_says_how_to_build_it() {
     let (_, tiles) = out.split_once("tiles decoded by: ").unwrap();
     let (tiles, _) = tiles.split_once(" |").unwrap();
     let tiles: Vec<&str> = tiles.split(", ").collect();
-    let kernels = ["reference", "unrolled dot4", "tiled i32", "tiled dot4", "matrix"];
+    let kernels =
+        ["reference", "unrolled i32", "unrolled dot4", "tiled i32", "tiled dot4", "matrix"];
     assert!(tiles.len() == 2 && kernels.contains(&tiles[0]) && tiles[1] == "JPEG", "{out}");
     let rows = std::fs::read_to_string(&csv).unwrap();
     let rows: Vec<Vec<&str>> = rows.lines().skip(1).map(|r| r.split(',').collect()).collect();

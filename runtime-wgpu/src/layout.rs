@@ -656,6 +656,8 @@ mod tests {
         ("tiled_dot4.wgsl", include_str!("shaders/tiled_dot4.wgsl")),
         ("tiled_i32.wgsl", include_str!("shaders/tiled_i32.wgsl")),
         ("unrolled.wgsl", include_str!("shaders/unrolled.wgsl")),
+        ("unrolled_dot4.wgsl", include_str!("shaders/unrolled_dot4.wgsl")),
+        ("unrolled_i32.wgsl", include_str!("shaders/unrolled_i32.wgsl")),
     ];
 
     /// No shader reads a descriptor, the cache's table, state, queues or lookups at a bare number

@@ -41,7 +41,7 @@
 //! small uniform buffer and a bind group.
 //! Upload picks, of the [`Kernel`]s the device runs (tiled: 4 rows × 4 texels per invocation
 //! over workgroup memory, with `dot4I8Packed` where the device's WGSL has it; unrolled: one
-//! texel per invocation, the network's sums written out with `dot4I8Packed`; matrix: tensor
+//! texel per invocation, each row's sum written out, the same two products; matrix: tensor
 //! cores through wgpu's cooperative matrices, where the device has them), the fastest by
 //! measurement among those whose codes on a probe of the material equal the CPU's; all give the
 //! same codes. To decode where a material is drawn, an engine includes the decoder in its

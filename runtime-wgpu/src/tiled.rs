@@ -23,8 +23,11 @@ pub enum Kernel {
     Int32,
     /// One texel per invocation with each row's sum written out for the material's shape (a
     /// layer's inputs in registers, weights at constant offsets, no barrier between layers),
-    /// products from `dot4I8Packed` (unrolled.wgsl). Where the device's shader language has it.
-    Unrolled,
+    /// products from 32-bit multiply-adds (unrolled.wgsl). Any device.
+    UnrolledInt32,
+    /// [`Kernel::UnrolledInt32`] with products from `dot4I8Packed` (two per four W8A16
+    /// multiply-adds). Where the device's shader language has it.
+    UnrolledDot4,
     /// One texel per invocation, everything read through the material's descriptors: the first
     /// kernel, kept as the reference (and used by BC transcoding).
     Reference,
@@ -35,13 +38,19 @@ impl Kernel {
     /// `Kernel::ALL`, nmat-encode's `TrainKernel::ALL`): the simplest first, the one expected
     /// fastest last. Which is fastest depends on the GPU: [`crate::Context::upload`] measures
     /// them, and takes them from the end only where it cannot (a software adapter).
-    pub const ALL: [Kernel; 5] =
-        [Kernel::Reference, Kernel::Unrolled, Kernel::Int32, Kernel::Dot4, Kernel::Matrix];
+    pub const ALL: [Kernel; 6] = [
+        Kernel::Reference,
+        Kernel::UnrolledInt32,
+        Kernel::UnrolledDot4,
+        Kernel::Int32,
+        Kernel::Dot4,
+        Kernel::Matrix,
+    ];
 
     /// Whether its products come from `dot4I8Packed` (its tables then fold 128 · Σ w into each
     /// row's bias: tiled_dot4.wgsl).
     pub(crate) fn dot4(self) -> bool {
-        matches!(self, Kernel::Dot4 | Kernel::Unrolled)
+        matches!(self, Kernel::Dot4 | Kernel::UnrolledDot4)
     }
 
     pub fn name(self) -> &'static str {
@@ -49,7 +58,8 @@ impl Kernel {
             Kernel::Matrix => "matrix",
             Kernel::Dot4 => "tiled dot4",
             Kernel::Int32 => "tiled i32",
-            Kernel::Unrolled => "unrolled dot4",
+            Kernel::UnrolledInt32 => "unrolled i32",
+            Kernel::UnrolledDot4 => "unrolled dot4",
             Kernel::Reference => "reference",
         }
     }
@@ -88,7 +98,9 @@ impl Shape {
         let per_texel = match kernel {
             Kernel::Dot4 => 4 * wmax + 4 * channels,
             Kernel::Int32 => 8 * wmax + 4 * channels,
-            Kernel::Reference | Kernel::Matrix | Kernel::Unrolled => return None,
+            Kernel::Reference | Kernel::Matrix | Kernel::UnrolledInt32 | Kernel::UnrolledDot4 => {
+                return None;
+            }
         };
         let fits = |p: &u32| p * per_texel <= workgroup_bytes;
         // The most that fit, or fewer where `NMAT_WGPU_TILED_TEXELS` asks (for measuring).

@@ -1,6 +1,7 @@
-//! The unrolled kernel (unrolled.wgsl): one texel per invocation, the network written out per
-//! material shape so that activations live in registers and weights are read at constant
-//! offsets; products from `dot4I8Packed` on the tiled dot4 kernel's tables (tiled.rs).
+//! The unrolled kernels (unrolled.wgsl): one texel per invocation, each row's sum written out
+//! per material shape so that a layer's inputs live in registers and weights are read at
+//! constant offsets; products from `dot4I8Packed` or 32-bit multiply-adds on the tiled kernels'
+//! tables (tiled.rs).
 
 use crate::measure::Part;
 use nmat_core::{Activation, Material, Neural};
@@ -21,6 +22,8 @@ struct Layer {
 
 /// What an unrolled pipeline is specialised to: every width a literal in its source.
 pub(crate) struct Shape {
+    /// Products from `dot4I8Packed` (else 32-bit multiply-adds).
+    dot4: bool,
     channels: u32,
     layers: Vec<Layer>,
 }
@@ -28,7 +31,7 @@ pub(crate) struct Shape {
 impl Shape {
     /// The shape of `m`'s network, or why it is not unrolled (a layer wider than [`MAX_WORDS`]
     /// words, or none).
-    pub fn new((m, n): (&Material<'_>, &Neural<'_>)) -> Result<Shape, &'static str> {
+    pub fn new((m, n): (&Material<'_>, &Neural<'_>), dot4: bool) -> Result<Shape, &'static str> {
         let layers: Vec<Layer> = n
             .mlp()
             .layers()
@@ -44,14 +47,19 @@ impl Shape {
         if widest.is_none_or(|words| words > MAX_WORDS) {
             return Err("the network's layers are too wide to unroll");
         }
-        Ok(Shape { channels: m.channel_count() as u32, layers })
+        Ok(Shape { dot4, channels: m.channel_count() as u32, layers })
     }
 
     /// The WGSL of the pipeline (entry points `unrolled` and `unrolled_cache`); only `part` of
     /// the work where it is not [`Part::Whole`] (for timing: the codes are then wrong).
     pub fn source_part(&self, part: Part) -> String {
+        let products = if self.dot4 {
+            include_str!("shaders/unrolled_dot4.wgsl")
+        } else {
+            include_str!("shaders/unrolled_i32.wgsl")
+        };
         format!(
-            "const P: u32 = 64u;\nconst CH: u32 = {}u;\nconst PART: u32 = {}u;\n{}{}\n{}\n{}\n{}\n{}\n{}",
+            "const P: u32 = 64u;\nconst CH: u32 = {}u;\nconst PART: u32 = {}u;\n{}{}\n{}\n{}\n{}\n{}\n{}\n{}",
             self.channels,
             part.code(),
             Part::STAND_IN_WGSL,
@@ -59,15 +67,17 @@ impl Shape {
             crate::layout::texel_wgsl(),
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),
+            products,
             include_str!("shaders/unrolled.wgsl"),
             crate::layout::cache_tile_wgsl(),
         )
     }
 
     /// `fn network(t)`: texel `t`'s input features (in nmat_act_a) through every layer, its
-    /// codes into tile_codes. Layer l's inputs are the words `x{l}_{j}` (high, low), named values
+    /// codes into tile_codes. Layer l's inputs are the words `x{l}_{j}` (four activations each, as
+    /// the products file holds them: `NmatWord`), named values
     /// a GPU keeps in registers; each output row's sum over them is written out (one load of a
-    /// weight word and two `dot4I8Packed` per word), the rows taken by a loop, their values
+    /// weight word and its products per word), the rows taken by a loop, their values
     /// through `nmat_act_b` (free once the features are made) into the next layer's words.
     fn network(&self) -> String {
         let mut s = String::from("fn network(t: u32) {\n");
@@ -111,7 +121,7 @@ impl Shape {
                         .collect();
                 let _ = writeln!(
                     s,
-                    "    let x{}_{g} = nmat_u_split4(vec4<i32>({}));",
+                    "    let x{}_{g} = nmat_u_word(vec4<i32>({}));",
                     l + 1,
                     z.join(", ")
                 );
@@ -140,9 +150,9 @@ mod tests {
             let bytes = generate(&cfg).to_bytes().unwrap();
             let m = Container::parse(&bytes).unwrap();
             let n = m.neural().expect("a neural fixture");
-            let shape = Shape::new((&m, n)).unwrap();
-            for part in [Part::Whole, Part::Features, Part::Layers] {
-                let source = shape.source_part(part);
+            let parts = [Part::Whole, Part::Features, Part::Layers];
+            for (dot4, part) in [true, false].into_iter().flat_map(|d| parts.map(|p| (d, p))) {
+                let source = Shape::new((&m, n), dot4).unwrap().source_part(part);
                 let module = naga::front::wgsl::parse_str(&source)
                     .unwrap_or_else(|e| panic!("{}: {}", cfg.name, e.emit_to_string(&source)));
                 let flags = naga::valid::ValidationFlags::all();

@@ -245,8 +245,8 @@ impl Context {
                 let tiles = shape.decodes_tiles().then_some(("matrix_cache", 1));
                 (shape.source_part(part), "matrix", shape.texels(), tiles)
             }
-            Kernel::Unrolled => {
-                let shape = unrolled::Shape::new((m, n))?;
+            Kernel::UnrolledInt32 | Kernel::UnrolledDot4 => {
+                let shape = unrolled::Shape::new((m, n), kernel.dot4())?;
                 (shape.source_part(part), "unrolled", 64, Some(("unrolled_cache", 4)))
             }
             Kernel::Dot4 | Kernel::Int32 => {
@@ -264,7 +264,7 @@ impl Context {
             .entry(source.clone())
             .or_insert_with_key(|source| self.pipeline(device, source, entry).map(Arc::new));
         let refused = match kernel {
-            Kernel::Dot4 | Kernel::Unrolled => {
+            Kernel::Dot4 | Kernel::UnrolledDot4 => {
                 "the device refused the shader (its WGSL may lack dot4I8Packed)"
             }
             _ => "the device refused the shader",

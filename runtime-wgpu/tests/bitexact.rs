@@ -34,7 +34,7 @@ fn each_kernel(
                 uploads.push(gm);
             }
             // (Absent where the device lacks dot4I8Packed; codes that differ always fail.)
-            Err(GpuError::Kernel { kernel: k @ (Kernel::Dot4 | Kernel::Unrolled), reason })
+            Err(GpuError::Kernel { kernel: k @ (Kernel::Dot4 | Kernel::UnrolledDot4), reason })
                 if std::env::var_os("NMAT_REQUIRE_DOT4").is_none()
                     && !reason.contains("differ") =>
             {

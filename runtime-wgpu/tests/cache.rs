@@ -407,7 +407,7 @@ fn new_tiles_decode_alike_through_every_kernel() {
             let forced = (m.codec() == nmat_core::Codec::Neural).then_some(kernel);
             match ctx.upload_with(&device, &queue, m, forced) {
                 Ok(gm) => gpus.push(gm),
-                Err(GpuError::Kernel { kernel: Kernel::Dot4 | Kernel::Unrolled, reason })
+                Err(GpuError::Kernel { kernel: Kernel::Dot4 | Kernel::UnrolledDot4, reason })
                     if std::env::var_os("NMAT_REQUIRE_DOT4").is_none()
                         && !reason.contains("differ") => {}
                 Err(GpuError::Kernel { kernel: Kernel::Matrix, .. })

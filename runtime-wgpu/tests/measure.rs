@@ -101,7 +101,7 @@ fn kernel_parts_for_timing_do_only_their_part() {
     let bytes = std::fs::read(fixtures.join("ntc_pbr10_96x80_clamp.nmat")).unwrap();
     let m = Container::parse(&bytes).unwrap();
     let c = m.channel_count();
-    for kernel in [Kernel::Int32, Kernel::Dot4, Kernel::Unrolled] {
+    for kernel in [Kernel::Int32, Kernel::Dot4, Kernel::UnrolledInt32, Kernel::UnrolledDot4] {
         let Ok(whole) = ctx.upload_with(&device, &queue, &m, Some(kernel)) else {
             assert!(
                 std::env::var_os("NMAT_REQUIRE_DOT4").is_none() && kernel.name().contains("dot4")

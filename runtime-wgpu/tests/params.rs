@@ -135,9 +135,13 @@ fn without_immediates_every_path_decodes_as_the_cpu() {
     let mut uploaded = Vec::new();
     for m in &materials {
         let kernels: &[Kernel] = match m.codec() {
-            nmat_core::Codec::Neural => {
-                &[Kernel::Reference, Kernel::Int32, Kernel::Unrolled, Kernel::Dot4]
-            }
+            nmat_core::Codec::Neural => &[
+                Kernel::Reference,
+                Kernel::Int32,
+                Kernel::UnrolledInt32,
+                Kernel::UnrolledDot4,
+                Kernel::Dot4,
+            ],
             nmat_core::Codec::Jpeg => &[Kernel::Reference],
         };
         for &kernel in kernels {

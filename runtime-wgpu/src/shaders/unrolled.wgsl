@@ -1,50 +1,30 @@
-// The unrolled kernel (docs/GPU.md, "The kernels"): one texel per invocation, no workgroup
+// The unrolled kernels (docs/GPU.md, "The kernels"): one texel per invocation, no workgroup
 // memory between layers and no barrier until the codes are written: unrolled.rs generates
 // `network(t)` for the material's shape, each row's sum written out over the layer's input
 // words, so that a layer's inputs are named values a GPU keeps in registers (not a private
 // array indexed at run time, which GPUs keep in slow per-thread memory) and each weight word is
 // loaded at a constant offset from the row's start; the rows are a loop whose values pass
-// through `nmat_act_b` into the next layer's words. Products from `dot4I8Packed` exactly as in
-// the tiled dot4 kernel
-// (tiled_dot4.wgsl): an i16 activation a = 256 · h + l is held as the signed byte h and the byte
-// l − 128 (= l ^ 128), four rows per word, and per word of four weights
-//   (dot4I8Packed(w, h) << 8) + dot4I8Packed(w, l ^ 128)
-// is added to the row's sum; 128 · Σ w is folded into the row's bias (tiled.rs), and the sum
-// equals the CPU's accumulator (each partial sum's magnitude stays below 2^30; the total is the
-// exact accumulator, which the format keeps inside i32). Requantization, hardGELU and codes as
-// in the tiled kernels (requant.wgsl). Bit-identical with `nmat_decode` (texel.wgsl).
+// through `nmat_act_b` into the next layer's words. A word of four weights times four
+// activations comes from the products file, unrolled_dot4.wgsl (`dot4I8Packed` on the high and
+// low bytes, as the tiled dot4 kernel) or unrolled_i32.wgsl (32-bit multiply-adds); each row's
+// sum is the CPU's accumulator. Requantization, hardGELU and codes as in the tiled kernels
+// (requant.wgsl). Bit-identical with `nmat_decode` (texel.wgsl).
 //
 // Prepended by unrolled.rs: `const P` (64: texels per workgroup, one per invocation), `const
 // CH` (channels), `const PART` (as in tiled.wgsl) and `fn network(t)`. Then texel.wgsl,
-// decode.wgsl, requant.wgsl, this file and cache_tile.wgsl.
+// decode.wgsl, requant.wgsl, the products file, this file and cache_tile.wgsl.
 
 // The codes of this workgroup, one per u32, in output order (texel, then channel).
 var<workgroup> tile_codes: array<u32, P * CH>;
 
-// The high and low byte words of four activations (row 4j + b in byte b).
-fn nmat_u_split4(a: vec4<i32>) -> vec2<u32> {
-    let h = vec4<u32>(bitcast<vec4<u32>>(a >> vec4<u32>(8u)) & vec4<u32>(255u));
-    let l = (bitcast<vec4<u32>>(a) & vec4<u32>(255u)) ^ vec4<u32>(128u);
-    return vec2<u32>(
-        h.x | (h.y << 8u) | (h.z << 16u) | (h.w << 24u),
-        l.x | (l.y << 8u) | (l.z << 16u) | (l.w << 24u),
-    );
-}
-
-// Features 4j … 4j + 3 of nmat_act_a (0 at and past `inputs`) as a high and a low word.
-fn nmat_u_features(j: u32, inputs: u32) -> vec2<u32> {
+// Features 4j … 4j + 3 of nmat_act_a (0 at and past `inputs`) as a word of the products file.
+fn nmat_u_features(j: u32, inputs: u32) -> NmatWord {
     var a = vec4<i32>(0);
     for (var b = 0u; b < 4u; b++) {
         let k = 4u * j + b;
         a[b] = select(0, nmat_act_a[min(k, 127u)], k < inputs);
     }
-    return nmat_u_split4(a);
-}
-
-// Four weights (word `w`) times four activations (high and low words `x`), as 256 · Σ w · h +
-// Σ w · (l − 128).
-fn nmat_u_mac(w: u32, x: vec2<u32>) -> i32 {
-    return (dot4I8Packed(w, x.x) << 8u) + dot4I8Packed(w, x.y);
+    return nmat_u_word(a);
 }
 
 // Output row `o` of the layer whose row table starts at `ra`: its sum `acc` biased,
@@ -76,7 +56,7 @@ fn features_sink(t: u32) {
     var x = 0u;
     for (var j = 0u; j < (inputs + 3u) / 4u; j++) {
         let f = nmat_u_features(j, inputs);
-        x ^= f.x ^ f.y;
+        x ^= nmat_u_fold(f);
     }
     for (var c = 0u; c < params.out_channels; c++) {
         tile_codes[t * params.out_channels + c] = (x >> (8u * (c % 4u))) & 255u;
