@@ -586,7 +586,7 @@ impl Context {
     ) -> Option<Arc<wgpu::ComputePipeline>> {
         let mut source = entry.source.clone();
         if self.tile_fault.load(Ordering::Relaxed) {
-            // Every word a tile entry stores gets its lowest bit flipped (cache_tile.wgsl).
+            // Every word a tile entry stores gets its lowest bit flipped (batch.wgsl).
             source =
                 source.replace("out_codes[first + w] = word;", "out_codes[first + w] = word ^ 1u;");
         }
@@ -673,7 +673,7 @@ impl Context {
 }
 
 /// The entry of a tiled or matrix kernel's source that decodes the tile cache's new tiles
-/// (cache_tile.wgsl): tiled.wgsl's `tiled_cache` or matrix.wgsl's `matrix_cache`.
+/// (batch.wgsl): tiled.wgsl's `tiled_cache` or matrix.wgsl's `matrix_cache`.
 pub(crate) struct TileEntry {
     pub source: String,
     pub entry: &'static str,

@@ -99,6 +99,15 @@ pub fn read_buffer(
     queue: &wgpu::Queue,
     source: &wgpu::Buffer,
 ) -> Result<Vec<u8>, GpuError> {
+    read_back(device, &copy_for_reading(device, queue, source), source.size())
+}
+
+/// A mappable copy of `source` (a `COPY_SRC` buffer), submitted.
+fn copy_for_reading(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    source: &wgpu::Buffer,
+) -> wgpu::Buffer {
     let back = device.create_buffer(&wgpu::BufferDescriptor {
         label: Some("nmat readback"),
         size: source.size(),
@@ -108,7 +117,7 @@ pub fn read_buffer(
     let mut encoder = device.create_command_encoder(&Default::default());
     encoder.copy_buffer_to_buffer(source, 0, &back, 0, source.size());
     queue.submit([encoder.finish()]);
-    read_back(device, &back, source.size())
+    back
 }
 
 /// [`read_buffer`], waiting at most `timeout` for the device (`None` where it had not finished).
@@ -118,15 +127,7 @@ pub(crate) fn read_buffer_within(
     source: &wgpu::Buffer,
     timeout: std::time::Duration,
 ) -> Result<Option<Vec<u8>>, GpuError> {
-    let back = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("nmat readback"),
-        size: source.size(),
-        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
-    let mut encoder = device.create_command_encoder(&Default::default());
-    encoder.copy_buffer_to_buffer(source, 0, &back, 0, source.size());
-    queue.submit([encoder.finish()]);
+    let back = copy_for_reading(device, queue, source);
     read_back_within(device, &back, source.size(), Some(timeout))
 }
 

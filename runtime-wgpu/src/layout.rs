@@ -523,10 +523,11 @@ pub(crate) fn cache_state_wgsl() -> String {
     .concat()
 }
 
-/// The tile cache's decode queue as the tiled and matrix kernels' cache entries read it
-/// (cache_tile.wgsl, with the queue's generated declarations).
-pub(crate) fn cache_tile_wgsl() -> String {
-    cache_state_wgsl() + include_str!("shaders/cache_tile.wgsl")
+/// Where the tiled, unrolled and matrix kernels write a batch's codes — the dispatch's output, or
+/// the tile cache's slots through its queue (batch.wgsl, with the queue's generated
+/// declarations).
+pub(crate) fn batch_wgsl() -> String {
+    cache_state_wgsl() + include_str!("shaders/batch.wgsl")
 }
 
 /// `T` as a WGSL `struct` named `name`, every field a `u32` (arrays become `name_k` fields: a
@@ -641,7 +642,7 @@ mod tests {
         ("cache_lookup.wgsl", include_str!("shaders/cache_lookup.wgsl")),
         ("cache_resolve.wgsl", include_str!("shaders/cache_resolve.wgsl")),
         ("cache_sample.wgsl", include_str!("shaders/cache_sample.wgsl")),
-        ("cache_tile.wgsl", include_str!("shaders/cache_tile.wgsl")),
+        ("batch.wgsl", include_str!("shaders/batch.wgsl")),
         ("decode.wgsl", include_str!("shaders/decode.wgsl")),
         ("filter.wgsl", include_str!("shaders/filter.wgsl")),
         ("jpeg.wgsl", include_str!("shaders/jpeg.wgsl")),

@@ -151,7 +151,7 @@ impl Shape {
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),
             include_str!("shaders/tiled.wgsl"),
-        ) + &crate::layout::cache_tile_wgsl()
+        ) + &crate::layout::batch_wgsl()
     }
 }
 

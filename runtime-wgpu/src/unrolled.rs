@@ -69,7 +69,7 @@ impl Shape {
             include_str!("shaders/requant.wgsl"),
             products,
             include_str!("shaders/unrolled.wgsl"),
-            crate::layout::cache_tile_wgsl(),
+            crate::layout::batch_wgsl(),
         )
     }
 

@@ -24,7 +24,7 @@
 // features): per layer its products with the block
 // counts and offsets as literals (the accumulators of all its row blocks live in registers),
 // calling `finish` per row block. Then texel.wgsl, decode.wgsl, requant.wgsl, this file and
-// cache_tile.wgsl.
+// batch.wgsl.
 // Weights and row tables are the tiled kernels' (tiled.wgsl), the bias without the dot4
 // kernel's 128 · Σ w.
 
@@ -170,7 +170,6 @@ fn matrix(
 ) {
     stage_weights(lid);
     let inputs = nmat_desc[nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_INPUTS];
-    let n = params.out_channels;
     for (var batch = 0u; batch < BATCHES; batch++) {
         let first = ((wg.x + wg.y * groups.x) * BATCHES + batch) * P;
         if (first >= params.count) {
@@ -183,23 +182,13 @@ fn matrix(
         }
         workgroupBarrier();
         layers(lane, warp);
-        let texels = min(params.count - first, P);
-        let count = texels * n;
-        for (var w = lid; 4u * w < count; w += SG * NW) {
-            var word = 0u;
-            for (var k = 0u; k < 4u; k++) {
-                if (4u * w + k < count) {
-                    word |= tile_codes[4u * w + k] << (8u * k);
-                }
-            }
-            out_codes[params.out_offset + first / 4u * n + w] = word;
-        }
+        nmat_store_codes(first, lid, SG * NW);
         workgroupBarrier();
     }
 }
 
 // The tile cache's decode of a material's new tiles through this kernel (cache.rs; `params.mode`
-// 2; the queue, the tiles and their slots as cache_tile.wgsl reads and writes them): one
+// 2; the queue, the tiles and their slots as batch.wgsl reads and writes them): one
 // workgroup per tile, which stages the weights once and takes the tile's 256 texels in batches of
 // P (matrix.rs builds this entry only where P divides 256). Bit-identical with
 // cache_decode.wgsl, which decodes one texel per invocation: a texel outside an edge tile's mip

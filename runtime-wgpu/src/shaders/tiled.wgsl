@@ -12,7 +12,7 @@
 // as literals, a barrier after each (`features_sink` instead in a pipeline timing the
 // features). Then texel.wgsl (the decoder, `nmat_features`), decode.wgsl (bindings), one of
 // tiled_i32.wgsl / tiled_dot4.wgsl (where activations live and how a tile's products are
-// formed), requant.wgsl (`requant_with`), this file, then cache_tile.wgsl.
+// formed), requant.wgsl (`requant_with`), this file, then batch.wgsl.
 //
 // Per layer (its record's NMAT_LAYER_PACKED_AT) its packed weights in `nmat_desc`: rows padded
 // to a multiple of 4 rows and 4 columns, 4 int8 weights per word (column 4j + b in byte b of
@@ -111,22 +111,11 @@ fn tiled(
     }
     workgroupBarrier();
     layers(lid);
-    let n = params.out_channels;
-    let texels = select(0u, min(params.count - first, P), first < params.count);
-    let count = texels * n;
-    for (var w = lid; 4u * w < count; w += 64u) {
-        var word = 0u;
-        for (var k = 0u; k < 4u; k++) {
-            if (4u * w + k < count) {
-                word |= tile_codes[4u * w + k] << (8u * k);
-            }
-        }
-        out_codes[params.out_offset + first / 4u * n + w] = word;
-    }
+    nmat_store_codes(first, lid, 64u);
 }
 
 // The tile cache's decode of a material's new tiles through this kernel (cache.rs; `params.mode`
-// 2; the queue, the tiles and their slots as cache_tile.wgsl reads and writes them): four
+// 2; the queue, the tiles and their slots as batch.wgsl reads and writes them): four
 // workgroups per tile, each 64 texels of it (rows 4k … 4k + 3 of the 16 × 16 tile) in batches of
 // P. Bit-identical with cache_decode.wgsl, which decodes one texel per invocation.
 @compute @workgroup_size(64)

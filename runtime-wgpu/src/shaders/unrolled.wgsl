@@ -12,7 +12,7 @@
 //
 // Prepended by unrolled.rs: `const P` (64: texels per workgroup, one per invocation), `const
 // CH` (channels), `const PART` (as in tiled.wgsl) and `fn network(t)`. Then texel.wgsl,
-// decode.wgsl, requant.wgsl, the products file, this file and cache_tile.wgsl.
+// decode.wgsl, requant.wgsl, the products file, this file and batch.wgsl.
 
 // The codes of this workgroup, one per u32, in output order (texel, then channel).
 var<workgroup> tile_codes: array<u32, P * CH>;
@@ -89,22 +89,11 @@ fn unrolled(
         }
     }
     workgroupBarrier();
-    let n = params.out_channels;
-    let texels = select(0u, min(params.count - first, P), first < params.count);
-    let count = texels * n;
-    for (var w = lid; 4u * w < count; w += 64u) {
-        var word = 0u;
-        for (var k = 0u; k < 4u; k++) {
-            if (4u * w + k < count) {
-                word |= tile_codes[4u * w + k] << (8u * k);
-            }
-        }
-        out_codes[params.out_offset + first / 4u * n + w] = word;
-    }
+    nmat_store_codes(first, lid, 64u);
 }
 
 // The tile cache's decode of a material's new tiles through this kernel (cache.rs; `params.mode`
-// 2; the queue, the tiles and their slots as cache_tile.wgsl reads and writes them): four
+// 2; the queue, the tiles and their slots as batch.wgsl reads and writes them): four
 // workgroups per tile, one texel of it per invocation. Bit-identical with cache_decode.wgsl.
 @compute @workgroup_size(64)
 fn unrolled_cache(

@@ -1,9 +1,29 @@
-// The tile cache's decode queue as the fast kernels' cache entries read it (tiled.wgsl's
-// `tiled_cache`, matrix.wgsl's `matrix_cache`; cache.rs, `params.mode` 2): the material's queue
-// from word `params.in_offset` of `requests` (the cache's state, laid out by cache.wgsl), and
-// each tile's codes, every channel (`params.out_channels` of them, texel then channel), into its
-// slot of `out_codes`, `params.row_words` words a slot. A batch is P texels of a tile (row-major,
-// 16 a row), P a multiple of 4 dividing 256, staged in the kernel's `tile_codes`.
+// Where the batched kernels (tiled.wgsl, unrolled.wgsl, matrix.wgsl) write a batch's codes,
+// staged one per u32 in their `tile_codes` (P texels, texel then channel): the dispatch's
+// output (`nmat_store_codes`), or a tile of the tile cache (`params.mode` 2, their cache
+// entries; cache.rs): the material's queue from word `params.in_offset` of `requests` (the
+// cache's state, laid out by cache.wgsl), each tile's codes, every channel
+// (`params.out_channels` of them), into its slot of `out_codes`, `params.row_words` words a
+// slot. A tile's batch is P texels of it (row-major, 16 a row), P a multiple of 4 dividing 256.
+
+// The codes of texels first … first + P − 1 of the dispatch (those past `params.count` left
+// out) packed four per word into `out_codes` from word `params.out_offset` (a batch's codes
+// start on a word: P is a multiple of 4; the last word's spare bytes are 0); invocation `lid`
+// of `invocations` writes every invocations-th word.
+fn nmat_store_codes(first: u32, lid: u32, invocations: u32) {
+    let n = params.out_channels;
+    let texels = select(0u, min(params.count - first, P), first < params.count);
+    let count = texels * n;
+    for (var w = lid; 4u * w < count; w += invocations) {
+        var word = 0u;
+        for (var k = 0u; k < 4u; k++) {
+            if (4u * w + k < count) {
+                word |= tile_codes[4u * w + k] << (8u * k);
+            }
+        }
+        out_codes[params.out_offset + first / 4u * n + w] = word;
+    }
+}
 
 // A queued tile: its slot, its mip, its first texel and the mip's size.
 struct NmatQueuedTile {
