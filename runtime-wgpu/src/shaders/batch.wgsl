@@ -6,6 +6,18 @@
 // (`params.out_channels` of them), into its slot of `out_codes`, `params.row_words` words a
 // slot. A tile's batch is P texels of it (row-major, 16 a row), P a multiple of 4 dividing 256.
 
+// The input features of texel `index` of the dispatch (request or rectangle, decode.wgsl's
+// `texel_of`) in nmat_act_a[0..inputs); stand-in features varying by texel instead in a
+// pipeline that times the layers alone (`PART == 2u`, measure.rs).
+fn nmat_batch_features(index: u32, inputs: u32) {
+    if (PART == 2u) {
+        stand_in_features(index, inputs);
+    } else {
+        let texel = texel_of(index);
+        nmat_features(texel.x, texel.y, bitcast<u32>(texel.z));
+    }
+}
+
 // The codes of texels first … first + P − 1 of the dispatch (those past `params.count` left
 // out) packed four per word into `out_codes` from word `params.out_offset` (a batch's codes
 // start on a word: P is a multiple of 4; the last word's spare bytes are 0); invocation `lid`

@@ -125,13 +125,7 @@ fn finish(lane: u32, warp: u32, l: u32, ob: u32, last: bool, frac: u32) {
 // The input features of texel `index` of the request list or rectangle into activation column
 // `t`, zeros up to WMAX.
 fn features(t: u32, index: u32, inputs: u32) {
-    if (PART == 2u) {
-        // A pipeline that times the layers alone (matrix.rs).
-        stand_in_features(index, inputs);
-    } else {
-        let texel = texel_of(index);
-        nmat_features(texel.x, texel.y, bitcast<u32>(texel.z));
-    }
+    nmat_batch_features(index, inputs);
     put_features(t, inputs);
 }
 

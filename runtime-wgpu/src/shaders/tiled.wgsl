@@ -99,13 +99,7 @@ fn tiled(
     for (var t = lid; t < P; t += 64u) {
         let index = first + t;
         if (index < params.count) {
-            if (PART == 2u) {
-                // A pipeline that times the layers alone (tiled.rs).
-                stand_in_features(index, inputs);
-            } else {
-                let texel = texel_of(index);
-                nmat_features(texel.x, texel.y, bitcast<u32>(texel.z));
-            }
+            nmat_batch_features(index, inputs);
             put_features(t, inputs);
         }
     }

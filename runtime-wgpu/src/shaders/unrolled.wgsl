@@ -74,14 +74,7 @@ fn unrolled(
     let first = (wg.x + wg.y * groups.x) * P;
     let index = first + lid;
     if (index < params.count) {
-        if (PART == 2u) {
-            // A pipeline that times the layers alone (unrolled.rs).
-            let inputs = nmat_desc[nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_INPUTS];
-            stand_in_features(index, inputs);
-        } else {
-            let texel = texel_of(index);
-            nmat_features(texel.x, texel.y, bitcast<u32>(texel.z));
-        }
+        nmat_batch_features(index, nmat_desc[nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_INPUTS]);
         if (PART == 1u) {
             features_sink(lid);
         } else {
