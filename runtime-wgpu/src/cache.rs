@@ -6,15 +6,16 @@
 //! (cache.wgsl, cache_decode.wgsl, jpeg.wgsl) and their buffers are documented in the shaders;
 //! the design and its measurements are in docs/GPU.md, "The tile cache".
 
+use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, Ordering};
-use std::sync::{Arc, Mutex};
 
 use nmat_core::{ChannelMask, Filter, FrameStats, Material, TILE_SIZE, TileKey};
 use wgpu::util::DeviceExt;
 
 use crate::gpu::{
-    Bound, check_output, check_requests, dispatch, dispatch_bound, read_back, read_buffer,
-    read_buffer_within, spread, storage_entry, try_pipeline, uniform_buffer, uniform_entry,
+    Bound, KeptBinds, check_output, check_requests, dispatch, dispatch_bound, read_back,
+    read_buffer, read_buffer_within, spread, storage_entry, try_pipeline, uniform_buffer,
+    uniform_entry,
 };
 use crate::jpeg::JpegMap;
 use crate::layout::{
@@ -174,7 +175,7 @@ pub struct GpuTileCache {
     /// The bind groups (with their parameters) of the last mark and resolve calls, most recent
     /// first: a frame that marks and resolves the same lookups into the same output as an
     /// earlier one allocates nothing.
-    binds: Mutex<Vec<(BindKey, wgpu::BindGroup)>>,
+    binds: KeptBinds<BindKey>,
     /// Bind groups made for mark and resolve calls so far (a test reads it).
     binds_made: AtomicU32,
 }
@@ -477,7 +478,7 @@ impl Context {
             pages,
             slot_words: slot_words as u32,
             frame: AtomicU32::new(0),
-            binds: Mutex::default(),
+            binds: KeptBinds::new(KEPT_BINDS),
             binds_made: AtomicU32::new(0),
         })
     }
@@ -891,21 +892,13 @@ impl GpuTileCache {
         key: BindKey,
         make: impl FnOnce(&wgpu::Buffer) -> wgpu::BindGroup,
     ) -> wgpu::BindGroup {
-        let mut binds = self.binds.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(at) = binds.iter().position(|(k, _)| *k == key) {
-            let kept = binds.remove(at);
-            let group = kept.1.clone();
-            binds.insert(0, kept);
-            return group;
-        }
-        let materials = self.materials.len();
-        let params =
-            cache_params(key.count, key.in_offset, key.channels, key.out_offset, materials);
-        let group = make(&uniform_buffer(device, &params));
-        self.binds_made.fetch_add(1, Ordering::Relaxed);
-        binds.insert(0, (key, group.clone()));
-        binds.truncate(KEPT_BINDS);
-        group
+        self.binds.get_or_make(key, |key| {
+            let materials = self.materials.len();
+            let params =
+                cache_params(key.count, key.in_offset, key.channels, key.out_offset, materials);
+            self.binds_made.fetch_add(1, Ordering::Relaxed);
+            make(&uniform_buffer(device, &params))
+        })
     }
 
     /// Bind groups made for mark and resolve calls so far. For tests only.

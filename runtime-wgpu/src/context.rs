@@ -1,7 +1,9 @@
 //! [`Context`]: a device's pipelines, pools and caches, and the bind group every decode,
 //! transcode and encode entry point of the main shader shares.
 
-use crate::gpu::{Bound, WORKGROUP, storage_entry, try_pipeline, uniform_buffer, uniform_entry};
+use crate::gpu::{
+    Bound, KeptBinds, WORKGROUP, storage_entry, try_pipeline, uniform_buffer, uniform_entry,
+};
 use crate::layout::{JpegParams, ShaderLayout};
 use crate::submit::Pool;
 use crate::upload::NetworkPipeline;
@@ -25,7 +27,7 @@ pub struct Context {
     pub(crate) immediates: bool,
     /// With immediates: the bind groups of the last [`KEPT_BINDS`] distinct buffer sets, most
     /// recent first, so that calls on the same buffers allocate nothing.
-    pub(crate) binds: Mutex<Vec<([wgpu::Buffer; 4], wgpu::BindGroup)>>,
+    pub(crate) binds: KeptBinds<[wgpu::Buffer; 4]>,
     /// Bind groups made for dispatches so far (a test reads it).
     pub(crate) binds_made: AtomicU32,
     /// Tiled and matrix pipelines by source (one per kernel and material shape); `None` where
@@ -35,7 +37,7 @@ pub struct Context {
     pub(crate) stores: Mutex<HashMap<wgpu::TextureFormat, Option<Arc<wgpu::ComputePipeline>>>>,
     /// With immediates: the store pass's bind groups of recent targets (texture, mip level, the
     /// codes buffer), most recent first.
-    pub(crate) store_binds: Mutex<Vec<StoreBind>>,
+    pub(crate) store_binds: KeptBinds<StoreKey>,
     /// The codes between the two passes of `record_map_to_texture`, shared by all its calls
     /// (replaced by a larger one when a call needs more).
     pub(crate) texture_codes: Mutex<Option<wgpu::Buffer>>,
@@ -62,12 +64,15 @@ pub struct Context {
     pub(crate) jpeg_scratch: Mutex<Option<u32>>,
 }
 
-/// A kept store bind group and what it binds: the target texture, its mip level, the codes.
-pub(crate) type StoreBind = ((wgpu::Texture, u32, wgpu::Buffer), wgpu::BindGroup);
+/// What a kept store bind group binds: the target texture, its mip level, the codes.
+pub(crate) type StoreKey = (wgpu::Texture, u32, wgpu::Buffer);
 
 /// Bind groups a [`Context`] keeps (with immediates): a frame's worth of distinct buffer sets
 /// (materials, request lists, outputs).
 const KEPT_BINDS: usize = 16;
+
+/// Store bind groups a [`Context`] keeps (with immediates): targets of a frame's calls.
+const KEPT_STORE_BINDS: usize = 8;
 
 /// Bytes of the largest parameter block a dispatch of the decode kernels takes (the JPEG
 /// passes'; the others' are shorter): what a device needs for `max_immediate_size` so that
@@ -159,11 +164,11 @@ impl Context {
             layout,
             pipeline_layout,
             immediates,
-            binds: Mutex::default(),
+            binds: KeptBinds::new(KEPT_BINDS),
             binds_made: AtomicU32::new(0),
             tiled: Mutex::default(),
             stores: Mutex::default(),
-            store_binds: Mutex::default(),
+            store_binds: KeptBinds::new(KEPT_STORE_BINDS),
             texture_codes: Mutex::default(),
             empty,
             pool: Pool::default(),
@@ -205,22 +210,8 @@ impl Context {
         if !self.immediates {
             return self.bind_fixed(device, buffers, bytes);
         }
-        let mut binds = self.binds.lock().unwrap_or_else(|e| e.into_inner());
-        let at = binds.iter().position(|(kept, _)| kept.iter().zip(buffers).all(|(k, b)| k == b));
-        let group = match at {
-            Some(at) => {
-                let kept = binds.remove(at);
-                let group = kept.1.clone();
-                binds.insert(0, kept);
-                group
-            }
-            None => {
-                let group = self.make_group(device, buffers, None);
-                binds.insert(0, (buffers.map(Clone::clone), group.clone()));
-                binds.truncate(KEPT_BINDS);
-                group
-            }
-        };
+        let key = buffers.map(Clone::clone);
+        let group = self.binds.get_or_make(key, |_| self.make_group(device, buffers, None));
         Bound { group, immediates: Some(bytes.to_vec()) }
     }
 
@@ -288,15 +279,14 @@ impl Context {
     /// references they hold to those buffers and textures: e.g. after dropping a material or an
     /// output whose memory should be freed now.
     pub fn release_kept_bind_groups(&self) {
-        self.binds.lock().unwrap_or_else(|e| e.into_inner()).clear();
-        self.store_binds.lock().unwrap_or_else(|e| e.into_inner()).clear();
+        self.binds.forget(|_| true);
+        self.store_binds.forget(|_| true);
     }
 
     /// Drops the kept bind groups that bind `buffer` (one of the `Context`'s own that is no
     /// longer needed, e.g. upload's timing output), so that they do not keep it alive.
     pub(crate) fn forget_bindings_of(&self, buffer: &wgpu::Buffer) {
-        let mut binds = self.binds.lock().unwrap_or_else(|e| e.into_inner());
-        binds.retain(|(kept, _)| !kept.contains(buffer));
+        self.binds.forget(|kept| kept.contains(buffer));
     }
 
     /// Bind groups made for dispatches so far. For tests only.

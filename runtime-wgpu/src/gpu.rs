@@ -257,3 +257,39 @@ pub(crate) fn uniform_buffer(device: &wgpu::Device, bytes: &[u8]) -> wgpu::Buffe
         usage: wgpu::BufferUsages::UNIFORM,
     })
 }
+
+/// Bind groups kept for the last few distinct keys (the buffers, and what else a call binds),
+/// most recent first, so that a call repeating a recent one's key allocates nothing. The kept
+/// groups hold references to what they bind until later keys push them out or they are dropped.
+pub(crate) struct KeptBinds<K> {
+    kept: std::sync::Mutex<Vec<(K, wgpu::BindGroup)>>,
+    capacity: usize,
+}
+
+impl<K: PartialEq> KeptBinds<K> {
+    pub fn new(capacity: usize) -> KeptBinds<K> {
+        KeptBinds { kept: std::sync::Mutex::default(), capacity }
+    }
+
+    /// The group kept for `key` (now the most recent), else the one `make` makes for it, kept
+    /// (the oldest dropped past the capacity).
+    pub fn get_or_make(&self, key: K, make: impl FnOnce(&K) -> wgpu::BindGroup) -> wgpu::BindGroup {
+        let mut kept = self.kept.lock().unwrap_or_else(|e| e.into_inner());
+        let entry = match kept.iter().position(|(k, _)| *k == key) {
+            Some(at) => kept.remove(at),
+            None => {
+                let group = make(&key);
+                (key, group)
+            }
+        };
+        let group = entry.1.clone();
+        kept.insert(0, entry);
+        kept.truncate(self.capacity);
+        group
+    }
+
+    /// Drops the kept groups whose key `drop` names.
+    pub fn forget(&self, drop: impl Fn(&K) -> bool) {
+        self.kept.lock().unwrap_or_else(|e| e.into_inner()).retain(|(k, _)| !drop(k));
+    }
+}

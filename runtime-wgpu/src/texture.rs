@@ -23,9 +23,6 @@ pub struct TextureTarget<'a> {
     pub origin: (u32, u32),
 }
 
-/// Store bind groups a [`Context`] keeps (with immediates): targets of a frame's calls.
-const KEPT_STORE_BINDS: usize = 8;
-
 /// The formats [`TextureTarget`] takes.
 const FORMATS: [(wgpu::TextureFormat, &str); 2] =
     [(wgpu::TextureFormat::Rgba8Unorm, "rgba8unorm"), (wgpu::TextureFormat::R8Unorm, "r8unorm")];
@@ -118,54 +115,46 @@ impl Context {
         target: TextureTarget<'_>,
         bytes: &[u8],
     ) -> wgpu::BindGroup {
-        let key = (target.texture.clone(), target.mip_level, buffer.clone());
-        let mut kept = self.store_binds.lock().unwrap_or_else(|e| e.into_inner());
-        if self.immediates
-            && let Some(at) = kept.iter().position(|(k, _)| *k == key)
-        {
-            let entry = kept.remove(at);
-            let group = entry.1.clone();
-            kept.insert(0, entry);
-            return group;
-        }
-        let view = target.texture.create_view(&wgpu::TextureViewDescriptor {
-            label: Some("nmat target"),
-            dimension: Some(wgpu::TextureViewDimension::D2),
-            base_mip_level: target.mip_level,
-            mip_level_count: Some(1),
-            base_array_layer: 0,
-            array_layer_count: Some(1),
-            ..Default::default()
-        });
-        let uniform = (!self.immediates).then(|| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        let make = || {
+            let view = target.texture.create_view(&wgpu::TextureViewDescriptor {
+                label: Some("nmat target"),
+                dimension: Some(wgpu::TextureViewDimension::D2),
+                base_mip_level: target.mip_level,
+                mip_level_count: Some(1),
+                base_array_layer: 0,
+                array_layer_count: Some(1),
+                ..Default::default()
+            });
+            let uniform = (!self.immediates).then(|| {
+                device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("nmat store"),
+                    contents: bytes,
+                    usage: wgpu::BufferUsages::UNIFORM,
+                })
+            });
+            let mut entries = vec![
+                wgpu::BindGroupEntry { binding: 0, resource: buffer.as_entire_binding() },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: wgpu::BindingResource::TextureView(&view),
+                },
+            ];
+            if let Some(uniform) = &uniform {
+                let resource = uniform.as_entire_binding();
+                entries.push(wgpu::BindGroupEntry { binding: 1, resource });
+            }
+            self.binds_made.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("nmat store"),
-                contents: bytes,
-                usage: wgpu::BufferUsages::UNIFORM,
+                layout: &store.get_bind_group_layout(0),
+                entries: &entries,
             })
-        });
-        let mut entries = vec![
-            wgpu::BindGroupEntry { binding: 0, resource: buffer.as_entire_binding() },
-            wgpu::BindGroupEntry {
-                binding: 2,
-                resource: wgpu::BindingResource::TextureView(&view),
-            },
-        ];
-        if let Some(uniform) = &uniform {
-            entries
-                .push(wgpu::BindGroupEntry { binding: 1, resource: uniform.as_entire_binding() });
+        };
+        if !self.immediates {
+            return make();
         }
-        self.binds_made.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("nmat store"),
-            layout: &store.get_bind_group_layout(0),
-            entries: &entries,
-        });
-        if self.immediates {
-            kept.insert(0, (key, group.clone()));
-            kept.truncate(KEPT_STORE_BINDS);
-        }
-        group
+        let key = (target.texture.clone(), target.mip_level, buffer.clone());
+        self.store_binds.get_or_make(key, |_| make())
     }
 
     /// The buffer between the decode and the store pass, at least `bytes` long. One buffer serves
