@@ -644,6 +644,7 @@ mod tests {
         ("cache_sample.wgsl", include_str!("shaders/cache_sample.wgsl")),
         ("batch.wgsl", include_str!("shaders/batch.wgsl")),
         ("decode.wgsl", include_str!("shaders/decode.wgsl")),
+        ("features.wgsl", include_str!("shaders/features.wgsl")),
         ("filter.wgsl", include_str!("shaders/filter.wgsl")),
         ("jpeg.wgsl", include_str!("shaders/jpeg.wgsl")),
         ("matrix.wgsl", include_str!("shaders/matrix.wgsl")),

@@ -63,6 +63,7 @@ mod context;
 mod decode;
 mod device;
 mod error;
+mod features;
 mod gpu;
 mod jpeg;
 mod layout;

@@ -58,6 +58,8 @@ pub(crate) struct Shape {
     total: u32,
     /// Per layer: its output fraction bits (a literal, so that hardGELU divides by a constant).
     fracs: Vec<u32>,
+    /// The input features for the material's latent layout (features.rs).
+    features: String,
 }
 
 impl Shape {
@@ -121,7 +123,20 @@ impl Shape {
             .find(|&w| bytes(w) <= limit)
             .ok_or("the network is too large for the device's workgroup memory")?;
         let fracs = n.mlp().layers().iter().map(|l| u32::from(l.out_frac_bits())).collect();
-        Ok(Shape { warps, blocks, batches, subgroup, pads, wmax, channels, layers, total, fracs })
+        let features = crate::features::wgsl(n);
+        Ok(Shape {
+            warps,
+            blocks,
+            batches,
+            subgroup,
+            pads,
+            wmax,
+            channels,
+            layers,
+            total,
+            fracs,
+            features,
+        })
     }
 
     /// Texels per batch.
@@ -163,7 +178,7 @@ impl Shape {
              const WMAX: u32 = {}u;\nconst CH: u32 = {}u;\nconst WTOTAL: u32 = {}u;\n\
              const PART: u32 = {}u;\n{}\
              fn stage_weights(lid: u32) {{\n{stage}    workgroupBarrier();\n}}\n\
-             fn layers(lane: u32, warp: u32) {{\n{layers}}}\n{}\n{}\n{}\n{}\n{}",
+             fn layers(lane: u32, warp: u32) {{\n{layers}}}\n{}\n{}\n{}\n{}\n{}\n{}",
             self.batch(),
             self.warps,
             self.blocks,
@@ -177,6 +192,7 @@ impl Shape {
             part.code(),
             Part::STAND_IN_WGSL,
             crate::layout::texel_wgsl(),
+            self.features,
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),
             include_str!("shaders/matrix.wgsl"),

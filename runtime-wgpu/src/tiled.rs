@@ -80,6 +80,8 @@ pub(crate) struct Shape {
     channels: u32,
     /// Per layer: words of 4 inputs per row, groups of 4 rows.
     layers: Vec<(u32, u32)>,
+    /// The input features for the material's latent layout (features.rs).
+    features: String,
 }
 
 impl Shape {
@@ -113,7 +115,7 @@ impl Shape {
             .iter()
             .map(|l| (l.inputs().div_ceil(4) as u32, l.outputs().div_ceil(4) as u32))
             .collect();
-        Some(Shape { texels, wmax, channels, layers })
+        Some(Shape { texels, wmax, channels, layers, features: crate::features::wgsl(n) })
     }
 
     /// The WGSL of the pipeline: this shape's constants and layer calls, then `decode`; only
@@ -141,13 +143,14 @@ impl Shape {
         format!(
             "const P: u32 = {}u;\nconst WMAX: u32 = {}u;\nconst CH: u32 = {}u;\n\
              const PART: u32 = {}u;\n{}\
-             fn layers(lid: u32) {{\n{calls}}}\n{}\n{}\n{products}\n{}\n{}\n",
+             fn layers(lid: u32) {{\n{calls}}}\n{}\n{}\n{}\n{products}\n{}\n{}\n",
             self.texels,
             self.wmax,
             self.channels,
             part.code(),
             Part::STAND_IN_WGSL,
             crate::layout::texel_wgsl(),
+            self.features,
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),
             include_str!("shaders/tiled.wgsl"),

@@ -26,6 +26,8 @@ pub(crate) struct Shape {
     dot4: bool,
     channels: u32,
     layers: Vec<Layer>,
+    /// The input features for the material's latent layout (features.rs).
+    features: String,
 }
 
 impl Shape {
@@ -47,7 +49,12 @@ impl Shape {
         if widest.is_none_or(|words| words > MAX_WORDS) {
             return Err("the network's layers are too wide to unroll");
         }
-        Ok(Shape { dot4, channels: m.channel_count() as u32, layers })
+        Ok(Shape {
+            dot4,
+            channels: m.channel_count() as u32,
+            layers,
+            features: crate::features::wgsl(n),
+        })
     }
 
     /// The WGSL of the pipeline (entry points `unrolled` and `unrolled_cache`); only `part` of
@@ -59,12 +66,13 @@ impl Shape {
             include_str!("shaders/unrolled_i32.wgsl")
         };
         format!(
-            "const P: u32 = 64u;\nconst CH: u32 = {}u;\nconst PART: u32 = {}u;\n{}{}\n{}\n{}\n{}\n{}\n{}\n{}",
+            "const P: u32 = 64u;\nconst CH: u32 = {}u;\nconst PART: u32 = {}u;\n{}{}\n{}\n{}\n{}\n{}\n{}\n{}\n{}",
             self.channels,
             part.code(),
             Part::STAND_IN_WGSL,
             self.network(),
             crate::layout::texel_wgsl(),
+            self.features,
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),
             products,

@@ -27,7 +27,9 @@ impl Context {
     /// listed by [`GpuMaterial::rejected`]. The chosen kernel's tile entry (the tile cache's
     /// decode of new tiles) is probed too, on a few whole tiles; where it differs the tiles
     /// decode one texel per invocation ([`GpuMaterial::tile_kernel`], logged). Pipelines are
-    /// shared by materials of the same network shape. Waits for the probe decodes (a few
+    /// shared by materials of the same network shape and latent layout (the grids' channels
+    /// and bits per code, the levels' terms: the input features are generated for it). Waits
+    /// for the probe decodes (a few
     /// milliseconds on a GPU).
     pub fn upload(
         &self,

@@ -23,8 +23,8 @@
 // `stage` per layer and `fn layers(lane, warp)` (`features_sink` instead in a pipeline timing the
 // features): per layer its products with the block
 // counts and offsets as literals (the accumulators of all its row blocks live in registers),
-// calling `finish` per row block. Then texel.wgsl, decode.wgsl, requant.wgsl, this file and
-// batch.wgsl.
+// calling `finish` per row block. Then texel.wgsl, the input features (features.rs),
+// decode.wgsl, requant.wgsl, this file and batch.wgsl.
 // Weights and row tables are the tiled kernels' (tiled.wgsl), the bias without the dot4
 // kernel's 128 · Σ w.
 
@@ -208,7 +208,7 @@ fn matrix_cache(
         for (var t = lid; t < P; t += SG * NW) {
             if (nmat_tile_has(tile, t0 + t)) {
                 let xy = nmat_tile_texel(tile, t0 + t);
-                nmat_features(i32(xy.x), i32(xy.y), tile.mip);
+                nmat_fixed_features(i32(xy.x), i32(xy.y), tile.mip);
                 put_features(t, inputs);
             }
         }

@@ -11,8 +11,9 @@
 // (requant.wgsl). Bit-identical with `nmat_decode` (texel.wgsl).
 //
 // Prepended by unrolled.rs: `const P` (64: texels per workgroup, one per invocation), `const
-// CH` (channels), `const PART` (as in tiled.wgsl) and `fn network(t)`. Then texel.wgsl,
-// decode.wgsl, requant.wgsl, the products file, this file and batch.wgsl.
+// CH` (channels), `const PART` (as in tiled.wgsl) and `fn network(t)`. Then texel.wgsl, the
+// input features (features.rs), decode.wgsl, requant.wgsl, the products file, this file and
+// batch.wgsl.
 
 // The codes of this workgroup, one per u32, in output order (texel, then channel).
 var<workgroup> tile_codes: array<u32, P * CH>;
@@ -102,7 +103,7 @@ fn unrolled_cache(
     let t0 = 64u * (g % 4u);
     if (nmat_tile_has(tile, t0 + lid)) {
         let xy = nmat_tile_texel(tile, t0 + lid);
-        nmat_features(i32(xy.x), i32(xy.y), tile.mip);
+        nmat_fixed_features(i32(xy.x), i32(xy.y), tile.mip);
         network(lid);
     }
     workgroupBarrier();
