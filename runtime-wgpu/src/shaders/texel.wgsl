@@ -17,20 +17,35 @@ fn nmat_weight(i: u32) -> i32 {
     return bitcast<i32>(nmat_desc[i]);
 }
 
+// Index i of an axis of `size` cells, wrapped or clamped (§6.2). A GPU divides in many
+// instructions, so the wrap takes one add or subtract over [−size, 2 · size), which holds every
+// cell a footprint reads (nmat_footprint: −1 … size) and the texels of a region; the remainder
+// only further out (sizes are at most 16 384, so 2 · size is an i32).
 fn nmat_address(i: i32, size: u32, clamp_mode: bool) -> u32 {
     let s = i32(max(size, 1u));
     if (clamp_mode) {
         return u32(clamp(i, 0, s - 1));
     }
+    if (i >= -s && i < 2 * s) {
+        return u32(select(select(i, i - s, i >= s), i + s, i < 0));
+    }
     return u32(((i % s) + s) % s);
 }
 
 // floor(x / 2^k) position of a texel centre on a grid, in 1/256 cell (§6.2), without 64 bits:
-// floor(q·128 / m) with q = (2x+1)·g < 2^29 is 128·(q / m) + (128·(q % m)) / m.
+// floor(q·128 / m) with q = (2x+1)·g < 2^29 is 128·(q / m) + (128·(q % m)) / m; for x in the
+// mip, −128 … 256 · g − 129 (so a footprint's cells lie in −1 … g). Where the mip's side m is a
+// power of two (most textures' mips) the same quotients are shifts.
 fn nmat_grid_pos(x: u32, mip_size: u32, grid_size: u32) -> i32 {
     let q = (2u * x + 1u) * grid_size;
     let m = max(mip_size, 1u);
-    let p = 128u * (q / m) + (128u * (q % m)) / m;
+    var p: u32;
+    if ((m & (m - 1u)) == 0u) {
+        let k = countTrailingZeros(m);
+        p = 128u * (q >> k) + ((128u * (q & (m - 1u))) >> k);
+    } else {
+        p = 128u * (q / m) + (128u * (q % m)) / m;
+    }
     return i32(p) - 128;
 }
 
