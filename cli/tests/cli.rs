@@ -822,6 +822,7 @@ fn bench_gpu_prints_the_gpu_table_or_says_how_to_build_it() {
             "| whole chain, 9 mips |",
             "random requests",
             "| nmat_sample trilinear, 16×16 samples × 8 decodes",
+            "| nmat_sample trilinear (module_for the material), 16×16 samples × 8 decodes",
         ];
         for row in rows {
             assert!(out.contains(row), "missing {row}:\n{out}");

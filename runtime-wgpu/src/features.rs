@@ -1,8 +1,10 @@
-//! The input features of the batched kernels (tiled, unrolled, matrix), generated for a
-//! material's latent layout (features.wgsl): `nmat_fixed_features`, bit-identical with
-//! texel.wgsl's `nmat_features`, with channel counts, bit widths, feature indices and the
-//! positional encoding's constants as literals and each grid cell's codes read from its few
-//! words at once.
+//! A texel's input features as `nmat_decode` (texel.wgsl) and the batched kernels compute them:
+//! `nmat_texel_features`, either texel.wgsl's generic `nmat_features` ([`GENERIC`], any
+//! material) or code generated for a material's latent layout ([`wgsl`], features.wgsl),
+//! bit-identical with it, with channel counts, bit widths, feature indices and the positional
+//! encoding's constants as literals and each grid cell's codes read from its few words at once.
+//! The batched kernels (tiled, unrolled, matrix) and a material's own sampling module
+//! ([`crate::SampleBindings::module_for`]) take the generated one.
 
 use nmat_core::{Neural, TermMode};
 use std::fmt::Write as _;
@@ -21,18 +23,57 @@ struct Term {
 /// The four cells of a footprint in the order `nmat_features` takes them.
 const CELLS: [(&str, &str); 4] = [("x0", "y0"), ("x1", "y0"), ("x0", "y1"), ("x1", "y1")];
 
-/// features.wgsl and `fn nmat_fixed_features(xi, yi, mip)` for `n`'s layout: one function per
-/// distinct layout of a level, chosen by the texel's level. Should the material's levels and
-/// network not agree (a chain's grids in other channel counts, levels of other widths than the
-/// first layer's inputs: parsing refuses both), `nmat_fixed_features` is texel.wgsl's
-/// `nmat_features`.
-pub(crate) fn wgsl(n: &Neural<'_>) -> String {
-    let generated = generate(n).unwrap_or_else(|| {
-        "fn nmat_fixed_features(xi: i32, yi: i32, mip_in: u32) {\n    \
-         nmat_features(xi, yi, mip_in);\n}\n"
-            .to_string()
-    });
-    format!("{}\n{generated}", include_str!("shaders/features.wgsl"))
+/// `nmat_texel_features` for any material: texel.wgsl's `nmat_features`.
+pub(crate) const GENERIC: &str = "// nmat: a texel's input features, for any material.\n\
+fn nmat_texel_features(xi: i32, yi: i32, mip_in: u32) {\n    nmat_features(xi, yi, mip_in);\n}\n";
+
+/// features.wgsl and `fn nmat_texel_features(xi, yi, mip)` for `n`'s layout: one function per
+/// distinct layout of a level, chosen by the texel's level. Where `checked`, it first compares
+/// the bound material's [`key`] (its descriptor's `features_key_lo` and `_hi`) with `n`'s, and
+/// computes the generic features for a material of another layout: a shader made for one
+/// material then decodes any other exactly, only slower (the sampling module, which an engine
+/// may bind to any material). Unchecked for the batched kernels, whose pipelines are shared by
+/// materials of this layout only (they are keyed by their source), and where the generic
+/// features, which index `nmat_act_a` at run time, would keep it out of registers. Should the
+/// material's levels and network not agree (a chain's grids in other channel counts, levels of
+/// other widths than the first layer's inputs: parsing refuses both), [`GENERIC`].
+pub(crate) fn wgsl(n: &Neural<'_>, checked: bool) -> String {
+    let Some(generated) = generate(n) else { return GENERIC.to_string() };
+    let [lo, hi] = fingerprint(&generated);
+    let body = if checked {
+        format!(
+            "    let key = vec2<u32>(nmat_desc[NMAT_DESC_FEATURES_KEY_LO], \
+             nmat_desc[NMAT_DESC_FEATURES_KEY_HI]);\n    \
+             if (all(key == vec2<u32>({lo}u, {hi}u))) {{\n        \
+             nmat_fixed_features(xi, yi, mip_in);\n    \
+             }} else {{\n        \
+             nmat_features(xi, yi, mip_in);\n    \
+             }}\n"
+        )
+    } else {
+        "    nmat_fixed_features(xi, yi, mip_in);\n".to_string()
+    };
+    format!(
+        "{}\n{generated}fn nmat_texel_features(xi: i32, yi: i32, mip_in: u32) {{\n{body}}}\n",
+        include_str!("shaders/features.wgsl")
+    )
+}
+
+/// The fingerprint of `n`'s generated features, which its descriptor carries (`features_key_lo`
+/// and `_hi`);
+/// 0 where they are not generated (no generated code has it: a fingerprint of 0 is made 1).
+pub(crate) fn key(n: &Neural<'_>) -> [u32; 2] {
+    generate(n).map_or([0, 0], |generated| fingerprint(&generated))
+}
+
+/// 64-bit FNV-1a of the generated code (equal codes, equal features), as two words, never 0.
+fn fingerprint(generated: &str) -> [u32; 2] {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in generated.bytes() {
+        h = (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    let h = h.max(1);
+    [h as u32, (h >> 32) as u32]
 }
 
 /// The generated functions, or `None` where the levels and the network do not agree.
@@ -268,12 +309,22 @@ mod tests {
             let bytes = fixture(&cfg).to_bytes().unwrap();
             let m = Container::parse(&bytes).unwrap();
             let n = m.neural().expect("a neural fixture");
-            let source = wgsl(n);
-            assert_eq!(source.matches("fn nmat_fixed_features").count(), 1, "{}", cfg.name);
+            let source = wgsl(n, false);
+            assert_eq!(source.matches("fn nmat_texel_features").count(), 1, "{}", cfg.name);
             assert!(!source.contains("nmat_features("), "{}: the generic features", cfg.name);
+            // Checked (the sampling module): the generic features where the bound material has
+            // another layout.
+            let checked = wgsl(n, true);
+            assert_eq!(checked.matches("nmat_features(").count(), 1, "{}", cfg.name);
             if cfg.name.starts_with("nbc") {
                 assert!(source.contains("switch level"), "{}: one layout", cfg.name);
             }
+            // It goes into engines' shaders (SampleBindings::module_for): nmat's names only.
+            let foreign: Vec<&str> = checked
+                .lines()
+                .filter(|l| l.starts_with("fn ") && !l.starts_with("fn nmat_"))
+                .collect();
+            assert!(foreign.is_empty(), "{}: {foreign:?}", cfg.name);
         }
     }
 }

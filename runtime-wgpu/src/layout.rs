@@ -208,6 +208,11 @@ shader_layout! {
         level_of_mip: [u32; MAX_MIPS],
         /// A [`ChannelRange`] per channel (for `nmat_sample`).
         ranges_at: u32,
+        /// A 64-bit fingerprint (low word, high word) of the input features generated for the
+        /// material's latent layout (features.rs, `key`): generated features check it, and
+        /// compute the generic ones for a material of another layout.
+        features_key_lo: u32,
+        features_key_hi: u32,
     }
 }
 
@@ -603,9 +608,15 @@ pub(crate) fn neural_wgsl() -> String {
 }
 
 /// texel.wgsl (the decoder every decode shader and the sampling module include) with the
-/// descriptor's layout it reads.
+/// descriptor's layout it reads and the generic `nmat_texel_features` (any material).
 pub(crate) fn texel_wgsl() -> String {
-    format!("{}\n{}", neural_wgsl(), include_str!("shaders/texel.wgsl"))
+    texel_wgsl_with(crate::features::GENERIC)
+}
+
+/// texel.wgsl with `features`: a definition of `nmat_texel_features`, the input features
+/// `nmat_decode` computes ([`crate::features`]).
+pub(crate) fn texel_wgsl_with(features: &str) -> String {
+    format!("{}\n{}\n{features}", neural_wgsl(), include_str!("shaders/texel.wgsl"))
 }
 
 /// decode.wgsl (the reference kernel and the bindings every decode kernel shares) with its
@@ -810,7 +821,7 @@ mod tests {
     /// terms of a mode, a chain length and eight grids).
     #[test]
     fn records_have_the_sizes_the_format_gives_them() {
-        assert_eq!(NeuralHeader::WORDS, 31);
+        assert_eq!(NeuralHeader::WORDS, 33);
         assert_eq!(TermRecord::WORDS, 2 + MAX_CHAIN);
         assert_eq!(LevelRecord::WORDS, 1 + MAX_TERMS * TermRecord::WORDS);
         assert_eq!(JpegHeader::WORDS, 16 + 2 * MAX_MIPS);

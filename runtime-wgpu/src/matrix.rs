@@ -123,7 +123,7 @@ impl Shape {
             .find(|&w| bytes(w) <= limit)
             .ok_or("the network is too large for the device's workgroup memory")?;
         let fracs = n.mlp().layers().iter().map(|l| u32::from(l.out_frac_bits())).collect();
-        let features = crate::features::wgsl(n);
+        let features = crate::features::wgsl(n, false);
         Ok(Shape {
             warps,
             blocks,
@@ -178,7 +178,7 @@ impl Shape {
              const WMAX: u32 = {}u;\nconst CH: u32 = {}u;\nconst WTOTAL: u32 = {}u;\n\
              const PART: u32 = {}u;\n{}\
              fn stage_weights(lid: u32) {{\n{stage}    workgroupBarrier();\n}}\n\
-             fn layers(lane: u32, warp: u32) {{\n{layers}}}\n{}\n{}\n{}\n{}\n{}\n{}",
+             fn layers(lane: u32, warp: u32) {{\n{layers}}}\n{}\n{}\n{}\n{}\n{}",
             self.batch(),
             self.warps,
             self.blocks,
@@ -191,8 +191,7 @@ impl Shape {
             self.total,
             part.code(),
             Part::STAND_IN_WGSL,
-            crate::layout::texel_wgsl(),
-            self.features,
+            crate::layout::texel_wgsl_with(&self.features),
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),
             include_str!("shaders/matrix.wgsl"),

@@ -43,13 +43,32 @@ impl SampleBindings {
     /// declarations may come in any order). One material per module: a shader sampling two
     /// materials binds them one after the other (or includes two modules renamed by the engine).
     pub fn module(&self) -> String {
+        self.module_with(crate::features::GENERIC)
+    }
+
+    /// [`SampleBindings::module`] specialised to `material`'s latent layout: the same entries,
+    /// names and results, bit for bit, with the input features of each decode computed by code
+    /// generated for that layout (each grid channel's count and bits per code, the levels'
+    /// terms, as literals; docs/GPU.md, "Input features") instead of read from the descriptor —
+    /// the code the batched kernels decode regions with. It binds `material`, or any material
+    /// of the same layout and network (e.g. encoded with the same `nmat encode` options and
+    /// rate); with another material its decodes are wrong. [`GpuError::Codec`] for a JPEG
+    /// material.
+    pub fn module_for(&self, material: &GpuMaterial) -> Result<String, GpuError> {
+        material.neural()?;
+        let features = material.features.as_deref().ok_or(GpuError::Codec)?;
+        Ok(self.module_with(features))
+    }
+
+    /// The module with `features` as its `nmat_texel_features`.
+    fn module_with(&self, features: &str) -> String {
         let (g, b) = (self.group, self.first_binding);
         format!(
             "// nmat: the material's bindings (nmat_wgpu::SampleBindings).\n\
              @group({g}) @binding({b}) var<storage, read> nmat_desc: array<u32>;\n\
              @group({g}) @binding({}) var<storage, read> nmat_latents: array<u32>;\n\n{}\n{}\n{}",
             b + 1,
-            crate::layout::texel_wgsl(),
+            crate::layout::texel_wgsl_with(features),
             include_str!("shaders/sample.wgsl"),
             include_str!("shaders/filter.wgsl"),
         )

@@ -115,7 +115,7 @@ impl Shape {
             .iter()
             .map(|l| (l.inputs().div_ceil(4) as u32, l.outputs().div_ceil(4) as u32))
             .collect();
-        Some(Shape { texels, wmax, channels, layers, features: crate::features::wgsl(n) })
+        Some(Shape { texels, wmax, channels, layers, features: crate::features::wgsl(n, false) })
     }
 
     /// The WGSL of the pipeline: this shape's constants and layer calls, then `decode`; only
@@ -143,14 +143,13 @@ impl Shape {
         format!(
             "const P: u32 = {}u;\nconst WMAX: u32 = {}u;\nconst CH: u32 = {}u;\n\
              const PART: u32 = {}u;\n{}\
-             fn layers(lid: u32) {{\n{calls}}}\n{}\n{}\n{}\n{products}\n{}\n{}\n",
+             fn layers(lid: u32) {{\n{calls}}}\n{}\n{}\n{products}\n{}\n{}\n",
             self.texels,
             self.wmax,
             self.channels,
             part.code(),
             Part::STAND_IN_WGSL,
-            crate::layout::texel_wgsl(),
-            self.features,
+            crate::layout::texel_wgsl_with(&self.features),
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),
             include_str!("shaders/tiled.wgsl"),

@@ -53,7 +53,7 @@ impl Shape {
             dot4,
             channels: m.channel_count() as u32,
             layers,
-            features: crate::features::wgsl(n),
+            features: crate::features::wgsl(n, false),
         })
     }
 
@@ -66,13 +66,12 @@ impl Shape {
             include_str!("shaders/unrolled_i32.wgsl")
         };
         format!(
-            "const P: u32 = 64u;\nconst CH: u32 = {}u;\nconst PART: u32 = {}u;\n{}{}\n{}\n{}\n{}\n{}\n{}\n{}\n{}",
+            "const P: u32 = 64u;\nconst CH: u32 = {}u;\nconst PART: u32 = {}u;\n{}{}\n{}\n{}\n{}\n{}\n{}\n{}",
             self.channels,
             part.code(),
             Part::STAND_IN_WGSL,
             self.network(),
-            crate::layout::texel_wgsl(),
-            self.features,
+            crate::layout::texel_wgsl_with(&self.features),
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),
             products,

@@ -310,6 +310,7 @@ fn network_words(m: &Material<'_>, n: &Neural<'_>) -> Result<(Vec<u32>, Vec<u32>
         grid_count: n.grids().len() as u32,
         ..NeuralHeader::default()
     };
+    [head.features_key_lo, head.features_key_hi] = crate::features::key(n);
     for mip in 0..m.mip_count() {
         head.level_of_mip[mip as usize] = n.level_for_mip(mip) as u32;
     }
@@ -534,6 +535,10 @@ impl GpuMaterial {
             rejected: Vec::new(),
             body,
             tile_decoder: None,
+            features: match m.body() {
+                Body::Neural(n) => Some(crate::features::wgsl(n, true)),
+                Body::Jpeg(_) => None,
+            },
         }
     }
 }
@@ -559,6 +564,9 @@ pub struct GpuMaterial {
     /// The entry of its kernel that decodes the tile cache's new tiles, checked against the CPU
     /// at upload; `None`: one texel per invocation (cache_decode.wgsl, or JPEG's MCU kernel).
     pub(crate) tile_decoder: Option<TileDecoder>,
+    /// A neural material's input features generated for its latent layout (features.rs), for
+    /// [`crate::SampleBindings::module_for`]; `None` for a JPEG material.
+    pub(crate) features: Option<String>,
 }
 
 /// The tiled or matrix kernel's pipeline and texels per workgroup (`None`: the reference

@@ -1,6 +1,6 @@
-//! Inference on sample (`SampleBindings::module`): `nmat_texel` in a compute shader gives the
-//! CPU's codes byte for byte, and the example's fragment shader (`examples/sample_quad.rs`, run
-//! here as a module) draws every filter, lod and channel group of the golden fixtures and a
+//! Inference on sample (`SampleBindings::module`, and `module_for` a material's layout):
+//! `nmat_texel` in a compute shader gives the CPU's codes byte for byte through either, and the
+//! example's fragment shader (`examples/sample_quad.rs`, run here as a module) draws every filter, lod and channel group of the golden fixtures and a
 //! trained material like `Material::sample` on the CPU, to f32 rounding. The coordinates cross
 //! the material's edges (wrap and clamp addressing) and the lods go past the chain.
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
@@ -60,11 +60,11 @@ fn fragment_shader_samples_like_the_cpu() {
     }
 }
 
-/// A compute shader writing `nmat_texel`'s 16 codes per request (channels in `mask`).
-fn texel_shader(mask: u16) -> String {
-    let bindings = SampleBindings { group: 0, first_binding: 0 };
+/// A compute shader writing `nmat_texel`'s 16 codes per request (channels in `mask`), the
+/// sampling module being `module`.
+fn texel_shader(module: &str, mask: u16) -> String {
     format!(
-        "{}\n\
+        "{module}\n\
          @group(0) @binding(2) var<storage, read> reqs: array<i32>;\n\
          @group(0) @binding(3) var<storage, read_write> out: array<u32>;\n\
          @compute @workgroup_size(64)\n\
@@ -74,8 +74,7 @@ fn texel_shader(mask: u16) -> String {
              let xy = vec2<i32>(reqs[3u * i], reqs[3u * i + 1u]);\n\
              let codes = nmat_texel(xy, bitcast<u32>(reqs[3u * i + 2u]), {mask}u);\n\
              for (var c = 0u; c < 16u; c++) {{ out[16u * i + c] = codes[c]; }}\n\
-         }}\n",
-        bindings.module()
+         }}\n"
     )
 }
 
@@ -104,68 +103,90 @@ fn texel_codes_match_the_cpu_byte_for_byte() {
         bind_group_layouts: &[Some(&layout)],
         immediate_size: 0,
     });
-    for mask in [0xFFFF, 0b1010_0101_0110] {
+    let pipeline = |module: &str, mask| {
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: None,
-            source: wgpu::ShaderSource::Wgsl(texel_shader(mask).into()),
+            source: wgpu::ShaderSource::Wgsl(texel_shader(module, mask).into()),
         });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: None,
             layout: Some(&pipeline_layout),
             module: &module,
             entry_point: Some("main"),
             compilation_options: Default::default(),
             cache: None,
-        });
+        })
+    };
+    // A module specialised to another material's layout (a 16-channel one with 8-bit codes):
+    // bound to any other material, it computes the generic features.
+    let config = golden_configs().into_iter().find(|c| c.name == "ntc_16ch_8bit_32").unwrap();
+    let other = generate(&config).to_bytes().unwrap();
+    let other = ctx.upload(&device, &queue, &Container::parse(&other).unwrap()).unwrap();
+    for mask in [0xFFFF, 0b1010_0101_0110] {
+        let any_material = pipeline(&bindings.module(), mask);
+        let other_material = pipeline(&bindings.module_for(&other).unwrap(), mask);
         for (name, bytes) in materials() {
             let m = Container::parse(&bytes).unwrap();
             let gpu = ctx.upload(&device, &queue, &m).unwrap();
-            let reqs = random_requests(7, 300, 200, m.mip_count() + 2);
-            let words: Vec<u8> = reqs
-                .iter()
-                .flat_map(|r| [r.x, r.y, r.mip as i32])
-                .flat_map(i32::to_le_bytes)
-                .collect();
-            let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
-            let input = buffer(&device, words.len() as u64, usage, None);
-            queue.write_buffer(&input, 0, &words);
-            let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
-            let out = buffer(&device, 64 * reqs.len() as u64, usage, None);
-            let [desc, latents] = gpu.sample_entries(bindings).unwrap();
-            let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: None,
-                layout: &layout,
-                entries: &[
-                    desc,
-                    latents,
-                    wgpu::BindGroupEntry { binding: 2, resource: input.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 3, resource: out.as_entire_binding() },
-                ],
-            });
-            let mut encoder = device.create_command_encoder(&Default::default());
-            {
-                let mut pass = encoder.begin_compute_pass(&Default::default());
-                pass.set_pipeline(&pipeline);
-                pass.set_bind_group(0, &group, &[]);
-                pass.dispatch_workgroups((reqs.len() as u32).div_ceil(64), 1, 1);
-            }
-            let got: Vec<u32> = submit_and_read(&device, &queue, encoder, &out)
-                .chunks(4)
-                .map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]))
-                .collect();
-            // The CPU's codes, put back at their channel's index (0 for the others; all 0 where
-            // the material has none of the channels).
-            let kept = mask & (((1u32 << m.channel_count()) - 1) as u16);
-            let channels: Vec<usize> = (0..16).filter(|c| kept & (1 << c) != 0).collect();
-            let packed =
-                if kept == 0 { Vec::new() } else { cpu_codes(&m, &reqs, ChannelMask(kept)) };
-            let mut want = vec![0u32; 16 * reqs.len()];
-            for (i, codes) in packed.chunks(channels.len().max(1)).enumerate() {
-                for (&c, &code) in channels.iter().zip(codes) {
-                    want[16 * i + c] = u32::from(code);
+            // The module for any material, the one specialised to this material's layout, and
+            // the one specialised to another material's.
+            let this_material = pipeline(&bindings.module_for(&gpu).unwrap(), mask);
+            let modules = [
+                ("module", &any_material),
+                ("module_for", &this_material),
+                ("module_for another material", &other_material),
+            ];
+            for (module, pipeline) in modules {
+                let reqs = random_requests(7, 300, 200, m.mip_count() + 2);
+                let words: Vec<u8> = reqs
+                    .iter()
+                    .flat_map(|r| [r.x, r.y, r.mip as i32])
+                    .flat_map(i32::to_le_bytes)
+                    .collect();
+                let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
+                let input = buffer(&device, words.len() as u64, usage, None);
+                queue.write_buffer(&input, 0, &words);
+                let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
+                let out = buffer(&device, 64 * reqs.len() as u64, usage, None);
+                let [desc, latents] = gpu.sample_entries(bindings).unwrap();
+                let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: None,
+                    layout: &layout,
+                    entries: &[
+                        desc,
+                        latents,
+                        wgpu::BindGroupEntry { binding: 2, resource: input.as_entire_binding() },
+                        wgpu::BindGroupEntry { binding: 3, resource: out.as_entire_binding() },
+                    ],
+                });
+                let mut encoder = device.create_command_encoder(&Default::default());
+                {
+                    let mut pass = encoder.begin_compute_pass(&Default::default());
+                    pass.set_pipeline(pipeline);
+                    pass.set_bind_group(0, &group, &[]);
+                    pass.dispatch_workgroups((reqs.len() as u32).div_ceil(64), 1, 1);
                 }
+                let got: Vec<u32> = submit_and_read(&device, &queue, encoder, &out)
+                    .chunks(4)
+                    .map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]))
+                    .collect();
+                // The CPU's codes, put back at their channel's index (0 for the others; all 0 where
+                // the material has none of the channels).
+                let kept = mask & (((1u32 << m.channel_count()) - 1) as u16);
+                let channels: Vec<usize> = (0..16).filter(|c| kept & (1 << c) != 0).collect();
+                let packed =
+                    if kept == 0 { Vec::new() } else { cpu_codes(&m, &reqs, ChannelMask(kept)) };
+                let mut want = vec![0u32; 16 * reqs.len()];
+                for (i, codes) in packed.chunks(channels.len().max(1)).enumerate() {
+                    for (&c, &code) in channels.iter().zip(codes) {
+                        want[16 * i + c] = u32::from(code);
+                    }
+                }
+                assert!(
+                    got == want,
+                    "{name}, mask {mask:#x}: nmat_texel of {module} differs from the CPU"
+                );
             }
-            assert!(got == want, "{name}, mask {mask:#x}: nmat_texel differs from the CPU");
         }
     }
 }

@@ -134,29 +134,33 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
             &gm,
         ));
     }
-    // Inference on sample: nmat_sample (the module engines include) once per texel of the region,
-    // a quarter texel off centre and halfway between mips 0 and 1 (so a trilinear sample decodes
-    // all 8 texels), in a compute shader; its rate is of decoded texels.
+    // Inference on sample: nmat_sample (the module engines include: for any material, and
+    // specialised to this one's layout) once per texel of the region, a quarter texel off centre
+    // and halfway between mips 0 and 1 (so a trilinear sample decodes all 8 texels), in a compute
+    // shader; its rate is of decoded texels.
     // (A JPEG material has no sample module: it decodes by regions and requests.)
-    let sampler = Sampler::new(&device, side);
+    let sampler = Sampler::new(&device, side, &gm);
     let mut refused = Vec::new();
     let jpeg = gm.codec() == nmat_core::Codec::Jpeg;
-    for (mode, decodes) in [("NMAT_STOCHASTIC", 1), ("NMAT_TRILINEAR", 8)] {
+    let modes = [("NMAT_STOCHASTIC", 1), ("NMAT_TRILINEAR", 8)];
+    for (own, (mode, decodes)) in [false, true].into_iter().flat_map(|o| modes.map(|m| (o, m))) {
         if jpeg {
             break;
         }
-        if !sampler.pipelines.iter().any(|(m, _)| *m == mode) {
-            refused.push(mode);
+        if !sampler.pipelines.iter().any(|p| (p.0, p.1) == (mode, own)) {
+            refused.push(format!("{mode}{}", if own { " (module_for)" } else { "" }));
             continue;
         }
         let filter = mode.trim_start_matches("NMAT_").to_lowercase();
         let name = format!(
-            "nmat_sample {filter}, {}×{} samples × {decodes} decode{}, all channels",
+            "nmat_sample {filter}{}, {}×{} samples × {decodes} decode{}, all channels",
+            if own { " (module_for the material)" } else { "" },
             side.0,
             side.1,
             if decodes == 1 { "" } else { "s" }
         );
-        rows.push((name, texels(side) * decodes, macs(m, c), Work::Sample(side, mode), &gm));
+        let work = Work::Sample(side, mode, own);
+        rows.push((name, texels(side) * decodes, macs(m, c), work, &gm));
     }
     for other in &others {
         let name =
@@ -229,14 +233,16 @@ enum Work {
     Chain,
     /// The random requests, every channel.
     Requests,
-    /// One `nmat_sample` with this mode per texel of the top-left (width, height) of mip 0.
-    Sample((u32, u32), &'static str),
+    /// One `nmat_sample` with this mode per texel of the top-left (width, height) of mip 0,
+    /// through the module for any material or (true) the one for the material's layout.
+    Sample((u32, u32), &'static str, bool),
 }
 
-/// Compute pipelines calling `nmat_sample` (one per mode), the sink they write to.
+/// Compute pipelines calling `nmat_sample` (per mode, through `SampleBindings::module` and
+/// through `module_for` the material: true), the sink they write to.
 struct Sampler {
     layout: wgpu::BindGroupLayout,
-    pipelines: Vec<(&'static str, wgpu::ComputePipeline)>,
+    pipelines: Vec<(&'static str, bool, wgpu::ComputePipeline)>,
     sink: wgpu::Buffer,
 }
 
@@ -244,7 +250,7 @@ impl Sampler {
     const BINDINGS: nmat_wgpu::SampleBindings =
         nmat_wgpu::SampleBindings { group: 0, first_binding: 0 };
 
-    fn new(device: &wgpu::Device, (w, h): (u32, u32)) -> Sampler {
+    fn new(device: &wgpu::Device, (w, h): (u32, u32), gm: &GpuMaterial) -> Sampler {
         let [desc, latents] = Self::BINDINGS.layout_entries(wgpu::ShaderStages::COMPUTE);
         let sink = wgpu::BindGroupLayoutEntry {
             binding: 2,
@@ -265,9 +271,14 @@ impl Sampler {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        let pipelines = ["NMAT_STOCHASTIC", "NMAT_TRILINEAR"]
+        let pipelines = [false, true]
             .into_iter()
-            .filter_map(|mode| {
+            .flat_map(|own| ["NMAT_STOCHASTIC", "NMAT_TRILINEAR"].map(|mode| (own, mode)))
+            .filter_map(|(own, mode)| {
+                let module = match own {
+                    true => Self::BINDINGS.module_for(gm).ok()?,
+                    false => Self::BINDINGS.module(),
+                };
                 // u = (x + ¼) / width (every bilinear weight nonzero on mips 0 and 1), random
                 // numbers on a 1/16 lattice;
                 // the sum of the channels is written so that nothing is optimised away.
@@ -287,7 +298,7 @@ impl Sampler {
                          for (var c = 0u; c < 16u; c++) {{ sum += s[c]; }}\n\
                          sink[i] = sum;\n\
                      }}\n",
-                    Self::BINDINGS.module()
+                    module
                 );
                 // A device that refuses the shader loses the row, not the table.
                 let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -304,7 +315,7 @@ impl Sampler {
                     cache: None,
                 });
                 let refused = pollster::block_on(scope.pop()).is_some();
-                (!refused).then_some((mode, pipeline))
+                (!refused).then_some((mode, own, pipeline))
             })
             .collect();
         let sink = device.create_buffer(&wgpu::BufferDescriptor {
@@ -321,10 +332,11 @@ impl Sampler {
         device: &wgpu::Device,
         e: &mut wgpu::CommandEncoder,
         gm: &GpuMaterial,
-        mode: &str,
+        (mode, own): (&str, bool),
         n: u64,
     ) -> std::result::Result<(), GpuError> {
-        let Some((_, pipeline)) = self.pipelines.iter().find(|(m, _)| *m == mode) else {
+        let Some((_, _, pipeline)) = self.pipelines.iter().find(|p| (p.0, p.1) == (mode, own))
+        else {
             return Ok(());
         };
         let [desc, latents] = gm.sample_entries(Self::BINDINGS)?;
@@ -378,7 +390,9 @@ impl Gpu<'_> {
                 let (buffer, count) = self.requests;
                 ctx.record_requests(device, e, gm, (buffer, 0, count), all, (out, 0))?;
             }
-            Work::Sample(side, mode) => self.sampler.record(device, e, gm, mode, texels(side))?,
+            Work::Sample(side, mode, own) => {
+                self.sampler.record(device, e, gm, (mode, own), texels(side))?
+            }
         }
         Ok(())
     }

@@ -7,7 +7,7 @@
 // slot. A tile's batch is P texels of it (row-major, 16 a row), P a multiple of 4 dividing 256.
 
 // The input features of texel `index` of the dispatch (request or rectangle, decode.wgsl's
-// `texel_of`) in nmat_act_a[0..inputs) (`nmat_fixed_features`, generated for the material's
+// `texel_of`) in nmat_act_a[0..inputs) (`nmat_texel_features`, generated for the material's
 // latent layout by features.rs); stand-in features varying by texel instead in a
 // pipeline that times the layers alone (`PART == 2u`, measure.rs).
 fn nmat_batch_features(index: u32, inputs: u32) {
@@ -15,7 +15,7 @@ fn nmat_batch_features(index: u32, inputs: u32) {
         stand_in_features(index, inputs);
     } else {
         let texel = texel_of(index);
-        nmat_fixed_features(texel.x, texel.y, bitcast<u32>(texel.z));
+        nmat_texel_features(texel.x, texel.y, bitcast<u32>(texel.z));
     }
 }
 

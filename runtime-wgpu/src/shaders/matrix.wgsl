@@ -208,7 +208,7 @@ fn matrix_cache(
         for (var t = lid; t < P; t += SG * NW) {
             if (nmat_tile_has(tile, t0 + t)) {
                 let xy = nmat_tile_texel(tile, t0 + t);
-                nmat_fixed_features(i32(xy.x), i32(xy.y), tile.mip);
+                nmat_texel_features(i32(xy.x), i32(xy.y), tile.mip);
                 put_features(t, inputs);
             }
         }

@@ -12,6 +12,10 @@
 // NMAT_TERM_* (how a level's features are made), NMAT_LAYER_* and NMAT_ROW_* (layers, their i32
 // weights and per-row constants), NMAT_REQUANT_* (the tiled and matrix kernels' row tables), and
 // *_WORDS for each record's size.
+//
+// `nmat_decode` takes a texel's features from `nmat_texel_features`, which the includer appends
+// (features.rs): `nmat_features` below for any material, or code generated for one material's
+// latent layout, which gives the same features.
 
 fn nmat_weight(i: u32) -> i32 {
     return bitcast<i32>(nmat_desc[i]);
@@ -281,7 +285,7 @@ fn nmat_features(xi: i32, yi: i32, mip_in: u32) {
 
 // Decodes texel (xi, yi) of `mip_in` into nmat_codes, the channels in `mask` (bit c: channel c).
 fn nmat_decode(xi: i32, yi: i32, mip_in: u32, mask: u32) {
-    nmat_features(xi, yi, mip_in);
+    nmat_texel_features(xi, yi, mip_in);
     let layer_count = nmat_desc[NMAT_DESC_LAYER_COUNT];
     var out_frac = 1u;
     for (var l = 0u; l < layer_count; l++) {

@@ -11,7 +11,7 @@
 // `stand_in_features`) and `fn layers(lid)`, which calls `layer` once per layer with its widths
 // as literals, a barrier after each (`features_sink` instead in a pipeline timing the
 // features). Then texel.wgsl (the decoder), the input features for the material's latent layout
-// (features.rs: features.wgsl and `nmat_fixed_features`), decode.wgsl (bindings), one of
+// (features.rs: features.wgsl and `nmat_texel_features`), decode.wgsl (bindings), one of
 // tiled_i32.wgsl / tiled_dot4.wgsl (where activations live and how a tile's products are
 // formed), requant.wgsl (`requant_with`), this file, then batch.wgsl.
 //
@@ -131,7 +131,7 @@ fn tiled_cache(
         for (var t = lid; t < P; t += 64u) {
             if (nmat_tile_has(tile, t0 + t)) {
                 let xy = nmat_tile_texel(tile, t0 + t);
-                nmat_fixed_features(i32(xy.x), i32(xy.y), tile.mip);
+                nmat_texel_features(i32(xy.x), i32(xy.y), tile.mip);
                 put_features(t, inputs);
             }
         }

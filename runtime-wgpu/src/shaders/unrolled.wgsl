@@ -103,7 +103,7 @@ fn unrolled_cache(
     let t0 = 64u * (g % 4u);
     if (nmat_tile_has(tile, t0 + lid)) {
         let xy = nmat_tile_texel(tile, t0 + lid);
-        nmat_fixed_features(i32(xy.x), i32(xy.y), tile.mip);
+        nmat_texel_features(i32(xy.x), i32(xy.y), tile.mip);
         network(lid);
     }
     workgroupBarrier();
