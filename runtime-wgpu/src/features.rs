@@ -60,8 +60,8 @@ pub(crate) fn wgsl(n: &Neural<'_>, checked: bool) -> String {
 }
 
 /// The fingerprint of `n`'s generated features, which its descriptor carries (`features_key_lo`
-/// and `_hi`);
-/// 0 where they are not generated (no generated code has it: a fingerprint of 0 is made 1).
+/// and `_hi`); 0 where they are not generated (which no generated code has: its fingerprint is
+/// never 0).
 pub(crate) fn key(n: &Neural<'_>) -> [u32; 2] {
     generate(n).map_or([0, 0], |generated| fingerprint(&generated))
 }

@@ -50,10 +50,11 @@ impl SampleBindings {
     /// names and results, bit for bit, with the input features of each decode computed by code
     /// generated for that layout (each grid channel's count and bits per code, the levels'
     /// terms, as literals; docs/GPU.md, "Input features") instead of read from the descriptor —
-    /// the code the batched kernels decode regions with. It binds `material`, or any material
-    /// of the same layout and network (e.g. encoded with the same `nmat encode` options and
-    /// rate); with another material its decodes are wrong. [`GpuError::Codec`] for a JPEG
-    /// material.
+    /// the code the batched kernels decode regions with. Made for `material` and the materials
+    /// of its layout (e.g. encoded with the same `nmat encode` options), but exact with any: it
+    /// compares a fingerprint of its code with the one the bound material's descriptor carries
+    /// and, for a material of another layout, computes the generic features (same codes, the
+    /// generic speed). [`GpuError::Codec`] for a JPEG material.
     pub fn module_for(&self, material: &GpuMaterial) -> Result<String, GpuError> {
         material.neural()?;
         let features = material.features.as_deref().ok_or(GpuError::Codec)?;
