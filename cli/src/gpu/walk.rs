@@ -15,10 +15,11 @@ use nmat_wgpu::measure::{self, Clock};
 use nmat_wgpu::wgpu;
 use nmat_wgpu::{CacheLookup, Context, SampleBindings, read_buffer};
 
-/// A compute shader writing channels 0–2 of `nmat_sample` for the lookups of one material.
-fn direct_source(material: usize) -> String {
+/// A compute shader writing channels 0–2 of `nmat_sample` for the lookups of one material, the
+/// sampling module being `module` (its own: `SampleBindings::module_for`).
+fn direct_source(material: usize, module: &str) -> String {
     format!(
-        "{}\n\
+        "{module}\n\
          @group(0) @binding(2) var<storage, read> lookups: array<u32>;\n\
          @group(0) @binding(3) var<storage, read_write> out: array<f32>;\n\
          @compute @workgroup_size(64)\n\
@@ -30,8 +31,7 @@ fn direct_source(material: usize) -> String {
              out[3u * i] = v[0];\n\
              out[3u * i + 1u] = v[1];\n\
              out[3u * i + 2u] = v[2];\n\
-         }}\n",
-        SampleBindings { group: 0, first_binding: 0 }.module()
+         }}\n"
     )
 }
 
@@ -59,14 +59,17 @@ pub fn walk(opts: &Options, materials: &[Material<'_>], mips: bool) -> Result<Wa
     let lookups = buffer("walk lookups", CacheLookup::BYTES * pixels, U::STORAGE | U::COPY_DST);
     let cached_out = buffer("walk cached", 12 * pixels, U::STORAGE | U::COPY_SRC);
     let direct_out = buffer("walk direct", 12 * pixels, U::STORAGE | U::COPY_SRC);
-    // Direct sampling: one pass per material (the sampling module binds one material).
+    // Direct sampling: one pass per material (the sampling module binds one material), each
+    // through the module specialised to its layout, as an engine would compile them.
     let neural = gpus.iter().all(|g| g.codec() == nmat_core::Codec::Neural);
     let mut direct = Vec::new();
     if neural {
+        let bindings = SampleBindings { group: 0, first_binding: 0 };
         for (k, g) in gpus.iter().enumerate() {
+            let source = direct_source(k, &bindings.module_for(g)?);
             let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some("walk direct"),
-                source: wgpu::ShaderSource::Wgsl(direct_source(k).into()),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
             });
             let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some("walk direct"),
@@ -76,7 +79,7 @@ pub fn walk(opts: &Options, materials: &[Material<'_>], mips: bool) -> Result<Wa
                 compilation_options: Default::default(),
                 cache: None,
             });
-            let [a, b] = g.sample_entries(SampleBindings { group: 0, first_binding: 0 })?;
+            let [a, b] = g.sample_entries(bindings)?;
             let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("walk direct"),
                 layout: &pipeline.get_bind_group_layout(0),
