@@ -1,6 +1,6 @@
 //! A texel's input features as `nmat_decode` (texel.wgsl) and the batched kernels compute them:
 //! `nmat_texel_features`, either texel.wgsl's generic `nmat_features` ([`GENERIC`], any
-//! material) or code generated for a material's latent layout ([`wgsl`], features.wgsl),
+//! material) or code generated for a material's latent layout ([`Features`], features.wgsl),
 //! bit-identical with it, with channel counts, bit widths, feature indices and the positional
 //! encoding's constants as literals and each grid cell's codes read from its few words at once.
 //! The batched kernels (tiled, unrolled, matrix) and a material's own sampling module
@@ -27,43 +27,61 @@ const CELLS: [(&str, &str); 4] = [("x0", "y0"), ("x1", "y0"), ("x0", "y1"), ("x1
 pub(crate) const GENERIC: &str = "// nmat: a texel's input features, for any material.\n\
 fn nmat_texel_features(xi: i32, yi: i32, mip_in: u32) {\n    nmat_features(xi, yi, mip_in);\n}\n";
 
-/// features.wgsl and `fn nmat_texel_features(xi, yi, mip)` for `n`'s layout: one function per
-/// distinct layout of a level, chosen by the texel's level. Where `checked`, it first compares
-/// the bound material's [`key`] (its descriptor's `features_key_lo` and `_hi`) with `n`'s, and
-/// computes the generic features for a material of another layout: a shader made for one
-/// material then decodes any other exactly, only slower (the sampling module, which an engine
-/// may bind to any material). Unchecked for the batched kernels, whose pipelines are shared by
-/// materials of this layout only (they are keyed by their source), and where the generic
-/// features, which index `nmat_act_a` at run time, would keep it out of registers. Should the
-/// material's levels and network not agree (a chain's grids in other channel counts, levels of
-/// other widths than the first layer's inputs: parsing refuses both), [`GENERIC`].
-pub(crate) fn wgsl(n: &Neural<'_>, checked: bool) -> String {
-    let Some(generated) = generate(n) else { return GENERIC.to_string() };
-    let [lo, hi] = fingerprint(&generated);
-    let body = if checked {
-        format!(
-            "    let key = vec2<u32>(nmat_desc[NMAT_DESC_FEATURES_KEY_LO], \
-             nmat_desc[NMAT_DESC_FEATURES_KEY_HI]);\n    \
-             if (all(key == vec2<u32>({lo}u, {hi}u))) {{\n        \
-             nmat_fixed_features(xi, yi, mip_in);\n    \
-             }} else {{\n        \
-             nmat_features(xi, yi, mip_in);\n    \
-             }}\n"
-        )
-    } else {
-        "    nmat_fixed_features(xi, yi, mip_in);\n".to_string()
-    };
-    format!(
-        "{}\n{generated}fn nmat_texel_features(xi: i32, yi: i32, mip_in: u32) {{\n{body}}}\n",
-        include_str!("shaders/features.wgsl")
-    )
+/// A material's input features: features.wgsl and `fn nmat_texel_features(xi, yi, mip)` for
+/// its layout, one function per distinct layout of a level, chosen by the texel's level. Where
+/// checked, it first compares the bound material's fingerprint ([`Features::key`], its
+/// descriptor's `features_key_lo` and `_hi`) with its own, and computes the generic features for
+/// a material of another layout: a shader made for one material then decodes any other
+/// exactly, only slower (the sampling module, which an engine may bind to any material).
+/// Unchecked for the batched kernels, whose pipelines are shared by materials of this layout
+/// only (they are keyed by their source), and where the generic features, which index
+/// `nmat_act_a` at run time, would keep it out of registers. Should the material's levels and
+/// network not agree (a chain's grids in other channel counts, levels of other widths than the
+/// first layer's inputs: parsing refuses both), [`GENERIC`].
+pub(crate) struct Features {
+    /// The generated functions (`None`: the generic features) and their fingerprint.
+    generated: Option<(String, [u32; 2])>,
 }
 
-/// The fingerprint of `n`'s generated features, which its descriptor carries (`features_key_lo`
-/// and `_hi`); 0 where they are not generated (which no generated code has: its fingerprint is
-/// never 0).
-pub(crate) fn key(n: &Neural<'_>) -> [u32; 2] {
-    generate(n).map_or([0, 0], |generated| fingerprint(&generated))
+impl Features {
+    /// `n`'s features, generated once (a few kilobytes to tens of kilobytes of WGSL) for every
+    /// source an upload makes.
+    pub fn new(n: &Neural<'_>) -> Features {
+        Features {
+            generated: generate(n).map(|g| {
+                let key = fingerprint(&g);
+                (g, key)
+            }),
+        }
+    }
+
+    /// The fingerprint its descriptor carries (`features_key_lo` and `_hi`): 0 where the
+    /// features are not generated (no generated code has it: its fingerprint is never 0).
+    pub fn key(&self) -> [u32; 2] {
+        self.generated.as_ref().map_or([0, 0], |(_, key)| *key)
+    }
+
+    /// The WGSL defining `nmat_texel_features`, checked or not ([`Features`]).
+    pub fn wgsl(&self, checked: bool) -> String {
+        let Some((generated, [lo, hi])) = &self.generated else { return GENERIC.to_string() };
+        let body = if checked {
+            format!(
+                "    let key = vec2<u32>(nmat_desc[NMAT_DESC_FEATURES_KEY_LO], \
+                 nmat_desc[NMAT_DESC_FEATURES_KEY_HI]);\n    \
+                 if (all(key == vec2<u32>({lo}u, {hi}u))) {{\n        \
+                 nmat_fixed_features(xi, yi, mip_in);\n    \
+                 }} else {{\n        \
+                 nmat_features(xi, yi, mip_in);\n    \
+                 }}\n"
+            )
+        } else {
+            "    nmat_fixed_features(xi, yi, mip_in);\n".to_string()
+        };
+        format!(
+            "{}\n{generated}fn nmat_texel_features(xi: i32, yi: i32, mip_in: u32) {{\n{body}}}\n",
+            include_str!("shaders/features.wgsl")
+        )
+    }
 }
 
 /// 64-bit FNV-1a of the generated code (equal codes, equal features), as two words, never 0.
@@ -309,12 +327,13 @@ mod tests {
             let bytes = fixture(&cfg).to_bytes().unwrap();
             let m = Container::parse(&bytes).unwrap();
             let n = m.neural().expect("a neural fixture");
-            let source = wgsl(n, false);
+            let features = Features::new(n);
+            let source = features.wgsl(false);
             assert_eq!(source.matches("fn nmat_texel_features").count(), 1, "{}", cfg.name);
             assert!(!source.contains("nmat_features("), "{}: the generic features", cfg.name);
             // Checked (the sampling module): the generic features where the bound material has
             // another layout.
-            let checked = wgsl(n, true);
+            let checked = features.wgsl(true);
             assert_eq!(checked.matches("nmat_features(").count(), 1, "{}", cfg.name);
             if cfg.name.starts_with("nbc") {
                 assert!(source.contains("switch level"), "{}: one layout", cfg.name);

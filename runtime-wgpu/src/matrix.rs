@@ -58,8 +58,6 @@ pub(crate) struct Shape {
     total: u32,
     /// Per layer: its output fraction bits (a literal, so that hardGELU divides by a constant).
     fracs: Vec<u32>,
-    /// The input features for the material's latent layout (features.rs).
-    features: String,
 }
 
 impl Shape {
@@ -123,20 +121,7 @@ impl Shape {
             .find(|&w| bytes(w) <= limit)
             .ok_or("the network is too large for the device's workgroup memory")?;
         let fracs = n.mlp().layers().iter().map(|l| u32::from(l.out_frac_bits())).collect();
-        let features = crate::features::wgsl(n, false);
-        Ok(Shape {
-            warps,
-            blocks,
-            batches,
-            subgroup,
-            pads,
-            wmax,
-            channels,
-            layers,
-            total,
-            fracs,
-            features,
-        })
+        Ok(Shape { warps, blocks, batches, subgroup, pads, wmax, channels, layers, total, fracs })
     }
 
     /// Texels per batch.
@@ -155,9 +140,10 @@ impl Shape {
         256 % self.batch() == 0
     }
 
-    /// The WGSL of the pipeline (entry point `matrix`); only `part` of the work where it is not
-    /// [`Part::Whole`] (for timing: the codes are then wrong).
-    pub fn source_part(&self, part: Part) -> String {
+    /// The WGSL of the pipeline (entry point `matrix`) with `features` (features.rs, unchecked);
+    /// only `part` of the work where it is not [`Part::Whole`] (for timing: the codes are then
+    /// wrong).
+    pub fn source_part(&self, part: Part, features: &str) -> String {
         let (mut stage, mut layers) = (String::new(), String::new());
         if part == Part::Features {
             layers += "    features_sink(lane, warp);\n    workgroupBarrier();\n";
@@ -191,7 +177,7 @@ impl Shape {
             self.total,
             part.code(),
             Part::STAND_IN_WGSL,
-            crate::layout::texel_wgsl_with(&self.features),
+            crate::layout::texel_wgsl_with(features),
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),
             include_str!("shaders/matrix.wgsl"),
@@ -319,7 +305,8 @@ mod tests {
                 // Networks up to 64 wide keep the 4 subgroups in 48 KiB.
                 assert_eq!(shape.warps, LAYOUT.0, "{}", cfg.name);
             }
-            let source = shape.source_part(Part::Whole);
+            let features = crate::features::Features::new(n).wgsl(false);
+            let source = shape.source_part(Part::Whole, &features);
             let spirv = compile(&source).unwrap_or_else(|e| panic!("{}: {e}", cfg.name));
             // The tile cache's entry is in the module naga validated.
             assert!(shape.decodes_tiles(), "{}", cfg.name);
@@ -334,7 +321,7 @@ mod tests {
             assert!(has(4459) && has(4457), "{}: no cooperative matrix instructions", cfg.name);
             // The pipelines that time a part alone compile too.
             for part in [Part::Features, Part::Layers] {
-                let source = shape.source_part(part);
+                let source = shape.source_part(part, &features);
                 compile(&source).unwrap_or_else(|e| panic!("{} {part:?}: {e}", cfg.name));
             }
         }

@@ -80,8 +80,6 @@ pub(crate) struct Shape {
     channels: u32,
     /// Per layer: words of 4 inputs per row, groups of 4 rows.
     layers: Vec<(u32, u32)>,
-    /// The input features for the material's latent layout (features.rs).
-    features: String,
 }
 
 impl Shape {
@@ -115,12 +113,13 @@ impl Shape {
             .iter()
             .map(|l| (l.inputs().div_ceil(4) as u32, l.outputs().div_ceil(4) as u32))
             .collect();
-        Some(Shape { texels, wmax, channels, layers, features: crate::features::wgsl(n, false) })
+        Some(Shape { texels, wmax, channels, layers })
     }
 
-    /// The WGSL of the pipeline: this shape's constants and layer calls, then `decode`; only
-    /// `part` of the work where it is not [`Part::Whole`] (for timing: the codes are then wrong).
-    pub fn source_part(&self, kernel: Kernel, part: Part) -> String {
+    /// The WGSL of the pipeline: this shape's constants and layer calls, then `decode`, with
+    /// `features` (features.rs, unchecked); only `part` of the work where it is not
+    /// [`Part::Whole`] (for timing: the codes are then wrong).
+    pub fn source_part(&self, kernel: Kernel, part: Part, features: &str) -> String {
         let mut calls = String::new();
         if part == Part::Features {
             calls += "    features_sink(lid);\n    workgroupBarrier();\n";
@@ -149,7 +148,7 @@ impl Shape {
             self.channels,
             part.code(),
             Part::STAND_IN_WGSL,
-            crate::layout::texel_wgsl_with(&self.features),
+            crate::layout::texel_wgsl_with(features),
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),
             include_str!("shaders/tiled.wgsl"),
@@ -252,7 +251,8 @@ mod tests {
                 let shape = Shape::new((&m, n), kernel, 16384).expect("a shape in 16 KiB");
                 // The kernel, and the pipelines that time its parts alone.
                 for part in [Part::Whole, Part::Features, Part::Layers] {
-                    let source = shape.source_part(kernel, part);
+                    let features = crate::features::Features::new(n).wgsl(false);
+                    let source = shape.source_part(kernel, part, &features);
                     let module = naga::front::wgsl::parse_str(&source)
                         .unwrap_or_else(|e| panic!("{}: {}", cfg.name, e.emit_to_string(&source)));
                     let flags = naga::valid::ValidationFlags::all();

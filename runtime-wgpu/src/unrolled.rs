@@ -26,8 +26,6 @@ pub(crate) struct Shape {
     dot4: bool,
     channels: u32,
     layers: Vec<Layer>,
-    /// The input features for the material's latent layout (features.rs).
-    features: String,
 }
 
 impl Shape {
@@ -49,17 +47,13 @@ impl Shape {
         if widest.is_none_or(|words| words > MAX_WORDS) {
             return Err("the network's layers are too wide to unroll");
         }
-        Ok(Shape {
-            dot4,
-            channels: m.channel_count() as u32,
-            layers,
-            features: crate::features::wgsl(n, false),
-        })
+        Ok(Shape { dot4, channels: m.channel_count() as u32, layers })
     }
 
-    /// The WGSL of the pipeline (entry points `unrolled` and `unrolled_cache`); only `part` of
-    /// the work where it is not [`Part::Whole`] (for timing: the codes are then wrong).
-    pub fn source_part(&self, part: Part) -> String {
+    /// The WGSL of the pipeline (entry points `unrolled` and `unrolled_cache`) with `features`
+    /// (features.rs, unchecked); only `part` of the work where it is not [`Part::Whole`] (for
+    /// timing: the codes are then wrong).
+    pub fn source_part(&self, part: Part, features: &str) -> String {
         let products = if self.dot4 {
             include_str!("shaders/unrolled_dot4.wgsl")
         } else {
@@ -71,7 +65,7 @@ impl Shape {
             part.code(),
             Part::STAND_IN_WGSL,
             self.network(),
-            crate::layout::texel_wgsl_with(&self.features),
+            crate::layout::texel_wgsl_with(features),
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),
             products,
@@ -159,7 +153,8 @@ mod tests {
             let n = m.neural().expect("a neural fixture");
             let parts = [Part::Whole, Part::Features, Part::Layers];
             for (dot4, part) in [true, false].into_iter().flat_map(|d| parts.map(|p| (d, p))) {
-                let source = Shape::new((&m, n), dot4).unwrap().source_part(part);
+                let features = crate::features::Features::new(n).wgsl(false);
+                let source = Shape::new((&m, n), dot4).unwrap().source_part(part, &features);
                 let module = naga::front::wgsl::parse_str(&source)
                     .unwrap_or_else(|e| panic!("{}: {}", cfg.name, e.emit_to_string(&source)));
                 let flags = naga::valid::ValidationFlags::all();

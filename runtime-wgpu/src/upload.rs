@@ -3,6 +3,7 @@
 //! kernels, and how `upload` picks one").
 
 use crate::cache::{TileDecoder, TileEntry};
+use crate::features::Features;
 use crate::layout::words_to_bytes;
 use crate::layout::{
     self, ChannelRange, GridRecord, LayerRecord, LevelRecord, NeuralHeader, Quantizer, RequantRow,
@@ -65,10 +66,14 @@ impl Context {
                 let desc = storage_init(device, "nmat jpeg desc", &desc);
                 let section = storage_init(device, "nmat jpeg section", &section);
                 let body = GpuBody::Jpeg(maps);
-                return Ok(GpuMaterial::new(m, desc, section, Kernel::Reference, body));
+                return Ok(GpuMaterial::new(m, (desc, section), Kernel::Reference, body, None));
             }
         };
-        let (desc, latents) = network_words(m, n)?;
+        // The input features for the material's layout, generated once: unchecked in the
+        // kernels' sources, checked for the sampling module (features.rs).
+        let features = Features::new(n);
+        let (unchecked, checked) = (features.wgsl(false), Arc::<str>::from(features.wgsl(true)));
+        let (desc, latents) = network_words(m, n, features.key())?;
         let latents = storage_init(device, "nmat latents", &latents);
         let probe = Probe::new(m);
         let mut rejected = Vec::new();
@@ -77,7 +82,7 @@ impl Context {
         let hung = std::cell::Cell::new(None);
         // `kernel`, prepared and checked against the CPU on the probe.
         let mut exact = |kernel: Kernel| -> Result<(GpuMaterial, Option<TileEntry>), &'static str> {
-            let (tiled, tile_entry) = self.prepare(device, (m, n), kernel)?;
+            let (tiled, tile_entry) = self.prepare(device, (m, n), kernel, &unchecked)?;
             let mut desc = desc.clone();
             if kernel != Kernel::Reference {
                 tiled::append_tables(&mut desc, n, kernel.dot4());
@@ -87,7 +92,8 @@ impl Context {
             }
             let desc = storage_init(device, "nmat desc", &desc);
             let body = GpuBody::Neural(tiled);
-            let gm = GpuMaterial::new(m, desc, latents.clone(), kernel, body);
+            let gm =
+                GpuMaterial::new(m, (desc, latents.clone()), kernel, body, Some(checked.clone()));
             let codes = self
                 .submit_requests(device, queue, &gm, &probe.requests, ChannelMask::ALL)
                 .and_then(|pending| pending.wait_within(device, wait));
@@ -210,24 +216,30 @@ impl Context {
         if kernel == Kernel::Reference {
             return Err(refused("the reference kernel is not split into parts"));
         }
-        let (mut desc, latents) = network_words(m, n)?;
-        let (tiled, _) = self.prepare_part(device, (m, n), kernel, part).map_err(refused)?;
+        let features = Features::new(n);
+        let (mut desc, latents) = network_words(m, n, features.key())?;
+        let (tiled, _) = self
+            .prepare_part(device, (m, n), kernel, part, &features.wgsl(false))
+            .map_err(refused)?;
         tiled::append_tables(&mut desc, n, kernel.dot4());
         let desc = storage_init(device, "nmat desc (timing)", &desc);
         let latents = storage_init(device, "nmat latents (timing)", &latents);
-        Ok(GpuMaterial::new(m, desc, latents, kernel, GpuBody::Neural(tiled)))
+        let checked = Some(features.wgsl(true).into());
+        Ok(GpuMaterial::new(m, (desc, latents), kernel, GpuBody::Neural(tiled), checked))
     }
 
-    /// The tiled or matrix pipeline of `kernel` for `m` and its texels per workgroup (`None`:
-    /// the reference kernel), and the entry of its source that can decode the tile cache's new
-    /// tiles; or why the device cannot run it.
+    /// The tiled or matrix pipeline of `kernel` for `m` (with `features`, its unchecked
+    /// generated input features) and its texels per workgroup (`None`: the reference kernel),
+    /// and the entry of its source that can decode the tile cache's new tiles; or why the device
+    /// cannot run it.
     fn prepare(
         &self,
         device: &wgpu::Device,
         m: (&Material<'_>, &Neural<'_>),
         kernel: Kernel,
+        features: &str,
     ) -> Result<(NetworkPipeline, Option<TileEntry>), &'static str> {
-        self.prepare_part(device, m, kernel, measure::Part::Whole)
+        self.prepare_part(device, m, kernel, measure::Part::Whole, features)
     }
 
     /// [`Context::prepare`] for `part` of the kernel's work.
@@ -237,6 +249,7 @@ impl Context {
         (m, n): (&Material<'_>, &Neural<'_>),
         kernel: Kernel,
         part: measure::Part,
+        features: &str,
     ) -> Result<(NetworkPipeline, Option<TileEntry>), &'static str> {
         // The entry point, texels per workgroup and the tile cache's entry (with its workgroups
         // per tile) where the source has one.
@@ -245,17 +258,18 @@ impl Context {
             Kernel::Matrix => {
                 let shape = matrix::Shape::new((m, n), device)?;
                 let tiles = shape.decodes_tiles().then_some(("matrix_cache", 1));
-                (shape.source_part(part), "matrix", shape.texels(), tiles)
+                (shape.source_part(part, features), "matrix", shape.texels(), tiles)
             }
             Kernel::UnrolledInt32 | Kernel::UnrolledDot4 => {
                 let shape = unrolled::Shape::new((m, n), kernel.dot4())?;
-                (shape.source_part(part), "unrolled", 64, Some(("unrolled_cache", 4)))
+                (shape.source_part(part, features), "unrolled", 64, Some(("unrolled_cache", 4)))
             }
             Kernel::Dot4 | Kernel::Int32 => {
                 let bytes = device.limits().max_compute_workgroup_storage_size;
                 let shape = tiled::Shape::new((m, n), kernel, bytes)
                     .ok_or("the network is too wide for the device's workgroup memory")?;
-                (shape.source_part(kernel, part), "tiled", shape.texels, Some(("tiled_cache", 4)))
+                let source = shape.source_part(kernel, part, features);
+                (source, "tiled", shape.texels, Some(("tiled_cache", 4)))
             }
         };
         let tiles = tiles.filter(|_| part == measure::Part::Whole);
@@ -294,7 +308,11 @@ impl Context {
 /// A neural material's descriptor words (layout.rs: a [`NeuralHeader`], then the channels'
 /// ranges, the grids' records and quantizers, the levels' and layers' records, the weights and
 /// row constants; without the tiled and matrix kernels' tables) and its latent words.
-fn network_words(m: &Material<'_>, n: &Neural<'_>) -> Result<(Vec<u32>, Vec<u32>), GpuError> {
+fn network_words(
+    m: &Material<'_>,
+    n: &Neural<'_>,
+    features_key: [u32; 2],
+) -> Result<(Vec<u32>, Vec<u32>), GpuError> {
     let mlp = n.mlp();
     let mut head = NeuralHeader {
         width: m.width(),
@@ -310,7 +328,7 @@ fn network_words(m: &Material<'_>, n: &Neural<'_>) -> Result<(Vec<u32>, Vec<u32>
         grid_count: n.grids().len() as u32,
         ..NeuralHeader::default()
     };
-    [head.features_key_lo, head.features_key_hi] = crate::features::key(n);
+    [head.features_key_lo, head.features_key_hi] = features_key;
     for mip in 0..m.mip_count() {
         head.level_of_mip[mip as usize] = n.level_for_mip(mip) as u32;
     }
@@ -517,10 +535,10 @@ impl GpuMaterial {
     /// `m` on the GPU: its descriptor and latent (or JPEG section) buffers, decoded by `kernel`.
     fn new(
         m: &Material<'_>,
-        desc: wgpu::Buffer,
-        latents: wgpu::Buffer,
+        (desc, latents): (wgpu::Buffer, wgpu::Buffer),
         kernel: Kernel,
         body: GpuBody,
+        features: Option<Arc<str>>,
     ) -> GpuMaterial {
         GpuMaterial {
             id: next_id(),
@@ -535,10 +553,7 @@ impl GpuMaterial {
             rejected: Vec::new(),
             body,
             tile_decoder: None,
-            features: match m.body() {
-                Body::Neural(n) => Some(crate::features::wgsl(n, true)),
-                Body::Jpeg(_) => None,
-            },
+            features,
         }
     }
 }
@@ -564,9 +579,9 @@ pub struct GpuMaterial {
     /// The entry of its kernel that decodes the tile cache's new tiles, checked against the CPU
     /// at upload; `None`: one texel per invocation (cache_decode.wgsl, or JPEG's MCU kernel).
     pub(crate) tile_decoder: Option<TileDecoder>,
-    /// A neural material's input features generated for its latent layout (features.rs), for
-    /// [`crate::SampleBindings::module_for`]; `None` for a JPEG material.
-    pub(crate) features: Option<String>,
+    /// A neural material's input features generated for its latent layout, checked
+    /// (features.rs), for [`crate::SampleBindings::module_for`]; `None` for a JPEG material.
+    pub(crate) features: Option<Arc<str>>,
 }
 
 /// The tiled or matrix kernel's pipeline and texels per workgroup (`None`: the reference
