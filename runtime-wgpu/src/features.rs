@@ -209,7 +209,7 @@ fn layout_fn(s: &mut String, v: usize, terms: &[Term]) -> u32 {
         }
         for (k, &bits) in term.bits.iter().enumerate() {
             let values = grid_values(s, t, k, ch, bits);
-            let _ = writeln!(s, "    let g{t}_{k} = nmat_fx_weights(f{t}_{k});");
+            let _ = writeln!(s, "    let g{t}_{k} = nmat_bilinear_weights(f{t}_{k});");
             for c in 0..ch as usize {
                 let sum: Vec<String> = values
                     .iter()

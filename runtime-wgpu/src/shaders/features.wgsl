@@ -27,10 +27,3 @@ fn nmat_fx_cell(r: NmatGrid, x: u32, y: u32, cell_bits: u32) -> vec2<u32> {
 fn nmat_fx_funnel(lo: u32, hi: u32, s: u32) -> u32 {
     return (lo >> s) | ((hi << 1u) << (31u - s));
 }
-
-// A footprint's four bilinear weights in cell order, as `nmat_bilinear` forms them.
-fn nmat_fx_weights(f: NmatFootprint) -> vec4<i32> {
-    let gx = 256 - f.fx;
-    let gy = 256 - f.fy;
-    return vec4<i32>(gx * gy, f.fx * gy, gx * f.fy, f.fx * f.fy);
-}

@@ -107,10 +107,17 @@ fn nmat_footprint(r: NmatGrid, x: u32, y: u32, mw: u32, mh: u32, clamp_mode: boo
 // Σ w·v of one grid's 4 cells, channel c: within [−2^31, 2^31) (§6.3), so an i32 holds it.
 fn nmat_bilinear(r: NmatGrid, f: NmatFootprint, c: u32) -> i32 {
     let q = nmat_grid_quant(r, c);
+    let w = nmat_bilinear_weights(f);
+    return w.x * nmat_grid_value(r, q, f.x0, f.y0, c) + w.y * nmat_grid_value(r, q, f.x1, f.y0, c)
+        + w.z * nmat_grid_value(r, q, f.x0, f.y1, c) + w.w * nmat_grid_value(r, q, f.x1, f.y1, c);
+}
+
+// A footprint's four bilinear weights (in 1/65 536) in cell order: (x0, y0), (x1, y0), (x0, y1),
+// (x1, y1).
+fn nmat_bilinear_weights(f: NmatFootprint) -> vec4<i32> {
     let gx = 256 - f.fx;
     let gy = 256 - f.fy;
-    return gx * gy * nmat_grid_value(r, q, f.x0, f.y0, c) + f.fx * gy * nmat_grid_value(r, q, f.x1, f.y0, c)
-        + gx * f.fy * nmat_grid_value(r, q, f.x0, f.y1, c) + f.fx * f.fy * nmat_grid_value(r, q, f.x1, f.y1, c);
+    return vec4<i32>(gx * gy, f.fx * gy, gx * f.fy, f.fx * f.fy);
 }
 
 // A sum of Σ w·v terms kept as (Σ (s >> 16), Σ (s & 0xFFFF)), rounded half up to the input grid
