@@ -39,6 +39,7 @@ fn overridden(name: &str, valid: impl Fn([u32; 3]) -> bool) -> Option<(u32, u32,
 }
 
 /// What a matrix pipeline is specialised to: widths and offsets are literals in its source.
+#[derive(Clone)]
 pub(crate) struct Shape {
     /// Subgroups per workgroup, texel blocks per subgroup, batches per workgroup.
     warps: u32,
@@ -58,24 +59,43 @@ pub(crate) struct Shape {
     total: u32,
     /// Per layer: its output fraction bits (a literal, so that hardGELU divides by a constant).
     fracs: Vec<u32>,
+    /// Whether the matrix operations are emulated in scalar code (matrix_emulated.wgsl), for
+    /// testing the kernel's structure on a device without matrix units.
+    emulated: bool,
 }
+
+/// The invocations of an emulated subgroup.
+const EMULATED_SUBGROUP: u32 = 32;
 
 impl Shape {
     /// The shape of `m`'s network on `device`, or why the matrix kernel cannot decode it there.
+    /// `emulated`: with the matrix operations in scalar code, for testing
+    /// ([`crate::Context::emulate_matrix_for_testing`]; needs `SHADER_F16` only).
     pub fn new(
         m: (&Material<'_>, &Neural<'_>),
         device: &wgpu::Device,
+        emulated: bool,
     ) -> Result<Shape, &'static str> {
-        if !device.features().contains(FEATURES) {
-            return Err("the device has no cooperative matrices (wgpu features SHADER_F16, \
-                        SUBGROUP and EXPERIMENTAL_COOPERATIVE_MATRIX; default_device asks for \
-                        them where the adapter has 16×16×16 f16 → f32)");
-        }
-        let info = device.adapter_info();
-        let subgroup = info.subgroup_min_size;
-        if subgroup != info.subgroup_max_size || !(16..=128).contains(&subgroup) {
-            return Err("the device's subgroup size varies or is unknown");
-        }
+        let subgroup = if emulated {
+            if !device.features().contains(wgpu::Features::SHADER_F16) {
+                return Err("the device has no f16 (wgpu feature SHADER_F16), which the \
+                            emulated matrix kernel needs");
+            }
+            EMULATED_SUBGROUP
+        } else {
+            if !device.features().contains(FEATURES) {
+                return Err("the device has no cooperative matrices (wgpu features SHADER_F16, \
+                            SUBGROUP and EXPERIMENTAL_COOPERATIVE_MATRIX; default_device asks \
+                            for them where the adapter has 16×16×16 f16 → f32)");
+            }
+            let info = device.adapter_info();
+            if info.subgroup_min_size != info.subgroup_max_size
+                || !(16..=128).contains(&info.subgroup_min_size)
+            {
+                return Err("the device's subgroup size varies or is unknown");
+            }
+            info.subgroup_min_size
+        };
         let layout = overridden("NMAT_WGPU_MATRIX", |[w, b, n]| {
             [w, b, n].iter().all(|x| (1..=64).contains(x))
         })
@@ -88,7 +108,9 @@ impl Shape {
         })
         .unwrap_or(PADS);
         let limits = device.limits();
-        Shape::sized(m, subgroup, layout, pads, limits.max_compute_workgroup_storage_size)
+        let shape =
+            Shape::sized(m, subgroup, layout, pads, limits.max_compute_workgroup_storage_size);
+        shape.map(|shape| Shape { emulated, ..shape })
     }
 
     /// The shape of `m`'s network for `layout` with subgroups of `subgroup` invocations and
@@ -121,7 +143,19 @@ impl Shape {
             .find(|&w| bytes(w) <= limit)
             .ok_or("the network is too large for the device's workgroup memory")?;
         let fracs = n.mlp().layers().iter().map(|l| u32::from(l.out_frac_bits())).collect();
-        Ok(Shape { warps, blocks, batches, subgroup, pads, wmax, channels, layers, total, fracs })
+        Ok(Shape {
+            warps,
+            blocks,
+            batches,
+            subgroup,
+            pads,
+            wmax,
+            channels,
+            layers,
+            total,
+            fracs,
+            emulated: false,
+        })
     }
 
     /// Texels per batch.
@@ -155,8 +189,30 @@ impl Shape {
                 layers += &self.layer(l, kpad, opad, woff);
             }
         }
+        // The entry points: invocation `lid` of workgroup `g`, lane `lane` of subgroup `warp`
+        // (in an emulated kernel, numbered from lid: it has no subgroup operation).
+        let (builtins, warp_lane, enable, emulation) = if self.emulated {
+            ("", "lid / SG, lid % SG", "", include_str!("shaders/matrix_emulated.wgsl"))
+        } else {
+            (
+                "@builtin(subgroup_id) warp: u32, @builtin(subgroup_invocation_id) lane: u32, ",
+                "warp, lane",
+                "enable wgpu_cooperative_matrix;\n",
+                "",
+            )
+        };
+        let mut entries = String::new();
+        for (entry, body) in [("matrix", "matrix_batches"), ("matrix_cache", "matrix_tiles")] {
+            let _ = writeln!(
+                entries,
+                "@compute @workgroup_size(SG * NW)\nfn {entry}(\
+                 @builtin(local_invocation_index) lid: u32, {builtins}\
+                 @builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) \
+                 {{\n    {body}(lid, {warp_lane}, wg.x + wg.y * groups.x);\n}}"
+            );
+        }
         format!(
-            "enable f16;\nenable wgpu_cooperative_matrix;\n\
+            "enable f16;\n{enable}\
              const P: u32 = {}u;\nconst NW: u32 = {}u;\nconst TB: u32 = {}u;\n\
              const BATCHES: u32 = {}u;\nconst SG: u32 = {}u;\nconst AS: u32 = {}u;\n\
              const SS: u32 = {}u;\nconst SB: u32 = 16u * SS;\n\
@@ -164,7 +220,7 @@ impl Shape {
              const WMAX: u32 = {}u;\nconst CH: u32 = {}u;\nconst WTOTAL: u32 = {}u;\n\
              const PART: u32 = {}u;\n{}\
              fn stage_weights(lid: u32) {{\n{stage}    workgroupBarrier();\n}}\n\
-             fn layers(lane: u32, warp: u32) {{\n{layers}}}\n{}\n{}\n{}\n{}\n{}",
+             fn layers(lane: u32, warp: u32) {{\n{layers}}}\n{}\n{}\n{}\n{}\n{emulation}\n{}\n{entries}",
             self.batch(),
             self.warps,
             self.blocks,
@@ -194,58 +250,93 @@ impl Shape {
         let frac = self.fracs[l];
         let (row_blocks, blocks) = (opad / 16, self.blocks);
         let mut s = format!("    {{ // layer {l}\n");
-        for tb in 0..blocks {
+        // The accumulators, the loads and the multiply-adds, as cooperative matrix operations,
+        // or emulated (matrix_emulated.wgsl: an accumulator is an array, an operand its offset;
+        // the row blocks a loop, which lavapipe compiles faster).
+        let ws = kpad + self.pads.1;
+        if self.emulated {
+            for tb in 0..blocks {
+                let _ =
+                    writeln!(s, "    var h{tb}: EmuAccumulators;\n    var l{tb}: EmuAccumulators;");
+            }
+            let _ = writeln!(s, "    for (var kb = 0u; kb < {}u; kb++) {{", kpad / 16);
+            let _ = writeln!(s, "    for (var ob = 0u; ob < {row_blocks}u; ob++) {{");
+            let _ = writeln!(s, "        let w = {woff}u + 16u * ob * {ws}u + 16u * kb;");
+            for tb in 0..blocks {
+                let _ = writeln!(
+                    s,
+                    "        let x{tb} = 16u * kb * AS + 16u * (warp * TB + {tb}u);\n        \
+                     emu_mma(&h{tb}, ob, w, {ws}u, true, x{tb}, lane);\n        \
+                     emu_mma(&l{tb}, ob, w, {ws}u, false, x{tb}, lane);"
+                );
+            }
+            s += "    }\n";
+        } else {
+            for tb in 0..blocks {
+                for ob in 0..row_blocks {
+                    let _ = writeln!(
+                        s,
+                        "    var h{tb}_{ob} = coop_mat16x16<f32, C>();\n    \
+                         var l{tb}_{ob} = coop_mat16x16<f32, C>();"
+                    );
+                }
+            }
+            let _ = writeln!(s, "    for (var kb = 0u; kb < {}u; kb++) {{", kpad / 16);
+            for tb in 0..blocks {
+                let _ = writeln!(
+                    s,
+                    "        let x{tb} = 16u * kb * AS + 16u * (warp * TB + {tb}u);\n        \
+                     let bh{tb} = coopLoadT<coop_mat16x16<f16, B>>(&act_hi[x{tb}], AS);\n        \
+                     let bl{tb} = coopLoadT<coop_mat16x16<f16, B>>(&act_lo[x{tb}], AS);"
+                );
+            }
             for ob in 0..row_blocks {
                 let _ = writeln!(
                     s,
-                    "    var h{tb}_{ob} = coop_mat16x16<f32, C>();\n    \
-                     var l{tb}_{ob} = coop_mat16x16<f32, C>();"
+                    "        let w{ob} = coopLoadT<coop_mat16x16<f16, A>>(\
+                     &weights16[{}u + 16u * kb], {ws}u);",
+                    woff + 16 * ob * ws
                 );
-            }
-        }
-        let ws = kpad + self.pads.1;
-        let _ = writeln!(s, "    for (var kb = 0u; kb < {}u; kb++) {{", kpad / 16);
-        for tb in 0..blocks {
-            let _ = writeln!(
-                s,
-                "        let x{tb} = 16u * kb * AS + 16u * (warp * TB + {tb}u);\n        \
-                 let bh{tb} = coopLoadT<coop_mat16x16<f16, B>>(&act_hi[x{tb}], AS);\n        \
-                 let bl{tb} = coopLoadT<coop_mat16x16<f16, B>>(&act_lo[x{tb}], AS);"
-            );
-        }
-        for ob in 0..row_blocks {
-            let _ = writeln!(
-                s,
-                "        let w{ob} = coopLoadT<coop_mat16x16<f16, A>>(\
-                 &weights16[{}u + 16u * kb], {ws}u);",
-                woff + 16 * ob * ws
-            );
-            for tb in 0..blocks {
-                let _ = writeln!(
-                    s,
-                    "        h{tb}_{ob} = coopMultiplyAdd(w{ob}, bh{tb}, h{tb}_{ob});\n        \
-                     l{tb}_{ob} = coopMultiplyAdd(w{ob}, bl{tb}, l{tb}_{ob});"
-                );
+                for tb in 0..blocks {
+                    let _ = writeln!(
+                        s,
+                        "        h{tb}_{ob} = coopMultiplyAdd(w{ob}, bh{tb}, h{tb}_{ob});\n        \
+                         l{tb}_{ob} = coopMultiplyAdd(w{ob}, bl{tb}, l{tb}_{ob});"
+                    );
+                }
             }
         }
         s += "    }\n    workgroupBarrier();\n";
-        let store = |s: &mut String, part: char, ob: u32| {
-            for tb in 0..blocks {
-                let _ = writeln!(
-                    s,
-                    "    coopStoreT({part}{tb}_{ob}, &sums[SB * (warp * TB + {tb}u)], SS);"
-                );
+        // Per row block `ob`: its products through workgroup memory into `finish`; `store`
+        // writes the instruction that stores texel block tb's accumulator of one part.
+        let round_trip = |s: &mut String, ob: &str, store: &dyn Fn(char, u32) -> String| {
+            for part in ['h', 'l'] {
+                for tb in 0..blocks {
+                    let _ = writeln!(s, "    {}", store(part, tb));
+                }
+                s.push_str(match part {
+                    'h' => "    workgroupBarrier();\n    collect(lane, warp);\n    workgroupBarrier();\n",
+                    _ => "    workgroupBarrier();\n",
+                });
             }
-        };
-        for ob in 0..row_blocks {
-            store(&mut s, 'h', ob);
-            s += "    workgroupBarrier();\n    collect(lane, warp);\n    workgroupBarrier();\n";
-            store(&mut s, 'l', ob);
             let _ = writeln!(
                 s,
-                "    workgroupBarrier();\n    finish(lane, warp, {l}u, {ob}u, {last}, {frac}u);\n    \
-                 workgroupBarrier();"
+                "    finish(lane, warp, {l}u, {ob}, {last}, {frac}u);\n    workgroupBarrier();"
             );
+        };
+        let at = |tb: u32| format!("SB * (warp * TB + {tb}u)");
+        if self.emulated {
+            let _ = writeln!(s, "    for (var ob = 0u; ob < {row_blocks}u; ob++) {{");
+            round_trip(&mut s, "ob", &|part, tb| {
+                format!("emu_store(&{part}{tb}, ob, {}, SS, lane);", at(tb))
+            });
+            s += "    }\n";
+        } else {
+            for ob in 0..row_blocks {
+                round_trip(&mut s, &format!("{ob}u"), &|part, tb| {
+                    format!("coopStoreT({part}{tb}_{ob}, &sums[{}], SS);", at(tb))
+                });
+            }
         }
         s + "    }\n"
     }
@@ -260,9 +351,17 @@ mod tests {
     /// naga's verdict on `source`: parsed, validated with every capability a device may lack
     /// (cooperative matrices, f16) and written as SPIR-V, as wgpu does on Vulkan.
     fn compile(source: &str) -> Result<Vec<u32>, String> {
+        compile_with(source, naga::valid::Capabilities::all())
+    }
+
+    /// [`compile`] with only `capabilities`.
+    fn compile_with(
+        source: &str,
+        capabilities: naga::valid::Capabilities,
+    ) -> Result<Vec<u32>, String> {
         let module = naga::front::wgsl::parse_str(source).map_err(|e| e.emit_to_string(source))?;
         let flags = naga::valid::ValidationFlags::all();
-        let info = naga::valid::Validator::new(flags, naga::valid::Capabilities::all())
+        let info = naga::valid::Validator::new(flags, capabilities)
             .validate(&module)
             .map_err(|e| e.emit_to_string(source))?;
         let options = naga::back::spv::Options { lang_version: (1, 6), ..Default::default() };
@@ -319,6 +418,14 @@ mod tests {
             // OpCooperativeMatrixMulAddKHR (4459) and OpCooperativeMatrixLoadKHR (4457).
             let has = |op: u32| spirv.iter().any(|&w| w & 0xFFFF == op && w >> 16 >= 4);
             assert!(has(4459) && has(4457), "{}: no cooperative matrix instructions", cfg.name);
+            // The emulated kernel (for tests on devices without matrix units) uses no
+            // cooperative matrix and no subgroup operation.
+            let emulated = Shape { emulated: true, ..shape.clone() };
+            let without = naga::valid::Capabilities::all()
+                - naga::valid::Capabilities::COOPERATIVE_MATRIX
+                - naga::valid::Capabilities::SUBGROUP;
+            let source = emulated.source_part(Part::Whole, &features);
+            compile_with(&source, without).unwrap_or_else(|e| panic!("{} emulated: {e}", cfg.name));
             // The pipelines that time a part alone compile too.
             for part in [Part::Features, Part::Layers] {
                 let source = shape.source_part(part, &features);

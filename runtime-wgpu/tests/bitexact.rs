@@ -147,6 +147,63 @@ fn a_trained_material_decodes_identically_on_the_gpu() {
     }
 }
 
+/// The matrix kernel's structure — everything but its matrix instructions: the staged weights,
+/// the input features split into bytes, the products' round trip through workgroup memory, the
+/// requantization, the codes, the tile cache's entry — on a device without matrix units
+/// (lavapipe): its cooperative matrix operations emulated in scalar code
+/// (`emulate_matrix_for_testing`), the golden fixtures' chains, a trained material, random
+/// requests with channel subsets and a region equal the CPU's codes byte for byte (each
+/// upload's probes checked first). The real kernel differs only in the matrix instructions
+/// (naga validates it: `matrix::tests`).
+#[test]
+fn the_matrix_kernel_with_emulated_matrices_decodes_identically() {
+    let (device, queue) = common::device_with_f16();
+    let ctx = Context::new(&device);
+    ctx.emulate_matrix_for_testing();
+    let upload = |m: &Material<'_>| {
+        let gm = ctx.upload_with(&device, &queue, m, Some(Kernel::Matrix)).unwrap();
+        assert_eq!(gm.kernel(), Kernel::Matrix);
+        // Its tile entry (matrix_cache) passed its probe: whole tiles, edges and the last mip.
+        assert_eq!(gm.tile_kernel(), Kernel::Matrix);
+        gm
+    };
+    // Every golden fixture but the one whose input features take lavapipe longest to compile
+    // (nbc_8421_64: the other NBC fixture has its chains; the features are the other kernels'
+    // and tested with them).
+    let mut materials: Vec<(String, Vec<u8>)> = golden_configs()
+        .into_iter()
+        .filter(|cfg| cfg.name != "nbc_8421_64")
+        .map(|cfg| {
+            let path = fixtures_dir().join(format!("{}.nmat", cfg.name));
+            (cfg.name.to_string(), std::fs::read(path).unwrap())
+        })
+        .collect();
+    materials.push(("trained".into(), trained_material()));
+    for (name, bytes) in &materials {
+        let m = Container::parse(bytes).unwrap();
+        let gpu = ctx.decode_chain(&device, &queue, &upload(&m), ChannelMask::ALL).unwrap();
+        let cpu = decode_all_u8(&m);
+        let first = gpu.iter().zip(&cpu).position(|(a, b)| a != b);
+        assert!(gpu.len() == cpu.len() && first.is_none(), "{name}: first difference at {first:?}");
+    }
+    let bytes = std::fs::read(fixtures_dir().join("ntc_pbr10_96x80_clamp.nmat")).unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    let gm = upload(&m);
+    let reqs = random_requests(777, 300, 400, 9);
+    for mask in [ChannelMask::ALL, ChannelMask(0b1), ChannelMask(0b10_1001_0110)] {
+        let gpu = ctx.decode_requests(&device, &queue, &gm, &reqs, mask).unwrap();
+        assert_eq!(gpu, cpu_codes(&m, &reqs, mask), "mask {mask:?}");
+    }
+    let region = ctx
+        .submit_region(&device, &queue, &gm, 0, (3, 5, 41, 13), ChannelMask(0b1110))
+        .unwrap()
+        .wait(&device)
+        .unwrap();
+    let texels: Vec<TexelRequest> =
+        (5..18).flat_map(|y| (3..44).map(move |x| TexelRequest { x, y, mip: 0 })).collect();
+    assert_eq!(region, cpu_codes(&m, &texels, ChannelMask(0b1110)));
+}
+
 /// Never wrong: a kernel whose codes differ from the CPU's on the upload's probe is not used.
 /// The kernel the default upload picks is broken on purpose (`break_kernel_for_testing`: the
 /// last layer's first row requantized to 0, so channel 0 decodes as code 0): the upload falls

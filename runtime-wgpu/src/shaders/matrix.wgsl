@@ -153,19 +153,13 @@ fn features_sink(lane: u32, warp: u32) {
 }
 
 // Decodes `params.count` texels as `main` does (same requests, rectangle and packed output),
-// P · BATCHES per workgroup.
-@compute @workgroup_size(SG * NW)
-fn matrix(
-    @builtin(local_invocation_index) lid: u32,
-    @builtin(subgroup_id) warp: u32,
-    @builtin(subgroup_invocation_id) lane: u32,
-    @builtin(workgroup_id) wg: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-) {
+// P · BATCHES per workgroup: the body of the entry point `matrix` (matrix.rs writes it, with
+// invocation `lid` of workgroup `g`, in subgroup `warp` as its lane `lane`).
+fn matrix_batches(lid: u32, warp: u32, lane: u32, g: u32) {
     stage_weights(lid);
     let inputs = nmat_desc[nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_INPUTS];
     for (var batch = 0u; batch < BATCHES; batch++) {
-        let first = ((wg.x + wg.y * groups.x) * BATCHES + batch) * P;
+        let first = (g * BATCHES + batch) * P;
         if (first >= params.count) {
             break;
         }
@@ -187,16 +181,8 @@ fn matrix(
 // P (matrix.rs builds this entry only where P divides 256). Bit-identical with
 // cache_decode.wgsl, which decodes one texel per invocation: a texel outside an edge tile's mip
 // leaves its activation column as it was (finite values: each texel's column meets only its own
-// products) and its codes are not written.
-@compute @workgroup_size(SG * NW)
-fn matrix_cache(
-    @builtin(local_invocation_index) lid: u32,
-    @builtin(subgroup_id) warp: u32,
-    @builtin(subgroup_invocation_id) lane: u32,
-    @builtin(workgroup_id) wg: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-) {
-    let g = wg.x + wg.y * groups.x;
+// products) and its codes are not written. The body of the entry point `matrix_cache`.
+fn matrix_tiles(lid: u32, warp: u32, lane: u32, g: u32) {
     if (g >= nmat_queued_count()) {
         return;
     }

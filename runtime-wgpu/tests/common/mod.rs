@@ -113,3 +113,27 @@ pub fn device_without_immediates() -> (wgpu::Device, wgpu::Queue) {
     let descriptor = wgpu::DeviceDescriptor { required_limits: limits, ..Default::default() };
     pollster::block_on(adapter.request_device(&descriptor)).unwrap()
 }
+
+/// A device on the first adapter with f16 (`SHADER_F16`, which the matrix kernel's emulation
+/// needs: lavapipe has it) and, as `default_device` asks, all the adapter's workgroup memory and
+/// immediates where they fit; no adapter, or one without f16, is a failure.
+#[allow(dead_code)]
+pub fn device_with_f16() -> (wgpu::Device, wgpu::Queue) {
+    let instance =
+        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+    let adapter = pollster::block_on(instance.request_adapter(&Default::default())).unwrap();
+    assert!(adapter.features().contains(wgpu::Features::SHADER_F16), "the adapter has no f16");
+    let immediates = adapter.features().contains(wgpu::Features::IMMEDIATES)
+        && adapter.limits().max_immediate_size >= nmat_wgpu::IMMEDIATE_BYTES;
+    let descriptor = wgpu::DeviceDescriptor {
+        required_features: wgpu::Features::SHADER_F16
+            | if immediates { wgpu::Features::IMMEDIATES } else { wgpu::Features::empty() },
+        required_limits: wgpu::Limits {
+            max_compute_workgroup_storage_size: adapter.limits().max_compute_workgroup_storage_size,
+            max_immediate_size: if immediates { nmat_wgpu::IMMEDIATE_BYTES } else { 0 },
+            ..wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits())
+        },
+        ..Default::default()
+    };
+    pollster::block_on(adapter.request_device(&descriptor)).unwrap()
+}
