@@ -185,6 +185,11 @@ pub struct BenchArgs {
     /// requests and channel subsets. Needs the `gpu` feature.
     #[arg(long)]
     pub gpu: bool,
+    /// With --gpu: measure this kernel only (it decodes every row, with its parts), instead of
+    /// the one `upload` picks plus a region row for every other kernel; an error where the
+    /// device cannot run it or its codes differ from the CPU's.
+    #[arg(long, value_enum, requires = "gpu")]
+    pub kernel: Option<GpuKernelArg>,
     /// The CPU rows only: a `--features gpu` build leaves out its GPU row (on a machine whose
     /// only adapter is a software one, that row takes minutes and measures the CPU again).
     #[arg(long, conflicts_with = "gpu")]
@@ -305,6 +310,17 @@ pub struct TrainArgs {
     /// Worker threads (default: all cores). The file does not depend on it.
     #[arg(long)]
     pub threads: Option<usize>,
+}
+
+/// A GPU kernel of nmat-wgpu (docs/GPU.md, "The kernels").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum GpuKernelArg {
+    Reference,
+    UnrolledI32,
+    UnrolledDot4,
+    I32,
+    Dot4,
+    Matrix,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]

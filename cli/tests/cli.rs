@@ -804,7 +804,8 @@ fn bench_train_reports_every_kernel_row_and_refuses_bad_options() {
 }
 
 /// `nmat bench --gpu` prints the GPU table where the binary has the `gpu` feature and says how to
-/// get it where it has not; either way no CPU rows.
+/// get it where it has not; either way no CPU rows. `--kernel` measures one kernel only, and
+/// needs `--gpu`.
 #[test]
 fn bench_gpu_prints_the_gpu_table_or_says_how_to_build_it() {
     let dir = temp_dir("bench-gpu");
@@ -828,8 +829,23 @@ fn bench_gpu_prints_the_gpu_table_or_says_how_to_build_it() {
             assert!(out.contains(row), "missing {row}:\n{out}");
         }
         assert!(out.contains("G i32 multiply-add/s") && out.contains("upload"), "{out}");
+        // --kernel: every row through that kernel, none for the others.
+        let fixture =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/ntc_rgb_64.nmat");
+        let f = fixture.to_str().unwrap();
+        let o = nmat(&["bench", f, "--gpu", "--kernel", "i32", "--runs", "1", "--region", "8"]);
+        let out = text(&o);
+        assert!(o.status.success(), "{out}");
+        assert!(
+            out.contains("kernel: tiled i32, ") && out.contains("asked for with --kernel"),
+            "{out}"
+        );
+        assert!(out.contains("| region 8×8, tiled i32 kernel: layers only"), "{out}");
+        assert!(!out.contains("kernel |") && !out.contains("tiled dot4"), "other kernels:\n{out}");
     }
     assert!(!out.contains("peak multiply-add rate"), "CPU rows with --gpu:\n{out}");
+    let o = nmat(&["bench", file.to_str().unwrap(), "--kernel", "i32"]);
+    assert!(!o.status.success() && text(&o).contains("--gpu"), "{}", text(&o));
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -5,7 +5,7 @@
 //! measured in the same run: BC1/BC4 decoding (`bcdec_rs`), PNG decoding of the source maps
 //! (`image`), and the peak multiply-add rate of every kernel this CPU runs.
 
-use crate::args::BenchArgs;
+use crate::args::{BenchArgs, GpuKernelArg};
 use crate::common::{Result, chain_quality_shown, macs, mib, parse};
 use crate::reference::{load_reference, warn_if_decoded};
 use nmat_cli::input::read_nmat;
@@ -28,6 +28,8 @@ struct Options {
     pub runs: usize,
     /// The GPU decoder's table (`--gpu`) instead of the CPU's.
     pub gpu: bool,
+    /// With `gpu`: this kernel only (`--kernel`).
+    pub kernel: Option<GpuKernelArg>,
     /// No GPU row in the CPU's table (`--cpu-only`).
     pub cpu_only: bool,
     /// Measure against reference maps that do not match the material's channels by role.
@@ -157,12 +159,14 @@ fn channels_of(mask: ChannelMask, count: usize) -> Vec<usize> {
 }
 
 pub fn run(args: BenchArgs) -> Result<()> {
-    let BenchArgs { inputs, reference, region, runs, gpu, cpu_only, force, memory } = args;
+    let BenchArgs { inputs, reference, region, runs, gpu, kernel, cpu_only, force, memory } = args;
     if region == 0 || runs == 0 {
         return Err("--region and --runs must be at least 1".into());
     }
     let max_memory = memory.bytes();
-    bench_all(&Options { inputs, reference, region, runs, gpu, cpu_only, force, max_memory })
+    let opts =
+        Options { inputs, reference, region, runs, gpu, kernel, cpu_only, force, max_memory };
+    bench_all(&opts)
 }
 
 /// The tables of every material of `opts`.
@@ -334,7 +338,7 @@ fn bench_one(input: &Path, opts: &Options) -> Result<()> {
             bytes.len(),
             macs(&m, m.channel_count())
         );
-        return crate::gpu::bench_table(&m, opts.region, opts.runs);
+        return crate::gpu::bench_table(&m, opts.region, opts.runs, opts.kernel);
     }
     let c = m.channel_count();
     let best = Decoder::new(&m);

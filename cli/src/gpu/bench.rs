@@ -16,8 +16,9 @@ use std::time::Instant;
 /// Each timed submission runs at least this long (repeats of the work in one submission).
 const MIN_SECONDS: f64 = 0.05;
 
-/// The table for `m`: a `region`² region of mip 0 (at most the mip), `runs` timed runs a row.
-pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
+/// The table for `m`: a `region`² region of mip 0 (at most the mip), `runs` timed runs a row;
+/// every row through `only` where given (no row for the other kernels).
+pub fn table(m: &Material<'_>, region: u32, runs: usize, only: Option<Kernel>) -> Result<()> {
     let (device, queue, info) = device::open()?;
     let software = info.device_type == nmat_wgpu::DeviceType::Cpu;
     println!(
@@ -38,14 +39,14 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
     );
     let ctx = Context::new(&device);
     let start = Instant::now();
-    let gm = ctx.upload(&device, &queue, m)?;
+    let gm = ctx.upload_with(&device, &queue, m, only)?;
     device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| e.to_string())?;
     let upload = start.elapsed().as_secs_f64();
     // The other kernels the device runs, for a region row each (same codes, other speed).
     let others: Vec<GpuMaterial> = Kernel::ALL
         .into_iter()
         .rev()
-        .filter(|&k| k != gm.kernel())
+        .filter(|&k| k != gm.kernel() && only.is_none())
         .filter_map(|k| ctx.upload_with(&device, &queue, m, Some(k)).ok())
         .collect();
     // Where each tiled or matrix kernel's time goes: its input features alone and its layers
@@ -81,10 +82,15 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
         mapped_at_creation: false,
     });
     println!(
-        "  kernel: {}{} (of the kernels whose codes equal the CPU's on upload's probe, the \
-         fastest measured on this device; docs/GPU.md); tiles decoded by: {}",
+        "  kernel: {}{} ({}); tiles decoded by: {}",
         gm.kernel().name(),
         gm.workgroup_texels().map_or(String::new(), |p| format!(", {p} texels a workgroup")),
+        match only {
+            Some(_) => "asked for with --kernel; its codes equal the CPU's on upload's probe",
+            None =>
+                "of the kernels whose codes equal the CPU's on upload's probe, the fastest \
+                     measured on this device; docs/GPU.md",
+        },
         gm.tile_kernel().name()
     );
     for (kernel, reason) in gm.rejected() {

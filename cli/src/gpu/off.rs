@@ -2,6 +2,7 @@
 //! has them.
 
 use super::{BenchRow, Levels, Walk};
+use crate::args::GpuKernelArg;
 use crate::common::Result;
 use crate::corridor::Options as WalkOptions;
 use nmat_cli::output;
@@ -35,7 +36,7 @@ pub fn bench_row(_: &Material<'_>, _: (u32, u32), _: &BenchRow<'_>) -> Result<()
     Ok(())
 }
 
-pub fn bench_table(_: &Material<'_>, _: u32, _: usize) -> Result<()> {
+pub fn bench_table(_: &Material<'_>, _: u32, _: usize, _: Option<GpuKernelArg>) -> Result<()> {
     Err(NO_GPU_BUILD.into())
 }
 

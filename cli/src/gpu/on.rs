@@ -1,12 +1,14 @@
 //! The GPU paths of a `--features gpu` build, through nmat-wgpu.
 
 use super::{BenchRow, Levels, Walk, device};
+use crate::args::GpuKernelArg;
 use crate::common::Result;
 use crate::corridor::Options as WalkOptions;
 use nmat_cli::output;
 use nmat_cli::stats::median_seconds;
 use nmat_core::Material;
 use nmat_core::bc::BcFormat;
+use nmat_wgpu::Kernel;
 use std::path::{Path, PathBuf};
 
 /// `nmat decode --gpu`: the maps of `plan` decoded on the GPU and written to `dir`.
@@ -83,9 +85,23 @@ pub fn bench_row(m: &Material<'_>, side: (u32, u32), row: &BenchRow<'_>) -> Resu
     Ok(())
 }
 
-/// `nmat bench --gpu`'s table for `m` (docs/GPU.md, "Measured").
-pub fn bench_table(m: &Material<'_>, region: u32, runs: usize) -> Result<()> {
-    super::bench::table(m, region, runs)
+/// `nmat bench --gpu`'s table for `m` (docs/GPU.md, "Measured"), through `kernel` only where
+/// given.
+pub fn bench_table(
+    m: &Material<'_>,
+    region: u32,
+    runs: usize,
+    kernel: Option<GpuKernelArg>,
+) -> Result<()> {
+    let kernel = kernel.map(|k| match k {
+        GpuKernelArg::Reference => Kernel::Reference,
+        GpuKernelArg::UnrolledI32 => Kernel::UnrolledInt32,
+        GpuKernelArg::UnrolledDot4 => Kernel::UnrolledDot4,
+        GpuKernelArg::I32 => Kernel::Int32,
+        GpuKernelArg::Dot4 => Kernel::Dot4,
+        GpuKernelArg::Matrix => Kernel::Matrix,
+    });
+    super::bench::table(m, region, runs, kernel)
 }
 
 /// `nmat walk --gpu`: the walk through nmat-wgpu's tile cache.
