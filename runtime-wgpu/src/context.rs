@@ -53,9 +53,9 @@ pub struct Context {
     pub(crate) fault: Mutex<Option<Kernel>>,
     /// Tile entries made to store wrong codes ([`Context::break_tile_decoders_for_testing`]).
     pub(crate) tile_fault: AtomicBool,
-    /// Whether the matrix kernel's matrix operations are emulated
-    /// ([`Context::emulate_matrix_for_testing`]).
-    pub(crate) matrix_emulation: AtomicBool,
+    /// Whether the matrix kernel's matrix operations are emulated, and with which round trip
+    /// of the products (paired or not: [`Context::emulate_matrix_for_testing`]).
+    pub(crate) matrix_emulation: Mutex<Option<bool>>,
     /// How long a probe decode is waited for, where a test set it
     /// ([`Context::limit_probe_wait_for_testing`]).
     pub(crate) probe_wait: Mutex<Option<std::time::Duration>>,
@@ -179,7 +179,7 @@ impl Context {
             choices: Mutex::default(),
             fault: Mutex::default(),
             tile_fault: AtomicBool::new(false),
-            matrix_emulation: AtomicBool::new(false),
+            matrix_emulation: Mutex::default(),
             probe_wait: Mutex::default(),
             jpeg_work: Mutex::default(),
             jpeg_scratch: Mutex::default(),

@@ -29,6 +29,11 @@ const LAYOUT: (u32, u32, u32) = (4, 1, 4);
 /// `NMAT_WGPU_MATRIX_PAD=A,W,S` overrides it (for measuring).
 const PADS: (u32, u32, u32) = (8, 8, 4);
 
+/// Whether a row block's products with the high and the low bytes go through workgroup memory
+/// together (half the barriers, twice the memory of `sums`: matrix.wgsl) rather than one after
+/// the other. `NMAT_WGPU_MATRIX_SUMS=paired` (or `split`) overrides it (for measuring).
+const PAIRED: bool = false;
+
 /// Three numbers `A,B,C` from the environment variable `name` (a measuring override), if they are
 /// there and `valid`.
 fn overridden(name: &str, valid: impl Fn([u32; 3]) -> bool) -> Option<(u32, u32, u32)> {
@@ -62,6 +67,9 @@ pub(crate) struct Shape {
     /// Whether the matrix operations are emulated in scalar code (matrix_emulated.wgsl), for
     /// testing the kernel's structure on a device without matrix units.
     emulated: bool,
+    /// Whether a row block's products with the high and low bytes go through `sums` together
+    /// ([`PAIRED`]).
+    paired: bool,
 }
 
 /// The invocations of an emulated subgroup.
@@ -69,14 +77,15 @@ const EMULATED_SUBGROUP: u32 = 32;
 
 impl Shape {
     /// The shape of `m`'s network on `device`, or why the matrix kernel cannot decode it there.
-    /// `emulated`: with the matrix operations in scalar code, for testing
-    /// ([`crate::Context::emulate_matrix_for_testing`]; needs `SHADER_F16` only).
+    /// `emulated`: with the matrix operations in scalar code and the products' round trip
+    /// `paired` or not, for testing ([`crate::Context::emulate_matrix_for_testing`]; needs
+    /// `SHADER_F16` only).
     pub fn new(
         m: (&Material<'_>, &Neural<'_>),
         device: &wgpu::Device,
-        emulated: bool,
+        emulated: Option<bool>,
     ) -> Result<Shape, &'static str> {
-        let subgroup = if emulated {
+        let subgroup = if emulated.is_some() {
             if !device.features().contains(wgpu::Features::SHADER_F16) {
                 return Err("the device has no f16 (wgpu feature SHADER_F16), which the \
                             emulated matrix kernel needs");
@@ -107,19 +116,24 @@ impl Shape {
                 && a.max(w).max(s) <= 64
         })
         .unwrap_or(PADS);
+        let paired = emulated.unwrap_or_else(|| match std::env::var("NMAT_WGPU_MATRIX_SUMS") {
+            Ok(v) if v == "paired" => true,
+            Ok(v) if v == "split" => false,
+            _ => PAIRED,
+        });
         let limits = device.limits();
-        let shape =
-            Shape::sized(m, subgroup, layout, pads, limits.max_compute_workgroup_storage_size);
-        shape.map(|shape| Shape { emulated, ..shape })
+        let bytes = limits.max_compute_workgroup_storage_size;
+        let shape = Shape::sized(m, subgroup, (layout, pads, paired), bytes)?;
+        Ok(Shape { emulated: emulated.is_some(), ..shape })
     }
 
-    /// The shape of `m`'s network for `layout` with subgroups of `subgroup` invocations and
-    /// `limit` bytes of workgroup memory (fewer subgroups where the memory is short).
+    /// The shape of `m`'s network for `layout`, `pads` and round trip (`paired`) with subgroups
+    /// of `subgroup` invocations and `limit` bytes of workgroup memory (fewer subgroups where
+    /// the memory is short).
     fn sized(
         (m, n): (&Material<'_>, &Neural<'_>),
         subgroup: u32,
-        (warps, blocks, batches): (u32, u32, u32),
-        pads: (u32, u32, u32),
+        ((warps, blocks, batches), pads, paired): ((u32, u32, u32), (u32, u32, u32), bool),
         limit: u32,
     ) -> Result<Shape, &'static str> {
         let pad = |n: usize| n.next_multiple_of(16) as u32;
@@ -133,10 +147,12 @@ impl Shape {
         let wmax = layers.iter().flat_map(|&(k, o, _)| [k, o]).max().ok_or("no layers")?;
         let channels = m.channel_count() as u32;
         // Workgroup memory: staged weights, the activations' high and low bytes (f16), a row
-        // block of products per subgroup and texel block (f32) and the codes.
+        // block of products (or two, paired) per subgroup and texel block (f32) and the codes.
+        let parts = if paired { 2 } else { 1 };
         let bytes = |w: u32| {
             let p = 16 * blocks * w;
-            2 * total + 4 * wmax * (p + pads.0) + 64 * (16 + pads.2) * blocks * w + 4 * channels * p
+            let sums = 64 * (16 + pads.2) * blocks * w * parts;
+            2 * total + 4 * wmax * (p + pads.0) + sums + 4 * channels * p
         };
         let warps = (1..=warps)
             .rev()
@@ -155,6 +171,7 @@ impl Shape {
             total,
             fracs,
             emulated: false,
+            paired,
         })
     }
 
@@ -201,6 +218,7 @@ impl Shape {
                 "",
             )
         };
+        let (paired, parts) = (self.paired, if self.paired { 2 } else { 1 });
         let mut entries = String::new();
         for (entry, body) in [("matrix", "matrix_batches"), ("matrix_cache", "matrix_tiles")] {
             let _ = writeln!(
@@ -216,6 +234,7 @@ impl Shape {
              const P: u32 = {}u;\nconst NW: u32 = {}u;\nconst TB: u32 = {}u;\n\
              const BATCHES: u32 = {}u;\nconst SG: u32 = {}u;\nconst AS: u32 = {}u;\n\
              const SS: u32 = {}u;\nconst SB: u32 = 16u * SS;\n\
+             const PAIRED: bool = {paired};\nconst PARTS: u32 = {parts}u;\n\
              const PER_LANE: u32 = 256u * TB / SG;\n\
              const WMAX: u32 = {}u;\nconst CH: u32 = {}u;\nconst WTOTAL: u32 = {}u;\n\
              const PART: u32 = {}u;\n{}\
@@ -306,7 +325,9 @@ impl Shape {
                 }
             }
         }
-        s += "    }\n    workgroupBarrier();\n";
+        // (Split, `finish` must not overwrite activations a lane may still be loading; paired,
+        // the barrier after the stores is that one.)
+        s += if self.paired { "    }\n" } else { "    }\n    workgroupBarrier();\n" };
         // Per row block `ob`: its products through workgroup memory into `finish`; `store`
         // writes the instruction that stores texel block tb's accumulator of one part.
         let round_trip = |s: &mut String, ob: &str, store: &dyn Fn(char, u32) -> String| {
@@ -314,8 +335,11 @@ impl Shape {
                 for tb in 0..blocks {
                     let _ = writeln!(s, "    {}", store(part, tb));
                 }
-                s.push_str(match part {
-                    'h' => "    workgroupBarrier();\n    collect(lane, warp);\n    workgroupBarrier();\n",
+                s.push_str(match (part, self.paired) {
+                    ('h', true) => "",
+                    ('h', false) => {
+                        "    workgroupBarrier();\n    collect(lane, warp);\n    workgroupBarrier();\n"
+                    }
                     _ => "    workgroupBarrier();\n",
                 });
             }
@@ -324,17 +348,22 @@ impl Shape {
                 "    finish(lane, warp, {l}u, {ob}, {last}, {frac}u);\n    workgroupBarrier();"
             );
         };
-        let at = |tb: u32| format!("SB * (warp * TB + {tb}u)");
+        // Where texel block tb's products of one part go (paired: the low bytes' after the
+        // high bytes').
+        let at = |part: char, tb: u32| {
+            let lo = if self.paired && part == 'l' { " + LO" } else { "" };
+            format!("SB * PARTS * (warp * TB + {tb}u){lo}")
+        };
         if self.emulated {
             let _ = writeln!(s, "    for (var ob = 0u; ob < {row_blocks}u; ob++) {{");
             round_trip(&mut s, "ob", &|part, tb| {
-                format!("emu_store(&{part}{tb}, ob, {}, SS, lane);", at(tb))
+                format!("emu_store(&{part}{tb}, ob, {}, SS, lane);", at(part, tb))
             });
             s += "    }\n";
         } else {
             for ob in 0..row_blocks {
                 round_trip(&mut s, &format!("{ob}u"), &|part, tb| {
-                    format!("coopStoreT({part}{tb}_{ob}, &sums[{}], SS);", at(tb))
+                    format!("coopStoreT({part}{tb}_{ob}, &sums[{}], SS);", at(part, tb))
                 });
             }
         }
@@ -385,13 +414,13 @@ mod tests {
             let bytes = generate(&cfg).to_bytes().unwrap();
             let m = Container::parse(&bytes).unwrap();
             let n = m.neural().expect("a neural fixture");
-            let shape = match Shape::sized((&m, n), 32, LAYOUT, PADS, 49152) {
+            let shape = match Shape::sized((&m, n), 32, (LAYOUT, PADS, PAIRED), 49152) {
                 Ok(shape) => shape,
                 Err(reason) => {
                     assert_eq!(cfg.name, "widest", "{reason}");
                     // 4 layers of 128 × 128 f16 weights are 128 KiB.
                     assert!(
-                        Shape::sized((&m, n), 32, LAYOUT, PADS, 1 << 18).is_ok(),
+                        Shape::sized((&m, n), 32, (LAYOUT, PADS, PAIRED), 1 << 18).is_ok(),
                         "{}",
                         cfg.name
                     );
@@ -420,12 +449,19 @@ mod tests {
             assert!(has(4459) && has(4457), "{}: no cooperative matrix instructions", cfg.name);
             // The emulated kernel (for tests on devices without matrix units) uses no
             // cooperative matrix and no subgroup operation.
-            let emulated = Shape { emulated: true, ..shape.clone() };
             let without = naga::valid::Capabilities::all()
                 - naga::valid::Capabilities::COOPERATIVE_MATRIX
                 - naga::valid::Capabilities::SUBGROUP;
-            let source = emulated.source_part(Part::Whole, &features);
-            compile_with(&source, without).unwrap_or_else(|e| panic!("{} emulated: {e}", cfg.name));
+            for paired in [false, true] {
+                let emulated = Shape { emulated: true, paired, ..shape.clone() };
+                let source = emulated.source_part(Part::Whole, &features);
+                compile_with(&source, without)
+                    .unwrap_or_else(|e| panic!("{} emulated, paired {paired}: {e}", cfg.name));
+                // The products' round trip with both parts at once (NMAT_WGPU_MATRIX_SUMS).
+                let real = Shape { paired, ..shape.clone() };
+                compile(&real.source_part(Part::Whole, &features))
+                    .unwrap_or_else(|e| panic!("{} paired {paired}: {e}", cfg.name));
+            }
             // The pipelines that time a part alone compile too.
             for part in [Part::Features, Part::Layers] {
                 let source = shape.source_part(part, &features);

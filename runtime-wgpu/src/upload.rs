@@ -256,7 +256,7 @@ impl Context {
         let (source, entry, texels, tiles) = match kernel {
             Kernel::Reference => return Ok((None, None)),
             Kernel::Matrix => {
-                let emulated = self.matrix_emulation.load(std::sync::atomic::Ordering::Relaxed);
+                let emulated = *self.matrix_emulation.lock().unwrap_or_else(|e| e.into_inner());
                 let shape = matrix::Shape::new((m, n), device, emulated)?;
                 let tiles = shape.decodes_tiles().then_some(("matrix_cache", 1));
                 (shape.source_part(part, features), "matrix", shape.texels(), tiles)
@@ -300,10 +300,12 @@ impl Context {
     /// Makes the matrix kernel of the materials uploaded from now on emulate its cooperative
     /// matrix operations in scalar code (`matrix_emulated.wgsl`), so that a test can run the
     /// kernel's structure, and check its codes, on a device without matrix units (it needs
-    /// `SHADER_F16`). Exact, but far slower than the real kernel. For tests only.
+    /// `SHADER_F16`): with a row block's products with the high and low bytes through workgroup
+    /// memory together (`paired`, `NMAT_WGPU_MATRIX_SUMS=paired`) or one after the other. Exact,
+    /// but far slower than the real kernel. For tests only.
     #[doc(hidden)]
-    pub fn emulate_matrix_for_testing(&self) {
-        self.matrix_emulation.store(true, std::sync::atomic::Ordering::Relaxed);
+    pub fn emulate_matrix_for_testing(&self, paired: bool) {
+        *self.matrix_emulation.lock().unwrap_or_else(|e| e.into_inner()) = Some(paired);
     }
 
     /// Gives the JPEG materials uploaded from now on request passes with scratch slots of at

@@ -18,12 +18,15 @@
 // Prepended by matrix.rs (per material shape): the `enable` directives, `const P`, `const NW`,
 // `const BATCHES`, `const SG` (a subgroup's invocations), `const WMAX` (the widest layer rounded
 // up to 16), `const CH` (channels), `const WTOTAL` (staged weights), the strides `AS` and `SS`,
-// `const SB` (16 · SS), `const PER_LANE`, `const PART` (0; 1 or 2 in a pipeline that times the
-// features or the layers alone, with `stand_in_features`), `fn stage_weights(lid)` calling
-// `stage` per layer and `fn layers(lane, warp)` (`features_sink` instead in a pipeline timing the
-// features): per layer its products with the block
-// counts and offsets as literals (the accumulators of all its row blocks live in registers),
-// calling `finish` per row block. Then texel.wgsl, the input features (features.rs),
+// `const SB` (16 · SS), `const PAIRED` and `const PARTS` (the products' round trip below),
+// `const PER_LANE`, `const PART` (0; 1 or 2 in a pipeline that times the features or the layers
+// alone, with `stand_in_features`), `fn stage_weights(lid)` calling `stage` per layer and
+// `fn layers(lane, warp)` (`features_sink` instead in a pipeline timing the features): per layer
+// its products with the block counts and offsets as literals (the accumulators of all its row
+// blocks live in registers), then per row block its products through `sums` into `finish`:
+// the high bytes' products, a barrier, `collect`, a barrier, the low bytes', a barrier,
+// `finish`, a barrier — or, PAIRED, both stored at once, a barrier, `finish`, a barrier (half
+// the barriers and no private copy, for twice the memory of `sums`). Then texel.wgsl, the input features (features.rs),
 // decode.wgsl, requant.wgsl, this file and batch.wgsl.
 // Weights and row tables are the tiled kernels' (tiled.wgsl), the bias without the dot4
 // kernel's 128 · Σ w.
@@ -39,11 +42,14 @@ var<workgroup> weights16: array<f16, WTOTAL>;
 var<workgroup> act_hi: array<f16, WMAX * AS>;
 var<workgroup> act_lo: array<f16, WMAX * AS>;
 // Per subgroup and texel block, one row block of products (16 rows of SS = 16 + a pad, row-
-// major): first the products with the high bytes, then with the low bytes.
-var<workgroup> sums: array<f32, SB * TB * NW>;
+// major): first the products with the high bytes, then with the low bytes — or, where PAIRED
+// (PARTS = 2), both at once, the low bytes' LO = SB elements after the high bytes'.
+var<workgroup> sums: array<f32, SB * PARTS * TB * NW>;
+const LO: u32 = (PARTS - 1u) * SB;
 // The codes of this batch, one per u32, in output order (texel, then channel).
 var<workgroup> tile_codes: array<u32, P * CH>;
-// This invocation's share of a subgroup's products with the high bytes (256 · TB / SG).
+// This invocation's share of a subgroup's products with the high bytes (256 · TB / SG; not
+// PAIRED).
 var<private> hi_part: array<i32, PER_LANE>;
 
 // Layer `l`'s weights (the tiled kernels' packed int8 table) into weights16 from `woff`,
@@ -79,7 +85,7 @@ fn put_activation(k: u32, t: u32, a: i32) {
 // lane / 16 + k · (SG / 16) of the subgroup's 16 · TB, k < PER_LANE; `sum_at` is where the
 // product of row r and texel j is.
 fn sum_at(warp: u32, r: u32, j: u32) -> u32 {
-    return SB * (warp * TB + j / 16u) + r * SS + j % 16u;
+    return SB * PARTS * (warp * TB + j / 16u) + r * SS + j % 16u;
 }
 
 // This invocation's products with the high bytes, from `sums` into hi_part (exact integers).
@@ -90,7 +96,7 @@ fn collect(lane: u32, warp: u32) {
 }
 
 // Row block `ob` of layer `l` (output fraction bits `frac`) for subgroup `warp`, from hi_part
-// and the products with the low bytes in `sums`: bias, requantization and activation, into the
+// (or, PAIRED, `sums`) and the products with the low bytes in `sums`: bias, requantization and activation, into the
 // activations (or, if `last`, the codes). Each invocation reads its row's table once.
 fn finish(lane: u32, warp: u32, l: u32, ob: u32, last: bool, frac: u32) {
     let lb = nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_WORDS * l;
@@ -107,7 +113,12 @@ fn finish(lane: u32, warp: u32, l: u32, ob: u32, last: bool, frac: u32) {
     }
     for (var k = 0u; k < PER_LANE; k++) {
         let j = lane / 16u + k * (SG / 16u);
-        let acc = 256 * hi_part[k] + i32(sums[sum_at(warp, lane % 16u, j)]) + row.bias;
+        let at = sum_at(warp, lane % 16u, j);
+        var hi = hi_part[k];
+        if (PAIRED) {
+            hi = i32(sums[at]);
+        }
+        let acc = 256 * hi + i32(sums[at + LO]) + row.bias;
         var z = requant_with(acc, row);
         if (gelu) {
             z = nmat_hard_gelu(z, frac);
