@@ -64,6 +64,26 @@ for m in .devcarry/materials/*.nmat; do
   done
   break
 done
+# The matrix kernel's layouts on the first neural material, each a `--kernel matrix` bench (its
+# rows and parts only): the products' round trip split or paired (with the pads that keep 4
+# subgroups in 48 KiB), two texel blocks a subgroup, more batches (docs/GPU.md, "The matrix
+# kernel"; the bench's kernel line gives the texels a workgroup each layout got).
+for m in .devcarry/materials/*.nmat; do
+  case "$m" in *jpeg*) continue ;; esac
+  [ -f "$m" ] || continue
+  while read -r name vars; do
+    step "matrix-$name" 120 env $vars .devcarry/nmat bench "$m" --gpu --kernel matrix \
+      --region 1024 --runs 3 < /dev/null
+  done <<'LAYOUTS'
+split NMAT_WGPU_MATRIX_SUMS=split
+paired NMAT_WGPU_MATRIX_SUMS=paired
+paired-pad-804 NMAT_WGPU_MATRIX_SUMS=paired NMAT_WGPU_MATRIX_PAD=8,0,4
+paired-pad-0 NMAT_WGPU_MATRIX_SUMS=paired NMAT_WGPU_MATRIX_PAD=0,0,0
+blocks-2 NMAT_WGPU_MATRIX=4,2,4
+batches-8 NMAT_WGPU_MATRIX=4,1,8
+LAYOUTS
+  break
+done
 # A frame through the GPU tile cache (mark, decode and resolve timed apart: docs/PERFORMANCE.md,
 # "The same walk on the GPU") with up to four carried neural materials, and with the JPEG ones;
 # BC transcoding of the first neural material on the GPU against the CPU on every core (the same
