@@ -62,8 +62,10 @@ pub(crate) struct Shape {
     layers: Vec<(u32, u32, u32)>,
     /// Staged weights (f16) of all layers.
     total: u32,
-    /// Per layer: its output fraction bits (a literal, so that hardGELU divides by a constant).
-    fracs: Vec<u32>,
+    /// Per layer: its output fraction bits (so that hardGELU divides by a constant), its rows
+    /// and whether it applies hardGELU — literals in its `finish` calls, which then read no
+    /// layer record.
+    finishes: Vec<(u32, usize, bool)>,
     /// Whether the matrix operations are emulated in scalar code (matrix_emulated.wgsl), for
     /// testing the kernel's structure on a device without matrix units.
     emulated: bool,
@@ -158,7 +160,10 @@ impl Shape {
             .rev()
             .find(|&w| bytes(w) <= limit)
             .ok_or("the network is too large for the device's workgroup memory")?;
-        let fracs = n.mlp().layers().iter().map(|l| u32::from(l.out_frac_bits())).collect();
+        let gelu = |l: &nmat_core::Layer<'_>| l.activation() == nmat_core::Activation::HardGelu;
+        let finishes = n.mlp().layers().iter();
+        let finishes = finishes.map(|l| (u32::from(l.out_frac_bits()), l.outputs(), gelu(l)));
+        let finishes = finishes.collect();
         Ok(Shape {
             warps,
             blocks,
@@ -169,7 +174,7 @@ impl Shape {
             channels,
             layers,
             total,
-            fracs,
+            finishes,
             emulated: false,
             paired,
         })
@@ -266,7 +271,7 @@ impl Shape {
     /// into `finish`.
     fn layer(&self, l: usize, kpad: u32, opad: u32, woff: u32) -> String {
         let last = l + 1 == self.layers.len();
-        let frac = self.fracs[l];
+        let (frac, rows, gelu) = self.finishes[l];
         let (row_blocks, blocks) = (opad / 16, self.blocks);
         let mut s = format!("    {{ // layer {l}\n");
         // The accumulators, the loads and the multiply-adds, as cooperative matrix operations,
@@ -345,7 +350,8 @@ impl Shape {
             }
             let _ = writeln!(
                 s,
-                "    finish(lane, warp, {l}u, {ob}, {last}, {frac}u);\n    workgroupBarrier();"
+                "    finish(lane, warp, {l}u, {ob}, {last}, {frac}u, {rows}u, {gelu});\n    \
+                 workgroupBarrier();"
             );
         };
         // Where texel block tb's products of one part go (paired: the low bytes' after the

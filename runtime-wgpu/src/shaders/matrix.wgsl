@@ -95,16 +95,16 @@ fn collect(lane: u32, warp: u32) {
     }
 }
 
-// Row block `ob` of layer `l` (output fraction bits `frac`) for subgroup `warp`, from hi_part
-// (or, PAIRED, `sums`) and the products with the low bytes in `sums`: bias, requantization and activation, into the
-// activations (or, if `last`, the codes). Each invocation reads its row's table once.
-fn finish(lane: u32, warp: u32, l: u32, ob: u32, last: bool, frac: u32) {
-    let lb = nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_WORDS * l;
+// Row block `ob` of layer `l` (output fraction bits `frac`, `rows` rows, hardGELU where `gelu`:
+// literals in the calls, which matrix.rs writes) for subgroup `warp`, from hi_part (or, PAIRED,
+// `sums`) and the products with the low bytes in `sums`: bias, requantization and activation,
+// into the activations (or, if `last`, the codes). Each invocation reads its row's table once.
+fn finish(lane: u32, warp: u32, l: u32, ob: u32, last: bool, frac: u32, rows: u32, gelu: bool) {
     let o = 16u * ob + lane % 16u;
-    if (o >= nmat_desc[lb + NMAT_LAYER_OUTPUTS] || (last && (o >= CH || (params.channel_mask & (1u << o)) == 0u))) {
+    if (o >= rows || (last && (o >= CH || (params.channel_mask & (1u << o)) == 0u))) {
         return;
     }
-    let gelu = nmat_desc[lb + NMAT_LAYER_HARD_GELU] == 1u;
+    let lb = nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_WORDS * l;
     let row = requant_table(nmat_desc[lb + NMAT_LAYER_REQUANT_AT] + NMAT_REQUANT_WORDS * o);
     let n = params.out_channels;
     var slot = 0u;
