@@ -85,7 +85,7 @@ impl Features {
 }
 
 /// 64-bit FNV-1a of the generated code (equal codes, equal features), as two words, never 0.
-fn fingerprint(generated: &str) -> [u32; 2] {
+pub(crate) fn fingerprint(generated: &str) -> [u32; 2] {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
     for b in generated.bytes() {
         h = (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3);

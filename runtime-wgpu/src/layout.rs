@@ -213,6 +213,11 @@ shader_layout! {
         /// compute the generic ones for a material of another layout.
         features_key_lo: u32,
         features_key_hi: u32,
+        /// A 64-bit fingerprint of the network unrolled for the sampling module on the tables
+        /// the descriptor holds (unrolled.rs, `SampleNetwork`), 0 without tables: the sampling
+        /// module made for a material checks it, and runs the generic layers for another.
+        network_key_lo: u32,
+        network_key_hi: u32,
     }
 }
 
@@ -608,15 +613,17 @@ pub(crate) fn neural_wgsl() -> String {
 }
 
 /// texel.wgsl (the decoder every decode shader and the sampling module include) with the
-/// descriptor's layout it reads and the generic `nmat_texel_features` (any material).
+/// descriptor's layout it reads and the generic `nmat_texel_features` and `nmat_texel_network`
+/// (any material).
 pub(crate) fn texel_wgsl() -> String {
-    texel_wgsl_with(crate::features::GENERIC)
+    texel_wgsl_with(crate::features::GENERIC, crate::unrolled::GENERIC_NETWORK)
 }
 
-/// texel.wgsl with `features`: a definition of `nmat_texel_features`, the input features
-/// `nmat_decode` computes ([`crate::features`]).
-pub(crate) fn texel_wgsl_with(features: &str) -> String {
-    format!("{}\n{}\n{features}", neural_wgsl(), include_str!("shaders/texel.wgsl"))
+/// texel.wgsl with `features` and `network`: definitions of `nmat_texel_features` and
+/// `nmat_texel_network`, the input features and the network `nmat_decode` computes
+/// ([`crate::features`], [`crate::unrolled`]).
+pub(crate) fn texel_wgsl_with(features: &str, network: &str) -> String {
+    format!("{}\n{}\n{features}\n{network}", neural_wgsl(), include_str!("shaders/texel.wgsl"))
 }
 
 /// decode.wgsl (the reference kernel and the bindings every decode kernel shares) with its
@@ -821,7 +828,7 @@ mod tests {
     /// terms of a mode, a chain length and eight grids).
     #[test]
     fn records_have_the_sizes_the_format_gives_them() {
-        assert_eq!(NeuralHeader::WORDS, 33);
+        assert_eq!(NeuralHeader::WORDS, 35);
         assert_eq!(TermRecord::WORDS, 2 + MAX_CHAIN);
         assert_eq!(LevelRecord::WORDS, 1 + MAX_TERMS * TermRecord::WORDS);
         assert_eq!(JpegHeader::WORDS, 16 + 2 * MAX_MIPS);

@@ -257,7 +257,7 @@ impl Shape {
             self.total,
             part.code(),
             Part::STAND_IN_WGSL,
-            crate::layout::texel_wgsl_with(features),
+            crate::layout::texel_wgsl_with(features, crate::unrolled::GENERIC_NETWORK),
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),
             include_str!("shaders/matrix.wgsl"),

@@ -43,7 +43,7 @@ impl SampleBindings {
     /// declarations may come in any order). One material per module: a shader sampling two
     /// materials binds them one after the other (or includes two modules renamed by the engine).
     pub fn module(&self) -> String {
-        self.module_with(crate::features::GENERIC)
+        self.module_with(crate::features::GENERIC, crate::unrolled::GENERIC_NETWORK)
     }
 
     /// [`SampleBindings::module`] specialised to `material`'s latent layout: the same entries,
@@ -58,18 +58,20 @@ impl SampleBindings {
     pub fn module_for(&self, material: &GpuMaterial) -> Result<String, GpuError> {
         material.neural()?;
         let features = material.features.as_deref().ok_or(GpuError::Codec)?;
-        Ok(self.module_with(features))
+        let network = material.network.as_deref().unwrap_or(crate::unrolled::GENERIC_NETWORK);
+        Ok(self.module_with(features, network))
     }
 
-    /// The module with `features` as its `nmat_texel_features`.
-    fn module_with(&self, features: &str) -> String {
+    /// The module with `features` as its `nmat_texel_features` and `network` as its
+    /// `nmat_texel_network`.
+    fn module_with(&self, features: &str, network: &str) -> String {
         let (g, b) = (self.group, self.first_binding);
         format!(
             "// nmat: the material's bindings (nmat_wgpu::SampleBindings).\n\
              @group({g}) @binding({b}) var<storage, read> nmat_desc: array<u32>;\n\
              @group({g}) @binding({}) var<storage, read> nmat_latents: array<u32>;\n\n{}\n{}\n{}",
             b + 1,
-            crate::layout::texel_wgsl_with(features),
+            crate::layout::texel_wgsl_with(features, network),
             include_str!("shaders/sample.wgsl"),
             include_str!("shaders/filter.wgsl"),
         )
@@ -127,10 +129,42 @@ mod tests {
         }
         let rest = line.strip_prefix("fn ").or_else(|| line.strip_prefix("const "));
         let rest = rest.or_else(|| line.strip_prefix("struct "));
+        let rest = rest.or_else(|| line.strip_prefix("alias "));
         let rest = rest.or_else(|| {
             line.split_once("var<").and_then(|(_, r)| r.split_once("> ")).map(|(_, r)| r)
         });
         rest.map(|r| r.split(|c: char| !(c.is_alphanumeric() || c == '_')).next().unwrap_or(""))
+    }
+
+    /// The names a module declares at module scope that do not start with `nmat_`, `Nmat` or
+    /// `NMAT_`.
+    fn foreign(source: &str) -> Vec<&str> {
+        let names = source.lines().filter_map(declared);
+        names
+            .filter(|n| {
+                !(n.starts_with("nmat_") || n.starts_with("Nmat") || n.starts_with("NMAT_"))
+            })
+            .collect()
+    }
+
+    /// The module made for a material (its features generated, its network unrolled on either
+    /// kind of table) declares only namespaced names too.
+    #[test]
+    fn a_module_for_a_material_is_namespaced_too() {
+        use nmat_tests::generate::{generate, golden_configs};
+        for cfg in golden_configs() {
+            let bytes = generate(&cfg).to_bytes().unwrap();
+            let m = nmat_core::Container::parse(&bytes).unwrap();
+            let n = m.neural().unwrap();
+            let features = crate::features::Features::new(n).wgsl(true);
+            for dot4 in [false, true] {
+                let network = crate::unrolled::SampleNetwork::new((&m, n), dot4).unwrap().wgsl();
+                let source =
+                    SampleBindings { group: 0, first_binding: 0 }.module_with(&features, &network);
+                assert!(source.contains("fn nmat_u_network(") && source.contains("alias NmatWord"));
+                assert!(foreign(&source).is_empty(), "{}: {:?}", cfg.name, foreign(&source));
+            }
+        }
     }
 
     #[test]
@@ -147,12 +181,7 @@ mod tests {
         ] {
             assert!(names.contains(&must), "{must} not declared: {names:?}");
         }
-        let foreign: Vec<&&str> = names
-            .iter()
-            .filter(|n| {
-                !(n.starts_with("nmat_") || n.starts_with("Nmat") || n.starts_with("NMAT_"))
-            })
-            .collect();
+        let foreign = foreign(&source);
         assert!(foreign.is_empty(), "names an engine's shader could collide with: {foreign:?}");
         assert!(source.contains("@group(2) @binding(5) var<storage, read> nmat_desc"));
         assert!(source.contains("@group(2) @binding(6) var<storage, read> nmat_latents"));

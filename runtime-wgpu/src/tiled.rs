@@ -148,7 +148,7 @@ impl Shape {
             self.channels,
             part.code(),
             Part::STAND_IN_WGSL,
-            crate::layout::texel_wgsl_with(features),
+            crate::layout::texel_wgsl_with(features, crate::unrolled::GENERIC_NETWORK),
             crate::layout::decode_wgsl(),
             include_str!("shaders/requant.wgsl"),
             include_str!("shaders/tiled.wgsl"),
@@ -157,9 +157,18 @@ impl Shape {
 }
 
 /// Appends the tiled kernel's tables of every layer to `desc` (a neural descriptor without
-/// them) and sets the layer records' `packed_at` and `requant_at`.
-pub(crate) fn append_tables(desc: &mut Vec<u32>, n: &Neural<'_>, dot4: bool) {
-    let head: NeuralHeader = layout::read(desc, 0);
+/// them), sets the layer records' `packed_at` and `requant_at`, and the header's
+/// `network_key_lo`/`_hi` to `network_key` (the sampling module's unrolled network on these
+/// tables: unrolled.rs, `SampleNetwork`; 0 for none).
+pub(crate) fn append_tables(
+    desc: &mut Vec<u32>,
+    n: &Neural<'_>,
+    dot4: bool,
+    network_key: [u32; 2],
+) {
+    let mut head: NeuralHeader = layout::read(desc, 0);
+    [head.network_key_lo, head.network_key_hi] = network_key;
+    layout::write(desc, 0, &head);
     for (l, layer) in n.mlp().layers().iter().enumerate() {
         let rows = layer.outputs().next_multiple_of(4);
         let kw = layer.inputs().div_ceil(4);

@@ -84,8 +84,14 @@ impl Context {
         let mut exact = |kernel: Kernel| -> Result<(GpuMaterial, Option<TileEntry>), &'static str> {
             let (tiled, tile_entry) = self.prepare(device, (m, n), kernel, &unchecked)?;
             let mut desc = desc.clone();
+            // The kernels but the reference one read the tiled kernels' tables, and so may the
+            // sampling module made for the material (its network unrolled on them).
+            let mut network = None;
             if kernel != Kernel::Reference {
-                tiled::append_tables(&mut desc, n, kernel.dot4());
+                let sample = unrolled::SampleNetwork::new((m, n), kernel.dot4());
+                let key = sample.as_ref().map_or([0, 0], |s| s.key());
+                tiled::append_tables(&mut desc, n, kernel.dot4(), key);
+                network = sample.map(|s| Arc::<str>::from(s.wgsl()));
             }
             if *self.fault.lock().unwrap_or_else(|e| e.into_inner()) == Some(kernel) {
                 break_last_row(&mut desc);
@@ -94,6 +100,7 @@ impl Context {
             let body = GpuBody::Neural(tiled);
             let gm =
                 GpuMaterial::new(m, (desc, latents.clone()), kernel, body, Some(checked.clone()));
+            let gm = GpuMaterial { network, ..gm };
             let codes = self
                 .submit_requests(device, queue, &gm, &probe.requests, ChannelMask::ALL)
                 .and_then(|pending| pending.wait_within(device, wait));
@@ -221,7 +228,7 @@ impl Context {
         let (tiled, _) = self
             .prepare_part(device, (m, n), kernel, part, &features.wgsl(false))
             .map_err(refused)?;
-        tiled::append_tables(&mut desc, n, kernel.dot4());
+        tiled::append_tables(&mut desc, n, kernel.dot4(), [0, 0]);
         let desc = storage_init(device, "nmat desc (timing)", &desc);
         let latents = storage_init(device, "nmat latents (timing)", &latents);
         let checked = Some(features.wgsl(true).into());
@@ -566,6 +573,7 @@ impl GpuMaterial {
             body,
             tile_decoder: None,
             features,
+            network: None,
         }
     }
 }
@@ -594,6 +602,10 @@ pub struct GpuMaterial {
     /// A neural material's input features generated for its latent layout, checked
     /// (features.rs), for [`crate::SampleBindings::module_for`]; `None` for a JPEG material.
     pub(crate) features: Option<Arc<str>>,
+    /// Its network unrolled on the tables its descriptor holds, checked (unrolled.rs,
+    /// `SampleNetwork`), for [`crate::SampleBindings::module_for`]; `None` where the descriptor
+    /// has no tables (the reference kernel's materials), the network is not unrolled, or JPEG.
+    pub(crate) network: Option<Arc<str>>,
 }
 
 /// The tiled or matrix kernel's pipeline and texels per workgroup (`None`: the reference

@@ -8,7 +8,7 @@
 
 use nmat_core::{ChannelMask, Container, Filter};
 use nmat_tests::generate::{generate, golden_configs};
-use nmat_wgpu::{Context, SampleBindings};
+use nmat_wgpu::{Context, Kernel, SampleBindings};
 
 mod common;
 use common::{buffer, cpu_codes, device, random_requests, submit_and_read, trained_material};
@@ -128,15 +128,31 @@ fn texel_codes_match_the_cpu_byte_for_byte() {
         for (name, bytes) in materials() {
             let m = Container::parse(&bytes).unwrap();
             let gpu = ctx.upload(&device, &queue, &m).unwrap();
-            // The module for any material, the one specialised to this material's layout, and
-            // the one specialised to another material's.
-            let this_material = pipeline(&bindings.module_for(&gpu).unwrap(), mask);
-            let modules = [
-                ("module", &any_material),
-                ("module_for", &this_material),
-                ("module_for another material", &other_material),
+            // Uploaded with the tiled i32 kernel (tables without 128 · Σ w in the bias), and
+            // with the reference kernel (no tables: a module_for's unrolled network must not run).
+            let i32_tables = ctx.upload_with(&device, &queue, &m, Some(Kernel::Int32)).unwrap();
+            let no_tables = ctx.upload_with(&device, &queue, &m, Some(Kernel::Reference)).unwrap();
+            // The module for any material, the one specialised to this material (its features
+            // and, on its kernel's tables, its network unrolled), and the one specialised to
+            // another material.
+            let source = bindings.module_for(&gpu).unwrap();
+            if gpu.kernel() != Kernel::Reference {
+                assert!(source.contains("fn nmat_u_network("), "{name}: no unrolled network");
+            }
+            let this_material = pipeline(&source, mask);
+            let mut modules = vec![
+                ("module", &any_material, &gpu),
+                ("module_for", &this_material, &gpu),
+                ("module_for another material", &other_material, &gpu),
+                ("module_for, the material without tables", &this_material, &no_tables),
             ];
-            for (module, pipeline) in modules {
+            let i32_module;
+            if mask == 0xFFFF {
+                i32_module = pipeline(&bindings.module_for(&i32_tables).unwrap(), mask);
+                modules.push(("module_for, tiled i32 kernel's tables", &i32_module, &i32_tables));
+                modules.push(("module_for, other tables", &this_material, &i32_tables));
+            }
+            for (module, pipeline, gpu) in modules {
                 let reqs = random_requests(7, 300, 200, m.mip_count() + 2);
                 let words: Vec<u8> = reqs
                     .iter()

@@ -105,7 +105,7 @@ fn finish(lane: u32, warp: u32, l: u32, ob: u32, last: bool, frac: u32, rows: u3
         return;
     }
     let lb = nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_WORDS * l;
-    let row = requant_table(nmat_desc[lb + NMAT_LAYER_REQUANT_AT] + NMAT_REQUANT_WORDS * o);
+    let row = nmat_requant_table(nmat_desc[lb + NMAT_LAYER_REQUANT_AT] + NMAT_REQUANT_WORDS * o);
     let n = params.out_channels;
     var slot = 0u;
     if (last) {
@@ -119,7 +119,7 @@ fn finish(lane: u32, warp: u32, l: u32, ob: u32, last: bool, frac: u32, rows: u3
             hi = i32(sums[at]);
         }
         let acc = 256 * hi + i32(sums[at + LO]) + row.bias;
-        var z = requant_with(acc, row);
+        var z = nmat_requant_with(acc, row);
         if (gelu) {
             z = nmat_hard_gelu(z, frac);
         }

@@ -1,8 +1,8 @@
 // The requantization of the tiled and matrix kernels (tiled.wgsl, matrix.wgsl), from a layer's
 // row table (tiled.rs: `row_table`; layout in tiled.wgsl).
 
-// A row table (layout.rs: `RequantRow`), read once for all the accumulators of the row.
-struct RequantRow {
+// A row table (layout.rs: `NmatRequantRow`), read once for all the accumulators of the row.
+struct NmatRequantRow {
     bias: i32,
     m: u32,
     s: u32,
@@ -13,8 +13,8 @@ struct RequantRow {
     hi: i32,
 }
 
-fn requant_table(rb: u32) -> RequantRow {
-    return RequantRow(
+fn nmat_requant_table(rb: u32) -> NmatRequantRow {
+    return NmatRequantRow(
         bitcast<i32>(nmat_desc[rb + NMAT_REQUANT_BIAS]),
         nmat_desc[rb + NMAT_REQUANT_M],
         nmat_desc[rb + NMAT_REQUANT_S],
@@ -26,7 +26,7 @@ fn requant_table(rb: u32) -> RequantRow {
     );
 }
 
-// requant_with(acc, row) is sat16((acc · m + 2^(s−1)) >> s) exactly, with acc first clamped to the row's saturation range
+// nmat_requant_with(acc, row) is sat16((acc · m + 2^(s−1)) >> s) exactly, with acc first clamped to the row's saturation range
 // [lo, hi] (outside it the result saturates anyway, inside it fits an i32).
 //
 // 32-bit path (u ≠ 0; tiled.rs sets it where m' < 2^24, |acc| ≤ 2^24 on [lo, hi], u ≤ 31 and
@@ -39,7 +39,7 @@ fn requant_table(rb: u32) -> RequantRow {
 // 64-bit path: |acc| · m as a 64-bit (hi, lo) pair; floor(x / 2^s) of x = acc · m + 2^(s−1) is
 // (|acc| · m + 2^(s−1)) >> s for acc ≥ 0 and −((|acc| · m + 2^(s−1) − 1) >> s) for acc < 0
 // (floor(−y) = −ceil(y)); the clamp keeps the quotient below 2^31.
-fn requant_with(acc_in: i32, row: RequantRow) -> i32 {
+fn nmat_requant_with(acc_in: i32, row: NmatRequantRow) -> i32 {
     let acc = clamp(acc_in, row.lo, row.hi);
     let u = row.u;
     if (u != 0u) {

@@ -13,9 +13,10 @@
 // weights and per-row constants), NMAT_REQUANT_* (the tiled and matrix kernels' row tables), and
 // *_WORDS for each record's size.
 //
-// `nmat_decode` takes a texel's features from `nmat_texel_features`, which the includer appends
-// (features.rs): `nmat_features` below for any material, or code generated for one material's
-// latent layout, which gives the same features.
+// `nmat_decode` takes a texel's features from `nmat_texel_features` and its codes from
+// `nmat_texel_network`, which the includer appends (features.rs, unrolled.rs): `nmat_features`
+// and `nmat_layers` below for any material, or code generated for one material's latent layout
+// and network, which gives the same features and codes.
 
 fn nmat_weight(i: u32) -> i32 {
     return bitcast<i32>(nmat_desc[i]);
@@ -290,9 +291,18 @@ fn nmat_features(xi: i32, yi: i32, mip_in: u32) {
     }
 }
 
-// Decodes texel (xi, yi) of `mip_in` into nmat_codes, the channels in `mask` (bit c: channel c).
+// Decodes texel (xi, yi) of `mip_in` into nmat_codes, the channels in `mask` (bit c: channel c):
+// its input features (`nmat_texel_features`), then the network (`nmat_texel_network`), each
+// defined by the source that includes this file — the generic `nmat_features` and
+// `nmat_layers`, or code generated for the material (features.rs, unrolled.rs).
 fn nmat_decode(xi: i32, yi: i32, mip_in: u32, mask: u32) {
     nmat_texel_features(xi, yi, mip_in);
+    nmat_texel_network(mask);
+}
+
+// The network on the input features in nmat_act_a, the codes of the channels in `mask` into
+// nmat_codes, every width, weight and row constant read through the descriptor (any material).
+fn nmat_layers(mask: u32) {
     let layer_count = nmat_desc[NMAT_DESC_LAYER_COUNT];
     var out_frac = 1u;
     for (var l = 0u; l < layer_count; l++) {

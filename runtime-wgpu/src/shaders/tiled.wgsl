@@ -13,11 +13,11 @@
 // features). Then texel.wgsl (the decoder), the input features for the material's latent layout
 // (features.rs: features.wgsl and `nmat_texel_features`), decode.wgsl (bindings), one of
 // tiled_i32.wgsl / tiled_dot4.wgsl (where activations live and how a tile's products are
-// formed), requant.wgsl (`requant_with`), this file, then batch.wgsl.
+// formed), requant.wgsl (`nmat_requant_with`), this file, then batch.wgsl.
 //
 // Per layer (its record's NMAT_LAYER_PACKED_AT) its packed weights in `nmat_desc`: rows padded
 // to a multiple of 4 rows and 4 columns, 4 int8 weights per word (column 4j + b in byte b of
-// word j); at NMAT_LAYER_REQUANT_AT its row table, a RequantRow per (padded) row (layout.rs):
+// word j); at NMAT_LAYER_REQUANT_AT its row table, a NmatRequantRow per (padded) row (layout.rs):
 // bias (the 8-bit-product kernel adds 128 × the row's weight sum, see tiled_dot4.wgsl),
 // multiplier m, shift s, u (0 for the 64-bit path, else the shift of the 32-bit one),
 // m' = m >> (s − u), m' / 2^u as f32 bits, and the saturation range lo, hi.
@@ -45,9 +45,9 @@ fn layer(lid: u32, l: u32, kw: u32, row_groups: u32, src: u32, last: bool) {
         let acc = mac4(src, t0, weights_at + o0 * kw, kw);
         var v: array<vec4<i32>, 4>;
         for (var r = 0u; r < 4u; r++) {
-            let row = requant_table(rows_at + NMAT_REQUANT_WORDS * (o0 + r));
+            let row = nmat_requant_table(rows_at + NMAT_REQUANT_WORDS * (o0 + r));
             for (var j = 0u; j < 4u; j++) {
-                var z = requant_with(acc[r][j] + row.bias, row);
+                var z = nmat_requant_with(acc[r][j] + row.bias, row);
                 if (gelu) {
                     z = nmat_hard_gelu(z, frac);
                 }

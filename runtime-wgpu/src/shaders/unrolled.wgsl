@@ -12,32 +12,11 @@
 //
 // Prepended by unrolled.rs: `const P` (64: texels per workgroup, one per invocation), `const
 // CH` (channels), `const PART` (as in tiled.wgsl) and `fn network(t)`. Then texel.wgsl, the
-// input features (features.rs), decode.wgsl, requant.wgsl, the products file, this file and
-// batch.wgsl.
+// input features (features.rs), decode.wgsl, requant.wgsl, the products file,
+// unrolled_network.wgsl, this file and batch.wgsl.
 
 // The codes of this workgroup, one per u32, in output order (texel, then channel).
 var<workgroup> tile_codes: array<u32, P * CH>;
-
-// Features 4j … 4j + 3 of nmat_act_a (0 at and past `inputs`) as a word of the products file.
-fn nmat_u_features(j: u32, inputs: u32) -> NmatWord {
-    var a = vec4<i32>(0);
-    for (var b = 0u; b < 4u; b++) {
-        let k = 4u * j + b;
-        a[b] = select(0, nmat_act_a[min(k, 127u)], k < inputs);
-    }
-    return nmat_u_word(a);
-}
-
-// Output row `o` of the layer whose row table starts at `ra`: its sum `acc` biased,
-// requantized and, where `gelu`, activated (hardGELU at `frac` fraction bits).
-fn nmat_u_row(ra: u32, o: u32, frac: u32, gelu: bool, acc: i32) -> i32 {
-    let row = requant_table(ra + NMAT_REQUANT_WORDS * o);
-    var z = requant_with(acc + row.bias, row);
-    if (gelu) {
-        z = nmat_hard_gelu(z, frac);
-    }
-    return z;
-}
 
 // Channel `o`'s code (`frac` fraction bits) of texel `t` into tile_codes, where the mask
 // selects it.
