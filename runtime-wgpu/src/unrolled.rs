@@ -142,11 +142,12 @@ impl Shape {
 
     /// `fn network(t)` (for `sink` [`Sink::Kernel`]: texel `t`'s codes into tile_codes) or
     /// `fn nmat_u_network(mask)` ([`Sink::Texel`]: the codes of the channels in `mask` into
-    /// nmat_codes, as `nmat_layers`): the input features in nmat_act_a through every layer. Layer l's inputs are the words `x{l}_{j}` (four activations each, as
-    /// the products file holds them: `NmatWord`), named values
-    /// a GPU keeps in registers; each output row's sum over them is written out (one load of a
-    /// weight word and its products per word), the rows taken by a loop, their values
-    /// through `nmat_act_b` (free once the features are made) into the next layer's words.
+    /// nmat_codes, as `nmat_layers`): the input features in nmat_act_a through every layer.
+    /// Layer l's inputs are the words `x{l}_{j}` (four activations each, as the products file
+    /// holds them: `NmatWord`), named values a GPU keeps in registers; each output row's sum
+    /// over them is written out (one load of a weight word and its products per word), the rows
+    /// taken by a loop, their values through `nmat_act_b` (free once the features are made)
+    /// into the next layer's words.
     fn network(&self, sink: Sink) -> String {
         let (mut s, code) = match sink {
             Sink::Kernel => (String::from("fn network(t: u32) {\n"), "nmat_u_code(t"),
