@@ -80,19 +80,27 @@ impl Context {
         let wait = self.probe_wait(device);
         // A kernel whose probe did not finish in time (the queue may still be running it).
         let hung = std::cell::Cell::new(None);
+        // The kernels but the reference one read the tiled kernels' tables, and so may the
+        // sampling module made for the material (its network unrolled on them): the descriptor
+        // with them and that network, made once per kind of table (with 128 · Σ w in the bias
+        // for the dot4 kernels, without for the others) for all the candidates.
+        let tables: [std::cell::OnceCell<WithTables>; 2] = Default::default();
+        let with_tables = |dot4: bool| {
+            tables[usize::from(dot4)].get_or_init(|| {
+                let sample = unrolled::SampleNetwork::new((m, n), dot4);
+                let key = sample.as_ref().map_or([0, 0], |s| s.key());
+                let mut desc = desc.clone();
+                tiled::append_tables(&mut desc, n, dot4, key);
+                (desc, sample.map(|s| Arc::<str>::from(s.wgsl())))
+            })
+        };
         // `kernel`, prepared and checked against the CPU on the probe.
         let mut exact = |kernel: Kernel| -> Result<(GpuMaterial, Option<TileEntry>), &'static str> {
             let (tiled, tile_entry) = self.prepare(device, (m, n), kernel, &unchecked)?;
-            let mut desc = desc.clone();
-            // The kernels but the reference one read the tiled kernels' tables, and so may the
-            // sampling module made for the material (its network unrolled on them).
-            let mut network = None;
-            if kernel != Kernel::Reference {
-                let sample = unrolled::SampleNetwork::new((m, n), kernel.dot4());
-                let key = sample.as_ref().map_or([0, 0], |s| s.key());
-                tiled::append_tables(&mut desc, n, kernel.dot4(), key);
-                network = sample.map(|s| Arc::<str>::from(s.wgsl()));
-            }
+            let (mut desc, network) = match kernel {
+                Kernel::Reference => (desc.clone(), None),
+                _ => with_tables(kernel.dot4()).clone(),
+            };
             if *self.fault.lock().unwrap_or_else(|e| e.into_inner()) == Some(kernel) {
                 break_last_row(&mut desc);
             }
@@ -323,6 +331,10 @@ impl Context {
         *self.jpeg_scratch.lock().unwrap_or_else(|e| e.into_inner()) = Some(words);
     }
 }
+
+/// A neural material's descriptor with the tiled kernels' tables, and the sampling module's
+/// network unrolled on them (`None` where it is not unrolled).
+type WithTables = (Vec<u32>, Option<Arc<str>>);
 
 /// A neural material's descriptor words (layout.rs: a [`NeuralHeader`], then the channels'
 /// ranges, the grids' records and quantizers, the levels' and layers' records, the weights and
