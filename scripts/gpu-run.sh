@@ -66,8 +66,10 @@ for m in .devcarry/materials/*.nmat; do
 done
 # The matrix kernel's layouts on the first neural material, each a `--kernel matrix` bench (its
 # rows and parts only): the products' round trip split or paired (with the pads that keep 4
-# subgroups in 48 KiB), two texel blocks a subgroup, more batches (docs/GPU.md, "The matrix
-# kernel"; the bench's kernel line gives the texels a workgroup each layout got).
+# subgroups in 48 KiB), two texel blocks a subgroup, more batches, and the weights read from a
+# storage buffer instead of staged (which frees workgroup memory: more workgroups per core, two
+# texel blocks a subgroup, or one-subgroup workgroups that stage nothing) (docs/GPU.md, "The
+# matrix kernel"; the bench's kernel line gives the texels a workgroup each layout got).
 for m in .devcarry/materials/*.nmat; do
   case "$m" in *jpeg*) continue ;; esac
   [ -f "$m" ] || continue
@@ -81,6 +83,11 @@ paired-pad-804 NMAT_WGPU_MATRIX_SUMS=paired NMAT_WGPU_MATRIX_PAD=8,0,4
 paired-pad-0 NMAT_WGPU_MATRIX_SUMS=paired NMAT_WGPU_MATRIX_PAD=0,0,0
 blocks-2 NMAT_WGPU_MATRIX=4,2,4
 batches-8 NMAT_WGPU_MATRIX=4,1,8
+storage NMAT_WGPU_MATRIX_WEIGHTS=storage
+storage-paired NMAT_WGPU_MATRIX_WEIGHTS=storage NMAT_WGPU_MATRIX_SUMS=paired
+storage-blocks-2 NMAT_WGPU_MATRIX_WEIGHTS=storage NMAT_WGPU_MATRIX=4,2,4
+storage-1x2 NMAT_WGPU_MATRIX_WEIGHTS=storage NMAT_WGPU_MATRIX=1,2,8
+storage-2x2 NMAT_WGPU_MATRIX_WEIGHTS=storage NMAT_WGPU_MATRIX=2,2,8
 LAYOUTS
   break
 done

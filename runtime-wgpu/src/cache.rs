@@ -417,7 +417,7 @@ impl Context {
                 // Through the material's tile decoder where it has one (tiled.wgsl's
                 // `tiled_cache`, four workgroups a tile; matrix.wgsl's `matrix_cache`, one),
                 // else one texel per invocation (cache_decode.wgsl, four workgroups a tile).
-                let (pipeline, params, per_tile) = match &m.tile_decoder {
+                let (pipeline, params, per_tile, weights) = match &m.tile_decoder {
                     Some(decoder) => {
                         let channels = m.channel_count as u32;
                         let params = Params {
@@ -428,15 +428,20 @@ impl Context {
                             in_offset: queue_at,
                             ..Params::default()
                         };
-                        (decoder.pipeline.as_ref().clone(), params.bytes(), decoder.per_tile)
+                        let pipeline = decoder.pipeline.as_ref().clone();
+                        (pipeline, params.bytes(), decoder.per_tile, true)
                     }
                     None => {
                         let slot_words = slot_words as u32;
                         let params = CacheDecodeParams { queue_at, slot_words, pad: [0; 2] };
-                        (neural.clone(), params.bytes(), 4)
+                        (neural.clone(), params.bytes(), 4, false)
                     }
                 };
-                let bound = self.bind_fixed(device, [&m.desc, &m.latents, &state, &codes], &params);
+                let mut bound =
+                    self.bind_fixed(device, [&m.desc, &m.latents, &state, &codes], &params);
+                if weights {
+                    bound = bound.with_weights_of(m);
+                }
                 decodes.push(Decode { pipeline, bound, args: args(per_tile) });
                 continue;
             };
@@ -641,7 +646,7 @@ impl Context {
         };
         // Bound for this probe only (not kept: its buffers go when it returns).
         let buffers = [&gm.desc, &gm.latents, &requests, &out];
-        let bind = self.bind_fixed(device, buffers, &params.bytes());
+        let bind = self.bind_fixed(device, buffers, &params.bytes()).with_weights_of(gm);
         let mut encoder = device.create_command_encoder(&Default::default());
         let groups = u64::from(decoder.per_tile) * tiles.len() as u64;
         dispatch_bound(&mut encoder, &decoder.pipeline, &bind, groups);
@@ -837,10 +842,7 @@ impl GpuTileCache {
         pass.dispatch_workgroups_indirect(&self.args, offset_of!(CacheArgs, clear) as u64);
         for d in &self.decodes {
             pass.set_pipeline(&d.pipeline);
-            pass.set_bind_group(0, &d.bound.group, &[]);
-            if let Some(bytes) = &d.bound.immediates {
-                pass.set_immediates(0, bytes);
-            }
+            d.bound.set(&mut pass);
             pass.dispatch_workgroups_indirect(&self.args, d.args);
         }
     }

@@ -22,6 +22,11 @@ pub struct Context {
     pub(crate) encode: wgpu::ComputePipeline,
     pub(crate) layout: wgpu::BindGroupLayout,
     pub(crate) pipeline_layout: wgpu::PipelineLayout,
+    /// The matrix kernel's weights in a storage buffer (group 1, `matrix::WEIGHTS_GROUP`), and
+    /// the pipeline layout of the decode kernels with that group (`None` on a device that binds
+    /// fewer than 5 storage buffers per shader stage).
+    pub(crate) weights_layout: wgpu::BindGroupLayout,
+    pub(crate) weights_pipeline_layout: Option<wgpu::PipelineLayout>,
     /// Whether dispatches take their parameters as immediates ([`immediates_usable`]) rather
     /// than from a uniform buffer (binding 4) made per call.
     pub(crate) immediates: bool,
@@ -53,9 +58,9 @@ pub struct Context {
     pub(crate) fault: Mutex<Option<Kernel>>,
     /// Tile entries made to store wrong codes ([`Context::break_tile_decoders_for_testing`]).
     pub(crate) tile_fault: AtomicBool,
-    /// Whether the matrix kernel's matrix operations are emulated, and with which round trip
-    /// of the products (paired or not: [`Context::emulate_matrix_for_testing`]).
-    pub(crate) matrix_emulation: Mutex<Option<bool>>,
+    /// Whether the matrix kernel's matrix operations are emulated, and in which variant
+    /// ([`Context::emulate_matrix_for_testing`]).
+    pub(crate) matrix_emulation: Mutex<Option<crate::matrix::Emulation>>,
     /// How long a probe decode is waited for, where a test set it
     /// ([`Context::limit_probe_wait_for_testing`]).
     pub(crate) probe_wait: Mutex<Option<std::time::Duration>>,
@@ -139,11 +144,25 @@ impl Context {
             label: Some("nmat decode"),
             entries: &entries,
         });
+        let immediate_size = if immediates { IMMEDIATE_BYTES } else { 0 };
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("nmat decode"),
             bind_group_layouts: &[Some(&layout)],
-            immediate_size: if immediates { IMMEDIATE_BYTES } else { 0 },
+            immediate_size,
         });
+        let weights_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("nmat matrix weights"),
+            entries: &[storage_entry(0, true)],
+        });
+        let weights_pipeline_layout = (device.limits().max_storage_buffers_per_shader_stage
+            >= crate::matrix::STORAGE_BUFFERS_WITH_WEIGHTS)
+            .then(|| {
+                device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                    label: Some("nmat decode, weights in storage"),
+                    bind_group_layouts: &[Some(&layout), Some(&weights_layout)],
+                    immediate_size,
+                })
+            });
         let pipeline = |entry: &str| {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(entry),
@@ -166,6 +185,8 @@ impl Context {
             encode: pipeline("encode_pixels"),
             layout,
             pipeline_layout,
+            weights_layout,
+            weights_pipeline_layout,
             immediates,
             binds: KeptBinds::new(KEPT_BINDS),
             binds_made: AtomicU32::new(0),
@@ -216,7 +237,7 @@ impl Context {
         }
         let key = buffers.map(Clone::clone);
         let group = self.binds.get_or_make(key, |_| self.make_group(device, buffers, None));
-        Bound { group, immediates: Some(bytes.to_vec()) }
+        Bound::new(group, Some(bytes.to_vec()))
     }
 
     /// The bindings of dispatches whose caller keeps them (the tile cache's decodes): a bind
@@ -229,10 +250,10 @@ impl Context {
     ) -> Bound {
         if self.immediates {
             let group = self.make_group(device, buffers, None);
-            return Bound { group, immediates: Some(bytes.to_vec()) };
+            return Bound::new(group, Some(bytes.to_vec()));
         }
         let uniform = uniform_buffer(device, bytes);
-        Bound { group: self.make_group(device, buffers, Some(&uniform)), immediates: None }
+        Bound::new(self.make_group(device, buffers, Some(&uniform)), None)
     }
 
     /// A bind group of the decode kernels' layout: four storage buffers, and the uniform where
@@ -261,15 +282,22 @@ impl Context {
     }
 
     /// The pipeline of `entry` in `source` (a shader of the decode kernels' layout, declaring its
-    /// parameters at binding 4) in this context's layout; `None` where the device refuses it.
+    /// parameters at binding 4) in this context's layout — with the matrix kernel's weights as
+    /// group 1 where the source declares them (`matrix::WEIGHTS_BINDING`); `None` where the
+    /// device refuses it.
     pub(crate) fn pipeline(
         &self,
         device: &wgpu::Device,
         source: &str,
         entry: &str,
     ) -> Option<wgpu::ComputePipeline> {
+        let layout = if source.contains(crate::matrix::WEIGHTS_BINDING) {
+            self.weights_pipeline_layout.as_ref()?
+        } else {
+            &self.pipeline_layout
+        };
         let source = with_parameters(source, self.immediates);
-        try_pipeline(device, &source, entry, Some(&self.pipeline_layout))
+        try_pipeline(device, &source, entry, Some(layout))
     }
 
     /// Whether dispatches take their parameters as immediates ([`immediates_usable`]): then a

@@ -99,7 +99,7 @@ impl Context {
             }
             GpuBody::Neural(tiled) => {
                 let groups = self.decode_groups(device, tiled, &params)?;
-                let bind = self.bind(device, Some(gm), None, out, &params);
+                let bind = self.bind(device, Some(gm), None, out, &params).with_weights_of(gm);
                 dispatch_bound(encoder, self.decode_pipeline(tiled).0, &bind, groups);
             }
         }
@@ -136,7 +136,8 @@ impl Context {
         match &gm.body {
             GpuBody::Neural(tiled) => {
                 let groups = self.decode_groups(device, tiled, &params)?;
-                let bind = self.bind(device, Some(gm), Some(requests), out, &params);
+                let bind =
+                    self.bind(device, Some(gm), Some(requests), out, &params).with_weights_of(gm);
                 dispatch_bound(encoder, self.decode_pipeline(tiled).0, &bind, groups);
             }
             GpuBody::Jpeg(maps) => {

@@ -34,12 +34,14 @@ pub async fn default_device() -> Option<(wgpu::Device, wgpu::Queue, wgpu::Adapte
                     | wgpu::Features::TEXTURE_ADAPTER_SPECIFIC_FORMAT_FEATURES)
                 | if matrices { MATRIX_FEATURES } else { wgpu::Features::empty() }
                 | if immediates { wgpu::Features::IMMEDIATES } else { wgpu::Features::empty() },
-            // Downlevel limits, but all the workgroup memory the adapter has: the tiled kernel
-            // decodes more texels per workgroup with more.
+            // Downlevel limits, but all the workgroup memory the adapter has (the tiled kernel
+            // decodes more texels per workgroup with more) and up to 8 storage buffers per
+            // shader stage (the matrix kernel with its weights in storage binds 5).
             required_limits: wgpu::Limits {
                 max_compute_workgroup_storage_size: adapter
                     .limits()
                     .max_compute_workgroup_storage_size,
+                max_storage_buffers_per_shader_stage: storage_buffers(&adapter),
                 max_immediate_size: if immediates { IMMEDIATE_BYTES } else { 0 },
                 ..wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits())
             },
@@ -54,6 +56,13 @@ pub async fn default_device() -> Option<(wgpu::Device, wgpu::Queue, wgpu::Adapte
         .await
         .ok()?;
     Some((device, queue, info))
+}
+
+/// The storage buffers per shader stage to ask `adapter` for: up to 8 where it has them, at
+/// least the downlevel 4.
+fn storage_buffers(adapter: &wgpu::Adapter) -> u32 {
+    let downlevel = wgpu::Limits::downlevel_defaults().max_storage_buffers_per_shader_stage;
+    adapter.limits().max_storage_buffers_per_shader_stage.clamp(downlevel, 8)
 }
 
 /// wgpu's consent token for its experimental features, which the matrix kernel's cooperative

@@ -201,11 +201,37 @@ pub(crate) fn try_pipeline(
 }
 
 /// A bind group of the decode kernels' layout (context.rs) and the dispatch's parameters where
-/// they are not in it: set as immediates (a device with them) before the dispatch.
+/// they are not in it: set as immediates (a device with them) before the dispatch; and the
+/// material's matrix weights (group 1) where its kernel reads them from storage.
 #[derive(Clone)]
 pub(crate) struct Bound {
     pub group: wgpu::BindGroup,
     pub immediates: Option<Vec<u8>>,
+    pub weights: Option<wgpu::BindGroup>,
+}
+
+impl Bound {
+    /// `group` with its parameters as `immediates` where given (no weights group).
+    pub fn new(group: wgpu::BindGroup, immediates: Option<Vec<u8>>) -> Bound {
+        Bound { group, immediates, weights: None }
+    }
+
+    /// This binding with `gm`'s matrix weights group, where its kernel has one, for a dispatch
+    /// of its kernel (or its tile entry).
+    pub fn with_weights_of(self, gm: &crate::GpuMaterial) -> Bound {
+        Bound { weights: gm.weights.clone(), ..self }
+    }
+
+    /// Sets the groups and immediates on `pass`.
+    pub fn set(&self, pass: &mut wgpu::ComputePass<'_>) {
+        pass.set_bind_group(0, &self.group, &[]);
+        if let Some(weights) = &self.weights {
+            pass.set_bind_group(crate::matrix::WEIGHTS_GROUP, weights, &[]);
+        }
+        if let Some(bytes) = &self.immediates {
+            pass.set_immediates(0, bytes);
+        }
+    }
 }
 
 /// Records one dispatch of `groups` workgroups (spread over x and y past the per-dimension limit).
@@ -215,7 +241,7 @@ pub(crate) fn dispatch(
     bind: &wgpu::BindGroup,
     groups: u64,
 ) {
-    let bound = Bound { group: bind.clone(), immediates: None };
+    let bound = Bound::new(bind.clone(), None);
     dispatch_bound(encoder, pipeline, &bound, groups);
 }
 
@@ -231,10 +257,7 @@ pub(crate) fn dispatch_bound(
         timestamp_writes: None,
     });
     pass.set_pipeline(pipeline);
-    pass.set_bind_group(0, &bound.group, &[]);
-    if let Some(bytes) = &bound.immediates {
-        pass.set_immediates(0, bytes);
-    }
+    bound.set(&mut pass);
     if groups > 0 {
         let (gx, gy) = spread(groups);
         pass.dispatch_workgroups(gx, gy, 1);

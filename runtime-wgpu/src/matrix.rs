@@ -34,6 +34,27 @@ const PADS: (u32, u32, u32) = (8, 8, 4);
 /// the other. `NMAT_WGPU_MATRIX_SUMS=paired` (or `split`) overrides it (for measuring).
 const PAIRED: bool = false;
 
+/// Whether the weights are read by the matrix loads straight from a storage buffer of f16 (bound
+/// at [`WEIGHTS_GROUP`]) instead of being staged in workgroup memory: no staging and 2 bytes a
+/// weight less workgroup memory (more workgroups per core, or more texels per subgroup), for
+/// loads through the GPU's caches. `NMAT_WGPU_MATRIX_WEIGHTS=storage` (or `staged`) overrides
+/// it (for measuring).
+const STORAGE_WEIGHTS: bool = false;
+
+/// The bind group of a matrix pipeline whose weights are in a storage buffer
+/// ([`STORAGE_WEIGHTS`]): binding 0 of it, read-only, the f16 weights
+/// ([`Shape::storage_weights`]).
+pub(crate) const WEIGHTS_GROUP: u32 = 1;
+
+/// The storage buffers per shader stage a matrix pipeline binds with its weights in storage:
+/// the decode kernels' four and the weights (a device's limit must allow them).
+pub(crate) const STORAGE_BUFFERS_WITH_WEIGHTS: u32 = 5;
+
+/// How a source declares the weights of [`WEIGHTS_GROUP`]: a source containing it is compiled
+/// with that group in its pipeline layout (`Context::pipeline`).
+pub(crate) const WEIGHTS_BINDING: &str =
+    "@group(1) @binding(0) var<storage, read> weights16: array<f16>;";
+
 /// Three numbers `A,B,C` from the environment variable `name` (a measuring override), if they are
 /// there and `valid`.
 fn overridden(name: &str, valid: impl Fn([u32; 3]) -> bool) -> Option<(u32, u32, u32)> {
@@ -72,6 +93,34 @@ pub(crate) struct Shape {
     /// Whether a row block's products with the high and low bytes go through `sums` together
     /// ([`PAIRED`]).
     paired: bool,
+    /// Whether the weights are read from a storage buffer instead of staged in workgroup
+    /// memory ([`STORAGE_WEIGHTS`]).
+    storage: bool,
+}
+
+/// What a matrix pipeline is asked to be: the layout (subgroups, texel blocks per subgroup,
+/// batches), pads, the products' round trip and where the weights are — the defaults, or the
+/// measuring overrides.
+#[derive(Clone, Copy, Debug)]
+struct Asked {
+    layout: (u32, u32, u32),
+    pads: (u32, u32, u32),
+    paired: bool,
+    storage: bool,
+}
+
+impl Asked {
+    const DEFAULT: Asked =
+        Asked { layout: LAYOUT, pads: PADS, paired: PAIRED, storage: STORAGE_WEIGHTS };
+}
+
+/// The variant of an emulated matrix kernel ([`crate::Context::emulate_matrix_for_testing`]):
+/// the products' round trip `paired` ([`PAIRED`]) or not, the weights in a storage buffer
+/// ([`STORAGE_WEIGHTS`]) or staged.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Emulation {
+    pub paired: bool,
+    pub storage_weights: bool,
 }
 
 /// The invocations of an emulated subgroup.
@@ -79,13 +128,12 @@ const EMULATED_SUBGROUP: u32 = 32;
 
 impl Shape {
     /// The shape of `m`'s network on `device`, or why the matrix kernel cannot decode it there.
-    /// `emulated`: with the matrix operations in scalar code and the products' round trip
-    /// `paired` or not, for testing ([`crate::Context::emulate_matrix_for_testing`]; needs
-    /// `SHADER_F16` only).
+    /// `emulated`: with the matrix operations in scalar code, in that variant, for testing
+    /// ([`crate::Context::emulate_matrix_for_testing`]; needs `SHADER_F16` only).
     pub fn new(
         m: (&Material<'_>, &Neural<'_>),
         device: &wgpu::Device,
-        emulated: Option<bool>,
+        emulated: Option<Emulation>,
     ) -> Result<Shape, &'static str> {
         let subgroup = if emulated.is_some() {
             if !device.features().contains(wgpu::Features::SHADER_F16) {
@@ -107,37 +155,54 @@ impl Shape {
             }
             info.subgroup_min_size
         };
+        let default = Asked::DEFAULT;
         let layout = overridden("NMAT_WGPU_MATRIX", |[w, b, n]| {
             [w, b, n].iter().all(|x| (1..=64).contains(x))
         })
-        .unwrap_or(LAYOUT);
+        .unwrap_or(default.layout);
         let pads = overridden("NMAT_WGPU_MATRIX_PAD", |[a, w, s]| {
             a.is_multiple_of(8)
                 && w.is_multiple_of(8)
                 && s.is_multiple_of(4)
                 && a.max(w).max(s) <= 64
         })
-        .unwrap_or(PADS);
-        let paired = emulated.unwrap_or_else(|| match std::env::var("NMAT_WGPU_MATRIX_SUMS") {
-            Ok(v) if v == "paired" => true,
-            Ok(v) if v == "split" => false,
-            _ => PAIRED,
-        });
+        .unwrap_or(default.pads);
+        let choice = |name: &str, yes: &str, no: &str, default: bool| match std::env::var(name) {
+            Ok(v) if v == yes => true,
+            Ok(v) if v == no => false,
+            _ => default,
+        };
+        let (paired, storage) = match emulated {
+            Some(e) => (e.paired, e.storage_weights),
+            None => (
+                choice("NMAT_WGPU_MATRIX_SUMS", "paired", "split", default.paired),
+                choice("NMAT_WGPU_MATRIX_WEIGHTS", "storage", "staged", default.storage),
+            ),
+        };
         let limits = device.limits();
+        if storage && limits.max_storage_buffers_per_shader_stage < STORAGE_BUFFERS_WITH_WEIGHTS {
+            return Err("the weights in a storage buffer (NMAT_WGPU_MATRIX_WEIGHTS=storage) need \
+                        5 storage buffers per shader stage; the device allows fewer");
+        }
         let bytes = limits.max_compute_workgroup_storage_size;
-        let shape = Shape::sized(m, subgroup, (layout, pads, paired), bytes)?;
+        let shape = Shape::sized(m, subgroup, Asked { layout, pads, paired, storage }, bytes)?;
         Ok(Shape { emulated: emulated.is_some(), ..shape })
     }
 
-    /// The shape of `m`'s network for `layout`, `pads` and round trip (`paired`) with subgroups
-    /// of `subgroup` invocations and `limit` bytes of workgroup memory (fewer subgroups where
-    /// the memory is short).
+    /// The shape of `m`'s network for the `Asked` layout, pads, round trip (`paired`) and
+    /// weights (`storage` or staged) with subgroups of `subgroup` invocations and `limit` bytes of
+    /// workgroup memory (fewer subgroups where the memory is short). Weights in a storage buffer
+    /// take no row padding (no memory banks to spread them over).
     fn sized(
         (m, n): (&Material<'_>, &Neural<'_>),
         subgroup: u32,
-        ((warps, blocks, batches), pads, paired): ((u32, u32, u32), (u32, u32, u32), bool),
+        Asked { layout, mut pads, paired, storage }: Asked,
         limit: u32,
     ) -> Result<Shape, &'static str> {
+        let (warps, blocks, batches) = layout;
+        if storage {
+            pads.1 = 0;
+        }
         let pad = |n: usize| n.next_multiple_of(16) as u32;
         let mut layers = Vec::new();
         let mut total = 0;
@@ -148,13 +213,15 @@ impl Shape {
         }
         let wmax = layers.iter().flat_map(|&(k, o, _)| [k, o]).max().ok_or("no layers")?;
         let channels = m.channel_count() as u32;
-        // Workgroup memory: staged weights, the activations' high and low bytes (f16), a row
-        // block of products (or two, paired) per subgroup and texel block (f32) and the codes.
+        // Workgroup memory: staged weights (unless in storage), the activations' high and low
+        // bytes (f16), a row block of products (or two, paired) per subgroup and texel block
+        // (f32) and the codes.
         let parts = if paired { 2 } else { 1 };
+        let staged = if storage { 0 } else { 2 * total };
         let bytes = |w: u32| {
             let p = 16 * blocks * w;
             let sums = 64 * (16 + pads.2) * blocks * w * parts;
-            2 * total + 4 * wmax * (p + pads.0) + sums + 4 * channels * p
+            staged + 4 * wmax * (p + pads.0) + sums + 4 * channels * p
         };
         let warps = (1..=warps)
             .rev()
@@ -177,7 +244,31 @@ impl Shape {
             finishes,
             emulated: false,
             paired,
+            storage,
         })
+    }
+
+    /// Whether the weights are read from a storage buffer ([`WEIGHTS_GROUP`], laid out by
+    /// [`Shape::storage_weights`]) rather than staged.
+    pub fn weights_in_storage(&self) -> bool {
+        self.storage
+    }
+
+    /// The weights as the kernel reads them from storage (and as `stage` lays them out in
+    /// workgroup memory): per layer from its offset, its rows padded with zeros to a multiple of
+    /// 16, each row its fan-in padded with zeros to a multiple of 16 (plus the row pad), every
+    /// int8 weight as the bits of the f16 that holds it exactly.
+    pub fn storage_weights(&self, n: &Neural<'_>) -> Vec<u16> {
+        let mut words = vec![0u16; self.total as usize];
+        for (layer, &(kpad, _, woff)) in n.mlp().layers().iter().zip(&self.layers) {
+            let ws = (kpad + self.pads.1) as usize;
+            for o in 0..layer.outputs() {
+                for i in 0..layer.inputs() {
+                    words[woff as usize + o * ws + i] = f16_bits(layer.weight_i8(o, i));
+                }
+            }
+        }
+        words
     }
 
     /// Texels per batch.
@@ -206,11 +297,20 @@ impl Shape {
         }
         for (l, &(kpad, opad, woff)) in self.layers.iter().enumerate() {
             let ws = kpad + self.pads.1;
-            let _ = writeln!(stage, "    stage(lid, {l}u, {kpad}u, {opad}u, {woff}u, {ws}u);");
+            if !self.storage {
+                let _ = writeln!(stage, "    stage(lid, {l}u, {kpad}u, {opad}u, {woff}u, {ws}u);");
+            }
             if part != Part::Features {
                 layers += &self.layer(l, kpad, opad, woff);
             }
         }
+        // The weights: in workgroup memory, staged by every workgroup, or read from storage.
+        let weights = if self.storage {
+            format!("{WEIGHTS_BINDING}\n")
+        } else {
+            stage += "    workgroupBarrier();\n";
+            include_str!("shaders/matrix_stage.wgsl").to_string()
+        };
         // The entry points: invocation `lid` of workgroup `g`, lane `lane` of subgroup `warp`
         // (in an emulated kernel, numbered from lid: it has no subgroup operation).
         let (builtins, warp_lane, enable, emulation) = if self.emulated {
@@ -242,8 +342,8 @@ impl Shape {
              const PAIRED: bool = {paired};\nconst PARTS: u32 = {parts}u;\n\
              const PER_LANE: u32 = 256u * TB / SG;\n\
              const WMAX: u32 = {}u;\nconst CH: u32 = {}u;\nconst WTOTAL: u32 = {}u;\n\
-             const PART: u32 = {}u;\n{}\
-             fn stage_weights(lid: u32) {{\n{stage}    workgroupBarrier();\n}}\n\
+             const PART: u32 = {}u;\n{weights}{}\
+             fn stage_weights(lid: u32) {{\n{stage}}}\n\
              fn layers(lane: u32, warp: u32) {{\n{layers}}}\n{}\n{}\n{}\n{}\n{emulation}\n{}\n{entries}",
             self.batch(),
             self.warps,
@@ -377,6 +477,19 @@ impl Shape {
     }
 }
 
+/// The bits of the f16 that holds `v` exactly (every integer up to 2^11 in magnitude is one):
+/// sign, exponent e + 15 for |v| in [2^e, 2^(e+1)), and the bits of |v| below its leading one
+/// as the top bits of the 10-bit fraction.
+fn f16_bits(v: i8) -> u16 {
+    let a = u16::from(v.unsigned_abs());
+    if a == 0 {
+        return 0;
+    }
+    let e = 15 - a.leading_zeros() as u16; // 0..=7
+    let sign = if v < 0 { 0x8000 } else { 0 };
+    sign | (e + 15) << 10 | ((a << (10 - e)) & 0x3FF)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -403,6 +516,66 @@ mod tests {
         naga::back::spv::write_vec(&module, &info, &options, None).map_err(|e| e.to_string())
     }
 
+    /// Whether `spirv` has OpCooperativeMatrixMulAddKHR (4459) and OpCooperativeMatrixLoadKHR
+    /// (4457) instructions.
+    fn has_matrix_ops(spirv: &[u32]) -> bool {
+        let has = |op: u32| spirv.iter().any(|&w| w & 0xFFFF == op && w >> 16 >= 4);
+        has(4459) && has(4457)
+    }
+
+    /// The value of f16 `bits` (normal numbers and zeros), read by the IEEE 754 binary16
+    /// definition: (−1)^sign · 2^(exponent − 15) · (1 + fraction / 2^10).
+    fn f16_value(bits: u16) -> f64 {
+        let sign = if bits & 0x8000 != 0 { -1.0 } else { 1.0 };
+        let exponent = i32::from(bits >> 10 & 0x1F);
+        let fraction = f64::from(bits & 0x3FF);
+        if exponent == 0 {
+            return sign * fraction / 1024.0 * 2f64.powi(-14);
+        }
+        sign * (1.0 + fraction / 1024.0) * 2f64.powi(exponent - 15)
+    }
+
+    /// Every int8 weight becomes the f16 of the same value, zero as +0.
+    #[test]
+    fn every_int8_weight_is_its_f16() {
+        for v in i8::MIN..=i8::MAX {
+            assert_eq!(f16_value(f16_bits(v)), f64::from(v), "{v}");
+        }
+        assert_eq!(f16_bits(0), 0);
+    }
+
+    /// The weights of a kernel that reads them from storage: each layer's from its offset, row o
+    /// and column i at `o · stride + i` equal to the network's weight, and zeros in the padding
+    /// (rows and columns up to multiples of 16) — the layout `stage` gives the staged ones.
+    #[test]
+    fn weights_in_storage_are_laid_out_as_staged() {
+        for cfg in golden_configs().into_iter().filter(|c| c.name.starts_with("ntc")) {
+            let bytes = generate(&cfg).to_bytes().unwrap();
+            let m = Container::parse(&bytes).unwrap();
+            let n = m.neural().expect("a neural fixture");
+            let shape = Shape::sized((&m, n), 32, Asked { storage: true, ..Asked::DEFAULT }, 49152)
+                .unwrap();
+            let words = shape.storage_weights(n);
+            assert_eq!(words.len() as u32, shape.total, "{}", cfg.name);
+            let mut at = 0;
+            for layer in n.mlp().layers() {
+                let (kpad, opad) = (layer.inputs().next_multiple_of(16), layer.outputs());
+                for o in 0..opad.next_multiple_of(16) {
+                    for i in 0..kpad {
+                        let want = if o < opad && i < layer.inputs() {
+                            f64::from(layer.weight_i8(o, i))
+                        } else {
+                            0.0
+                        };
+                        assert_eq!(f16_value(words[at]), want, "{} ({o}, {i})", cfg.name);
+                        at += 1;
+                    }
+                }
+            }
+            assert_eq!(at, words.len(), "{}", cfg.name);
+        }
+    }
+
     /// lavapipe runs no cooperative matrices, so CI cannot run this kernel: its WGSL for every
     /// golden fixture's network (1 to 16 channels, 2 to 4 layers up to 64 wide) is valid for
     /// naga and becomes SPIR-V with the cooperative matrix instructions; the widest network the
@@ -420,13 +593,13 @@ mod tests {
             let bytes = generate(&cfg).to_bytes().unwrap();
             let m = Container::parse(&bytes).unwrap();
             let n = m.neural().expect("a neural fixture");
-            let shape = match Shape::sized((&m, n), 32, (LAYOUT, PADS, PAIRED), 49152) {
+            let shape = match Shape::sized((&m, n), 32, Asked::DEFAULT, 49152) {
                 Ok(shape) => shape,
                 Err(reason) => {
                     assert_eq!(cfg.name, "widest", "{reason}");
                     // 4 layers of 128 × 128 f16 weights are 128 KiB.
                     assert!(
-                        Shape::sized((&m, n), 32, (LAYOUT, PADS, PAIRED), 1 << 18).is_ok(),
+                        Shape::sized((&m, n), 32, Asked::DEFAULT, 1 << 18).is_ok(),
                         "{}",
                         cfg.name
                     );
@@ -450,23 +623,30 @@ mod tests {
                 entries.contains(&"matrix") && entries.contains(&"matrix_cache"),
                 "{entries:?}"
             );
-            // OpCooperativeMatrixMulAddKHR (4459) and OpCooperativeMatrixLoadKHR (4457).
-            let has = |op: u32| spirv.iter().any(|&w| w & 0xFFFF == op && w >> 16 >= 4);
-            assert!(has(4459) && has(4457), "{}: no cooperative matrix instructions", cfg.name);
+            assert!(has_matrix_ops(&spirv), "{}: no cooperative matrix instructions", cfg.name);
             // The emulated kernel (for tests on devices without matrix units) uses no
             // cooperative matrix and no subgroup operation.
             let without = naga::valid::Capabilities::all()
                 - naga::valid::Capabilities::COOPERATIVE_MATRIX
                 - naga::valid::Capabilities::SUBGROUP;
-            for paired in [false, true] {
-                let emulated = Shape { emulated: true, paired, ..shape.clone() };
+            for (paired, storage) in [(false, false), (true, false), (false, true), (true, true)] {
+                let variant = format!("{}, paired {paired}, storage {storage}", cfg.name);
+                let sized =
+                    Shape::sized((&m, n), 32, Asked { paired, storage, ..Asked::DEFAULT }, 49152);
+                let real = sized.unwrap_or_else(|e| panic!("{variant}: {e}"));
+                let emulated = Shape { emulated: true, ..real.clone() };
                 let source = emulated.source_part(Part::Whole, &features);
                 compile_with(&source, without)
-                    .unwrap_or_else(|e| panic!("{} emulated, paired {paired}: {e}", cfg.name));
-                // The products' round trip with both parts at once (NMAT_WGPU_MATRIX_SUMS).
-                let real = Shape { paired, ..shape.clone() };
-                compile(&real.source_part(Part::Whole, &features))
-                    .unwrap_or_else(|e| panic!("{} paired {paired}: {e}", cfg.name));
+                    .unwrap_or_else(|e| panic!("{variant}, emulated: {e}"));
+                // The products' round trip with both parts at once (NMAT_WGPU_MATRIX_SUMS) and
+                // the weights read from storage (NMAT_WGPU_MATRIX_WEIGHTS): the weights are
+                // declared in the group the pipeline layout gives them, or in workgroup memory.
+                let source = real.source_part(Part::Whole, &features);
+                let spirv = compile(&source).unwrap_or_else(|e| panic!("{variant}: {e}"));
+                assert!(has_matrix_ops(&spirv), "{variant}");
+                assert_eq!(source.contains(WEIGHTS_BINDING), storage, "{variant}");
+                assert_eq!(source.contains("var<workgroup> weights16"), !storage, "{variant}");
+                assert_eq!(real.weights_in_storage(), storage);
             }
             // The pipelines that time a part alone compile too.
             for part in [Part::Features, Part::Layers] {

@@ -82,7 +82,7 @@ impl Context {
         }
         if let Some((_, group)) = &scratch.bind {
             let immediates = self.immediates.then_some(bytes);
-            let bound = Bound { group: group.clone(), immediates };
+            let bound = Bound::new(group.clone(), immediates).with_weights_of(gm);
             dispatch_bound(&mut encoder, self.decode_pipeline(tiled).0, &bound, groups);
         }
         Ok(self.finish(queue, encoder, scratch, len))

@@ -96,7 +96,7 @@ impl Context {
         };
         // `kernel`, prepared and checked against the CPU on the probe.
         let mut exact = |kernel: Kernel| -> Result<(GpuMaterial, Option<TileEntry>), &'static str> {
-            let (tiled, tile_entry) = self.prepare(device, (m, n), kernel, &unchecked)?;
+            let (tiled, tile_entry, weights) = self.prepare(device, (m, n), kernel, &unchecked)?;
             let (mut desc, network) = match kernel {
                 Kernel::Reference => (desc.clone(), None),
                 _ => with_tables(kernel.dot4()).clone(),
@@ -108,7 +108,7 @@ impl Context {
             let body = GpuBody::Neural(tiled);
             let gm =
                 GpuMaterial::new(m, (desc, latents.clone()), kernel, body, Some(checked.clone()));
-            let gm = GpuMaterial { network, ..gm };
+            let gm = GpuMaterial { network, weights, ..gm };
             let codes = self
                 .submit_requests(device, queue, &gm, &probe.requests, ChannelMask::ALL)
                 .and_then(|pending| pending.wait_within(device, wait));
@@ -233,14 +233,15 @@ impl Context {
         }
         let features = Features::new(n);
         let (mut desc, latents) = network_words(m, n, features.key())?;
-        let (tiled, _) = self
+        let (tiled, _, weights) = self
             .prepare_part(device, (m, n), kernel, part, &features.wgsl(false))
             .map_err(refused)?;
         tiled::append_tables(&mut desc, n, kernel.dot4(), [0, 0]);
         let desc = storage_init(device, "nmat desc (timing)", &desc);
         let latents = storage_init(device, "nmat latents (timing)", &latents);
         let checked = Some(features.wgsl(true).into());
-        Ok(GpuMaterial::new(m, (desc, latents), kernel, GpuBody::Neural(tiled), checked))
+        let gm = GpuMaterial::new(m, (desc, latents), kernel, GpuBody::Neural(tiled), checked);
+        Ok(GpuMaterial { weights, ..gm })
     }
 
     /// The tiled or matrix pipeline of `kernel` for `m` (with `features`, its unchecked
@@ -253,7 +254,7 @@ impl Context {
         m: (&Material<'_>, &Neural<'_>),
         kernel: Kernel,
         features: &str,
-    ) -> Result<(NetworkPipeline, Option<TileEntry>), &'static str> {
+    ) -> Result<Prepared, &'static str> {
         self.prepare_part(device, m, kernel, measure::Part::Whole, features)
     }
 
@@ -265,14 +266,18 @@ impl Context {
         kernel: Kernel,
         part: measure::Part,
         features: &str,
-    ) -> Result<(NetworkPipeline, Option<TileEntry>), &'static str> {
+    ) -> Result<Prepared, &'static str> {
         // The entry point, texels per workgroup and the tile cache's entry (with its workgroups
         // per tile) where the source has one.
+        let mut weights = None;
         let (source, entry, texels, tiles) = match kernel {
-            Kernel::Reference => return Ok((None, None)),
+            Kernel::Reference => return Ok((None, None, None)),
             Kernel::Matrix => {
                 let emulated = *self.matrix_emulation.lock().unwrap_or_else(|e| e.into_inner());
                 let shape = matrix::Shape::new((m, n), device, emulated)?;
+                if shape.weights_in_storage() {
+                    weights = Some(self.matrix_weights(device, &shape.storage_weights(n)));
+                }
                 let tiles = shape.decodes_tiles().then_some(("matrix_cache", 1));
                 (shape.source_part(part, features), "matrix", shape.texels(), tiles)
             }
@@ -302,7 +307,24 @@ impl Context {
             _ => "the device refused the shader",
         };
         let pipeline = pipeline.clone().ok_or(refused)?;
-        Ok((Some((pipeline, texels)), tile_entry))
+        Ok((Some((pipeline, texels)), tile_entry, weights))
+    }
+
+    /// The bind group of a matrix kernel's weights in a storage buffer (f16 bits, laid out by
+    /// `matrix::Shape::storage_weights`).
+    fn matrix_weights(&self, device: &wgpu::Device, weights: &[u16]) -> wgpu::BindGroup {
+        let mut bytes: Vec<u8> = weights.iter().flat_map(|w| w.to_le_bytes()).collect();
+        bytes.resize(bytes.len().next_multiple_of(4).max(4), 0);
+        let buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("nmat matrix weights"),
+            contents: &bytes,
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("nmat matrix weights"),
+            layout: &self.weights_layout,
+            entries: &[wgpu::BindGroupEntry { binding: 0, resource: buffer.as_entire_binding() }],
+        })
     }
 
     /// Makes `kernel`'s uploads compute wrong codes (the last layer's first row requantized to
@@ -316,11 +338,14 @@ impl Context {
     /// matrix operations in scalar code (`matrix_emulated.wgsl`), so that a test can run the
     /// kernel's structure, and check its codes, on a device without matrix units (it needs
     /// `SHADER_F16`): with a row block's products with the high and low bytes through workgroup
-    /// memory together (`paired`, `NMAT_WGPU_MATRIX_SUMS=paired`) or one after the other. Exact,
-    /// but far slower than the real kernel. For tests only.
+    /// memory together (`paired`, `NMAT_WGPU_MATRIX_SUMS=paired`) or one after the other, and
+    /// the weights read from a storage buffer (`storage_weights`,
+    /// `NMAT_WGPU_MATRIX_WEIGHTS=storage`) or staged in workgroup memory. Exact, but far slower
+    /// than the real kernel. For tests only.
     #[doc(hidden)]
-    pub fn emulate_matrix_for_testing(&self, paired: bool) {
-        *self.matrix_emulation.lock().unwrap_or_else(|e| e.into_inner()) = Some(paired);
+    pub fn emulate_matrix_for_testing(&self, paired: bool, storage_weights: bool) {
+        let emulation = matrix::Emulation { paired, storage_weights };
+        *self.matrix_emulation.lock().unwrap_or_else(|e| e.into_inner()) = Some(emulation);
     }
 
     /// Gives the JPEG materials uploaded from now on request passes with scratch slots of at
@@ -331,6 +356,11 @@ impl Context {
         *self.jpeg_scratch.lock().unwrap_or_else(|e| e.into_inner()) = Some(words);
     }
 }
+
+/// What [`Context::prepare`] makes of a kernel for a material: its pipeline and texels per
+/// workgroup (`None`: the reference kernel), the entry of its source that decodes the tile
+/// cache's tiles, and the bind group of its weights where the kernel reads them from storage.
+type Prepared = (NetworkPipeline, Option<TileEntry>, Option<wgpu::BindGroup>);
 
 /// A neural material's descriptor with the tiled kernels' tables, and the sampling module's
 /// network unrolled on them (`None` where it is not unrolled).
@@ -586,6 +616,7 @@ impl GpuMaterial {
             tile_decoder: None,
             features,
             network: None,
+            weights: None,
         }
     }
 }
@@ -618,6 +649,9 @@ pub struct GpuMaterial {
     /// `SampleNetwork`), for [`crate::SampleBindings::module_for`]; `None` where the descriptor
     /// has no tables (the reference kernel's materials), the network is not unrolled, or JPEG.
     pub(crate) network: Option<Arc<str>>,
+    /// The bind group of its matrix kernel's weights in a storage buffer (group 1,
+    /// `matrix::WEIGHTS_GROUP`), where its kernel reads them from there; else `None`.
+    pub(crate) weights: Option<wgpu::BindGroup>,
 }
 
 /// The tiled or matrix kernel's pipeline and texels per workgroup (`None`: the reference

@@ -153,9 +153,10 @@ fn a_trained_material_decodes_identically_on_the_gpu() {
 /// (lavapipe): its cooperative matrix operations emulated in scalar code
 /// (`emulate_matrix_for_testing`), the golden fixtures' chains, a trained material, random
 /// requests with channel subsets and a region equal the CPU's codes byte for byte (each
-/// upload's probes checked first); and with the round trip `NMAT_WGPU_MATRIX_SUMS=paired`
-/// selects, three fixtures and the requests. The real kernel differs only in the matrix
-/// instructions (naga validates it: `matrix::tests`).
+/// upload's probes checked first); and in the variants `NMAT_WGPU_MATRIX_SUMS=paired` (the
+/// products' round trip) and `NMAT_WGPU_MATRIX_WEIGHTS=storage` (the weights read from a
+/// storage buffer, a bind group of their own) select, three fixtures and the requests. The real
+/// kernel differs only in the matrix instructions (naga validates it: `matrix::tests`).
 #[test]
 fn the_matrix_kernel_with_emulated_matrices_decodes_identically() {
     let (device, queue) = common::device_with_f16();
@@ -172,10 +173,13 @@ fn the_matrix_kernel_with_emulated_matrices_decodes_identically() {
         })
         .collect();
     materials.push(("trained".into(), trained_material()));
-    let paired_set = ["ntc_pbr10_96x80_clamp", "ntc_16ch_8bit_32", "strip_1x37"];
-    for paired in [false, true] {
+    // The variants but the default on three fixtures.
+    let variant_set = ["ntc_pbr10_96x80_clamp", "ntc_16ch_8bit_32", "strip_1x37"];
+    for (paired, storage) in [(false, false), (true, false), (false, true)] {
+        let variant = format!("paired {paired}, weights in storage {storage}");
+        let all = !paired && !storage;
         let ctx = Context::new(&device);
-        ctx.emulate_matrix_for_testing(paired);
+        ctx.emulate_matrix_for_testing(paired, storage);
         let upload = |m: &Material<'_>| {
             let gm = ctx.upload_with(&device, &queue, m, Some(Kernel::Matrix)).unwrap();
             assert_eq!(gm.kernel(), Kernel::Matrix);
@@ -183,13 +187,12 @@ fn the_matrix_kernel_with_emulated_matrices_decodes_identically() {
             assert_eq!(gm.tile_kernel(), Kernel::Matrix);
             gm
         };
-        for (name, bytes) in materials.iter().filter(|(n, _)| !paired || paired_set.contains(&&**n))
-        {
+        for (name, bytes) in materials.iter().filter(|(n, _)| all || variant_set.contains(&&**n)) {
             let m = Container::parse(bytes).unwrap();
             let gpu = ctx.decode_chain(&device, &queue, &upload(&m), ChannelMask::ALL).unwrap();
             let cpu = decode_all_u8(&m);
             let first = gpu.iter().zip(&cpu).position(|(a, b)| a != b);
-            let at = format!("{name}, paired {paired}: first difference at {first:?}");
+            let at = format!("{name}, {variant}: first difference at {first:?}");
             assert!(gpu.len() == cpu.len() && first.is_none(), "{at}");
         }
         let bytes = std::fs::read(fixtures_dir().join("ntc_pbr10_96x80_clamp.nmat")).unwrap();
@@ -198,7 +201,7 @@ fn the_matrix_kernel_with_emulated_matrices_decodes_identically() {
         let reqs = random_requests(777, 300, 400, 9);
         for mask in [ChannelMask::ALL, ChannelMask(0b1), ChannelMask(0b10_1001_0110)] {
             let gpu = ctx.decode_requests(&device, &queue, &gm, &reqs, mask).unwrap();
-            assert_eq!(gpu, cpu_codes(&m, &reqs, mask), "mask {mask:?}, paired {paired}");
+            assert_eq!(gpu, cpu_codes(&m, &reqs, mask), "mask {mask:?}, {variant}");
         }
         let region = ctx
             .submit_region(&device, &queue, &gm, 0, (3, 5, 41, 13), ChannelMask(0b1110))
@@ -207,7 +210,7 @@ fn the_matrix_kernel_with_emulated_matrices_decodes_identically() {
             .unwrap();
         let texels: Vec<TexelRequest> =
             (5..18).flat_map(|y| (3..44).map(move |x| TexelRequest { x, y, mip: 0 })).collect();
-        assert_eq!(region, cpu_codes(&m, &texels, ChannelMask(0b1110)), "paired {paired}");
+        assert_eq!(region, cpu_codes(&m, &texels, ChannelMask(0b1110)), "{variant}");
     }
 }
 

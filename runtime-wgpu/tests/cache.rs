@@ -399,42 +399,76 @@ fn new_tiles_decode_alike_through_every_kernel() {
     let ctx = Context::new(&device);
     let bytes = fixture_bytes();
     let materials = parse(&bytes);
-    let refs: Vec<&Material<'_>> = materials.iter().collect();
     let frame = lookups(&materials, 5, 300);
     for kernel in Kernel::ALL {
-        let mut gpus = Vec::new();
-        for m in &materials {
-            let forced = (m.codec() == nmat_core::Codec::Neural).then_some(kernel);
-            match ctx.upload_with(&device, &queue, m, forced) {
-                Ok(gm) => gpus.push(gm),
-                Err(GpuError::Kernel { kernel: Kernel::Dot4 | Kernel::UnrolledDot4, reason })
-                    if std::env::var_os("NMAT_REQUIRE_DOT4").is_none()
-                        && !reason.contains("differ") => {}
-                Err(GpuError::Kernel { kernel: Kernel::Matrix, .. })
-                    if std::env::var_os("NMAT_REQUIRE_MATRIX").is_none() => {}
-                Err(e) => panic!("{kernel:?}: {e}"),
-            }
-        }
-        if gpus.len() < materials.len() {
-            eprintln!("{} kernel not tested here", kernel.name());
-            continue;
-        }
-        for (gm, m) in gpus.iter().zip(&materials) {
-            // A tiled or matrix kernel decodes the tiles through its own tile entry (its probe
-            // tiles passed); the reference kernel and JPEG one texel per invocation.
-            let own = m.codec() == nmat_core::Codec::Neural && kernel != Kernel::Reference;
-            let want = if own { kernel } else { Kernel::Reference };
-            assert_eq!(gm.tile_kernel(), want, "{kernel:?}");
-        }
-        let gpu_refs: Vec<_> = gpus.iter().collect();
-        let cache = ctx.create_tile_cache(&device, &gpu_refs, 512).unwrap();
-        let mut cpu = TileCache::with_capacity(&refs, 512).unwrap();
-        let (cpu_stats, keys, _) = cpu_frame(&mut cpu, &frame);
-        let (gpu_stats, _) = gpu_frame(&device, &queue, &cache, &frame);
-        assert_eq!(gpu_stats, cpu_stats, "{kernel:?}");
-        assert!(cpu_stats.decoded > 0);
-        assert_tiles(&device, &queue, &cache, &materials, &keys);
+        new_tiles_decode_alike_through(&ctx, (&device, &queue), &materials, &frame, kernel, false);
     }
+}
+
+/// The matrix kernel's tile entry with its weights read from a storage buffer (a bind group of
+/// its own, set with each material's decode of new tiles), its matrix operations emulated
+/// (lavapipe has no matrix units): the tiles are the CPU's.
+#[test]
+fn new_tiles_decode_alike_through_the_matrix_kernel_with_weights_in_storage() {
+    let (device, queue) = common::device_with_f16();
+    let ctx = Context::new(&device);
+    ctx.emulate_matrix_for_testing(false, true);
+    let bytes = fixture_bytes();
+    let materials = parse(&bytes);
+    let frame = lookups(&materials, 6, 300);
+    let device_queue = (&device, &queue);
+    new_tiles_decode_alike_through(&ctx, device_queue, &materials, &frame, Kernel::Matrix, true);
+}
+
+/// The neural `materials` uploaded with `kernel` (the others as `upload` picks) decode the new
+/// tiles of `frame` through its tile entry as the CPU does: counters and every tile's codes
+/// (noted and skipped where the device cannot run the kernel, unless `required` or the
+/// environment requires it; a kernel whose probe differs from the CPU's always fails).
+fn new_tiles_decode_alike_through(
+    ctx: &Context,
+    (device, queue): (&wgpu::Device, &wgpu::Queue),
+    materials: &[Material<'_>],
+    frame: &[(usize, SampleRequest)],
+    kernel: Kernel,
+    required: bool,
+) {
+    let absent = |k: Kernel, reason: &str| {
+        let env = match k {
+            Kernel::Dot4 | Kernel::UnrolledDot4 => "NMAT_REQUIRE_DOT4",
+            Kernel::Matrix => "NMAT_REQUIRE_MATRIX",
+            _ => return false,
+        };
+        !required && std::env::var_os(env).is_none() && !reason.contains("differ")
+    };
+    let mut gpus = Vec::new();
+    for m in materials {
+        let forced = (m.codec() == nmat_core::Codec::Neural).then_some(kernel);
+        match ctx.upload_with(device, queue, m, forced) {
+            Ok(gm) => gpus.push(gm),
+            Err(GpuError::Kernel { kernel, reason }) if absent(kernel, reason) => {}
+            Err(e) => panic!("{kernel:?}: {e}"),
+        }
+    }
+    if gpus.len() < materials.len() {
+        eprintln!("{} kernel not tested here", kernel.name());
+        return;
+    }
+    for (gm, m) in gpus.iter().zip(materials) {
+        // A tiled or matrix kernel decodes the tiles through its own tile entry (its probe
+        // tiles passed); the reference kernel and JPEG one texel per invocation.
+        let own = m.codec() == nmat_core::Codec::Neural && kernel != Kernel::Reference;
+        let want = if own { kernel } else { Kernel::Reference };
+        assert_eq!(gm.tile_kernel(), want, "{kernel:?}");
+    }
+    let gpu_refs: Vec<_> = gpus.iter().collect();
+    let cache = ctx.create_tile_cache(device, &gpu_refs, 512).unwrap();
+    let refs: Vec<&Material<'_>> = materials.iter().collect();
+    let mut cpu = TileCache::with_capacity(&refs, 512).unwrap();
+    let (cpu_stats, keys, _) = cpu_frame(&mut cpu, frame);
+    let (gpu_stats, _) = gpu_frame(device, queue, &cache, frame);
+    assert_eq!(gpu_stats, cpu_stats, "{kernel:?}");
+    assert!(cpu_stats.decoded > 0);
+    assert_tiles(device, queue, &cache, materials, &keys);
 }
 
 /// A kernel's tile entry that stores wrong codes (broken on purpose: every word's lowest bit

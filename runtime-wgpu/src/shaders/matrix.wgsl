@@ -1,11 +1,12 @@
 // The matrix kernel (docs/GPU.md, "The matrix kernel"): every layer as 16×16×16 cooperative
 // matrix multiply-adds (tensor cores), bit-identical with `nmat_decode` (texel.wgsl) and the CPU.
 // A workgroup is NW subgroups of SG invocations. It stages every layer's int8 weights as f16 in
-// workgroup memory once, then decodes BATCHES batches of P = 16 · NW texels: one invocation per
-// texel computes its input features; then each subgroup takes its own 16 texels through every
-// layer: per block of 16 output rows, two products over the fan-in in steps of 16 — the weights
-// times the activations' high bytes and times their low bytes — accumulated in registers, then
-// combined, biased, requantized and activated in i32 and written back over the activations.
+// workgroup memory once (or reads them from a storage buffer), then decodes BATCHES batches of
+// P = 16 · NW · TB texels: one invocation per texel computes its input features; then each
+// subgroup takes its own 16 · TB texels through every layer: per block of 16 output rows, two
+// products over the fan-in in steps of 16 — the weights times the activations' high bytes and
+// times their low bytes — accumulated in registers, then combined, biased, requantized and
+// activated in i32 and written back over the activations.
 //
 // Exactness: an i16 activation a is 256 · h + l with h = a >> 8 in [−128, 127] and l = a & 255
 // in [0, 255], both exact in f16 (integers up to 2^11 are), as is every int8 weight. Each
@@ -17,24 +18,27 @@
 //
 // Prepended by matrix.rs (per material shape): the `enable` directives, `const P`, `const NW`,
 // `const BATCHES`, `const SG` (a subgroup's invocations), `const WMAX` (the widest layer rounded
-// up to 16), `const CH` (channels), `const WTOTAL` (staged weights), the strides `AS` and `SS`,
-// `const SB` (16 · SS), `const PAIRED` and `const PARTS` (the products' round trip below),
+// up to 16), `const CH` (channels), `const WTOTAL` (the weights, f16), the strides `AS` and
+// `SS`, `const SB` (16 · SS), `const PAIRED` and `const PARTS` (the products' round trip below),
 // `const PER_LANE`, `const PART` (0; 1 or 2 in a pipeline that times the features or the layers
-// alone, with `stand_in_features`), `fn stage_weights(lid)` calling `stage` per layer and
-// `fn layers(lane, warp)` (`features_sink` instead in a pipeline timing the features): per layer
-// its products with the block counts and offsets as literals (the accumulators of all its row
-// blocks live in registers), then per row block its products through `sums` into `finish`:
-// the high bytes' products, a barrier, `collect`, a barrier, the low bytes', a barrier,
-// `finish`, a barrier — or, PAIRED, both stored at once, a barrier, `finish`, a barrier (half
-// the barriers and no private copy, for twice the memory of `sums`). Then texel.wgsl, the input features (features.rs),
-// decode.wgsl, requant.wgsl, this file and batch.wgsl.
+// alone, with `stand_in_features`), the weights (below), `fn stage_weights(lid)` calling `stage`
+// per layer (or nothing) and `fn layers(lane, warp)` (`features_sink` instead in a pipeline
+// timing the features): per layer its products with the block counts and offsets as literals
+// (the accumulators of all its row blocks live in registers), then per row block its products
+// through `sums` into `finish`: the high bytes' products, a barrier, `collect`, a barrier, the
+// low bytes', a barrier, `finish`, a barrier — or, PAIRED, both stored at once, a barrier,
+// `finish`, a barrier (half the barriers and no private copy, for twice the memory of `sums`).
+// Then texel.wgsl, the input features (features.rs), decode.wgsl, requant.wgsl, this file and
+// batch.wgsl.
 // Weights and row tables are the tiled kernels' (tiled.wgsl), the bias without the dot4
 // kernel's 128 · Σ w.
 
-// Every layer's weights, row o and column k of a layer at woff + o · ws + k (ws: its fan-in
-// padded with zeros to a multiple of 16, plus a pad against bank conflicts; rows padded with
-// zeros to a multiple of 16): the A operands, row-major.
-var<workgroup> weights16: array<f16, WTOTAL>;
+// `weights16`: every layer's weights, row o and column k of a layer at woff + o · ws + k (ws:
+// its fan-in padded with zeros to a multiple of 16, plus a pad against bank conflicts; rows
+// padded with zeros to a multiple of 16): the A operands, row-major. In workgroup memory, where
+// `stage_weights` stages them (matrix_stage.wgsl), or (`NMAT_WGPU_MATRIX_WEIGHTS=storage`) a
+// read-only storage buffer of the same layout without the pad, which the loads read through the
+// GPU's caches (matrix.rs declares it; `stage_weights` then does nothing).
 // Activations, row k of texel t at k · AS + t (AS = P + a pad), high and low bytes apart: the B
 // operands, row-major. Subgroup w reads and writes only its texels [16 · TB · w,
 // 16 · TB · (w + 1)). Rows past a layer's width hold zeros or earlier finite values, and meet
@@ -51,29 +55,6 @@ var<workgroup> tile_codes: array<u32, P * CH>;
 // This invocation's share of a subgroup's products with the high bytes (256 · TB / SG; not
 // PAIRED).
 var<private> hi_part: array<i32, PER_LANE>;
-
-// Layer `l`'s weights (the tiled kernels' packed int8 table) into weights16 from `woff`,
-// `opad` rows of `kpad` columns `ws` apart, zeros outside the layer.
-fn stage(lid: u32, l: u32, kpad: u32, opad: u32, woff: u32, ws: u32) {
-    let lb = nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_WORDS * l;
-    let kw = (nmat_desc[lb + NMAT_LAYER_INPUTS] + 3u) / 4u;
-    let rows = (nmat_desc[lb + NMAT_LAYER_OUTPUTS] + 3u) / 4u * 4u;
-    let weights_at = nmat_desc[lb + NMAT_LAYER_PACKED_AT];
-    let row_words = kpad / 4u;
-    for (var i = lid; i < opad * row_words; i += SG * NW) {
-        let o = i / row_words;
-        let j = i % row_words;
-        var word = 0;
-        if (o < rows && j < kw) {
-            word = bitcast<i32>(nmat_desc[weights_at + o * kw + j]);
-        }
-        let at = woff + o * ws + 4u * j;
-        weights16[at] = f16(extractBits(word, 0u, 8u));
-        weights16[at + 1u] = f16(extractBits(word, 8u, 8u));
-        weights16[at + 2u] = f16(extractBits(word, 16u, 8u));
-        weights16[at + 3u] = f16(extractBits(word, 24u, 8u));
-    }
-}
 
 // Activation `a` (an i16 value) of row k, texel t, split into its bytes.
 fn put_activation(k: u32, t: u32, a: i32) {

@@ -130,6 +130,12 @@ pub fn device_with_f16() -> (wgpu::Device, wgpu::Queue) {
             | if immediates { wgpu::Features::IMMEDIATES } else { wgpu::Features::empty() },
         required_limits: wgpu::Limits {
             max_compute_workgroup_storage_size: adapter.limits().max_compute_workgroup_storage_size,
+            // As default_device: up to 8 storage buffers a stage (the matrix kernel with its
+            // weights in storage binds 5).
+            max_storage_buffers_per_shader_stage: adapter
+                .limits()
+                .max_storage_buffers_per_shader_stage
+                .clamp(4, 8),
             max_immediate_size: if immediates { nmat_wgpu::IMMEDIATE_BYTES } else { 0 },
             ..wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits())
         },
