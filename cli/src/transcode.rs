@@ -86,40 +86,57 @@ pub fn transcode(
     let mut levels: Vec<Vec<Vec<u8>>> = vec![Vec::new(); textures.len()];
     for mip in 0..m.mip_count() {
         let all = BlockRegion::mip(m, mip);
-        let rows = all.height as usize;
-        let row_bytes: Vec<usize> =
-            textures.iter().map(|t| all.width as usize * t.format.block_bytes()).collect();
-        let mut mip_levels: Vec<Vec<u8>> = row_bytes.iter().map(|r| vec![0u8; r * rows]).collect();
-        // Per block row, each texture's slice of it.
-        let mut per_row: Vec<Vec<&mut [u8]>> = (0..rows).map(|_| Vec::new()).collect();
-        for (level, &row) in mip_levels.iter_mut().zip(&row_bytes) {
-            for (slices, chunk) in per_row.iter_mut().zip(level.chunks_mut(row.max(1))) {
-                slices.push(chunk);
-            }
-        }
-        let (w, h) = m.mip_size(mip);
-        for (b, batch) in per_row.chunks_mut(BATCH_ROWS).enumerate() {
-            batch.par_iter_mut().enumerate().try_for_each(|(k, slices)| {
-                let y = (b * BATCH_ROWS + k) as u32;
-                let region = BlockRegion { y, height: 1, ..all };
-                let mut targets: Vec<BcTarget<'_>> = textures
-                    .iter()
-                    .zip(slices.iter_mut())
-                    .map(|(t, out)| BcTarget { texture: *t, row_pitch: out.len(), out })
-                    .collect();
-                decoder.transcode_textures(m, mip, region, &mut targets)
-            })?;
-            let texel_rows = (batch.len() * 4) as u32;
-            let done = (b * BATCH_ROWS * 4) as u32;
-            let texels = u64::from(w) * u64::from(texel_rows.min(h.saturating_sub(done)));
-            progress(texels);
-        }
-        drop(per_row);
+        let mip_levels = transcode_region(m, decoder, textures, (mip, all), progress)?;
         for (all_levels, level) in levels.iter_mut().zip(mip_levels) {
             all_levels.push(level);
         }
     }
     Ok(textures.iter().zip(levels).map(|(t, l)| image(m, t, l)).collect())
+}
+
+/// The blocks of `region` of `mip` of every texture of `textures` (each texture's rows one after
+/// the other, without padding), as [`transcode`] makes each mip: one pass of the network per
+/// block row, block rows in parallel on rayon's threads. `progress` receives the texels decoded
+/// after each batch of rows.
+pub fn transcode_region(
+    m: &Material<'_>,
+    decoder: &Decoder,
+    textures: &[BcTexture],
+    (mip, region): (u32, BlockRegion),
+    progress: &mut dyn FnMut(u64),
+) -> Result<Vec<Vec<u8>>, nmat_core::Error> {
+    let rows = region.height as usize;
+    let row_bytes: Vec<usize> =
+        textures.iter().map(|t| region.width as usize * t.format.block_bytes()).collect();
+    let mut levels: Vec<Vec<u8>> = row_bytes.iter().map(|r| vec![0u8; r * rows]).collect();
+    // Per block row, each texture's slice of it.
+    let mut per_row: Vec<Vec<&mut [u8]>> = (0..rows).map(|_| Vec::new()).collect();
+    for (level, &row) in levels.iter_mut().zip(&row_bytes) {
+        for (slices, chunk) in per_row.iter_mut().zip(level.chunks_mut(row.max(1))) {
+            slices.push(chunk);
+        }
+    }
+    let (w, h) = m.mip_size(mip);
+    let (x0, y0) = (4 * region.x, 4 * region.y);
+    let width = (4 * region.width).min(w.saturating_sub(x0));
+    for (b, batch) in per_row.chunks_mut(BATCH_ROWS).enumerate() {
+        batch.par_iter_mut().enumerate().try_for_each(|(k, slices)| {
+            let y = region.y + (b * BATCH_ROWS + k) as u32;
+            let row = BlockRegion { y, height: 1, ..region };
+            let mut targets: Vec<BcTarget<'_>> = textures
+                .iter()
+                .zip(slices.iter_mut())
+                .map(|(t, out)| BcTarget { texture: *t, row_pitch: out.len(), out })
+                .collect();
+            decoder.transcode_textures(m, mip, row, &mut targets)
+        })?;
+        let texel_rows = (batch.len() * 4) as u32;
+        let done = y0 + (b * BATCH_ROWS * 4) as u32;
+        let texels = u64::from(width) * u64::from(texel_rows.min(h.saturating_sub(done)));
+        progress(texels);
+    }
+    drop(per_row);
+    Ok(levels)
 }
 
 /// The image of `texture` from its mips' blocks (e.g. transcoded on the GPU).

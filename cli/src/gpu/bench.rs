@@ -1,13 +1,16 @@
 //! `nmat bench --gpu`: the GPU decoder measured like a GPU (docs/GPU.md, "Measured"): kernels
 //! timed with GPU timestamps where the adapter has them, against the adapter's own integer peak
 //! (`nmat_wgpu::measure`), for a region, the whole chain, random requests, channel subsets and
-//! `nmat_sample` (the shader module) with stochastic and trilinear filtering; upload and a
-//! region's round trip (submit, decode, read back) on their own rows.
+//! `nmat_sample` (the shader module) with stochastic and trilinear filtering, BC transcoding of
+//! the region (against the CPU on all its threads); upload and a region's round trip (submit,
+//! decode, read back) on their own rows.
 
 use super::device;
 use crate::common::{Result, macs};
 use nmat_cli::stats::median;
-use nmat_core::{ChannelMask, Material};
+use nmat_cli::transcode;
+use nmat_core::bc::BcTexture;
+use nmat_core::{BlockRegion, ChannelMask, Material};
 use nmat_wgpu::measure::{self, Clock, Part};
 use nmat_wgpu::wgpu;
 use nmat_wgpu::{Context, GpuError, GpuMaterial, Kernel, TexelRequest};
@@ -168,6 +171,21 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize, only: Option<Kernel>) -
         let work = Work::Sample(side, mode, own);
         rows.push((name, texels(side) * decodes, macs(m, c), work, &gm));
     }
+    // BC transcoding of the region (decode once, then every texture's blocks encoded), as a
+    // frame or a streaming system would ask for it; the CPU's time on all its threads follows
+    // the table.
+    let transcode = Transcode::new(&device, m, side);
+    if let Some(t) = &transcode {
+        let name = format!(
+            "BC transcode of the region {}×{}: {} texture{} ({}), decode and encode",
+            side.0,
+            side.1,
+            t.textures.len(),
+            if t.textures.len() == 1 { "" } else { "s" },
+            t.formats()
+        );
+        rows.push((name, texels(side), macs(m, t.channels()), Work::Transcode, &gm));
+    }
     for other in &others {
         let name =
             format!("region {}×{}, all channels, {} kernel", side.0, side.1, other.kernel().name());
@@ -185,6 +203,7 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize, only: Option<Kernel>) -
         let macs = if *part == Part::Features { 0 } else { macs(m, c) };
         rows.push((name, texels(side), macs, Work::Region(side, all), timed));
     }
+    let mut gpu_transcode = None;
     for (name, n, macs_per_texel, work, gm) in &rows {
         let gpu = Gpu {
             ctx: &ctx,
@@ -194,8 +213,12 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize, only: Option<Kernel>) -
             out: &out,
             requests: (&request_buffer, requests.len() as u32),
             sampler: &sampler,
+            transcode: transcode.as_ref(),
         };
         let seconds = median_time(&device, &queue, runs, &|e| gpu.record(e, work))?;
+        if matches!(work, Work::Transcode) {
+            gpu_transcode = Some(seconds);
+        }
         let rate = *n as f64 / seconds;
         println!(
             "  | {name} | {n} | {macs_per_texel} | {:.1} | {:.3} | {:.2} |",
@@ -211,6 +234,17 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize, only: Option<Kernel>) -
         println!(
             "  a JPEG material: one workgroup per MCU (requests: each MCU they read decoded once \
              per call); no nmat_sample rows (neural materials only)"
+        );
+    }
+    if let (Some(t), Some(gpu_seconds)) = (&transcode, gpu_transcode) {
+        let cpu = t.cpu_seconds(m, runs)?;
+        println!(
+            "  BC transcode of the same region and textures on the CPU (`nmat transcode`'s path, \
+             {} threads, wall clock, median of {runs}): {:.1} µs; the GPU takes {:.3}× the \
+             CPU's time",
+            rayon::current_num_threads(),
+            cpu * 1e6,
+            gpu_seconds / cpu
         );
     }
     let round_trips: Vec<f64> = (0..runs)
@@ -242,6 +276,92 @@ enum Work {
     /// One `nmat_sample` with this mode per texel of the top-left (width, height) of mip 0,
     /// through the module for any material or (true) the one for the material's layout.
     Sample((u32, u32), &'static str, bool),
+    /// The region's BC textures ([`Transcode`]).
+    Transcode,
+}
+
+/// The BC textures of the material's default layout that the GPU encodes (BC1, BC4, BC5), the
+/// blocks of the bench's region, and a buffer for all of their blocks.
+struct Transcode {
+    textures: Vec<BcTexture>,
+    blocks: BlockRegion,
+    /// Per texture: its offset and row pitch in `out`.
+    spans: Vec<(u64, u64)>,
+    out: wgpu::Buffer,
+}
+
+impl Transcode {
+    /// `None` where the GPU encodes none of the material's default textures.
+    fn new(device: &wgpu::Device, m: &Material<'_>, (w, h): (u32, u32)) -> Option<Transcode> {
+        let textures: Vec<BcTexture> = nmat_core::bc::default_layout(m)
+            .into_iter()
+            .filter(|t| nmat_wgpu::encodes(t.format))
+            .collect();
+        if textures.is_empty() {
+            return None;
+        }
+        let blocks = BlockRegion { x: 0, y: 0, width: w.div_ceil(4), height: h.div_ceil(4) };
+        let mut spans = Vec::new();
+        let mut len = 0u64;
+        for t in &textures {
+            let pitch = nmat_wgpu::aligned_row_pitch(t.format, blocks.width);
+            spans.push((len, pitch));
+            len += pitch * u64::from(blocks.height);
+        }
+        let out = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("bench BC blocks"),
+            size: len.max(4),
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+        Some(Transcode { textures, blocks, spans, out })
+    }
+
+    /// How many of the material's channels the textures take (those the decode computes).
+    fn channels(&self) -> usize {
+        let mask =
+            self.textures.iter().flat_map(|t| t.channel_list()).fold(0u32, |m, &c| m | 1 << c);
+        mask.count_ones() as usize
+    }
+
+    /// The formats, e.g. `BC1, BC4, BC5`, each once.
+    fn formats(&self) -> String {
+        let mut names: Vec<String> = Vec::new();
+        for name in self.textures.iter().map(|t| t.format.name().to_uppercase()) {
+            if !names.contains(&name) {
+                names.push(name);
+            }
+        }
+        names.join(", ")
+    }
+
+    fn record(
+        &self,
+        (ctx, device): (&Context, &wgpu::Device),
+        e: &mut wgpu::CommandEncoder,
+        gm: &GpuMaterial,
+    ) -> std::result::Result<(), GpuError> {
+        let targets: Vec<(&BcTexture, nmat_wgpu::BlockTarget<'_>)> = self
+            .textures
+            .iter()
+            .zip(&self.spans)
+            .map(|(t, &(offset, pitch))| (t, (&self.out, offset, pitch)))
+            .collect();
+        ctx.record_transcode_textures(device, e, gm, 0, self.blocks, &targets)
+    }
+
+    /// Median seconds of the same transcoding on the CPU, on rayon's threads.
+    fn cpu_seconds(&self, m: &Material<'_>, runs: usize) -> Result<f64> {
+        let decoder = nmat_core::Decoder::new(m);
+        let mut times = Vec::with_capacity(runs);
+        for _ in 0..runs {
+            let start = Instant::now();
+            let (textures, region) = (&self.textures, (0, self.blocks));
+            transcode::transcode_region(m, &decoder, textures, region, &mut |_| {})?;
+            times.push(start.elapsed().as_secs_f64());
+        }
+        Ok(median(times))
+    }
 }
 
 /// Compute pipelines calling `nmat_sample` (per mode, through `SampleBindings::module` and
@@ -370,6 +490,7 @@ struct Gpu<'a> {
     out: &'a wgpu::Buffer,
     requests: (&'a wgpu::Buffer, u32),
     sampler: &'a Sampler,
+    transcode: Option<&'a Transcode>,
 }
 
 impl Gpu<'_> {
@@ -398,6 +519,11 @@ impl Gpu<'_> {
             }
             Work::Sample(side, mode, own) => {
                 self.sampler.record(device, e, gm, (mode, own), texels(side))?
+            }
+            Work::Transcode => {
+                if let Some(t) = self.transcode {
+                    t.record((ctx, device), e, gm)?;
+                }
             }
         }
         Ok(())
