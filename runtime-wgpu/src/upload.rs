@@ -269,14 +269,16 @@ impl Context {
     ) -> Result<Prepared, &'static str> {
         // The entry point, texels per workgroup and the tile cache's entry (with its workgroups
         // per tile) where the source has one.
-        let mut weights = None;
+        // The matrix kernel's weights where it reads them from storage, made once the device
+        // has taken the pipeline.
+        let mut storage_weights = None;
         let (source, entry, texels, tiles) = match kernel {
             Kernel::Reference => return Ok((None, None, None)),
             Kernel::Matrix => {
                 let emulated = *self.matrix_emulation.lock().unwrap_or_else(|e| e.into_inner());
                 let shape = matrix::Shape::new((m, n), device, emulated)?;
                 if shape.weights_in_storage() {
-                    weights = Some(self.matrix_weights(device, &shape.storage_weights(n)));
+                    storage_weights = Some(shape.storage_weights(n));
                 }
                 let tiles = shape.decodes_tiles().then_some(("matrix_cache", 1));
                 (shape.source_part(part, features), "matrix", shape.texels(), tiles)
@@ -307,19 +309,22 @@ impl Context {
             _ => "the device refused the shader",
         };
         let pipeline = pipeline.clone().ok_or(refused)?;
+        let weights = storage_weights.map(|w| self.matrix_weights(device, &w));
         Ok((Some((pipeline, texels)), tile_entry, weights))
     }
 
     /// The bind group of a matrix kernel's weights in a storage buffer (f16 bits, laid out by
     /// `matrix::Shape::storage_weights`).
     fn matrix_weights(&self, device: &wgpu::Device, weights: &[u16]) -> wgpu::BindGroup {
-        let mut bytes: Vec<u8> = weights.iter().flat_map(|w| w.to_le_bytes()).collect();
-        bytes.resize(bytes.len().next_multiple_of(4).max(4), 0);
-        let buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("nmat matrix weights"),
-            contents: &bytes,
-            usage: wgpu::BufferUsages::STORAGE,
-        });
+        // Two f16 a word, the first in the low half (little-endian, as WGSL reads the array).
+        let mut words: Vec<u32> = weights
+            .chunks(2)
+            .map(|p| u32::from(p[0]) | u32::from(p.get(1).copied().unwrap_or(0)) << 16)
+            .collect();
+        if words.is_empty() {
+            words.push(0);
+        }
+        let buffer = storage_init(device, "nmat matrix weights", &words);
         device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("nmat matrix weights"),
             layout: &self.weights_layout,
