@@ -56,7 +56,10 @@ struct View {
     count: u32,
     pad: u32,
 }
-@group(0) @binding(0) var<uniform> view: View;
+// A storage buffer rather than a uniform one: Mesa's lavapipe (the CPU driver of the tests)
+// compiles a fragment shader again at every draw whose uniforms steer its branches and loops,
+// and this one takes about a minute to compile there.
+@group(0) @binding(0) var<storage, read> view: View;
 
 // A triangle strip over the whole target.
 @vertex
@@ -90,7 +93,7 @@ pub fn noise(x: u32, y: u32) -> [f32; 3] {
     k.map(|k| ((k % 16) as f32 + 0.5) * 0.0625)
 }
 
-/// The render pipeline, with the material's bindings next to the view's uniform in group 0.
+/// The render pipeline, with the material's bindings next to the view's buffer in group 0.
 pub struct Quad {
     pipeline: wgpu::RenderPipeline,
     layout: wgpu::BindGroupLayout,
@@ -107,11 +110,11 @@ impl Quad {
             source: wgpu::ShaderSource::Wgsl(format!("{}\n{SHADER}", bindings.module()).into()),
         });
         let [desc, latents] = bindings.layout_entries(wgpu::ShaderStages::FRAGMENT);
-        let uniform = wgpu::BindGroupLayoutEntry {
+        let view_entry = wgpu::BindGroupLayoutEntry {
             binding: 0,
             visibility: wgpu::ShaderStages::FRAGMENT,
             ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Uniform,
+                ty: wgpu::BufferBindingType::Storage { read_only: true },
                 has_dynamic_offset: false,
                 min_binding_size: None,
             },
@@ -119,7 +122,7 @@ impl Quad {
         };
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("sample quad"),
-            entries: &[uniform, desc, latents],
+            entries: &[view_entry, desc, latents],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("sample quad"),
@@ -178,15 +181,16 @@ impl Quad {
             view.count(gpu.channel_count()),
             0,
         ];
-        let uniform = device.create_buffer(&wgpu::BufferDescriptor {
+        let view_buffer = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("view"),
             size: 32,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        queue.write_buffer(&uniform, 0, &words.map(u32::to_le_bytes).concat());
+        queue.write_buffer(&view_buffer, 0, &words.map(u32::to_le_bytes).concat());
         let [desc, latents] = gpu.sample_entries(self.bindings).expect("a neural material");
-        let view_entry = wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() };
+        let view_entry =
+            wgpu::BindGroupEntry { binding: 0, resource: view_buffer.as_entire_binding() };
         let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("sample quad"),
             layout: &self.layout,
