@@ -52,14 +52,23 @@ fn nmat_tap(x: i32, y: i32, mip: u32, weight: f32, mask: u32) {
     }
 }
 
-fn nmat_sample_bilinear(uv: vec2<f32>, mip: u32, weight: f32, mask: u32) {
+// A level of a lookup: its mip, its weight and its footprint there — the first texel and the
+// weight of the next on each axis (a single texel: that texel, next weights 0).
+struct NmatLevel {
+    x: NmatAxis,
+    y: NmatAxis,
+    mip: u32,
+    weight: f32,
+}
+
+// The four texels around `uv` on `mip`.
+fn nmat_bilinear_level(uv: vec2<f32>, mip: u32, weight: f32) -> NmatLevel {
     let size = nmat_mip_size(mip);
-    let ax = nmat_axis(uv.x, size.x, true);
-    let ay = nmat_axis(uv.y, size.y, true);
-    nmat_tap(ax.first, ay.first, mip, weight * (1.0 - ax.frac) * (1.0 - ay.frac), mask);
-    nmat_tap(ax.first + 1, ay.first, mip, weight * ax.frac * (1.0 - ay.frac), mask);
-    nmat_tap(ax.first, ay.first + 1, mip, weight * (1.0 - ax.frac) * ay.frac, mask);
-    nmat_tap(ax.first + 1, ay.first + 1, mip, weight * ax.frac * ay.frac, mask);
+    return NmatLevel(nmat_axis(uv.x, size.x, true), nmat_axis(uv.y, size.y, true), mip, weight);
+}
+
+fn nmat_single_level(x: i32, y: i32, mip: u32) -> NmatLevel {
+    return NmatLevel(NmatAxis(x, 0.0), NmatAxis(y, 0.0), mip, 1.0);
 }
 
 // A filtered lookup: `uv` normalized ((0, 0) the top-left corner of texel (0, 0), (1, 1) the
@@ -87,12 +96,18 @@ fn nmat_sample(
     for (var c = 0u; c < 16u; c++) {
         nmat_acc[c] = 0.0;
     }
+    // The lookup's levels (two for a trilinear lookup between two mips) and its texels: four a
+    // level, one where the lookup reads a single texel.
+    var first: NmatLevel;
+    var second: NmatLevel;
+    var taps = 4u;
     if (mode == NMAT_BILINEAR) {
-        nmat_sample_bilinear(uv, nearest, 1.0, mask);
+        first = nmat_bilinear_level(uv, nearest, 1.0);
     } else if (mode == NMAT_TRILINEAR) {
-        nmat_sample_bilinear(uv, low, 1.0 - t, mask);
+        first = nmat_bilinear_level(uv, low, 1.0 - t);
         if (high != low) {
-            nmat_sample_bilinear(uv, high, t, mask);
+            second = nmat_bilinear_level(uv, high, t);
+            taps = 8u;
         }
     } else if (mode == NMAT_STOCHASTIC) {
         let mip = select(low, high, r.z < t);
@@ -101,12 +116,30 @@ fn nmat_sample(
         let ay = nmat_axis(uv.y, size.y, true);
         let x = select(ax.first, ax.first + 1, r.x < ax.frac);
         let y = select(ay.first, ay.first + 1, r.y < ay.frac);
-        nmat_tap(x, y, mip, 1.0, mask);
+        first = nmat_single_level(x, y, mip);
+        taps = 1u;
     } else {
         let size = nmat_mip_size(nearest);
         let x = nmat_axis(uv.x, size.x, false).first;
         let y = nmat_axis(uv.y, size.y, false).first;
-        nmat_tap(x, y, nearest, 1.0, mask);
+        first = nmat_single_level(x, y, nearest);
+        taps = 1u;
+    }
+    // Every texel through one call of `nmat_tap` in a loop: the decode is in the shader once,
+    // not once per texel of every filter (a trilinear lookup written out holds eight decodes:
+    // longer compiles, more instructions to cache). Texel k of a level (k in 0..4) is its first
+    // texel + (k % 2, k / 2) with weight level weight × x weight × y weight: the CPU's texels,
+    // order and products.
+    var at = first;
+    for (var k = 0u; k < taps; k++) {
+        if (k == 4u) {
+            at = second;
+        }
+        let dx = k & 1u;
+        let dy = (k >> 1u) & 1u;
+        let wx = select(1.0 - at.x.frac, at.x.frac, dx == 1u);
+        let wy = select(1.0 - at.y.frac, at.y.frac, dy == 1u);
+        nmat_tap(at.x.first + i32(dx), at.y.first + i32(dy), at.mip, at.weight * wx * wy, mask);
     }
     var out: array<f32, 16>;
     for (var c = 0u; c < 16u; c++) {
