@@ -128,7 +128,7 @@ pub(crate) fn read_buffer_within(
     timeout: std::time::Duration,
 ) -> Result<Option<Vec<u8>>, GpuError> {
     let back = copy_for_reading(device, queue, source);
-    read_back_within(device, &back, source.size(), Some(timeout))
+    read_back_within(device, &back, source.size(), (None, Some(timeout)))
 }
 
 /// Maps the first `bytes` of `buffer` (blocking on the device) and returns them.
@@ -137,23 +137,34 @@ pub(crate) fn read_back(
     buffer: &wgpu::Buffer,
     bytes: u64,
 ) -> Result<Vec<u8>, GpuError> {
-    read_back_within(device, buffer, bytes, None)?
+    read_back_after(device, buffer, bytes, None)
+}
+
+/// [`read_back`] once the queue has run `submission` (the one that writes `buffer`; `None`:
+/// everything submitted so far), not waiting for work submitted after it.
+pub(crate) fn read_back_after(
+    device: &wgpu::Device,
+    buffer: &wgpu::Buffer,
+    bytes: u64,
+    submission: Option<wgpu::SubmissionIndex>,
+) -> Result<Vec<u8>, GpuError> {
+    read_back_within(device, buffer, bytes, (submission, None))?
         .ok_or_else(|| GpuError::Map("the wait ended before the device".into()))
 }
 
-/// [`read_back`], waiting at most `timeout` for the device: `None` where it had not finished
-/// (the buffer is then left mapping, not to be reused).
+/// [`read_back_after`] `submission`, waiting at most `timeout` for the device: `None` where it
+/// had not finished (the buffer is then left mapping, not to be reused).
 pub(crate) fn read_back_within(
     device: &wgpu::Device,
     buffer: &wgpu::Buffer,
     bytes: u64,
-    timeout: Option<std::time::Duration>,
+    (submission, timeout): (Option<wgpu::SubmissionIndex>, Option<std::time::Duration>),
 ) -> Result<Option<Vec<u8>>, GpuError> {
     let (tx, rx) = mpsc::channel();
     buffer.map_async(wgpu::MapMode::Read, ..bytes, move |r| {
         let _ = tx.send(r);
     });
-    match device.poll(wgpu::PollType::Wait { submission_index: None, timeout }) {
+    match device.poll(wgpu::PollType::Wait { submission_index: submission, timeout }) {
         Err(wgpu::PollError::Timeout) => return Ok(None),
         other => other.map_err(|e| GpuError::Map(e.to_string()))?,
     };

@@ -88,7 +88,9 @@ pub use sample::SampleBindings;
 pub use submit::PendingDecode;
 pub use texture::TextureTarget;
 pub use tiled::Kernel;
-pub use transcode::{BlockTarget, PendingBlocks, aligned_row_pitch, encodes, texture_format};
+pub use transcode::{
+    BlockTarget, PendingBlocks, PendingTextures, aligned_row_pitch, encodes, texture_format,
+};
 pub use upload::{GpuMaterial, PROBE_TEXELS, PROBE_WAIT};
 
 /// The GPU runtime's design and measured speed (`docs/GPU.md` of the repository).

@@ -145,7 +145,7 @@ impl PendingDecode {
         timeout: std::time::Duration,
     ) -> Result<Option<Vec<u8>>, GpuError> {
         let bytes = (self.len as u64).next_multiple_of(4).max(4);
-        match read_back_within(device, &self.readback, bytes, Some(timeout))? {
+        match read_back_within(device, &self.readback, bytes, (None, Some(timeout)))? {
             Some(mut codes) => {
                 codes.truncate(self.len);
                 self.give_back();

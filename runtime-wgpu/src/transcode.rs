@@ -4,7 +4,7 @@
 //! blocks byte-identical with the CPU's `Decoder::transcode_blocks`, into a buffer that can be
 //! copied into a BC texture. The encoders are `bc.wgsl`, ports of `nmat_core::bc`.
 
-use crate::gpu::{MAX_GROUPS, check_output, dispatch_bound, read_back};
+use crate::gpu::{MAX_GROUPS, check_output, dispatch_bound, read_back_after};
 use crate::layout::Params;
 use crate::{Context, GpuError, GpuMaterial};
 use nmat_core::bc::{BLOCK_PIXELS, BcFormat, BcTexture};
@@ -19,6 +19,8 @@ pub struct PendingBlocks {
     blocks: wgpu::Buffer,
     readback: wgpu::Buffer,
     len: usize,
+    /// The submission that writes them.
+    submission: wgpu::SubmissionIndex,
 }
 
 impl PendingBlocks {
@@ -28,11 +30,35 @@ impl PendingBlocks {
         &self.blocks
     }
 
-    /// Maps the blocks (blocking on the device) and returns their bytes.
+    /// Maps the blocks (blocking until the device has run their submission, not the work
+    /// submitted after it) and returns their bytes.
     pub fn wait(self, device: &wgpu::Device) -> Result<Vec<u8>, GpuError> {
-        let mut bytes = read_back(device, &self.readback, self.readback.size())?;
+        let size = self.readback.size();
+        let mut bytes = read_back_after(device, &self.readback, size, Some(self.submission))?;
         bytes.truncate(self.len);
         Ok(bytes)
+    }
+}
+
+/// The BC blocks of one mip of several textures, submitted to the queue in one submission
+/// ([`Context::submit_transcode_textures`]); [`PendingTextures::wait`] maps them. (Blocks to
+/// keep on the GPU are recorded into the caller's buffers: [`Context::record_transcode_textures`].)
+pub struct PendingTextures {
+    blocks: PendingBlocks,
+    /// Each texture's byte range in `blocks` (at a word boundary).
+    spans: Vec<(u64, u64)>,
+}
+
+impl PendingTextures {
+    /// Maps the blocks (blocking until the device has run their submission, not the work
+    /// submitted after it) and returns each texture's, in the order asked.
+    pub fn wait(self, device: &wgpu::Device) -> Result<Vec<Vec<u8>>, GpuError> {
+        let bytes = self.blocks.wait(device)?;
+        Ok(self
+            .spans
+            .iter()
+            .map(|&(at, n)| bytes[at as usize..(at + n) as usize].to_vec())
+            .collect())
     }
 }
 
@@ -244,8 +270,8 @@ impl Context {
             (&blocks, 0, row_bytes),
         )?;
         encoder.copy_buffer_to_buffer(&blocks, 0, &readback, 0, readback.size());
-        queue.submit([encoder.finish()]);
-        Ok(PendingBlocks { blocks, readback, len: len as usize })
+        let submission = queue.submit([encoder.finish()]);
+        Ok(PendingBlocks { blocks, readback, len: len as usize, submission })
     }
 
     /// Blocking convenience: every block of `mip` as `texture`, row by row without padding —
@@ -263,7 +289,8 @@ impl Context {
     }
 
     /// Blocking convenience: every block of `mip` of each of `textures`, as
-    /// [`Context::transcode_mip`] gives one, from one decode of the mip and one submission.
+    /// [`Context::transcode_mip`] gives one, from one decode of the mip and one submission
+    /// ([`Context::submit_transcode_textures`], then its `wait`).
     pub fn transcode_textures_mip(
         &self,
         device: &wgpu::Device,
@@ -272,6 +299,23 @@ impl Context {
         textures: &[BcTexture],
         mip: u32,
     ) -> Result<Vec<Vec<u8>>, GpuError> {
+        self.submit_transcode_textures(device, queue, gm, textures, mip)?.wait(device)
+    }
+
+    /// Decodes `mip` once and encodes every block of it as each of `textures` (as
+    /// [`Context::record_transcode_textures`] over the whole mip), and submits the work: one
+    /// submission, waited for by [`PendingTextures::wait`] only. A whole chain goes faster
+    /// submitted mip after mip and then waited for in order (the GPU runs each mip's passes
+    /// right after the previous ones', where a wait between them leaves it idle), as
+    /// `nmat transcode --gpu` does.
+    pub fn submit_transcode_textures(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        gm: &GpuMaterial,
+        textures: &[BcTexture],
+        mip: u32,
+    ) -> Result<PendingTextures, GpuError> {
         let region = gm.blocks(mip).ok_or(GpuError::Blocks {
             mip,
             region: BlockRegion { x: 0, y: 0, width: 0, height: 0 },
@@ -296,9 +340,9 @@ impl Context {
         });
         self.record_transcode_textures(device, &mut encoder, gm, mip, region, &targets)?;
         encoder.copy_buffer_to_buffer(&blocks, 0, &readback, 0, readback.size());
-        queue.submit([encoder.finish()]);
-        let bytes = PendingBlocks { blocks, readback, len: len as usize }.wait(device)?;
-        Ok(spans.iter().map(|&(at, _, n)| bytes[at as usize..(at + n) as usize].to_vec()).collect())
+        let submission = queue.submit([encoder.finish()]);
+        let blocks = PendingBlocks { blocks, readback, len: len as usize, submission };
+        Ok(PendingTextures { blocks, spans: spans.iter().map(|&(at, _, n)| (at, n)).collect() })
     }
 
     /// Encodes blocks of RGBA pixels given by the caller (each with its `valid` mask, as
@@ -353,8 +397,9 @@ impl Context {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nmat encode") });
         dispatch_bound(&mut encoder, &self.encode, &bind, groups);
         encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, readback.size());
-        queue.submit([encoder.finish()]);
-        PendingBlocks { blocks: out, readback, len: (count * block_bytes) as usize }.wait(device)
+        let submission = queue.submit([encoder.finish()]);
+        let len = (count * block_bytes) as usize;
+        PendingBlocks { blocks: out, readback, len, submission }.wait(device)
     }
 }
 

@@ -95,7 +95,9 @@ fn gpu_encoders_write_the_cores_bytes_for_any_block() {
 
 /// Every texture of `m` in BC1, BC4 and BC5 (each map in each format, and the default layout's
 /// textures the GPU encodes), every mip, all textures of a mip in one call: the GPU's blocks
-/// equal the CPU's.
+/// equal the CPU's. Every mip is submitted before the first is waited for (as `nmat transcode
+/// --gpu` does), so each wait maps its blocks while later mips' passes, which reuse the
+/// `Context`'s buffer of decoded codes, are still queued.
 fn check_material(
     ctx: &Context,
     device: &wgpu::Device,
@@ -111,10 +113,13 @@ fn check_material(
     }
     textures
         .extend(layout_with(m, |_| None).into_iter().filter(|t| GPU_FORMATS.contains(&t.format)));
-    for mip in 0..m.mip_count() {
-        // All of them from one decode of the mip (each texture's channels at their place among
-        // the decoded ones).
-        let all = ctx.transcode_textures_mip(device, queue, &gm, &textures, mip).unwrap();
+    // All of them from one decode of the mip (each texture's channels at their place among
+    // the decoded ones).
+    let pending: Vec<_> = (0..m.mip_count())
+        .map(|mip| ctx.submit_transcode_textures(device, queue, &gm, &textures, mip).unwrap())
+        .collect();
+    for (mip, pending) in (0..m.mip_count()).zip(pending) {
+        let all = pending.wait(device).unwrap();
         assert_eq!(all.len(), textures.len());
         for (texture, gpu) in textures.iter().zip(all) {
             let region = BlockRegion::mip(m, mip);

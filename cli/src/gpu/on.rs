@@ -38,11 +38,18 @@ pub fn transcoder(m: &Material<'_>) -> Result<Levels> {
         let on_gpu: Vec<_> = textures.iter().copied().filter(|t| encodes(t.format)).collect();
         let mut levels: Vec<Vec<Vec<u8>>> = vec![Vec::new(); on_gpu.len()];
         if !on_gpu.is_empty() {
-            // Per mip, every texture from one decode and one submission.
-            for (mip, &(w, h)) in gm.mip_sizes().iter().enumerate() {
-                let blocks =
-                    ctx.transcode_textures_mip(&device, &queue, &gm, &on_gpu, mip as u32)?;
-                for (texture_levels, mip_blocks) in levels.iter_mut().zip(blocks) {
+            // Per mip, every texture from one decode and one submission; every mip submitted
+            // before the first wait, so the GPU runs them back to back.
+            let mut pending = Vec::new();
+            for mip in 0..gm.mip_sizes().len() {
+                pending.push(
+                    ctx.submit_transcode_textures(&device, &queue, &gm, &on_gpu, mip as u32)?,
+                );
+            }
+            for (mip_pending, &(w, h)) in pending.into_iter().zip(gm.mip_sizes()) {
+                for (texture_levels, mip_blocks) in
+                    levels.iter_mut().zip(mip_pending.wait(&device)?)
+                {
                     texture_levels.push(mip_blocks);
                 }
                 progress(u64::from(w) * u64::from(h));
