@@ -936,6 +936,10 @@ fn transcode_gpu_writes_the_cpus_files() {
             return;
         }
         assert!(o.status.success(), "{}", text(&o));
+        // The fixed cost apart: opening the device, and the upload with the kernel it chose.
+        let err = String::from_utf8_lossy(&o.stderr);
+        let kernel = if k == 0 { "kernel decodes it" } else { "the JPEG kernel decodes it" };
+        assert!(err.contains("device opened in ") && err.contains(kernel), "{err}");
         let o = nmat(&["transcode", f, "-o", cpu_dir.to_str().unwrap()]);
         assert!(o.status.success(), "{}", text(&o));
         let names = files_in(&cpu_dir);
