@@ -304,10 +304,10 @@ impl Context {
 
     /// Decodes `mip` once and encodes every block of it as each of `textures` (as
     /// [`Context::record_transcode_textures`] over the whole mip), and submits the work: one
-    /// submission, waited for by [`PendingTextures::wait`] only. A whole chain goes faster
-    /// submitted mip after mip and then waited for in order (the GPU runs each mip's passes
-    /// right after the previous ones', where a wait between them leaves it idle), as
-    /// `nmat transcode --gpu` does.
+    /// submission, waited for by [`PendingTextures::wait`] only. `nmat transcode --gpu` submits
+    /// a whole chain mip after mip and then waits for each in order, so that the GPU can run
+    /// each mip's passes right after the previous ones' (a wait between them leaves it idle
+    /// for a round trip).
     pub fn submit_transcode_textures(
         &self,
         device: &wgpu::Device,
