@@ -535,8 +535,8 @@ pub struct TranscodeArgs {
     /// Worker threads (default: all cores). The files do not depend on it.
     #[arg(long)]
     pub threads: Option<usize>,
-    /// Decode and encode BC1, BC4 and BC5 textures on the GPU (wgpu; the same bytes as the CPU;
-    /// BC7 textures stay on the CPU). Needs the `gpu` feature:
+    /// Decode and encode the textures on the GPU (wgpu; the same bytes as the CPU). Needs the
+    /// `gpu` feature:
     /// cargo build --release -p nmat --features gpu
     #[arg(long)]
     pub gpu: bool,

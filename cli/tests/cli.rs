@@ -920,30 +920,37 @@ fn walk_gpu_counts_the_tiles_the_cpu_counts_or_says_how_to_build_it() {
 }
 
 /// `nmat transcode --gpu` writes the CPU's files byte for byte (every texture of a mip from one
-/// decode on the GPU), for a neural and a JPEG material, where the binary has the `gpu` feature.
+/// decode on the GPU), for a neural and a JPEG material, and for the neural one in BC7 (a texture
+/// for each of its six maps: albedo, normal, roughness, height, ao, metallic), where the binary
+/// has the `gpu` feature.
 #[test]
 fn transcode_gpu_writes_the_cpus_files() {
     let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures");
     let dir = temp_dir("transcode-gpu");
-    for (k, (name, files)) in
-        [("ntc_pbr10_96x80_clamp.nmat", 6), ("jpeg/pattern_420_37x21.nmat", 1)].iter().enumerate()
-    {
+    let cases: [(&str, &[&str], usize); 3] = [
+        ("ntc_pbr10_96x80_clamp.nmat", &[], 6),
+        ("jpeg/pattern_420_37x21.nmat", &[], 1),
+        ("ntc_pbr10_96x80_clamp.nmat", &["--format", "bc7"], 6),
+    ];
+    for (k, (name, extra, files)) in cases.iter().enumerate() {
         let (cpu_dir, gpu_dir) = (dir.join(format!("cpu{k}")), dir.join(format!("gpu{k}")));
         let f = fixtures.join(name);
         let f = f.to_str().unwrap();
-        let o = nmat(&["transcode", f, "-o", gpu_dir.to_str().unwrap(), "--gpu"]);
+        let (gpu_out, cpu_out) = (gpu_dir.to_str().unwrap(), cpu_dir.to_str().unwrap());
+        let args = |out| [&["transcode", f, "-o", out], *extra].concat();
+        let o = nmat(&[args(gpu_out), vec!["--gpu"]].concat());
         if built_without_gpu(&o, &dir) {
             return;
         }
         assert!(o.status.success(), "{}", text(&o));
         // The fixed cost apart: opening the device, and the upload with the kernel it chose.
         let err = String::from_utf8_lossy(&o.stderr);
-        let kernel = if k == 0 { "kernel decodes it" } else { "the JPEG kernel decodes it" };
+        let kernel = if k == 1 { "the JPEG kernel decodes it" } else { "kernel decodes it" };
         assert!(err.contains("device opened in ") && err.contains(kernel), "{err}");
-        let o = nmat(&["transcode", f, "-o", cpu_dir.to_str().unwrap()]);
+        let o = nmat(&args(cpu_out));
         assert!(o.status.success(), "{}", text(&o));
         let names = files_in(&cpu_dir);
-        assert_eq!(names.len(), *files, "{name}");
+        assert_eq!(names.len(), *files, "{name} {extra:?}: {names:?}");
         assert_eq!(files_in(&gpu_dir), names);
         for file in &names {
             let (c, g) = (std::fs::read(cpu_dir.join(file)), std::fs::read(gpu_dir.join(file)));

@@ -20,6 +20,9 @@ pub struct Context {
     /// BC encoding of decoded codes (`encode_codes` in bc.wgsl).
     pub(crate) encode_codes: wgpu::ComputePipeline,
     pub(crate) encode: wgpu::ComputePipeline,
+    /// BC7's module (bc7.wgsl after the main shader) and its `encode_codes_bc7` and
+    /// `encode_pixels_bc7` pipelines, each built when first used.
+    pub(crate) bc7: Mutex<Bc7Pipelines>,
     pub(crate) layout: wgpu::BindGroupLayout,
     pub(crate) pipeline_layout: wgpu::PipelineLayout,
     /// The matrix kernel's weights in a storage buffer (group 1, `matrix::WEIGHTS_GROUP`), and
@@ -93,6 +96,31 @@ pub const IMMEDIATE_BYTES: u32 = 4 * JpegParams::WORDS as u32;
 pub fn immediates_usable(device: &wgpu::Device) -> bool {
     device.features().contains(wgpu::Features::IMMEDIATES)
         && device.limits().max_immediate_size >= IMMEDIATE_BYTES
+}
+
+/// BC7's shader module and its two pipelines (of decoded codes, of given pixels), built when
+/// first used.
+#[derive(Default)]
+pub(crate) struct Bc7Pipelines {
+    module: Option<wgpu::ShaderModule>,
+    pipelines: [Option<Arc<wgpu::ComputePipeline>>; 2],
+}
+
+/// A BC encoding pipeline: one of the `Context`'s own, or one of BC7's.
+pub(crate) enum EncoderPipeline<'a> {
+    Main(&'a wgpu::ComputePipeline),
+    Bc7(Arc<wgpu::ComputePipeline>),
+}
+
+impl std::ops::Deref for EncoderPipeline<'_> {
+    type Target = wgpu::ComputePipeline;
+
+    fn deref(&self) -> &wgpu::ComputePipeline {
+        match self {
+            EncoderPipeline::Main(p) => p,
+            EncoderPipeline::Bc7(p) => p,
+        }
+    }
 }
 
 /// `source` with its parameters (the uniform at binding 4) declared as immediates where
@@ -183,6 +211,7 @@ impl Context {
             pipeline: pipeline("main"),
             encode_codes: pipeline("encode_codes"),
             encode: pipeline("encode_pixels"),
+            bc7: Mutex::default(),
             layout,
             pipeline_layout,
             weights_layout,
@@ -205,6 +234,41 @@ impl Context {
             jpeg_work: Mutex::default(),
             jpeg_scratch: Mutex::default(),
         }
+    }
+
+    /// The BC encoding pipeline of `format` (bc.wgsl's, or bc7.wgsl's, built on first use): of
+    /// decoded codes (`codes`) or of pixels given by the caller.
+    pub(crate) fn encoder_pipeline(
+        &self,
+        device: &wgpu::Device,
+        format: nmat_core::bc::BcFormat,
+        codes: bool,
+    ) -> EncoderPipeline<'_> {
+        use nmat_core::bc::BcFormat;
+        if !matches!(format, BcFormat::Bc7Rgb | BcFormat::Bc7Rgba) {
+            return EncoderPipeline::Main(if codes { &self.encode_codes } else { &self.encode });
+        }
+        let mut bc7 = self.bc7.lock().unwrap_or_else(|e| e.into_inner());
+        let Bc7Pipelines { module, pipelines } = &mut *bc7;
+        let module = module.get_or_insert_with(|| {
+            let source = format!("{}\n{}", shader_source(), include_str!("shaders/bc7.wgsl"));
+            device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some("nmat bc7"),
+                source: wgpu::ShaderSource::Wgsl(with_parameters(&source, self.immediates).into()),
+            })
+        });
+        let entry = if codes { "encode_codes_bc7" } else { "encode_pixels_bc7" };
+        let pipeline = pipelines[usize::from(!codes)].get_or_insert_with(|| {
+            Arc::new(device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: Some(&self.pipeline_layout),
+                module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            }))
+        });
+        EncoderPipeline::Bc7(pipeline.clone())
     }
 
     /// The bindings of a dispatch of the decode kernels' layout — the material's descriptor and

@@ -20,7 +20,8 @@ pub enum GpuError {
     GridTooLarge { grid: usize },
     /// Mapping the result buffer failed (device lost, …).
     Map(String),
-    /// A BC format the GPU does not encode (BC7 is encoded on the CPU only).
+    /// A BC format the GPU does not encode (it encodes every `BcFormat` nmat-core has today:
+    /// BC1, BC4, BC5 and BC7; a format the core adds later is refused until the GPU has it).
     Format { format: BcFormat },
     /// A region of blocks outside the mip's blocks, or a mip beyond the chain.
     Blocks { mip: u32, region: BlockRegion },
@@ -95,7 +96,7 @@ impl std::fmt::Display for GpuError {
             }
             GpuError::Map(e) => write!(f, "reading the result back failed: {e}"),
             GpuError::Format { format } => {
-                write!(f, "{} is not encoded on the GPU (BC1, BC4 and BC5 are)", format.name())
+                write!(f, "{} is not encoded on the GPU (BC1, BC4, BC5 and BC7 are)", format.name())
             }
             GpuError::Blocks { mip, region } => write!(
                 f,

@@ -77,7 +77,8 @@ shader_layout! {
         width: u32,
         channel_mask: u32,
         out_channels: u32,
-        /// BC transcoding (bc.wgsl): 1 (BC1), 4 (BC4) or 5 (BC5).
+        /// BC transcoding (bc.wgsl, bc7.wgsl): 1 (BC1), 4 (BC4), 5 (BC5), 7 (BC7 RGB) or 8 (BC7
+        /// RGBA).
         format: u32,
         /// The material channel of each component (byte k = component k).
         components: u32,
@@ -655,6 +656,7 @@ mod tests {
     /// Every shader source of the crate.
     const SHADERS: &[(&str, &str)] = &[
         ("bc.wgsl", include_str!("shaders/bc.wgsl")),
+        ("bc7.wgsl", include_str!("shaders/bc7.wgsl")),
         ("cache.wgsl", include_str!("shaders/cache.wgsl")),
         ("cache_decode.wgsl", include_str!("shaders/cache_decode.wgsl")),
         ("cache_lookup.wgsl", include_str!("shaders/cache_lookup.wgsl")),

@@ -1,8 +1,9 @@
 //! Decoding straight into BC blocks on the GPU: a region's texels are decoded once by the
 //! material's kernel (the fastest exact one `upload` measured) for every texture asked, then each
-//! texture's blocks are encoded from those codes, one invocation per block, as BC1, BC4 or BC5
-//! blocks byte-identical with the CPU's `Decoder::transcode_blocks`, into a buffer that can be
-//! copied into a BC texture. The encoders are `bc.wgsl`, ports of `nmat_core::bc`.
+//! texture's blocks are encoded from those codes, one invocation per block, as BC1, BC4, BC5 or
+//! BC7 blocks byte-identical with the CPU's `Decoder::transcode_blocks`, into a buffer that can
+//! be copied into a BC texture. The encoders are `bc.wgsl` and `bc7.wgsl`, ports of
+//! `nmat_core::bc`.
 
 use crate::gpu::{MAX_GROUPS, check_output, dispatch_bound, read_back_after};
 use crate::layout::Params;
@@ -86,7 +87,7 @@ pub fn aligned_row_pitch(format: BcFormat, blocks_wide: u32) -> u64 {
         * u64::from(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)
 }
 
-/// Whether the GPU encodes `format` (BC1, BC4 and BC5; BC7 is encoded on the CPU only).
+/// Whether the GPU encodes `format` (BC1, BC4, BC5 and BC7: every format nmat-core has today).
 pub fn encodes(format: BcFormat) -> bool {
     shader_format(format).is_ok()
 }
@@ -97,6 +98,8 @@ fn shader_format(format: BcFormat) -> Result<u32, GpuError> {
         BcFormat::Bc1 => Ok(1),
         BcFormat::Bc4 => Ok(4),
         BcFormat::Bc5 => Ok(5),
+        BcFormat::Bc7Rgb => Ok(7),
+        BcFormat::Bc7Rgba => Ok(8),
         _ => Err(GpuError::Format { format }),
     }
 }
@@ -116,7 +119,7 @@ pub type BlockTarget<'a> = (&'a wgpu::Buffer, u64, u64);
 
 impl Context {
     /// Records, into the caller's `encoder` (nothing is submitted), the decode of `region` of
-    /// `mip` and its encoding as blocks of `texture` (BC1, BC4 or BC5): block row `r` of the
+    /// `mip` and its encoding as blocks of `texture` (BC1, BC4, BC5 or BC7): block row `r` of the
     /// region starts at byte `offset + r · row_pitch` of `out`, its blocks left to right. The
     /// bytes equal the CPU's `Decoder::transcode_blocks` with the same arguments. `out` needs
     /// `STORAGE` usage (and `COPY_SRC` to be copied into a texture: then `row_pitch` must be a
@@ -210,10 +213,10 @@ impl Context {
             params.row_words = fit(row_pitch / 4)?;
             params.x0 = width;
             params.y0 = height;
-            encodes.push((params, channels, out));
+            encodes.push((params, channels, out, texture.format));
         }
         // Where each decoded channel lies among a texel's codes.
-        for (params, channels, _) in &mut encodes {
+        for (params, channels, _, _) in &mut encodes {
             params.out_channels = decoded.count_ones();
             for (k, c) in channels.iter().enumerate() {
                 if let Some(c) = c {
@@ -234,9 +237,10 @@ impl Context {
             self.record_region(device, encoder, gm, mip, rect, ChannelMask(decoded), (&codes, 0))?;
             Some(codes)
         };
-        for (params, _, out) in &encodes {
+        for (params, _, out, format) in &encodes {
+            let pipeline = self.encoder_pipeline(device, *format, true);
             let bind = self.bind(device, None, codes.as_ref(), out, params);
-            dispatch_bound(encoder, &self.encode_codes, &bind, groups);
+            dispatch_bound(encoder, &pipeline, &bind, groups);
         }
         Ok(())
     }
@@ -395,7 +399,8 @@ impl Context {
         let bind = self.bind(device, None, Some(&input), &out, &params);
         let mut encoder = device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nmat encode") });
-        dispatch_bound(&mut encoder, &self.encode, &bind, groups);
+        let pipeline = self.encoder_pipeline(device, format, false);
+        dispatch_bound(&mut encoder, &pipeline, &bind, groups);
         encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, readback.size());
         let submission = queue.submit([encoder.finish()]);
         let len = (count * block_bytes) as usize;

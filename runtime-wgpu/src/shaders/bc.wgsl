@@ -10,7 +10,8 @@
 //   `encode_pixels`: params.count blocks of RGBA8 pixels from `requests` (17 words per block: 16
 //     pixels, R in the low byte, then the valid mask), one invocation per block.
 // Blocks are written to `out_codes` from word params.out_offset, block row r at
-// r · params.row_words, params.format = 1 (BC1), 4 (BC4) or 5 (BC5).
+// r · params.row_words, params.format = 1 (BC1), 4 (BC4) or 5 (BC5). bc7.wgsl follows with BC7's
+// encoder and entry points.
 
 var<private> px: array<u32, 16>; // the block being encoded: RGBA8 per pixel, row-major
 var<private> vals: array<u32, 16>; // one channel of it (BC4)
@@ -540,8 +541,9 @@ fn encode_block(valid: u32) -> vec4<u32> {
     return vec4<u32>(r, g);
 }
 
+// Words per block: 2 for BC1 and BC4, 4 for BC5 and BC7 (bc7.wgsl: params.format 7 and 8).
 fn block_words() -> u32 {
-    return select(2u, 4u, params.format == 5u);
+    return select(4u, 2u, params.format == 1u || params.format == 4u);
 }
 
 fn write_block(block: u32, words: vec4<u32>) {
@@ -565,6 +567,11 @@ fn encode_codes(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
     if (block >= params.count) {
         return;
     }
+    write_block(block, encode_block(gather_codes(block)));
+}
+
+// The pixels of `block` of the decoded region (above) into `px`; returns the valid mask.
+fn gather_codes(block: u32) -> u32 {
     let bx = block % params.width;
     let by = block / params.width;
     var valid = 0u;
@@ -586,7 +593,7 @@ fn encode_codes(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
         }
         px[i] = pixel;
     }
-    write_block(block, encode_block(valid));
+    return valid;
 }
 
 @compute @workgroup_size(64)
@@ -595,8 +602,13 @@ fn encode_pixels(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
     if (block >= params.count) {
         return;
     }
+    write_block(block, encode_block(gather_pixels(block)));
+}
+
+// The pixels of `block` given by the caller (17 words a block) into `px`; returns the valid mask.
+fn gather_pixels(block: u32) -> u32 {
     for (var i = 0u; i < 16u; i++) {
         px[i] = bitcast<u32>(requests[17u * block + i]);
     }
-    write_block(block, encode_block(bitcast<u32>(requests[17u * block + 16u]) & 0xFFFFu));
+    return bitcast<u32>(requests[17u * block + 16u]) & 0xFFFFu;
 }
