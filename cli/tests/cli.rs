@@ -826,7 +826,9 @@ fn bench_gpu_prints_the_gpu_table_or_says_how_to_build_it() {
             "| nmat_sample trilinear, 16×16 samples × 8 decodes",
             "| nmat_sample trilinear (module_for the material), 16×16 samples × 8 decodes",
             "| BC transcode of the region 16×16: 4 textures (BC1, BC5, BC4), decode and encode |",
-            "BC transcode of the same region and textures on the CPU (",
+            "| BC transcode of the region 16×16: 4 textures (BC7), decode and encode |",
+            "BC transcode of the same region and textures (BC1, BC5, BC4) on the CPU (",
+            "BC transcode of the same region and textures (BC7) on the CPU (",
         ];
         for row in rows {
             assert!(out.contains(row), "missing {row}:\n{out}");

@@ -2,14 +2,14 @@
 //! timed with GPU timestamps where the adapter has them, against the adapter's own integer peak
 //! (`nmat_wgpu::measure`), for a region, the whole chain, random requests, channel subsets and
 //! `nmat_sample` (the shader module) with stochastic and trilinear filtering, BC transcoding of
-//! the region (against the CPU on all its threads); upload and a region's round trip (submit,
+//! the region (the default layout, and every map in BC7; against the CPU on all its threads); upload and a region's round trip (submit,
 //! decode, read back) on their own rows.
 
 use super::device;
 use crate::common::{Result, macs};
 use nmat_cli::stats::median;
 use nmat_cli::transcode;
-use nmat_core::bc::BcTexture;
+use nmat_core::bc::{BcFormat, BcTexture};
 use nmat_core::{BlockRegion, ChannelMask, Material};
 use nmat_wgpu::measure::{self, Clock, Part};
 use nmat_wgpu::wgpu;
@@ -172,10 +172,11 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize, only: Option<Kernel>) -
         rows.push((name, texels(side) * decodes, macs(m, c), work, &gm));
     }
     // BC transcoding of the region (decode once, then every texture's blocks encoded), as a
-    // frame or a streaming system would ask for it; the CPU's time on all its threads follows
-    // the table.
-    let transcode = Transcode::new(&device, m, side);
-    if let Some(t) = &transcode {
+    // frame or a streaming system would ask for it: the default layout's textures, and every map
+    // in BC7; the CPU's time on all its threads follows the table.
+    let transcodes: Vec<Transcode> =
+        [false, true].into_iter().filter_map(|bc7| Transcode::new(&device, m, side, bc7)).collect();
+    for (k, t) in transcodes.iter().enumerate() {
         let name = format!(
             "BC transcode of the region {}×{}: {} texture{} ({}), decode and encode",
             side.0,
@@ -184,7 +185,7 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize, only: Option<Kernel>) -
             if t.textures.len() == 1 { "" } else { "s" },
             t.formats()
         );
-        rows.push((name, texels(side), macs(m, t.channels()), Work::Transcode, &gm));
+        rows.push((name, texels(side), macs(m, t.channels()), Work::Transcode(k), &gm));
     }
     for other in &others {
         let name =
@@ -203,7 +204,7 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize, only: Option<Kernel>) -
         let macs = if *part == Part::Features { 0 } else { macs(m, c) };
         rows.push((name, texels(side), macs, Work::Region(side, all), timed));
     }
-    let mut gpu_transcode = None;
+    let mut gpu_transcode = vec![None; transcodes.len()];
     for (name, n, macs_per_texel, work, gm) in &rows {
         let gpu = Gpu {
             ctx: &ctx,
@@ -213,11 +214,11 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize, only: Option<Kernel>) -
             out: &out,
             requests: (&request_buffer, requests.len() as u32),
             sampler: &sampler,
-            transcode: transcode.as_ref(),
+            transcodes: &transcodes,
         };
         let seconds = median_time(&device, &queue, runs, &|e| gpu.record(e, work))?;
-        if matches!(work, Work::Transcode) {
-            gpu_transcode = Some(seconds);
+        if let Work::Transcode(k) = work {
+            gpu_transcode[*k] = Some(seconds);
         }
         let rate = *n as f64 / seconds;
         println!(
@@ -236,12 +237,14 @@ pub fn table(m: &Material<'_>, region: u32, runs: usize, only: Option<Kernel>) -
              per call); no nmat_sample rows (neural materials only)"
         );
     }
-    if let (Some(t), Some(gpu_seconds)) = (&transcode, gpu_transcode) {
+    for (t, gpu_seconds) in transcodes.iter().zip(gpu_transcode) {
+        let Some(gpu_seconds) = gpu_seconds else { continue };
         let cpu = t.cpu_seconds(m, runs)?;
         println!(
-            "  BC transcode of the same region and textures on the CPU (`nmat transcode`'s path, \
-             {} threads, wall clock, median of {runs}): {:.1} µs; the GPU takes {:.3}× the \
-             CPU's time",
+            "  BC transcode of the same region and textures ({}) on the CPU (`nmat transcode`'s \
+             path, {} threads, wall clock, median of {runs}): {:.1} µs; the GPU takes {:.3}× \
+             the CPU's time",
+            t.formats(),
             rayon::current_num_threads(),
             cpu * 1e6,
             gpu_seconds / cpu
@@ -276,12 +279,13 @@ enum Work {
     /// One `nmat_sample` with this mode per texel of the top-left (width, height) of mip 0,
     /// through the module for any material or (true) the one for the material's layout.
     Sample((u32, u32), &'static str, bool),
-    /// The region's BC textures ([`Transcode`]).
-    Transcode,
+    /// The region's BC textures (the bench's [`Transcode`] `k`).
+    Transcode(usize),
 }
 
-/// The BC textures of the material's default layout that the GPU encodes (BC1, BC4, BC5), the
-/// blocks of the bench's region, and a buffer for all of their blocks.
+/// The BC textures of the material's default layout (BC1, BC4, BC5), or of every map in BC7 (RGBA
+/// for a map of four channels), that the GPU encodes, the blocks of the bench's region, and a
+/// buffer for all of their blocks.
 struct Transcode {
     textures: Vec<BcTexture>,
     blocks: BlockRegion,
@@ -291,12 +295,20 @@ struct Transcode {
 }
 
 impl Transcode {
-    /// `None` where the GPU encodes none of the material's default textures.
-    fn new(device: &wgpu::Device, m: &Material<'_>, (w, h): (u32, u32)) -> Option<Transcode> {
-        let textures: Vec<BcTexture> = nmat_core::bc::default_layout(m)
-            .into_iter()
-            .filter(|t| nmat_wgpu::encodes(t.format))
-            .collect();
+    /// `None` where the GPU encodes none of the textures.
+    fn new(
+        device: &wgpu::Device,
+        m: &Material<'_>,
+        (w, h): (u32, u32),
+        bc7: bool,
+    ) -> Option<Transcode> {
+        let layout = if bc7 {
+            nmat_core::bc::layout_with(m, |_| Some(BcFormat::Bc7Rgba))
+        } else {
+            nmat_core::bc::default_layout(m)
+        };
+        let textures: Vec<BcTexture> =
+            layout.into_iter().filter(|t| nmat_wgpu::encodes(t.format)).collect();
         if textures.is_empty() {
             return None;
         }
@@ -490,7 +502,7 @@ struct Gpu<'a> {
     out: &'a wgpu::Buffer,
     requests: (&'a wgpu::Buffer, u32),
     sampler: &'a Sampler,
-    transcode: Option<&'a Transcode>,
+    transcodes: &'a [Transcode],
 }
 
 impl Gpu<'_> {
@@ -520,8 +532,8 @@ impl Gpu<'_> {
             Work::Sample(side, mode, own) => {
                 self.sampler.record(device, e, gm, (mode, own), texels(side))?
             }
-            Work::Transcode => {
-                if let Some(t) = self.transcode {
+            Work::Transcode(k) => {
+                if let Some(t) = self.transcodes.get(k) {
                     t.record((ctx, device), e, gm)?;
                 }
             }
