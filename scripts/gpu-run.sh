@@ -94,7 +94,7 @@ done
 # A frame through the GPU tile cache (mark, decode and resolve timed apart: docs/PERFORMANCE.md,
 # "The same walk on the GPU") with up to four carried neural materials, and with the JPEG ones;
 # BC transcoding of the first neural material on the GPU against the CPU on every core (the same
-# files, compared).
+# files, compared), its default layout and every map in BC7.
 # (WALK_SIZE and WALK_FRAMES make the walk smaller for a dry run on a software adapter.)
 walk_size=${WALK_SIZE:-1920x1080} walk_frames=${WALK_FRAMES:-30}
 neural=() jpeg=()
@@ -108,6 +108,12 @@ if [ "${#neural[@]}" -gt 0 ]; then
   step transcode-gpu 120 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-gpu" --gpu
   step transcode-cpu 120 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-cpu"
   step transcode-same 30 diff -r "$out/transcode-gpu" "$out/transcode-cpu"
+  # Every map in BC7: the encoder where a GPU should gain most on the CPU.
+  step transcode-bc7-gpu 120 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-bc7-gpu" \
+    --format bc7 --gpu
+  step transcode-bc7-cpu 300 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-bc7-cpu" \
+    --format bc7
+  step transcode-bc7-same 30 diff -r "$out/transcode-bc7-gpu" "$out/transcode-bc7-cpu"
 fi
 if [ "${#jpeg[@]}" -gt 0 ]; then
   step walk-jpeg 300 .devcarry/nmat walk "${jpeg[@]:0:4}" --gpu --threads "$(nproc)" \
