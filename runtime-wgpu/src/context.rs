@@ -49,6 +49,12 @@ pub struct Context {
     /// The codes between the two passes of `record_map_to_texture`, shared by all its calls
     /// (replaced by a larger one when a call needs more).
     pub(crate) texture_codes: Mutex<Option<wgpu::Buffer>>,
+    /// The blocks of `record_bc_textures` between its encode passes and its copies into the
+    /// textures, shared by all its calls (replaced by a larger one when a call needs more).
+    pub(crate) bc_staging: Mutex<Option<wgpu::Buffer>>,
+    /// The most bytes one pass of the transcoding calls decodes or stages, where a test made it
+    /// small ([`Context::limit_pass_bytes_for_testing`]).
+    pub(crate) pass_bytes: Mutex<Option<u64>>,
     /// Bound where a dispatch has no material or no requests.
     pub(crate) empty: wgpu::Buffer,
     /// Buffers of finished submit-and-wait decodes, for the next ones.
@@ -223,6 +229,8 @@ impl Context {
             stores: Mutex::default(),
             store_binds: KeptBinds::new(KEPT_STORE_BINDS),
             texture_codes: Mutex::default(),
+            bc_staging: Mutex::default(),
+            pass_bytes: Mutex::default(),
             empty,
             pool: Pool::default(),
             jpeg: Mutex::default(),

@@ -3,13 +3,41 @@
 //! a buffer back.
 
 use crate::GpuError;
-use std::sync::mpsc;
+use std::sync::{Mutex, mpsc};
 use wgpu::util::DeviceExt;
 
 /// Texels per workgroup of the reference decode kernel.
 pub(crate) const WORKGROUP: u32 = 64;
 /// Workgroups per dispatch dimension guaranteed by downlevel limits.
 pub(crate) const MAX_GROUPS: u32 = 65535;
+
+/// The buffer kept in `slot` when it has at least `bytes`, else a new one of the next power of
+/// two bytes with `usage`, kept there in its place (commands already recorded keep the old one
+/// alive). Passes that share such a buffer run in the order they were recorded, and wgpu orders
+/// each pass's accesses after the previous pass's, so a later pass cannot overwrite what an
+/// earlier one has yet to read.
+pub(crate) fn kept_buffer(
+    slot: &Mutex<Option<wgpu::Buffer>>,
+    device: &wgpu::Device,
+    bytes: u64,
+    usage: wgpu::BufferUsages,
+    label: &str,
+) -> wgpu::Buffer {
+    let mut slot = slot.lock().unwrap_or_else(|e| e.into_inner());
+    match &*slot {
+        Some(buffer) if buffer.size() >= bytes => buffer.clone(),
+        _ => {
+            let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: bytes.next_power_of_two(),
+                usage,
+                mapped_at_creation: false,
+            });
+            *slot = Some(buffer.clone());
+            buffer
+        }
+    }
+}
 
 /// Checks that `out` can take `bytes` from byte `offset` (the last word whole); returns the
 /// offset in words.

@@ -54,10 +54,14 @@
 //! embedded in `nmat_core::spec`); how the kernel maps it onto 32-bit integers and what it costs
 //! is in `docs/GPU.md`, embedded here as [`design`]. JPEG materials (§11) upload and decode
 //! through the same region and request calls, one workgroup per MCU ([`GpuMaterial::codec`]).
+//! For engines that sample BC textures, [`Context::create_bc_textures`] makes wgpu BC textures
+//! of a material's whole chain on the GPU (BC1/BC4/BC5/BC7, the CPU transcoder's bytes;
+//! [`Context::record_bc_textures`] records the same into the caller's textures).
 //! A renderer that decodes only what its frames touch keeps a [`GpuTileCache`]
 //! ([`Context::create_tile_cache`]): mark, decode the missing tiles and resolve, as passes
 //! recorded into its own encoder, for neural and JPEG materials alike.
 
+mod bc_texture;
 mod cache;
 mod context;
 mod decode;
@@ -77,6 +81,7 @@ mod transcode;
 mod unrolled;
 mod upload;
 
+pub use bc_texture::bc_texture_descriptor;
 pub use cache::{CacheLookup, GpuTileCache, MAX_CACHE_MATERIALS};
 pub use context::{Context, IMMEDIATE_BYTES, immediates_usable};
 pub use decode::TexelRequest;

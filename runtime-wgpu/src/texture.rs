@@ -3,7 +3,7 @@
 //! into the caller's command encoder. Two passes: the material's decode kernel writes the codes
 //! into a buffer, `store.wgsl` writes them into the texture.
 
-use crate::gpu::try_pipeline;
+use crate::gpu::{kept_buffer, try_pipeline};
 use crate::layout::words_to_bytes;
 use crate::{Context, GpuError, GpuMaterial};
 use nmat_core::ChannelMask;
@@ -157,26 +157,11 @@ impl Context {
         self.store_binds.get_or_make(key, |_| make())
     }
 
-    /// The buffer between the decode and the store pass, at least `bytes` long. One buffer serves
-    /// every call: the queue runs recorded passes in order and wgpu orders each pass's accesses
-    /// after the previous pass's, so a later call's decode cannot overwrite codes an earlier
-    /// call's store has yet to read. A call that needs more replaces it (the commands already
-    /// recorded keep the old one alive).
+    /// The buffer between a decode and the passes that read its codes (the store pass, BC
+    /// encoding), at least `bytes` long: one buffer serves every call ([`kept_buffer`]).
     pub(crate) fn texture_codes(&self, device: &wgpu::Device, bytes: u64) -> wgpu::Buffer {
-        let mut slot = self.texture_codes.lock().unwrap_or_else(|e| e.into_inner());
-        match &*slot {
-            Some(buffer) if buffer.size() >= bytes => buffer.clone(),
-            _ => {
-                let buffer = device.create_buffer(&wgpu::BufferDescriptor {
-                    label: Some("nmat texture codes"),
-                    size: bytes.next_power_of_two(),
-                    usage: wgpu::BufferUsages::STORAGE,
-                    mapped_at_creation: false,
-                });
-                *slot = Some(buffer.clone());
-                buffer
-            }
-        }
+        let usage = wgpu::BufferUsages::STORAGE;
+        kept_buffer(&self.texture_codes, device, bytes, usage, "nmat texture codes")
     }
 
     /// The store pipeline for `format` (cached), or `None` where the device refuses it.

@@ -14,6 +14,9 @@ use wgpu::util::DeviceExt;
 
 /// Blocks per workgroup of `encode_codes` and `encode_pixels` (one invocation each).
 const BLOCKS_PER_GROUP: u64 = 64;
+/// The most bytes one pass of the transcoding calls decodes or stages, where the device binds
+/// that much.
+const PASS_BYTES: u64 = 32 << 20;
 
 /// BC blocks submitted to the queue; [`PendingBlocks::wait`] maps them.
 pub struct PendingBlocks {
@@ -90,6 +93,33 @@ pub fn aligned_row_pitch(format: BcFormat, blocks_wide: u32) -> u64 {
 /// Whether the GPU encodes `format` (BC1, BC4, BC5 and BC7: every format nmat-core has today).
 pub fn encodes(format: BcFormat) -> bool {
     shader_format(format).is_ok()
+}
+
+/// How the encoders take `texture` of `gm`: its format's code, the code of each constant
+/// component (a constant channel's, or 0 for a component the format does not read), and the
+/// material channel each other component reads; `Format` or `Channels` where it cannot.
+pub(crate) fn texture_params(
+    gm: &GpuMaterial,
+    texture: &BcTexture,
+) -> Result<(Params, [Option<u8>; 4]), GpuError> {
+    let mut params = Params { format: shader_format(texture.format)?, ..Params::default() };
+    let mut channels = [None; 4];
+    for (k, &c) in texture.channel_list().iter().enumerate() {
+        let constant = gm
+            .constant_codes
+            .get(usize::from(c))
+            .ok_or(GpuError::Channels { mask: 1u16.checked_shl(u32::from(c)).unwrap_or(0) })?;
+        match constant {
+            Some(code) => {
+                params.constants |= u32::from(*code) << (8 * k);
+                params.constant_mask |= 1 << k;
+            }
+            None => channels[k] = Some(c),
+        }
+    }
+    // Components the format does not read: constant 0.
+    params.constant_mask |= 0b1111 & !((1 << texture.format.components()) - 1);
+    Ok((params, channels))
 }
 
 /// `format`'s code in the shader (`params.format`), or the error for a format it lacks.
@@ -177,27 +207,11 @@ impl Context {
         let mut decoded = 0u16;
         let mut encodes = Vec::new();
         for &(texture, (out, offset, row_pitch)) in targets {
-            let format = shader_format(texture.format)?;
-            let mut params = Params { format, mip, ..Params::default() };
-            // Component k's channel, or its constant code.
-            let mut channels = [None; 4];
-            for (k, &c) in texture.channel_list().iter().enumerate() {
-                let constant = gm.constant_codes.get(usize::from(c)).ok_or(GpuError::Channels {
-                    mask: 1u16.checked_shl(u32::from(c)).unwrap_or(0),
-                })?;
-                match constant {
-                    Some(code) => {
-                        params.constants |= u32::from(*code) << (8 * k);
-                        params.constant_mask |= 1 << k;
-                    }
-                    None => {
-                        channels[k] = Some(c);
-                        decoded |= 1 << c;
-                    }
-                }
+            let (mut params, channels) = texture_params(gm, texture)?;
+            params.mip = mip;
+            for &c in channels.iter().flatten() {
+                decoded |= 1 << c;
             }
-            // Components the format does not read: constant 0.
-            params.constant_mask |= 0b1111 & !((1 << texture.format.components()) - 1);
             let block_bytes = texture.format.block_bytes() as u64;
             let row_bytes = u64::from(region.width) * block_bytes;
             if row_pitch < row_bytes || !row_pitch.is_multiple_of(4) {
@@ -228,21 +242,55 @@ impl Context {
         if count == 0 || targets.is_empty() {
             return Ok(());
         }
-        let codes = if decoded == 0 {
-            None
-        } else {
-            let bytes = u64::from(width) * u64::from(height) * u64::from(decoded.count_ones());
-            let codes = self.texture_codes(device, bytes.next_multiple_of(4).max(4));
-            let rect = (x, y, width, height);
-            self.record_region(device, encoder, gm, mip, rect, ChannelMask(decoded), (&codes, 0))?;
-            Some(codes)
-        };
-        for (params, _, out, format) in &encodes {
-            let pipeline = self.encoder_pipeline(device, *format, true);
-            let bind = self.bind(device, None, codes.as_ref(), out, params);
-            dispatch_bound(encoder, &pipeline, &bind, groups);
+        // In bands of block rows whose codes fit one pass (a 4096² mip of nine channels is
+        // 151 MB of codes, more than a downlevel device binds at once).
+        let channels = u64::from(decoded.count_ones());
+        let band_rows = (self.pass_bytes(device) / (u64::from(width) * 4 * channels).max(1))
+            .clamp(1, u64::from(region.height)) as u32;
+        for first in (0..region.height).step_by(band_rows as usize) {
+            let rows = band_rows.min(region.height - first);
+            let band_y = y + 4 * first;
+            let band_height = (4 * rows).min(mh.saturating_sub(band_y));
+            let codes = if decoded == 0 {
+                None
+            } else {
+                let bytes = u64::from(width) * u64::from(band_height) * channels;
+                let codes = self.texture_codes(device, bytes.next_multiple_of(4).max(4));
+                let rect = (x, band_y, width, band_height);
+                let mask = ChannelMask(decoded);
+                self.record_region(device, encoder, gm, mip, rect, mask, (&codes, 0))?;
+                Some(codes)
+            };
+            for (params, _, out, format) in &encodes {
+                let params = Params {
+                    count: region.width * rows,
+                    out_offset: params.out_offset + first * params.row_words,
+                    y0: band_height,
+                    ..*params
+                };
+                let pipeline = self.encoder_pipeline(device, *format, true);
+                let bind = self.bind(device, None, codes.as_ref(), out, &params);
+                let groups = u64::from(params.count).div_ceil(BLOCKS_PER_GROUP);
+                dispatch_bound(encoder, &pipeline, &bind, groups);
+            }
         }
         Ok(())
+    }
+
+    /// The most bytes one pass of the transcoding calls decodes (the codes of a band of block
+    /// rows) or stages (the blocks of a band of every texture): 32 MiB, or less where the device
+    /// binds less or a test asked for less.
+    pub(crate) fn pass_bytes(&self, device: &wgpu::Device) -> u64 {
+        let limit = device.limits().max_storage_buffer_binding_size.min(PASS_BYTES);
+        let asked = *self.pass_bytes.lock().unwrap_or_else(|e| e.into_inner());
+        asked.map_or(limit, |asked| asked.min(limit))
+    }
+
+    /// Makes every later pass of the transcoding calls decode and stage at most `bytes` (at
+    /// least one block row), so that a test sees a mip done in several bands. For tests only.
+    #[doc(hidden)]
+    pub fn limit_pass_bytes_for_testing(&self, bytes: u64) {
+        *self.pass_bytes.lock().unwrap_or_else(|e| e.into_inner()) = Some(bytes);
     }
 
     /// Decodes `region` of `mip` into BC blocks of `texture` on the GPU and submits the work:

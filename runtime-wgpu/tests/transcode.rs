@@ -1,8 +1,9 @@
 //! BC transcoding on the GPU against the CPU, byte for byte: the GPU's BC1/BC4/BC5/BC7 encoders on
 //! random and hard blocks against `nmat_core::bc::encode_block`, and decode + encode of every mip
 //! of the golden fixtures, a trained material and a material with constant channels against
-//! `Decoder::transcode_blocks`. Runs on whatever adapter wgpu finds (lavapipe in CI); no adapter
-//! is a failure.
+//! `Decoder::transcode_blocks` (also in bands of one block row), and whole chains made into wgpu
+//! BC textures, read back and read by the texture unit. Runs on whatever adapter wgpu finds
+//! (lavapipe in CI); no adapter is a failure.
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
 
@@ -159,6 +160,11 @@ fn trained_and_constant_channel_materials_transcode_identically_on_the_gpu() {
     }
     let bytes = spec.to_bytes().unwrap();
     check_material(&ctx, &device, &queue, &Container::parse(&bytes).unwrap(), "constants");
+    // Each mip decoded and encoded in bands of one block row (as a mip whose codes exceed a
+    // pass is), the bands' blocks at their rows.
+    ctx.limit_pass_bytes_for_testing(1);
+    let trained = Container::parse(&trained).unwrap();
+    check_material(&ctx, &device, &queue, &trained, "bricks, one block row a pass");
 }
 
 /// A region recorded into the caller's encoder and buffer, at an offset with a padded row pitch,
@@ -312,5 +318,300 @@ fn blocks_copy_into_a_bc_texture() {
     let row = blocks.width as usize * 8;
     for (r, want_row) in want.chunks(row).enumerate() {
         assert_eq!(&got[r * pitch as usize..][..row], want_row, "block row {r}");
+    }
+}
+
+/// Level `level` of the BC texture `texture` (`blocks` of `block_bytes` bytes), read back block
+/// row by block row without padding.
+fn read_level(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    texture: &wgpu::Texture,
+    level: u32,
+    blocks: BlockRegion,
+    block_bytes: usize,
+) -> Vec<u8> {
+    let row = blocks.width as usize * block_bytes;
+    let pitch = (row as u64).next_multiple_of(u64::from(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT));
+    let back = device.create_buffer(&wgpu::BufferDescriptor {
+        label: None,
+        size: pitch * u64::from(blocks.height),
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut encoder = device.create_command_encoder(&Default::default());
+    encoder.copy_texture_to_buffer(
+        wgpu::TexelCopyTextureInfo {
+            texture,
+            mip_level: level,
+            origin: wgpu::Origin3d::ZERO,
+            aspect: wgpu::TextureAspect::All,
+        },
+        wgpu::TexelCopyBufferInfo {
+            buffer: &back,
+            layout: wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(pitch as u32),
+                rows_per_image: Some(blocks.height),
+            },
+        },
+        wgpu::Extent3d {
+            width: 4 * blocks.width,
+            height: 4 * blocks.height,
+            depth_or_array_layers: 1,
+        },
+    );
+    queue.submit([encoder.finish()]);
+    back.map_async(wgpu::MapMode::Read, .., |r| r.unwrap());
+    device.poll(wgpu::PollType::wait_indefinitely()).unwrap();
+    let got = back.get_mapped_range(..).unwrap().to_vec();
+    got.chunks(pitch as usize).flat_map(|r| r[..row].to_vec()).collect()
+}
+
+/// Mip 0 of `texture` as the device's texture unit reads it (`textureLoad`), RGBA per texel,
+/// each component × 255 rounded.
+fn load_texels(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    texture: &wgpu::Texture,
+) -> Vec<[u8; 4]> {
+    let (w, h) = (texture.width(), texture.height());
+    let source = "@group(0) @binding(0) var t: texture_2d<f32>;
+        @group(0) @binding(1) var<storage, read_write> out: array<vec4<f32>>;
+        @compute @workgroup_size(8, 8)
+        fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+            let size = textureDimensions(t, 0);
+            if (id.x < size.x && id.y < size.y) {
+                out[id.y * size.x + id.x] = textureLoad(t, vec2<i32>(id.xy), 0);
+            }
+        }";
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: None,
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    });
+    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: None,
+        layout: None,
+        module: &module,
+        entry_point: Some("main"),
+        compilation_options: Default::default(),
+        cache: None,
+    });
+    let out = common::buffer(
+        device,
+        u64::from(w) * u64::from(h) * 16,
+        wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        None,
+    );
+    let view = texture.create_view(&Default::default());
+    let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: None,
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &[
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: wgpu::BindingResource::TextureView(&view),
+            },
+            wgpu::BindGroupEntry { binding: 1, resource: out.as_entire_binding() },
+        ],
+    });
+    let mut encoder = device.create_command_encoder(&Default::default());
+    {
+        let mut pass = encoder.begin_compute_pass(&Default::default());
+        pass.set_pipeline(&pipeline);
+        pass.set_bind_group(0, &bind, &[]);
+        pass.dispatch_workgroups(w.div_ceil(8), h.div_ceil(8), 1);
+    }
+    queue.submit([encoder.finish()]);
+    let bytes = nmat_wgpu::read_buffer(device, queue, &out).unwrap();
+    bytes
+        .chunks(16)
+        .map(|t| {
+            std::array::from_fn(|k| {
+                let v = f32::from_le_bytes(t[4 * k..4 * k + 4].try_into().unwrap());
+                (v * 255.0).round().clamp(0.0, 255.0) as u8
+            })
+        })
+        .collect()
+}
+
+/// Whole BC textures made on the GPU (`create_bc_textures`, every level) hold the CPU's blocks
+/// for every mip of the golden fixtures whose mip 0 a BC texture can have and of the trained
+/// material — in the default layout and as BC7 — also when each mip goes in bands of one
+/// block row; the device's texture unit reads mip 0 of the non-sRGB ones as the core's block
+/// decoder does (the format each texture gets is the one its blocks are).
+#[test]
+fn whole_chains_transcode_into_bc_textures() {
+    let (device, queue) = device();
+    if !device.features().contains(wgpu::Features::TEXTURE_COMPRESSION_BC) {
+        eprintln!("the adapter has no BC textures: nothing to transcode into");
+        return;
+    }
+    let ctx = Context::new(&device);
+    let trained = trained_material();
+    let golden: Vec<Vec<u8>> = golden_configs()
+        .iter()
+        .map(|cfg| std::fs::read(fixtures_dir().join(format!("{}.nmat", cfg.name))).unwrap())
+        .collect();
+    let mut checked = 0;
+    for (pass, bytes) in golden.iter().chain([&trained]).enumerate() {
+        let m = Container::parse(bytes).unwrap();
+        let gm = ctx.upload(&device, &queue, &m).unwrap();
+        let mut textures: Vec<BcTexture> = layout_with(&m, |_| None)
+            .into_iter()
+            .filter(|t| GPU_FORMATS.contains(&t.format))
+            .collect();
+        if m.channel_count() >= 4 {
+            textures.push(BcTexture {
+                format: BcFormat::Bc7Rgba,
+                channels: [0, 1, 2, 3],
+                srgb: false,
+            });
+        }
+        if m.channel_count() >= 3 {
+            textures.push(BcTexture { format: BcFormat::Bc1, channels: [0, 1, 2, 0], srgb: false });
+        }
+        if m.width() % 4 != 0 || m.height() % 4 != 0 {
+            let refused = ctx.create_bc_textures(&device, &queue, &gm, &textures);
+            assert!(
+                matches!(refused, Err(GpuError::Texture { .. })),
+                "{}×{}",
+                m.width(),
+                m.height()
+            );
+            continue;
+        }
+        // The trained material once more with one block row a band.
+        for banded in [false, true].into_iter().take(if pass == golden.len() { 2 } else { 1 }) {
+            if banded {
+                ctx.limit_pass_bytes_for_testing(1);
+            }
+            let made = ctx.create_bc_textures(&device, &queue, &gm, &textures).unwrap();
+            let cpu = Decoder::new(&m);
+            for (texture, gpu_texture) in textures.iter().zip(&made) {
+                assert_eq!(gpu_texture.mip_level_count(), m.mip_count());
+                for mip in 0..m.mip_count() {
+                    let region = BlockRegion::mip(&m, mip);
+                    let block_bytes = texture.format.block_bytes();
+                    let row = region.width as usize * block_bytes;
+                    let mut want = vec![0u8; row * region.height as usize];
+                    cpu.transcode_blocks(&m, texture, mip, region, &mut want, row).unwrap();
+                    let got = read_level(&device, &queue, gpu_texture, mip, region, block_bytes);
+                    let first = got.iter().zip(&want).position(|(a, b)| a != b);
+                    assert!(
+                        got.len() == want.len() && first.is_none(),
+                        "{texture:?} mip {mip} (banded: {banded}): first difference at byte {first:?}"
+                    );
+                }
+                if texture.srgb {
+                    continue;
+                }
+                // The texture unit's reading of mip 0 against the core's block decoder.
+                let texels = load_texels(&device, &queue, gpu_texture);
+                let region = BlockRegion::mip(&m, 0);
+                let blocks = read_level(
+                    &device,
+                    &queue,
+                    gpu_texture,
+                    0,
+                    region,
+                    texture.format.block_bytes(),
+                );
+                let components = texture.format.components();
+                let mut worst = 0;
+                for (i, texel) in texels.iter().enumerate() {
+                    let (x, y) = (i as u32 % m.width(), i as u32 / m.width());
+                    let b =
+                        ((y / 4) * region.width + x / 4) as usize * texture.format.block_bytes();
+                    let block = &blocks[b..b + texture.format.block_bytes()];
+                    let want =
+                        bc::decode_block(texture.format, block)[((y % 4) * 4 + x % 4) as usize];
+                    for k in 0..components {
+                        worst = worst.max(texel[k].abs_diff(want[k]));
+                    }
+                }
+                // Hardware BC decoders may round interpolated colours differently by a step.
+                assert!(worst <= 2, "{texture:?}: the texture unit reads {worst} steps off");
+            }
+            checked += 1;
+        }
+    }
+    assert!(checked >= 8, "{checked} materials checked");
+}
+
+/// What a BC texture cannot hold is refused with a readable error before anything is recorded.
+#[test]
+fn bc_textures_refuse_what_they_cannot_hold() {
+    let (device, queue) = device();
+    let ctx = Context::new(&device);
+    let cfg = FixtureConfig { mip_count: 3, ..FixtureConfig::ntc("three_mips", 11, 24, 16, 4) };
+    let bytes = generate(&cfg).to_bytes().unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    let gm = ctx.upload(&device, &queue, &m).unwrap();
+    let bc1 = BcTexture { format: BcFormat::Bc1, channels: [0, 1, 2, 0], srgb: false };
+    let usage = wgpu::TextureUsages::COPY_DST | wgpu::TextureUsages::TEXTURE_BINDING;
+    let good = nmat_wgpu::bc_texture_descriptor(&gm, &bc1, usage).unwrap();
+    assert_eq!((good.size.width, good.size.height, good.mip_level_count), (24, 16, 3));
+    assert_eq!(good.format, wgpu::TextureFormat::Bc1RgbaUnorm);
+    let missing = BcTexture { channels: [0, 1, 9, 0], ..bc1 };
+    assert!(matches!(
+        ctx.create_bc_textures(&device, &queue, &gm, &[missing]),
+        Err(GpuError::Channels { .. })
+    ));
+    // A strip 1 texel wide: no BC texture has its size.
+    let strip = generate(&FixtureConfig::ntc("strip", 12, 1, 37, 2)).to_bytes().unwrap();
+    let strip = ctx.upload(&device, &queue, &Container::parse(&strip).unwrap()).unwrap();
+    let bc4 = BcTexture { format: BcFormat::Bc4, channels: [0, 0, 0, 0], srgb: false };
+    let refused = nmat_wgpu::bc_texture_descriptor(&strip, &bc4, usage);
+    assert!(matches!(refused, Err(GpuError::Texture { .. })));
+    assert!(refused.unwrap_err().to_string().contains("multiple of 4"));
+    // A device made without BC textures.
+    let (plain, plain_queue) = common::device_without_immediates();
+    if !plain.features().contains(wgpu::Features::TEXTURE_COMPRESSION_BC) {
+        let plain_ctx = Context::new(&plain);
+        let plain_gm = plain_ctx.upload(&plain, &plain_queue, &m).unwrap();
+        let refused = plain_ctx.create_bc_textures(&plain, &plain_queue, &plain_gm, &[bc1]);
+        let message = refused.unwrap_err().to_string();
+        assert!(message.contains("TEXTURE_COMPRESSION_BC"), "{message}");
+    }
+    if !device.features().contains(wgpu::Features::TEXTURE_COMPRESSION_BC) {
+        return;
+    }
+    // Targets the chain does not fit: each refused.
+    let make = |format, usage, width, levels| {
+        device.create_texture(&wgpu::TextureDescriptor {
+            label: None,
+            size: wgpu::Extent3d { width, height: 16, depth_or_array_layers: 1 },
+            mip_level_count: levels,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage,
+            view_formats: &[],
+        })
+    };
+    let bad = [
+        make(wgpu::TextureFormat::Bc4RUnorm, usage, 24, 3),
+        make(wgpu::TextureFormat::Bc1RgbaUnorm, wgpu::TextureUsages::TEXTURE_BINDING, 24, 3),
+        make(wgpu::TextureFormat::Bc1RgbaUnorm, usage, 32, 3),
+        make(wgpu::TextureFormat::Bc1RgbaUnorm, usage, 24, 4),
+    ];
+    for (target, what) in bad.iter().zip(["format", "COPY_DST", "size", "levels"]) {
+        let mut encoder = device.create_command_encoder(&Default::default());
+        let refused = ctx.record_bc_textures(&device, &mut encoder, &gm, &[(&bc1, target)]);
+        let message = match refused {
+            Err(e @ GpuError::Texture { .. }) => e.to_string(),
+            other => panic!("{what}: {other:?}"),
+        };
+        eprintln!("{what}: {message}");
+    }
+    // A target with fewer levels than the material gets its first levels.
+    let two = make(wgpu::TextureFormat::Bc1RgbaUnorm, usage | wgpu::TextureUsages::COPY_SRC, 24, 2);
+    let mut encoder = device.create_command_encoder(&Default::default());
+    ctx.record_bc_textures(&device, &mut encoder, &gm, &[(&bc1, &two)]).unwrap();
+    queue.submit([encoder.finish()]);
+    for mip in 0..2 {
+        let want = ctx.transcode_mip(&device, &queue, &gm, &bc1, mip).unwrap();
+        assert_eq!(read_level(&device, &queue, &two, mip, gm.blocks(mip).unwrap(), 8), want);
     }
 }
