@@ -34,7 +34,8 @@ impl Context {
     /// unorm8 (the code / 255, exactly the CPU's code). Everything is checked before anything is
     /// recorded (`GpuError::Channels` for a map outside the material, `GpuError::Texture` for
     /// the target). The codes pass through a buffer the `Context` keeps for all such calls (grown
-    /// when a call needs more). With immediates ([`Context::uses_immediates`]) a call into a
+    /// when a call needs more; a region whose codes exceed 32 MiB, or what the device binds, goes
+    /// in bands of rows, a decode and a store pass each). With immediates ([`Context::uses_immediates`]) a call into a
     /// texture and level a recent call wrote allocates nothing; else each call creates a small
     /// uniform, a view and bind groups.
     #[allow(clippy::too_many_arguments)] // a material, what, and where the texels go
@@ -81,24 +82,33 @@ impl Context {
         let store = self.store_pipeline(device, format).ok_or(GpuError::Texture {
             reason: "the device refused a storage texture of its format",
         })?;
-        let codes = u64::from(width) * u64::from(height) * u64::from(count);
+        // The whole region checked (inside the mip) before anything is recorded, then decoded
+        // and stored in bands of rows whose codes fit one pass.
+        self.region_params(gm, mip, rect, mask)?;
+        let row_codes = u64::from(width) * u64::from(count);
+        let band_rows =
+            (self.pass_bytes(device) / row_codes.max(1)).clamp(1, u64::from(height.max(1))) as u32;
+        let codes = row_codes * u64::from(band_rows.min(height));
         let buffer = self.texture_codes(device, codes.next_multiple_of(4).max(4));
-        // Checks the region (inside the mip) before anything is recorded.
-        self.record_region(device, encoder, gm, mip, rect, mask, (&buffer, 0))?;
-        let words = [target.origin.0, target.origin.1, width, height, count, 0, 0, 0];
-        let bytes = words_to_bytes(&words);
-        let bind = self.store_bind(device, &store, &buffer, target, &bytes);
-        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: Some("nmat store"),
-            timestamp_writes: None,
-        });
-        pass.set_pipeline(&store);
-        pass.set_bind_group(0, &bind, &[]);
-        if self.immediates {
-            pass.set_immediates(0, &bytes);
-        }
-        if width > 0 && height > 0 {
-            pass.dispatch_workgroups(width.div_ceil(8), height.div_ceil(8), 1);
+        for first in (0..height).step_by(band_rows as usize) {
+            let rows = band_rows.min(height - first);
+            let band = (rect.0, rect.1 + first, width, rows);
+            self.record_region(device, encoder, gm, mip, band, mask, (&buffer, 0))?;
+            let words = [target.origin.0, target.origin.1 + first, width, rows, count, 0, 0, 0];
+            let bytes = words_to_bytes(&words);
+            let bind = self.store_bind(device, &store, &buffer, target, &bytes);
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("nmat store"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&store);
+            pass.set_bind_group(0, &bind, &[]);
+            if self.immediates {
+                pass.set_immediates(0, &bytes);
+            }
+            if width > 0 {
+                pass.dispatch_workgroups(width.div_ceil(8), rows.div_ceil(8), 1);
+            }
         }
         Ok(())
     }

@@ -1,7 +1,7 @@
 //! Decoding into the caller's storage textures (`Context::record_map_to_texture`) against the
 //! CPU, byte for byte: every map of a 10-channel golden material (1- and 3-channel maps) into an
 //! `Rgba8Unorm` texture at an offset (all recorded into one encoder, through the `Context`'s one
-//! codes buffer), a one-channel map into `R8Unorm` where the device allows
+//! codes buffer; also one row a pass), a one-channel map into `R8Unorm` where the device allows
 //! that storage format, the texels around the region untouched, and bad targets refused.
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
@@ -109,20 +109,26 @@ fn pbr10() -> Vec<u8> {
 #[test]
 fn maps_decode_into_storage_textures_like_the_cpu() {
     let (device, queue) = device();
-    maps_into_textures(&device, &queue);
+    maps_into_textures(&device, &queue, false);
+    maps_into_textures(&device, &queue, true);
 }
 
 /// The same on a device without immediates: the store pass reads its parameters from a uniform.
 #[test]
 fn maps_decode_into_storage_textures_without_immediates() {
     let (device, queue) = common::device_without_immediates();
-    maps_into_textures(&device, &queue);
+    maps_into_textures(&device, &queue, false);
+    maps_into_textures(&device, &queue, true);
 }
 
 /// Every map of [`pbr10`] into its own `Rgba8Unorm` texture (and a gray one into `R8Unorm`
-/// where the device has that storage format), compared with the CPU.
-fn maps_into_textures(device: &wgpu::Device, queue: &wgpu::Queue) {
+/// where the device has that storage format), compared with the CPU; `banded`: each region
+/// decoded and stored one row a pass (as a region whose codes exceed a pass is).
+fn maps_into_textures(device: &wgpu::Device, queue: &wgpu::Queue, banded: bool) {
     let ctx = Context::new(device);
+    if banded {
+        ctx.limit_pass_bytes_for_testing(1);
+    }
     let bytes = pbr10();
     let m = Container::parse(&bytes).unwrap();
     let gm = ctx.upload(device, queue, &m).unwrap();
