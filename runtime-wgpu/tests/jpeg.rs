@@ -276,6 +276,35 @@ fn jpeg_materials_transcode_as_on_the_cpu() {
             assert!(gpu == want, "{texture:?} mip {mip}");
         }
     }
+    // The bricks (64², 4:2:0: MCUs of 16 rows) one block row a pass, so that each pass decodes
+    // a quarter of a row of MCUs; and straight into BC textures.
+    context.limit_pass_bytes_for_testing(1);
+    let bytes = bricks_jpeg(nmat_encode::jpeg::Subsampling::S420);
+    let m = Container::parse(&bytes).unwrap();
+    let gm = context.upload(&device, &queue, &m).unwrap();
+    let cpu = nmat_core::Decoder::new(&m);
+    let textures = nmat_core::bc::default_layout(&m);
+    let has_bc = device.features().contains(wgpu::Features::TEXTURE_COMPRESSION_BC);
+    let made = if has_bc {
+        context.create_bc_textures(&device, &queue, &gm, &textures).unwrap()
+    } else {
+        Vec::new()
+    };
+    for mip in 0..m.mip_count() {
+        let gpu = context.transcode_textures_mip(&device, &queue, &gm, &textures, mip).unwrap();
+        for (t, (texture, gpu)) in textures.iter().zip(gpu).enumerate() {
+            let region = nmat_core::BlockRegion::mip(&m, mip);
+            let block_bytes = texture.format.block_bytes();
+            let row = region.width as usize * block_bytes;
+            let mut want = vec![0u8; row * region.height as usize];
+            cpu.transcode_blocks(&m, texture, mip, region, &mut want, row).unwrap();
+            assert!(gpu == want, "bricks {texture:?} mip {mip}");
+            if let Some(made) = made.get(t) {
+                let level = common::read_level(&device, &queue, made, mip, region, block_bytes);
+                assert!(level == want, "bricks {texture:?} mip {mip} in a BC texture");
+            }
+        }
+    }
 }
 
 #[test]

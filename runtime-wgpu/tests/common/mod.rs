@@ -143,3 +143,51 @@ pub fn device_with_f16() -> (wgpu::Device, wgpu::Queue) {
     };
     pollster::block_on(adapter.request_device(&descriptor)).unwrap()
 }
+
+/// Level `level` of the BC texture `texture` (`blocks` of `block_bytes` bytes), read back block
+/// row by block row without padding.
+#[allow(dead_code)]
+pub fn read_level(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    texture: &wgpu::Texture,
+    level: u32,
+    blocks: nmat_core::BlockRegion,
+    block_bytes: usize,
+) -> Vec<u8> {
+    let row = blocks.width as usize * block_bytes;
+    let pitch = (row as u64).next_multiple_of(u64::from(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT));
+    let back = device.create_buffer(&wgpu::BufferDescriptor {
+        label: None,
+        size: pitch * u64::from(blocks.height),
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut encoder = device.create_command_encoder(&Default::default());
+    encoder.copy_texture_to_buffer(
+        wgpu::TexelCopyTextureInfo {
+            texture,
+            mip_level: level,
+            origin: wgpu::Origin3d::ZERO,
+            aspect: wgpu::TextureAspect::All,
+        },
+        wgpu::TexelCopyBufferInfo {
+            buffer: &back,
+            layout: wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(pitch as u32),
+                rows_per_image: Some(blocks.height),
+            },
+        },
+        wgpu::Extent3d {
+            width: 4 * blocks.width,
+            height: 4 * blocks.height,
+            depth_or_array_layers: 1,
+        },
+    );
+    queue.submit([encoder.finish()]);
+    back.map_async(wgpu::MapMode::Read, .., |r| r.unwrap());
+    device.poll(wgpu::PollType::wait_indefinitely()).unwrap();
+    let got = back.get_mapped_range(..).unwrap().to_vec();
+    got.chunks(pitch as usize).flat_map(|r| r[..row].to_vec()).collect()
+}
