@@ -275,18 +275,7 @@ fn run_lookup_shader(
     lookups: &[(usize, SampleRequest)],
     workgroup: u32,
 ) -> Vec<u32> {
-    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: None,
-        source: wgpu::ShaderSource::Wgsl(source.into()),
-    });
-    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-        label: None,
-        layout: None,
-        module: &module,
-        entry_point: Some("main"),
-        compilation_options: Default::default(),
-        cache: None,
-    });
+    let pipeline = common::compute_pipeline(device, source, None);
     let input = lookup_buffer(device, queue, lookups);
     let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
     let out = buffer(device, 64 * lookups.len() as u64, usage, None);

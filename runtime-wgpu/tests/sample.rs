@@ -104,18 +104,7 @@ fn texel_codes_match_the_cpu_byte_for_byte() {
         immediate_size: 0,
     });
     let pipeline = |module: &str, mask| {
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: None,
-            source: wgpu::ShaderSource::Wgsl(texel_shader(module, mask).into()),
-        });
-        device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: None,
-            layout: Some(&pipeline_layout),
-            module: &module,
-            entry_point: Some("main"),
-            compilation_options: Default::default(),
-            cache: None,
-        })
+        common::compute_pipeline(&device, &texel_shader(module, mask), Some(&pipeline_layout))
     };
     // A module specialised to another material's layout (a 16-channel one with 8-bit codes):
     // bound to any other material, it computes the generic features.

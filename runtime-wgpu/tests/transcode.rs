@@ -338,18 +338,7 @@ fn load_texels(
                 out[id.y * size.x + id.x] = textureLoad(t, vec2<i32>(id.xy), 0);
             }
         }";
-    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: None,
-        source: wgpu::ShaderSource::Wgsl(source.into()),
-    });
-    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-        label: None,
-        layout: None,
-        module: &module,
-        entry_point: Some("main"),
-        compilation_options: Default::default(),
-        cache: None,
-    });
+    let pipeline = common::compute_pipeline(device, source, None);
     let out = common::buffer(
         device,
         u64::from(w) * u64::from(h) * 16,

@@ -191,3 +191,25 @@ pub fn read_level(
     let got = back.get_mapped_range(..).unwrap().to_vec();
     got.chunks(pitch as usize).flat_map(|r| r[..row].to_vec()).collect()
 }
+
+/// The compute pipeline of `source`'s `main` (a test's own WGSL), with `layout` or, without one,
+/// the layout wgpu derives from the shader.
+#[allow(dead_code)]
+pub fn compute_pipeline(
+    device: &wgpu::Device,
+    source: &str,
+    layout: Option<&wgpu::PipelineLayout>,
+) -> wgpu::ComputePipeline {
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: None,
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    });
+    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: None,
+        layout,
+        module: &module,
+        entry_point: Some("main"),
+        compilation_options: Default::default(),
+        cache: None,
+    })
+}
