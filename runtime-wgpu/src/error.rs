@@ -46,6 +46,10 @@ pub enum GpuError {
     /// A JPEG material's section larger than one storage binding of the device (or 2^28 bytes,
     /// so that bit positions fit 32 bits).
     SectionTooLarge { bytes: u64, limit: u64 },
+    /// A material's latents (every grid's packed words) or descriptors (the network's weights and
+    /// tables, a JPEG material's index and Huffman tables) larger than one storage binding of
+    /// the device: decode it on the CPU, or on a device that binds more.
+    DataTooLarge { what: &'static str, bytes: u64, limit: u64 },
     /// Requests of a JPEG material whose MCU table and scratch (one word per MCU of a map's
     /// chain, then up to 8 MiB of decoded MCUs) exceed one storage binding of the device: decode
     /// its regions, or its requests on the CPU.
@@ -73,6 +77,11 @@ impl std::fmt::Display for GpuError {
             GpuError::SectionTooLarge { bytes, limit } => write!(
                 f,
                 "the JPEG section has {bytes} bytes; this device binds at most {limit} in one buffer"
+            ),
+            GpuError::DataTooLarge { what, bytes, limit } => write!(
+                f,
+                "the material's {what} take {bytes} bytes; this device binds at most {limit} in \
+                 one buffer"
             ),
             GpuError::RequestTablesTooLarge { bytes, limit } => write!(
                 f,

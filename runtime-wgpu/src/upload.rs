@@ -63,6 +63,7 @@ impl Context {
                 }
                 let scratch = *self.jpeg_scratch.lock().unwrap_or_else(|e| e.into_inner());
                 let (desc, section, maps) = jpeg::upload_words(device, m, j, scratch)?;
+                fits_one_binding(device, "descriptors", &desc)?;
                 let desc = storage_init(device, "nmat jpeg desc", &desc);
                 let section = storage_init(device, "nmat jpeg section", &section);
                 let body = GpuBody::Jpeg(maps);
@@ -74,6 +75,8 @@ impl Context {
         let features = Features::new(n);
         let (unchecked, checked) = (features.wgsl(false), Arc::<str>::from(features.wgsl(true)));
         let (desc, latents) = network_words(m, n, features.key())?;
+        fits_one_binding(device, "latents", &latents)?;
+        fits_one_binding(device, "descriptors", &desc)?;
         let latents = storage_init(device, "nmat latents", &latents);
         let probe = Probe::new(m);
         let mut rejected = Vec::new();
@@ -103,6 +106,9 @@ impl Context {
             };
             if *self.fault.lock().unwrap_or_else(|e| e.into_inner()) == Some(kernel) {
                 break_last_row(&mut desc);
+            }
+            if fits_one_binding(device, "descriptors", &desc).is_err() {
+                return Err("its descriptors with tables exceed one storage binding of the device");
             }
             let desc = storage_init(device, "nmat desc", &desc);
             let body = GpuBody::Neural(tiled);
@@ -498,6 +504,23 @@ fn next_id() -> u64 {
 }
 
 /// A storage buffer holding `words`.
+/// Checks that `words` fit one storage binding (and one buffer) of `device`: a buffer or binding
+/// past the device's limits would be a validation error, which wgpu reports by panicking unless
+/// the engine installed its own handler.
+fn fits_one_binding(
+    device: &wgpu::Device,
+    what: &'static str,
+    words: &[u32],
+) -> Result<(), GpuError> {
+    let limits = device.limits();
+    let limit = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+    let bytes = 4 * words.len() as u64;
+    if bytes > limit {
+        return Err(GpuError::DataTooLarge { what, bytes, limit });
+    }
+    Ok(())
+}
+
 fn storage_init(device: &wgpu::Device, label: &str, words: &[u32]) -> wgpu::Buffer {
     device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
         label: Some(label),

@@ -143,3 +143,38 @@ fn reused_buffers_keep_materials_and_sizes_apart() {
     assert_eq!(codes, cpu_codes(&b, &rect(1, r), ChannelMask::ALL));
     assert_eq!(&on_gpu[..len], &codes[..]);
 }
+
+/// A material whose latents, descriptors or JPEG section exceed one storage binding of the device
+/// is refused at upload with a typed error naming them (a buffer past the device's limits would
+/// be a wgpu validation error: a panic, unless the engine installed its own handler).
+#[test]
+fn materials_larger_than_the_devices_bindings_are_refused() {
+    let instance =
+        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+    let adapter = pollster::block_on(instance.request_adapter(&Default::default())).unwrap();
+    let limits = wgpu::Limits {
+        max_storage_buffer_binding_size: 256,
+        ..wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits())
+    };
+    let descriptor = wgpu::DeviceDescriptor { required_limits: limits, ..Default::default() };
+    let (device, queue) = pollster::block_on(adapter.request_device(&descriptor)).unwrap();
+    let ctx = Context::new(&device);
+    let neural = generate(&golden_configs()[1]).to_bytes().unwrap();
+    let jpeg =
+        std::fs::read(nmat_tests::fixtures_dir().join("jpeg/pattern_420_37x21.nmat")).unwrap();
+    for bytes in [neural, jpeg] {
+        let m = Container::parse(&bytes).unwrap();
+        let refused = ctx.upload(&device, &queue, &m).err().unwrap();
+        let message = refused.to_string();
+        assert!(
+            matches!(
+                refused,
+                GpuError::DataTooLarge { limit: 256, .. }
+                    | GpuError::SectionTooLarge { limit: 256, .. }
+            ),
+            "{message}"
+        );
+        assert!(message.contains("at most 256"), "{message}");
+        eprintln!("{message}");
+    }
+}
