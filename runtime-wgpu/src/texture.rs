@@ -35,9 +35,10 @@ impl Context {
     /// recorded (`GpuError::Channels` for a map outside the material, `GpuError::Texture` for
     /// the target). The codes pass through a buffer the `Context` keeps for all such calls (grown
     /// when a call needs more; a region whose codes exceed 32 MiB, or what the device binds, goes
-    /// in bands of rows, a decode and a store pass each). With immediates ([`Context::uses_immediates`]) a call into a
-    /// texture and level a recent call wrote allocates nothing; else each call creates a small
-    /// uniform, a view and bind groups.
+    /// in bands of rows, a decode and a store pass each). With immediates
+    /// ([`Context::uses_immediates`]) a call into a texture and level a recent call wrote
+    /// allocates nothing; else each call (each band) creates a small uniform, a view and bind
+    /// groups.
     #[allow(clippy::too_many_arguments)] // a material, what, and where the texels go
     pub fn record_map_to_texture(
         &self,

@@ -503,10 +503,9 @@ fn next_id() -> u64 {
     NEXT_ID.fetch_add(1, Ordering::Relaxed)
 }
 
-/// A storage buffer holding `words`.
-/// Checks that `words` fit one storage binding (and one buffer) of `device`: a buffer or binding
-/// past the device's limits would be a validation error, which wgpu reports by panicking unless
-/// the engine installed its own handler.
+/// Checks that `words` fit one storage binding (and one buffer) of `device`: past its limits,
+/// making the buffer or binding it is a wgpu validation error (handed to the device's error
+/// handler), after which every kernel's probe failed and `upload` blamed the kernels.
 fn fits_one_binding(
     device: &wgpu::Device,
     what: &'static str,
@@ -521,6 +520,7 @@ fn fits_one_binding(
     Ok(())
 }
 
+/// A storage buffer holding `words`.
 fn storage_init(device: &wgpu::Device, label: &str, words: &[u32]) -> wgpu::Buffer {
     device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
         label: Some(label),

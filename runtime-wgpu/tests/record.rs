@@ -145,8 +145,8 @@ fn reused_buffers_keep_materials_and_sizes_apart() {
 }
 
 /// A material whose latents, descriptors or JPEG section exceed one storage binding of the device
-/// is refused at upload with a typed error naming them (a buffer past the device's limits would
-/// be a wgpu validation error: a panic, unless the engine installed its own handler).
+/// is refused at upload with a typed error naming them and the limit (without the check, every
+/// kernel's probe failed and `upload` said that no kernel's codes equalled the CPU's).
 #[test]
 fn materials_larger_than_the_devices_bindings_are_refused() {
     let instance =
