@@ -1,7 +1,7 @@
 //! Submit-then-map decodes: the buffers they reuse (a pool per [`Context`]) and the
 //! [`PendingDecode`] that maps the result.
 
-use crate::gpu::{Bound, dispatch_bound, read_back, read_back_within};
+use crate::gpu::{Bound, dispatch_bound, read_back_after, read_back_within};
 use crate::layout::{Params, ShaderLayout};
 use crate::upload::GpuBody;
 use crate::{Context, GpuError, GpuMaterial};
@@ -17,6 +17,8 @@ pub struct PendingDecode {
     scratch: Option<Scratch>,
     pool: Pool,
     len: usize,
+    /// The submission that writes the result.
+    submission: wgpu::SubmissionIndex,
 }
 
 pub(crate) type Pool = Arc<Mutex<Vec<Scratch>>>;
@@ -99,13 +101,14 @@ impl Context {
     ) -> PendingDecode {
         let copy = len.next_multiple_of(4).max(4);
         encoder.copy_buffer_to_buffer(&scratch.out, 0, &scratch.readback, 0, copy);
-        queue.submit([encoder.finish()]);
+        let submission = queue.submit([encoder.finish()]);
         PendingDecode {
             out: scratch.out.clone(),
             readback: scratch.readback.clone(),
             scratch: Some(scratch),
             pool: Arc::clone(&self.pool),
             len: len as usize,
+            submission,
         }
     }
 }
@@ -128,10 +131,12 @@ impl PendingDecode {
         self.len == 0
     }
 
-    /// Maps the result (blocking on the device) and returns the codes.
+    /// Maps the result (blocking until the device has run its submission, not the work
+    /// submitted after it) and returns the codes.
     pub fn wait(mut self, device: &wgpu::Device) -> Result<Vec<u8>, GpuError> {
-        let mut bytes =
-            read_back(device, &self.readback, (self.len as u64).next_multiple_of(4).max(4))?;
+        let bytes = (self.len as u64).next_multiple_of(4).max(4);
+        let submission = Some(self.submission.clone());
+        let mut bytes = read_back_after(device, &self.readback, bytes, submission)?;
         bytes.truncate(self.len);
         self.give_back();
         Ok(bytes)
@@ -145,7 +150,8 @@ impl PendingDecode {
         timeout: std::time::Duration,
     ) -> Result<Option<Vec<u8>>, GpuError> {
         let bytes = (self.len as u64).next_multiple_of(4).max(4);
-        match read_back_within(device, &self.readback, bytes, (None, Some(timeout)))? {
+        let submission = Some(self.submission.clone());
+        match read_back_within(device, &self.readback, bytes, (submission, Some(timeout)))? {
             Some(mut codes) => {
                 codes.truncate(self.len);
                 self.give_back();

@@ -142,6 +142,22 @@ fn reused_buffers_keep_materials_and_sizes_apart() {
     let codes = pending.wait(&device).unwrap();
     assert_eq!(codes, cpu_codes(&b, &rect(1, r), ChannelMask::ALL));
     assert_eq!(&on_gpu[..len], &codes[..]);
+    // Several decodes in flight, each waited for on its own submission: newest first, one
+    // submitted between two waits, one dropped unwaited (its buffers go back to the pool).
+    let rects = [(0, 0, 31, 7), (3, 9, 12, 12), (40, 1, 5, 30), (7, 7, 1, 1)];
+    let submit = |k: usize| {
+        let (m, gm) = if k.is_multiple_of(2) { (&a, &ga) } else { (&b, &gb) };
+        let pending = ctx.submit_region(&device, &queue, gm, 0, rects[k], mask).unwrap();
+        (pending, cpu_codes(m, &rect(0, rects[k]), mask))
+    };
+    let mut in_flight: Vec<_> = (0..3).map(submit).collect();
+    drop(ctx.submit_region(&device, &queue, &ga, 1, (0, 0, 9, 9), mask).unwrap());
+    let (newest, want) = in_flight.pop().unwrap();
+    assert_eq!(newest.wait(&device).unwrap(), want, "the newest of three");
+    in_flight.push(submit(3));
+    for (k, (pending, want)) in in_flight.into_iter().enumerate().rev() {
+        assert_eq!(pending.wait(&device).unwrap(), want, "in flight, {k}");
+    }
 }
 
 /// A material whose latents, descriptors or JPEG section exceed one storage binding of the device
