@@ -517,10 +517,12 @@ impl Context {
             })
         };
         let pipeline = |source: &str, layout: &wgpu::PipelineLayout, entry: &str| {
-            try_pipeline(device, source, entry, Some(layout)).ok_or(GpuError::Kernel {
-                kernel: crate::Kernel::Reference,
-                reason: "the device refused the tile cache's shader",
-            })
+            try_pipeline(device, source, entry, (Some(layout), self.pipeline_cache.as_ref())).ok_or(
+                GpuError::Kernel {
+                    kernel: crate::Kernel::Reference,
+                    reason: "the device refused the tile cache's shader",
+                },
+            )
         };
         let (source, passes_layout) = (passes_source(materials), pipeline_layout(&layout));
         let pass = |entry: &str| pipeline(&source, &passes_layout, entry);

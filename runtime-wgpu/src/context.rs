@@ -55,6 +55,9 @@ pub struct Context {
     /// The most bytes one pass of the transcoding calls decodes or stages, where a test made it
     /// small ([`Context::limit_pass_bytes_for_testing`]).
     pub(crate) pass_bytes: Mutex<Option<u64>>,
+    /// The engine's pipeline cache, where it gave one ([`Context::with_pipeline_cache`]): every
+    /// pipeline the `Context` builds is created with it.
+    pub(crate) pipeline_cache: Option<wgpu::PipelineCache>,
     /// Bound where a dispatch has no material or no requests.
     pub(crate) empty: wgpu::Buffer,
     /// Buffers of finished submit-and-wait decodes, for the next ones.
@@ -159,7 +162,21 @@ pub(crate) fn shader_source() -> String {
 }
 
 impl Context {
+    /// The pipelines and state for decoding on `device` (one `Context` per device).
     pub fn new(device: &wgpu::Device) -> Context {
+        Context::build(device, None)
+    }
+
+    /// [`Context::new`], every pipeline the `Context` builds (now and as materials of new shapes
+    /// arrive) created with `cache`: an engine that keeps a `wgpu::PipelineCache`
+    /// (`Features::PIPELINE_CACHE`, Vulkan) and saves its `get_data()` between runs gives it here,
+    /// so that a later run's pipelines can come from the driver's cache instead of its compiler.
+    /// The cache must belong to `device`.
+    pub fn with_pipeline_cache(device: &wgpu::Device, cache: wgpu::PipelineCache) -> Context {
+        Context::build(device, Some(cache))
+    }
+
+    fn build(device: &wgpu::Device, pipeline_cache: Option<wgpu::PipelineCache>) -> Context {
         let immediates = immediates_usable(device);
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("nmat decode"),
@@ -204,7 +221,7 @@ impl Context {
                 module: &module,
                 entry_point: Some(entry),
                 compilation_options: Default::default(),
-                cache: None,
+                cache: pipeline_cache.as_ref(),
             })
         };
         let empty = device.create_buffer(&wgpu::BufferDescriptor {
@@ -231,6 +248,7 @@ impl Context {
             texture_codes: Mutex::default(),
             bc_staging: Mutex::default(),
             pass_bytes: Mutex::default(),
+            pipeline_cache,
             empty,
             pool: Pool::default(),
             jpeg: Mutex::default(),
@@ -273,7 +291,7 @@ impl Context {
                 module,
                 entry_point: Some(entry),
                 compilation_options: Default::default(),
-                cache: None,
+                cache: self.pipeline_cache.as_ref(),
             }))
         });
         EncoderPipeline::Bc7(pipeline.clone())
@@ -369,7 +387,7 @@ impl Context {
             &self.pipeline_layout
         };
         let source = with_parameters(source, self.immediates);
-        try_pipeline(device, &source, entry, Some(layout))
+        try_pipeline(device, &source, entry, (Some(layout), self.pipeline_cache.as_ref()))
     }
 
     /// Whether dispatches take their parameters as immediates ([`immediates_usable`]): then a

@@ -212,7 +212,7 @@ pub(crate) fn try_pipeline(
     device: &wgpu::Device,
     source: &str,
     entry: &str,
-    layout: Option<&wgpu::PipelineLayout>,
+    (layout, cache): (Option<&wgpu::PipelineLayout>, Option<&wgpu::PipelineCache>),
 ) -> Option<wgpu::ComputePipeline> {
     let internal = device.push_error_scope(wgpu::ErrorFilter::Internal);
     let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -226,7 +226,7 @@ pub(crate) fn try_pipeline(
         module: &module,
         entry_point: Some(entry),
         compilation_options: Default::default(),
-        cache: None,
+        cache,
     });
     // wgpu's native backends report a scope at once; a pending answer counts as refused.
     let mut clean = true;

@@ -217,12 +217,12 @@ const PROBE_OPS: f64 = 32.0;
 /// 20 ms, then reports the best of three.
 pub fn probe_peak(device: &wgpu::Device, queue: &wgpu::Queue) -> Result<Peak, GpuError> {
     let probe = include_str!("shaders/probe.wgsl");
-    let mad = try_pipeline(device, probe, "mad", None).ok_or(GpuError::Map(
+    let mad = try_pipeline(device, probe, "mad", (None, None)).ok_or(GpuError::Map(
         "the integer peak probe did not compile on this device".to_string(),
     ))?;
     let (mad_rate, clock) = rate(device, queue, &mad, 1.0)?;
     let dot4_source = format!("{probe}\n{}", include_str!("shaders/probe_dot4.wgsl"));
-    let dot4 = try_pipeline(device, &dot4_source, "dot4", None);
+    let dot4 = try_pipeline(device, &dot4_source, "dot4", (None, None));
     let dot4_mac_per_s = match dot4 {
         Some(p) => Some(rate(device, queue, &p, 4.0)?.0),
         None => None,

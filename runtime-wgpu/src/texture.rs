@@ -192,7 +192,8 @@ impl Context {
                 } else {
                     source
                 };
-                try_pipeline(device, &source, "store_texels", None).map(Arc::new)
+                try_pipeline(device, &source, "store_texels", (None, self.pipeline_cache.as_ref()))
+                    .map(Arc::new)
             })
             .clone()
     }

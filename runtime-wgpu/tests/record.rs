@@ -194,3 +194,47 @@ fn materials_larger_than_the_devices_bindings_are_refused() {
         eprintln!("{message}");
     }
 }
+
+/// A `Context` given the engine's pipeline cache builds its pipelines with it: a material
+/// decodes exactly as without one, and a second `Context` given a cache made from the first
+/// cache's data decodes exactly too (where the adapter has pipeline caches). (Whether the driver
+/// put compiled code in the cache is the driver's business: lavapipe's holds 96 bytes.)
+#[test]
+#[allow(unsafe_code)] // wgpu's pipeline-cache constructor is unsafe (see the SAFETY notes)
+fn pipelines_come_from_the_engines_cache() {
+    let instance =
+        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+    let adapter = pollster::block_on(instance.request_adapter(&Default::default())).unwrap();
+    if !adapter.features().contains(wgpu::Features::PIPELINE_CACHE) {
+        eprintln!("the adapter has no pipeline caches: nothing to test");
+        return;
+    }
+    let descriptor = wgpu::DeviceDescriptor {
+        required_features: wgpu::Features::PIPELINE_CACHE,
+        required_limits: wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits()),
+        ..Default::default()
+    };
+    let (device, queue) = pollster::block_on(adapter.request_device(&descriptor)).unwrap();
+    let bytes = golden("ntc_pbr10_96x80_clamp");
+    let m = Container::parse(&bytes).unwrap();
+    let r = (5, 3, 40, 21);
+    let want = cpu_codes(&m, &rect(1, r), ChannelMask::ALL);
+    let decode = |ctx: &Context| {
+        let gm = ctx.upload(&device, &queue, &m).unwrap();
+        ctx.submit_region(&device, &queue, &gm, 1, r, ChannelMask::ALL).unwrap().wait(&device)
+    };
+    let empty = wgpu::PipelineCacheDescriptor { label: None, data: None, fallback: true };
+    // SAFETY: no data is given, so there is nothing wgpu must trust.
+    let cache = unsafe { device.create_pipeline_cache(&empty) };
+    let start = std::time::Instant::now();
+    assert_eq!(decode(&Context::with_pipeline_cache(&device, cache.clone())).unwrap(), want);
+    let first = start.elapsed();
+    let data = cache.get_data().unwrap_or_default();
+    eprintln!("{} bytes of pipeline cache after {first:.2?}", data.len());
+    let filled = wgpu::PipelineCacheDescriptor { data: Some(&data), ..empty };
+    // SAFETY: the data is what `get_data` returned for a cache of this very device, this run.
+    let restored = unsafe { device.create_pipeline_cache(&filled) };
+    let start = std::time::Instant::now();
+    assert_eq!(decode(&Context::with_pipeline_cache(&device, restored)).unwrap(), want);
+    eprintln!("again from the cache's data: {:.2?}", start.elapsed());
+}
