@@ -45,8 +45,10 @@ step warm-up 300 .devcarry/nmat bench "$out/demo/demo.nmat" --gpu --runs 1
 if [ "${REQUIRE_KERNELS:-1}" = 1 ]; then
   export NMAT_REQUIRE_MATRIX=1 NMAT_REQUIRE_DOT4=1
 fi
+# --nocapture: what the tests print (the adapter, the pipeline cache's size and timings, the
+# kernels rejected) is kept in each test's file.
 for t in .devcarry/tests/*; do
-  step "test-$(basename "$t")" 300 "$t" --test-threads 1
+  step "test-$(basename "$t")" 300 "$t" --test-threads 1 --nocapture
 done
 for m in .devcarry/materials/*.nmat; do
   [ -f "$m" ] || continue
