@@ -420,6 +420,11 @@ pub struct DecodePlan {
 }
 
 impl DecodePlan {
+    /// The mips to decode, in the order they are written.
+    pub fn mips(&self) -> &[u32] {
+        &self.mips
+    }
+
     /// The maps of the file's SOURCE_MAPS section, or maps by channel-name stem for a file
     /// without a valid one ([`source_maps()`]); each output file must be named once, in a format
     /// that holds its layout.

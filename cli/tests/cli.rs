@@ -962,6 +962,44 @@ fn transcode_gpu_writes_the_cpus_files() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `nmat decode --gpu` writes the integer decoder's files byte for byte (every mip submitted
+/// before the first is written), for a neural and a JPEG material, every mip and one, where the
+/// binary has the `gpu` feature.
+#[test]
+fn decode_gpu_writes_the_cpus_files() {
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures");
+    let dir = temp_dir("decode-gpu");
+    let cases: [(&str, &[&str]); 3] = [
+        ("ntc_pbr10_96x80_clamp.nmat", &["--mip", "all"]),
+        ("ntc_pbr10_96x80_clamp.nmat", &["--mip", "2"]),
+        ("jpeg/pattern_420_37x21.nmat", &["--mip", "all"]),
+    ];
+    for (k, (name, extra)) in cases.iter().enumerate() {
+        let (cpu_dir, gpu_dir) = (dir.join(format!("cpu{k}")), dir.join(format!("gpu{k}")));
+        let f = fixtures.join(name);
+        let f = f.to_str().unwrap();
+        let (gpu_out, cpu_out) = (gpu_dir.to_str().unwrap(), cpu_dir.to_str().unwrap());
+        let args = |out| [&["decode", f, "-o", out], *extra].concat();
+        let o = nmat(&[args(gpu_out), vec!["--gpu"]].concat());
+        if built_without_gpu(&o, &dir) {
+            return;
+        }
+        assert!(o.status.success(), "{}", text(&o));
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("device opened in ") && err.contains("kernel decodes it"), "{err}");
+        let o = nmat(&[args(cpu_out), vec!["--int"]].concat());
+        assert!(o.status.success(), "{}", text(&o));
+        let names = files_in(&cpu_dir);
+        assert!(!names.is_empty(), "{name} {extra:?}");
+        assert_eq!(files_in(&gpu_dir), names, "{name} {extra:?}");
+        for file in &names {
+            let (c, g) = (std::fs::read(cpu_dir.join(file)), std::fs::read(gpu_dir.join(file)));
+            assert!(c.unwrap() == g.unwrap(), "{name} {extra:?}: {file} differs");
+        }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn fuzz_regression_inputs_of_the_cli_target_never_panic() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/regressions/cli");

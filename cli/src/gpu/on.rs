@@ -19,8 +19,20 @@ pub fn decode_maps(
     progress: &mut dyn FnMut(u64),
 ) -> Result<Vec<PathBuf>> {
     let (device, queue, ctx, gm) = device::upload(m, "decoding")?;
+    // Every mip submitted before the first is waited for (each wait waits for its own
+    // submission only): the GPU decodes the next mips while the previous ones are written.
+    let all = nmat_core::ChannelMask::ALL;
+    let mut pending = std::collections::HashMap::new();
+    for &mip in plan.mips() {
+        let (w, h) = m.mip_size(mip);
+        pending.insert(mip, ctx.submit_region(&device, &queue, &gm, mip, (0, 0, w, h), all)?);
+    }
+    let pending = std::cell::RefCell::new(pending);
     let decode = |mip: u32| -> Result<Vec<u8>> {
-        Ok(ctx.decode_mip(&device, &queue, &gm, mip, nmat_core::ChannelMask::ALL)?)
+        match pending.borrow_mut().remove(&mip) {
+            Some(submitted) => Ok(submitted.wait(&device)?),
+            None => Ok(ctx.decode_mip(&device, &queue, &gm, mip, all)?),
+        }
     };
     let with = output::DecodeWith { float: false, batch: Some(&decode) };
     output::write_maps(m, plan, dir, with, progress)
