@@ -921,13 +921,48 @@ fn walk_gpu_counts_the_tiles_the_cpu_counts_or_says_how_to_build_it() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// Runs `nmat COMMAND FIXTURE -o DIR EXTRA…` with `--gpu` into `dir/gpuK` and with `cpu_flags`
+/// into `dir/cpuK`; checks that the GPU run says how long opening the device and the upload took
+/// and names its kernel (`kernel`), and that both runs wrote the same files byte for byte.
+/// Returns their names, or `None` where the binary has no `gpu` feature (`dir` is then removed).
+fn gpu_and_cpu_files(
+    dir: &Path,
+    k: usize,
+    (command, name, extra): (&str, &str, &[&str]),
+    cpu_flags: &[&str],
+    kernel: &str,
+) -> Option<Vec<String>> {
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures");
+    let (cpu_dir, gpu_dir) = (dir.join(format!("cpu{k}")), dir.join(format!("gpu{k}")));
+    let f = fixtures.join(name);
+    let f = f.to_str().unwrap();
+    let (gpu_out, cpu_out) = (gpu_dir.to_str().unwrap(), cpu_dir.to_str().unwrap());
+    let args = |out| [&[command, f, "-o", out], extra].concat();
+    let o = nmat(&[args(gpu_out), vec!["--gpu"]].concat());
+    if built_without_gpu(&o, dir) {
+        return None;
+    }
+    assert!(o.status.success(), "{}", text(&o));
+    // The fixed cost apart: opening the device, and the upload with the kernel it chose.
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("device opened in ") && err.contains(kernel), "{err}");
+    let o = nmat(&[args(cpu_out), cpu_flags.to_vec()].concat());
+    assert!(o.status.success(), "{}", text(&o));
+    let names = files_in(&cpu_dir);
+    assert_eq!(files_in(&gpu_dir), names, "{name} {extra:?}");
+    for file in &names {
+        let (c, g) = (std::fs::read(cpu_dir.join(file)), std::fs::read(gpu_dir.join(file)));
+        assert!(c.unwrap() == g.unwrap(), "{name} {extra:?}: {file} differs");
+    }
+    Some(names)
+}
+
 /// `nmat transcode --gpu` writes the CPU's files byte for byte (every texture of a mip from one
 /// decode on the GPU), for a neural and a JPEG material, and for the neural one in BC7 (a texture
 /// for each of its six maps: albedo, normal, roughness, height, ao, metallic), where the binary
 /// has the `gpu` feature.
 #[test]
 fn transcode_gpu_writes_the_cpus_files() {
-    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures");
     let dir = temp_dir("transcode-gpu");
     let cases: [(&str, &[&str], usize); 3] = [
         ("ntc_pbr10_96x80_clamp.nmat", &[], 6),
@@ -935,29 +970,12 @@ fn transcode_gpu_writes_the_cpus_files() {
         ("ntc_pbr10_96x80_clamp.nmat", &["--format", "bc7"], 6),
     ];
     for (k, (name, extra, files)) in cases.iter().enumerate() {
-        let (cpu_dir, gpu_dir) = (dir.join(format!("cpu{k}")), dir.join(format!("gpu{k}")));
-        let f = fixtures.join(name);
-        let f = f.to_str().unwrap();
-        let (gpu_out, cpu_out) = (gpu_dir.to_str().unwrap(), cpu_dir.to_str().unwrap());
-        let args = |out| [&["transcode", f, "-o", out], *extra].concat();
-        let o = nmat(&[args(gpu_out), vec!["--gpu"]].concat());
-        if built_without_gpu(&o, &dir) {
-            return;
-        }
-        assert!(o.status.success(), "{}", text(&o));
-        // The fixed cost apart: opening the device, and the upload with the kernel it chose.
-        let err = String::from_utf8_lossy(&o.stderr);
         let kernel = if k == 1 { "the JPEG kernel decodes it" } else { "kernel decodes it" };
-        assert!(err.contains("device opened in ") && err.contains(kernel), "{err}");
-        let o = nmat(&args(cpu_out));
-        assert!(o.status.success(), "{}", text(&o));
-        let names = files_in(&cpu_dir);
+        let Some(names) = gpu_and_cpu_files(&dir, k, ("transcode", name, extra), &[], kernel)
+        else {
+            return;
+        };
         assert_eq!(names.len(), *files, "{name} {extra:?}: {names:?}");
-        assert_eq!(files_in(&gpu_dir), names);
-        for file in &names {
-            let (c, g) = (std::fs::read(cpu_dir.join(file)), std::fs::read(gpu_dir.join(file)));
-            assert!(c.unwrap() == g.unwrap(), "{name}: {file} differs");
-        }
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
@@ -967,7 +985,6 @@ fn transcode_gpu_writes_the_cpus_files() {
 /// binary has the `gpu` feature.
 #[test]
 fn decode_gpu_writes_the_cpus_files() {
-    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures");
     let dir = temp_dir("decode-gpu");
     let cases: [(&str, &[&str]); 3] = [
         ("ntc_pbr10_96x80_clamp.nmat", &["--mip", "all"]),
@@ -975,27 +992,11 @@ fn decode_gpu_writes_the_cpus_files() {
         ("jpeg/pattern_420_37x21.nmat", &["--mip", "all"]),
     ];
     for (k, (name, extra)) in cases.iter().enumerate() {
-        let (cpu_dir, gpu_dir) = (dir.join(format!("cpu{k}")), dir.join(format!("gpu{k}")));
-        let f = fixtures.join(name);
-        let f = f.to_str().unwrap();
-        let (gpu_out, cpu_out) = (gpu_dir.to_str().unwrap(), cpu_dir.to_str().unwrap());
-        let args = |out| [&["decode", f, "-o", out], *extra].concat();
-        let o = nmat(&[args(gpu_out), vec!["--gpu"]].concat());
-        if built_without_gpu(&o, &dir) {
+        let what = ("decode", *name, *extra);
+        let Some(names) = gpu_and_cpu_files(&dir, k, what, &["--int"], "kernel decodes it") else {
             return;
-        }
-        assert!(o.status.success(), "{}", text(&o));
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert!(err.contains("device opened in ") && err.contains("kernel decodes it"), "{err}");
-        let o = nmat(&[args(cpu_out), vec!["--int"]].concat());
-        assert!(o.status.success(), "{}", text(&o));
-        let names = files_in(&cpu_dir);
+        };
         assert!(!names.is_empty(), "{name} {extra:?}");
-        assert_eq!(files_in(&gpu_dir), names, "{name} {extra:?}");
-        for file in &names {
-            let (c, g) = (std::fs::read(cpu_dir.join(file)), std::fs::read(gpu_dir.join(file)));
-            assert!(c.unwrap() == g.unwrap(), "{name} {extra:?}: {file} differs");
-        }
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
