@@ -520,16 +520,14 @@ fn bc_textures_refuse_what_they_cannot_hold() {
         return;
     }
     // Targets the chain does not fit: each refused.
+    // The good descriptor with one thing changed.
     let make = |format, usage, width, levels| {
         device.create_texture(&wgpu::TextureDescriptor {
-            label: None,
-            size: wgpu::Extent3d { width, height: 16, depth_or_array_layers: 1 },
+            size: wgpu::Extent3d { width, ..good.size },
             mip_level_count: levels,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
             format,
             usage,
-            view_formats: &[],
+            ..good.clone()
         })
     };
     let bad = [
