@@ -281,12 +281,6 @@ impl Shape {
         self.batch() * self.batches
     }
 
-    /// Whether the source's `matrix_cache` entry can decode the tile cache's tiles: a batch
-    /// divides a tile's 256 texels.
-    pub fn decodes_tiles(&self) -> bool {
-        256 % self.batch() == 0
-    }
-
     /// The WGSL of the pipeline (entry point `matrix`) with `features` (features.rs, unchecked);
     /// only `part` of the work where it is not [`Part::Whole`] (for timing: the codes are then
     /// wrong).
@@ -616,7 +610,6 @@ mod tests {
             let source = shape.source_part(Part::Whole, &features);
             let spirv = compile(&source).unwrap_or_else(|e| panic!("{}: {e}", cfg.name));
             // The tile cache's entry is in the module naga validated.
-            assert!(shape.decodes_tiles(), "{}", cfg.name);
             let module = naga::front::wgsl::parse_str(&source).unwrap();
             let entries: Vec<&str> = module.entry_points.iter().map(|e| e.name.as_str()).collect();
             assert!(

@@ -286,7 +286,7 @@ impl Context {
                 if shape.weights_in_storage() {
                     storage_weights = Some(shape.storage_weights(n));
                 }
-                let tiles = shape.decodes_tiles().then_some(("matrix_cache", 1));
+                let tiles = Some(("matrix_cache", 1));
                 (shape.source_part(part, features), "matrix", shape.texels(), tiles)
             }
             Kernel::UnrolledInt32 | Kernel::UnrolledDot4 => {

@@ -9,53 +9,10 @@
 use nmat_core::{ChannelMask, Container, Material};
 use nmat_tests::generate::{generate, golden_configs};
 use nmat_tests::{decode_all_u8, fixtures_dir};
-use nmat_wgpu::{Context, GpuError, GpuMaterial, Kernel, TexelRequest};
+use nmat_wgpu::{Context, GpuError, Kernel, TexelRequest};
 
 mod common;
-use common::{cpu_codes, device, random_requests, trained_material};
-
-/// `m` uploaded once per kernel the device runs: the tiled 32-bit and reference kernels run
-/// everywhere; the dot4 kernel where the device's WGSL has `dot4I8Packed` (lavapipe has it, and
-/// `NMAT_REQUIRE_DOT4=1` makes its absence a failure); the matrix kernel where the device has
-/// cooperative matrices (lavapipe has none; `NMAT_REQUIRE_MATRIX=1` makes their absence a
-/// failure). Each upload checked its kernel on a probe; the default upload takes one of them (on
-/// a software adapter, which is not measured, the last of `Kernel::ALL`).
-fn each_kernel(
-    ctx: &Context,
-    device: &wgpu::Device,
-    queue: &wgpu::Queue,
-    m: &Material<'_>,
-) -> Vec<GpuMaterial> {
-    let mut uploads = Vec::new();
-    for kernel in Kernel::ALL {
-        match ctx.upload_with(device, queue, m, Some(kernel)) {
-            Ok(gm) => {
-                assert_eq!(gm.kernel(), kernel);
-                uploads.push(gm);
-            }
-            // (Absent where the device lacks dot4I8Packed; codes that differ always fail.)
-            Err(GpuError::Kernel { kernel: k @ (Kernel::Dot4 | Kernel::UnrolledDot4), reason })
-                if std::env::var_os("NMAT_REQUIRE_DOT4").is_none()
-                    && !reason.contains("differ") =>
-            {
-                eprintln!("{} kernel not tested here: {reason}", k.name());
-            }
-            Err(GpuError::Kernel { kernel: Kernel::Matrix, reason })
-                if std::env::var_os("NMAT_REQUIRE_MATRIX").is_none() =>
-            {
-                eprintln!("matrix kernel not tested here: {reason}");
-            }
-            Err(e) => panic!("{kernel:?}: {e}"),
-        }
-    }
-    let chosen = ctx.upload(device, queue, m).unwrap();
-    assert!(chosen.rejected().is_empty(), "{:?}", chosen.rejected());
-    assert!(uploads.iter().any(|gm| gm.kernel() == chosen.kernel()));
-    if device.adapter_info().device_type == wgpu::DeviceType::Cpu {
-        assert_eq!(Some(chosen.kernel()), uploads.last().map(GpuMaterial::kernel));
-    }
-    uploads
-}
+use common::{cpu_codes, device, each_kernel, random_requests, trained_material};
 
 #[test]
 fn golden_fixtures_decode_identically_on_the_gpu() {

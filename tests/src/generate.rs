@@ -402,7 +402,15 @@ pub fn wide_constant_material(input: i16, weight: i8, bias: i32) -> MaterialSpec
     spec
 }
 
-/// A random but valid configuration: sizes, layouts, bit depths, Q-formats, widths.
+/// Every latent code of `spec` set to `pattern(index, max)`, where `max` is the largest code of
+/// the code's grid (its bits per code all set).
+pub fn set_codes(spec: &mut MaterialSpec, pattern: impl Fn(usize, u8) -> u8) {
+    for g in &mut spec.grids {
+        let max = ((1u16 << g.bits) - 1) as u8;
+        g.codes = (0..g.codes.len()).map(|i| pattern(i, max)).collect();
+    }
+}
+
 /// The `lod_input` code a uniform draw `u` picks: 0 below ½, else 1–5 evenly.
 fn lod_code(u: f64, f: u8) -> u8 {
     if u < 0.5 { 0 } else { fitting_lod_code(1 + ((u - 0.5) * 10.0).min(4.0) as u8, f) }
@@ -414,6 +422,7 @@ pub fn fitting_lod_code(code: u8, f: u8) -> u8 {
     if code <= 1 || u16::from(f) + u16::from(code) <= 16 { code } else { 1 }
 }
 
+/// A random but valid configuration: sizes, layouts, bit depths, Q-formats, widths.
 pub fn random_config(seed: u64) -> FixtureConfig {
     let mut r = Rng::new(seed);
     let pick = |r: &mut Rng, lo: i64, hi: i64| r.range(lo, hi);

@@ -14,7 +14,7 @@ use nmat_core::{
     AddressMode, ChannelMask, Container, Error, Field, Filter, MaterialSpec, Precision,
     SampleRequest,
 };
-use nmat_tests::generate::{FixtureConfig, Layout, generate, wide_constant_material};
+use nmat_tests::generate::{FixtureConfig, Layout, generate, set_codes, wide_constant_material};
 use nmat_tests::reference;
 
 fn small(name: &'static str) -> MaterialSpec {
@@ -120,13 +120,6 @@ fn hard_gelu_is_within_half_an_lsb_everywhere() {
 }
 
 // 4. Latents: all-max, all-min, checkerboard, 1 and 8 bits; interpolation weights sum exactly.
-fn with_codes(spec: &mut MaterialSpec, pattern: impl Fn(usize, u8) -> u8) {
-    for g in &mut spec.grids {
-        let max = ((1u16 << g.bits) - 1) as u8;
-        let cells: Vec<u8> = (0..g.codes.len()).map(|i| pattern(i, max)).collect();
-        g.codes = cells;
-    }
-}
 
 #[test]
 fn extreme_latent_patterns_decode_like_the_reference() {
@@ -140,7 +133,7 @@ fn extreme_latent_patterns_decode_like_the_reference() {
             [|_, max| max, |_, _| 0, |i, max| if i % 2 == 0 { max } else { 0 }];
         for pattern in patterns {
             let mut spec = generate(&cfg);
-            with_codes(&mut spec, pattern);
+            set_codes(&mut spec, pattern);
             let bytes = spec.to_bytes().unwrap();
             let m = Container::parse(&bytes).unwrap();
             let back = m.to_spec().expect("a neural material");

@@ -4,7 +4,9 @@
 // entries; cache.rs): the material's queue from word `params.in_offset` of `requests` (the
 // cache's state, laid out by cache.wgsl), each tile's codes, every channel
 // (`params.out_channels` of them), into its slot of `out_codes`, `params.row_words` words a
-// slot. A tile's batch is P texels of it (row-major, 16 a row), P a multiple of 4 dividing 256.
+// slot. A tile's batch is P texels of it (row-major, 16 a row), P a multiple of 4; where P does
+// not divide 256 (the matrix kernel's batches of 48 texels with three subgroups) a tile's last
+// batch reaches past its 256 texels, and those texels are neither decoded nor stored.
 
 // The input features of texel `index` of the dispatch (request or rectangle, decode.wgsl's
 // `texel_of`) in nmat_act_a[0..inputs) (`nmat_texel_features`, generated for the material's
@@ -71,18 +73,21 @@ fn nmat_tile_texel(tile: NmatQueuedTile, i: u32) -> vec2<u32> {
     return tile.origin + vec2<u32>(i % 16u, i / 16u);
 }
 
-// Whether texel `i` of `tile` lies inside its mip (an edge tile's others are not decoded).
+// Whether texel `i` of `tile` is one of its 256 and lies inside its mip (an edge tile's others,
+// and a last batch's texels past the tile, are not decoded).
 fn nmat_tile_has(tile: NmatQueuedTile, i: u32) -> bool {
-    return all(nmat_tile_texel(tile, i) < tile.size);
+    return i < 256u && all(nmat_tile_texel(tile, i) < tile.size);
 }
 
-// The codes of texels t0 … t0 + P − 1 of `tile` from `tile_codes` into its slot: P · n bytes, a
-// whole number of words starting on one, each written whole (0 for a texel outside the mip);
-// invocation `lid` of `invocations` writes every invocations-th word.
+// The codes of texels t0 … t0 + P − 1 of `tile` (those up to its last, 255) from `tile_codes`
+// into its slot: P · n bytes (fewer in a last batch past the tile), a whole number of words
+// starting on one (t0 and P are multiples of 4), each written whole (0 for a texel outside the
+// mip); invocation `lid` of `invocations` writes every invocations-th word.
 fn nmat_store_batch(tile: NmatQueuedTile, t0: u32, lid: u32, invocations: u32) {
     let n = params.out_channels;
     let first = tile.slot * params.row_words + t0 * n / 4u;
-    for (var w = lid; w < P * n / 4u; w += invocations) {
+    let words = min(P, 256u - t0) * n / 4u;
+    for (var w = lid; w < words; w += invocations) {
         var word = 0u;
         for (var k = 0u; k < 4u; k++) {
             let t = t0 + (4u * w + k) / n;

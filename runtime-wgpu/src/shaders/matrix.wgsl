@@ -170,7 +170,8 @@ fn matrix_batches(lid: u32, warp: u32, lane: u32, g: u32) {
 // The tile cache's decode of a material's new tiles through this kernel (cache.rs; `params.mode`
 // 2; the queue, the tiles and their slots as batch.wgsl reads and writes them): one
 // workgroup per tile, which stages the weights once and takes the tile's 256 texels in batches of
-// P (matrix.rs builds this entry only where P divides 256). Bit-identical with
+// P (the last batch reaching past the tile where P does not divide 256, as three subgroups'
+// batches of 48 do: batch.wgsl leaves those texels out). Bit-identical with
 // cache_decode.wgsl, which decodes one texel per invocation: a texel outside an edge tile's mip
 // leaves its activation column as it was (finite values: each texel's column meets only its own
 // products) and its codes are not written. The body of the entry point `matrix_cache`.
@@ -181,7 +182,7 @@ fn matrix_tiles(lid: u32, warp: u32, lane: u32, g: u32) {
     stage_weights(lid);
     let tile = nmat_queued_tile(g);
     let inputs = nmat_desc[nmat_desc[NMAT_DESC_LAYERS_AT] + NMAT_LAYER_INPUTS];
-    for (var b = 0u; b < 256u / P; b++) {
+    for (var b = 0u; b < (256u + P - 1u) / P; b++) {
         let t0 = b * P;
         for (var t = lid; t < P; t += SG * NW) {
             if (nmat_tile_has(tile, t0 + t)) {

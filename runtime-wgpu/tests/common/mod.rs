@@ -3,6 +3,7 @@
 #![allow(clippy::unwrap_used)]
 
 /// The first adapter wgpu finds (lavapipe in CI); none is a failure, not a skip.
+#[allow(dead_code)] // not every test file uses every helper
 pub fn device() -> (wgpu::Device, wgpu::Queue) {
     let (device, queue, info) = pollster::block_on(nmat_wgpu::default_device()).expect(
         "no GPU adapter found: install a Vulkan driver (CI: apt-get install mesa-vulkan-drivers libvulkan1)",
@@ -76,6 +77,50 @@ pub fn cpu_codes(
         out.extend_from_slice(&buf[..n]);
     }
     out
+}
+
+/// `m` uploaded once per kernel the device runs: the tiled 32-bit and reference kernels run
+/// everywhere; the dot4 kernel where the device's WGSL has `dot4I8Packed` (lavapipe has it, and
+/// `NMAT_REQUIRE_DOT4=1` makes its absence a failure); the matrix kernel where the device has
+/// cooperative matrices (lavapipe has none; `NMAT_REQUIRE_MATRIX=1` makes their absence a
+/// failure). Each upload checked its kernel on a probe; the default upload takes one of them (on
+/// a software adapter, which is not measured, the last of `Kernel::ALL`).
+#[allow(dead_code)]
+pub fn each_kernel(
+    ctx: &nmat_wgpu::Context,
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    m: &nmat_core::Material<'_>,
+) -> Vec<nmat_wgpu::GpuMaterial> {
+    let mut uploads = Vec::new();
+    for kernel in nmat_wgpu::Kernel::ALL {
+        match ctx.upload_with(device, queue, m, Some(kernel)) {
+            Ok(gm) => {
+                assert_eq!(gm.kernel(), kernel);
+                uploads.push(gm);
+            }
+            // (Absent where the device lacks dot4I8Packed; codes that differ always fail.)
+            Err(nmat_wgpu::GpuError::Kernel {
+                kernel: k @ (nmat_wgpu::Kernel::Dot4 | nmat_wgpu::Kernel::UnrolledDot4),
+                reason,
+            }) if std::env::var_os("NMAT_REQUIRE_DOT4").is_none() && !reason.contains("differ") => {
+                eprintln!("{} kernel not tested here: {reason}", k.name());
+            }
+            Err(nmat_wgpu::GpuError::Kernel { kernel: nmat_wgpu::Kernel::Matrix, reason })
+                if std::env::var_os("NMAT_REQUIRE_MATRIX").is_none() =>
+            {
+                eprintln!("matrix kernel not tested here: {reason}");
+            }
+            Err(e) => panic!("{kernel:?}: {e}"),
+        }
+    }
+    let chosen = ctx.upload(device, queue, m).unwrap();
+    assert!(chosen.rejected().is_empty(), "{:?}", chosen.rejected());
+    assert!(uploads.iter().any(|gm| gm.kernel() == chosen.kernel()));
+    if device.adapter_info().device_type == wgpu::DeviceType::Cpu {
+        assert_eq!(Some(chosen.kernel()), uploads.last().map(nmat_wgpu::GpuMaterial::kernel));
+    }
+    uploads
 }
 
 /// `count` requests from an LCG seeded with `seed`: x and y in [−span/2, span/2), mip below

@@ -1,0 +1,230 @@
+//! The numerical extremes of the integer decoder (those of `tests/tests/extremes.rs`, which
+//! checks the CPU against the definition) and random valid materials, on the GPU: every kernel
+//! the device runs, and the matrix kernel with its matrix operations emulated, against the CPU
+//! byte for byte. The golden fixtures and trained materials of `bitexact.rs` have sums far from
+//! the accumulator's bound, codes far from the clamps and common network shapes; here are the
+//! materials where a kernel's shortcut would show: a fan-in of 128 with every weight ±127, every
+//! input at ±2^15 and the bias at the format's limit (the dot4 split's bytes at −128, the matrix
+//! kernel's f32 sums at their largest, the 32-bit requantization's clamp), latents all 0, all
+//! maximal and alternating at 1 and 8 bits, outputs saturating both ways, all-zero weights, a
+//! zero scale, fused grids that saturate, a 16384² chain (the positional encoding's phase and
+//! the addressing at the largest size), and random sizes, layouts, bit depths, Q-formats and
+//! layer widths (odd widths the generated kernels pad). Each upload's tile entry must pass its
+//! probe too (`tile_kernel` the kernel itself).
+// Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
+#![allow(clippy::unwrap_used)]
+
+use nmat_core::{ChannelMask, Container, Material, MaterialSpec};
+use nmat_tests::decode_all_u8;
+use nmat_tests::generate::{
+    FixtureConfig, Layout, generate, random_config, set_codes, wide_constant_material,
+};
+use nmat_wgpu::{Context, GpuMaterial, Kernel, TexelRequest};
+
+mod common;
+use common::{cpu_codes, device_with_f16, each_kernel, random_requests};
+
+/// A device with f16 (the matrix kernel's emulation needs it), a `Context` for the kernels the
+/// device runs and one whose matrix kernel is emulated.
+struct Gpu {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    ctx: Context,
+    emulated: Context,
+}
+
+impl Gpu {
+    fn new() -> Gpu {
+        let (device, queue) = device_with_f16();
+        let ctx = Context::new(&device);
+        let emulated = Context::new(&device);
+        emulated.emulate_matrix_for_testing(false, false);
+        Gpu { device, queue, ctx, emulated }
+    }
+
+    /// `m` through every kernel: each upload with the `Context` that decodes it. Each kernel's
+    /// probe equals the CPU (else the upload fails), and so does its tile entry's.
+    fn uploads(&self, name: &str, m: &Material<'_>) -> Vec<(&Context, GpuMaterial)> {
+        let mut uploads: Vec<(&Context, GpuMaterial)> =
+            each_kernel(&self.ctx, &self.device, &self.queue, m)
+                .into_iter()
+                .map(|gm| (&self.ctx, gm))
+                .collect();
+        let emulated =
+            self.emulated.upload_with(&self.device, &self.queue, m, Some(Kernel::Matrix)).unwrap();
+        uploads.push((&self.emulated, emulated));
+        for (_, gm) in &uploads {
+            assert_eq!(gm.tile_kernel(), gm.kernel(), "{name}: the tile entry's probe differs");
+        }
+        uploads
+    }
+
+    /// Every code of every mip of `spec`, and random requests with a channel subset, equal the
+    /// CPU's through every kernel.
+    fn agree(&self, name: &str, spec: &MaterialSpec) {
+        let bytes = spec.to_bytes().unwrap();
+        let m = Container::parse(&bytes).unwrap();
+        let cpu = decode_all_u8(&m);
+        let n = m.channel_count();
+        // The odd channels: a subset without channel 0 (channel 0 alone for one channel).
+        let odd = ChannelMask(if n == 1 { 1 } else { 0xaaaa & ((1 << n) - 1) });
+        let reqs = random_requests(name.len() as u64, 150, 300, m.mip_count() + 2);
+        let cpu_reqs = cpu_codes(&m, &reqs, odd);
+        for (ctx, gm) in self.uploads(name, &m) {
+            let kernel = gm.kernel();
+            let emulated = if std::ptr::eq(ctx, &self.emulated) { " (emulated)" } else { "" };
+            let gpu = ctx.decode_chain(&self.device, &self.queue, &gm, ChannelMask::ALL).unwrap();
+            let first = gpu.iter().zip(&cpu).position(|(a, b)| a != b);
+            assert!(
+                gpu.len() == cpu.len() && first.is_none(),
+                "{name}, {kernel:?}{emulated}: first difference at code {first:?} of {}",
+                cpu.len()
+            );
+            let gpu = ctx.decode_requests(&self.device, &self.queue, &gm, &reqs, odd).unwrap();
+            assert_eq!(gpu, cpu_reqs, "{name}, {kernel:?}{emulated}: requests, {odd:?}");
+        }
+    }
+}
+
+fn small(name: &'static str) -> MaterialSpec {
+    generate(&FixtureConfig::ntc(name, 11, 16, 12, 3))
+}
+
+/// The accumulator at the format's bound: 128 inputs at ±2^15 (i16::MIN's high byte is −128),
+/// every weight ±127, the bias at ±(2^31 − 1 − 128 · 127 · 2^15) — each sign combination
+/// (FORMAT.md §5.3; `tests/tests/extremes.rs` checks the CPU against i64 sums).
+#[test]
+fn the_accumulator_at_its_bound_decodes_as_on_the_cpu() {
+    let gpu = Gpu::new();
+    let limit = i32::MAX - 128 * 127 * 32768;
+    for (input, weight, bias) in [
+        (i16::MAX, 127, limit),
+        (i16::MIN, 127, -limit),
+        (i16::MIN, -127, limit),
+        (i16::MAX, -127, -limit),
+        (i16::MIN, -127, -limit),
+        (-1, 127, 0),
+    ] {
+        let name = format!("input {input}, weight {weight}, bias {bias}");
+        gpu.agree(&name, &wide_constant_material(input, weight, bias));
+    }
+}
+
+/// Latents at their extremes, outputs that saturate, weights that vanish: all 0, all maximal
+/// and alternating codes at 1 and 8 bits; a last layer whose bias drives every output past both
+/// ends of the code range; all-zero weights (the output is the bias); a zero scale (the channel
+/// is constant 0); three fused NBC grids at +32767 each (the input saturates at i16).
+#[test]
+fn extreme_latents_and_outputs_decode_as_on_the_cpu() {
+    let gpu = Gpu::new();
+    type Pattern = fn(usize, u8) -> u8;
+    let patterns: [(&str, Pattern); 3] = [
+        ("max", |_, max| max),
+        ("zero", |_, _| 0),
+        ("alternating", |i, max| if i % 2 == 0 { max } else { 0 }),
+    ];
+    for bits in [1u8, 8] {
+        let cfg = FixtureConfig {
+            layout: Layout::Ntc { hi_channels: 3, lo_channels: 2, hi_bits: bits, lo_bits: bits },
+            ..FixtureConfig::ntc("lat", 13, 24, 20, 2)
+        };
+        for (pattern_name, pattern) in patterns {
+            let mut spec = generate(&cfg);
+            set_codes(&mut spec, pattern);
+            gpu.agree(&format!("latents {pattern_name} at {bits} bits"), &spec);
+        }
+    }
+    for sign in [1i64, -1] {
+        let mut spec = small("clamp");
+        let last = spec.mlp.layers.last_mut().unwrap();
+        let limit = i64::from(i32::MAX) - i64::from(last.inputs) * 127 * 32768;
+        last.bias = vec![(sign * limit) as i32; 3];
+        last.scales = vec![1.0; 3];
+        gpu.agree(&format!("outputs saturating, bias sign {sign}"), &spec);
+    }
+    let mut spec = small("zw");
+    spec.mlp.layers.iter_mut().for_each(|l| l.weights_i8.iter_mut().for_each(|w| *w = 0));
+    gpu.agree("all-zero weights", &spec);
+    let mut spec = small("zero");
+    spec.mlp.layers.last_mut().unwrap().scales = vec![0.0; 3];
+    gpu.agree("a zero scale", &spec);
+    let cfg = FixtureConfig {
+        layout: Layout::Nbc { channels: 1, bits_coarse_to_fine: vec![2, 2, 2] },
+        ..FixtureConfig::ntc("sat", 16, 32, 32, 1)
+    };
+    let mut spec = generate(&cfg);
+    spec.grids.iter_mut().for_each(|g| g.quantization = vec![(i16::MAX, 0)]);
+    gpu.agree("fused grids saturating", &spec);
+}
+
+/// Random valid materials (`random_config`: 1–70 texels a side, NTC and NBC layouts, 1–8 bits
+/// per code, 1–16 channels, 0–3 hidden layers of 1–64 neurons, the Q-formats and LOD codes
+/// drawn): shapes the generated kernels pad and layouts their input features are written for.
+/// Four seeds, each a few pipelines per kernel to compile (15–30 s on lavapipe): 2 (NTC with
+/// its high-resolution grid read twice, LOD code 3, 10 and 12 neurons, 14 channels, 55 × 66
+/// clamped), 4 (NBC, three hidden layers of 46, 27 and 39 neurons: the emulated matrix kernel
+/// fits three subgroups in lavapipe's workgroup memory, batches of 48 texels that do not divide
+/// a tile), 7 (NBC of three levels, no hidden layer, 14 channels, wrapping) and 9 (NTC, 62
+/// neurons, 15 channels, wrapping, 3 mips).
+#[test]
+fn random_materials_decode_as_on_the_cpu() {
+    let gpu = Gpu::new();
+    for seed in [2, 4, 7, 9] {
+        let cfg = random_config(seed);
+        let spec = generate(&cfg);
+        gpu.agree(&format!("random material {seed} ({cfg:?})"), &spec);
+    }
+}
+
+/// A 16384² material of 15 mips (the largest the format allows; its grids shrunk as in
+/// `tests/tests/extremes.rs`): the positional encoding's phase and the addressing at the
+/// largest coordinates. Too large to decode whole on lavapipe: the corners and middles of every
+/// mip, coordinates far outside it (wrapping), and a region at mip 0's far corner, through every
+/// kernel.
+#[test]
+fn the_largest_texture_decodes_as_on_the_cpu() {
+    let gpu = Gpu::new();
+    let cfg = FixtureConfig {
+        mip_count: 7,
+        layout: Layout::Ntc { hi_channels: 2, lo_channels: 2, hi_bits: 2, lo_bits: 2 },
+        hidden: vec![8],
+        pe_frequencies: 8,
+        ..FixtureConfig::ntc("huge", 15, 64, 64, 2)
+    };
+    let mut spec = generate(&cfg);
+    spec.width = 16384;
+    spec.height = 16384;
+    spec.mip_count = 15;
+    spec.mip_to_level = (0..15).map(|m: u8| (m / 2).min(3)).collect();
+    let bytes = spec.to_bytes().unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    let mut reqs = Vec::new();
+    for mip in 0..15u32 {
+        let s = 16384i32 >> mip;
+        for (x, y) in [(0, 0), (s - 1, s - 1), (s / 3, s / 2 + 1), (s - 2, 1), (-1, s)] {
+            reqs.push(TexelRequest { x, y, mip });
+        }
+    }
+    reqs.extend([
+        TexelRequest { x: i32::MAX, y: i32::MIN, mip: 0 },
+        TexelRequest { x: i32::MIN, y: 16383, mip: 0 },
+        TexelRequest { x: 16381, y: i32::MAX, mip: 1 },
+    ]);
+    let corner = (16384 - 37, 16384 - 5, 37, 5);
+    let corner_texels: Vec<TexelRequest> = (16384 - 5..16384)
+        .flat_map(|y| (16384 - 37..16384).map(move |x| TexelRequest { x, y, mip: 0 }))
+        .collect();
+    let cpu = cpu_codes(&m, &reqs, ChannelMask::ALL);
+    let cpu_corner = cpu_codes(&m, &corner_texels, ChannelMask::ALL);
+    for (ctx, gm) in gpu.uploads("16384²", &m) {
+        let kernel = gm.kernel();
+        let got = ctx.decode_requests(&gpu.device, &gpu.queue, &gm, &reqs, ChannelMask::ALL);
+        assert_eq!(got.unwrap(), cpu, "{kernel:?}: requests");
+        let region = ctx
+            .submit_region(&gpu.device, &gpu.queue, &gm, 0, corner, ChannelMask::ALL)
+            .unwrap()
+            .wait(&gpu.device)
+            .unwrap();
+        assert_eq!(region, cpu_corner, "{kernel:?}: mip 0's far corner");
+    }
+}
