@@ -5,12 +5,12 @@
 //! the accumulator's bound, codes far from the clamps and common network shapes; here are the
 //! materials where a kernel's shortcut would show: a fan-in of 128 with every weight ±127, every
 //! input at ±2^15 and the bias at the format's limit (the dot4 split's bytes at −128, the matrix
-//! kernel's f32 sums at their largest, the 32-bit requantization's clamp), latents all 0, all
+//! kernel's f32 sums at their largest, requantization into saturation), latents all 0, all
 //! maximal and alternating at 1 and 8 bits, outputs saturating both ways, all-zero weights, a
 //! zero scale, fused grids that saturate, a 16384² chain (the positional encoding's phase and
 //! the addressing at the largest size), and random sizes, layouts, bit depths, Q-formats and
-//! layer widths (odd widths the generated kernels pad). Each upload's tile entry must pass its
-//! probe too (`tile_kernel` the kernel itself).
+//! layer widths (odd widths the generated kernels pad), and the widest network the format allows.
+//! Each upload's tile entry must pass its probe too (`tile_kernel` the kernel itself).
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
 
@@ -19,18 +19,21 @@ use nmat_tests::decode_all_u8;
 use nmat_tests::generate::{
     FixtureConfig, Layout, generate, random_config, set_codes, wide_constant_material,
 };
-use nmat_wgpu::{Context, GpuMaterial, Kernel, TexelRequest};
+use nmat_wgpu::{Context, GpuError, GpuMaterial, Kernel, TexelRequest};
 
 mod common;
 use common::{cpu_codes, device_with_f16, each_kernel, random_requests};
 
 /// A device with f16 (the matrix kernel's emulation needs it), a `Context` for the kernels the
-/// device runs and one whose matrix kernel is emulated.
+/// device runs, one whose matrix kernel is emulated, and one whose emulated matrix kernel reads
+/// its weights from a storage buffer instead of staging them (for networks whose weights exceed
+/// the workgroup memory).
 struct Gpu {
     device: wgpu::Device,
     queue: wgpu::Queue,
     ctx: Context,
     emulated: Context,
+    emulated_storage: Context,
 }
 
 impl Gpu {
@@ -39,20 +42,33 @@ impl Gpu {
         let ctx = Context::new(&device);
         let emulated = Context::new(&device);
         emulated.emulate_matrix_for_testing(false, false);
-        Gpu { device, queue, ctx, emulated }
+        let emulated_storage = Context::new(&device);
+        emulated_storage.emulate_matrix_for_testing(false, true);
+        Gpu { device, queue, ctx, emulated, emulated_storage }
     }
 
     /// `m` through every kernel: each upload with the `Context` that decodes it. Each kernel's
-    /// probe equals the CPU (else the upload fails), and so does its tile entry's.
+    /// probe equals the CPU (else the upload fails), and so does its tile entry's. The emulated
+    /// matrix kernel must take `m`; where it refuses because the staged weights exceed the
+    /// workgroup memory, the variant with the weights in storage must.
     fn uploads(&self, name: &str, m: &Material<'_>) -> Vec<(&Context, GpuMaterial)> {
         let mut uploads: Vec<(&Context, GpuMaterial)> =
             each_kernel(&self.ctx, &self.device, &self.queue, m)
                 .into_iter()
                 .map(|gm| (&self.ctx, gm))
                 .collect();
-        let emulated =
-            self.emulated.upload_with(&self.device, &self.queue, m, Some(Kernel::Matrix)).unwrap();
-        uploads.push((&self.emulated, emulated));
+        match self.emulated.upload_with(&self.device, &self.queue, m, Some(Kernel::Matrix)) {
+            Ok(gm) => uploads.push((&self.emulated, gm)),
+            Err(GpuError::Kernel { kernel: Kernel::Matrix, reason })
+                if reason.contains("too large for the device's workgroup memory") =>
+            {
+                eprintln!("{name}: the emulated matrix kernel refused it: {reason}");
+                let matrix = Some(Kernel::Matrix);
+                let gm = self.emulated_storage.upload_with(&self.device, &self.queue, m, matrix);
+                uploads.push((&self.emulated_storage, gm.unwrap()));
+            }
+            Err(e) => panic!("{name}, emulated matrix kernel: {e}"),
+        }
         for (_, gm) in &uploads {
             assert_eq!(gm.tile_kernel(), gm.kernel(), "{name}: the tile entry's probe differs");
         }
@@ -67,12 +83,12 @@ impl Gpu {
         let cpu = decode_all_u8(&m);
         let n = m.channel_count();
         // The odd channels: a subset without channel 0 (channel 0 alone for one channel).
-        let odd = ChannelMask(if n == 1 { 1 } else { 0xaaaa & ((1 << n) - 1) });
+        let odd = ChannelMask(if n == 1 { 1 } else { (0xaaaa & ((1u32 << n) - 1)) as u16 });
         let reqs = random_requests(name.len() as u64, 150, 300, m.mip_count() + 2);
         let cpu_reqs = cpu_codes(&m, &reqs, odd);
         for (ctx, gm) in self.uploads(name, &m) {
             let kernel = gm.kernel();
-            let emulated = if std::ptr::eq(ctx, &self.emulated) { " (emulated)" } else { "" };
+            let emulated = if std::ptr::eq(ctx, &self.ctx) { "" } else { " (emulated)" };
             let gpu = ctx.decode_chain(&self.device, &self.queue, &gm, ChannelMask::ALL).unwrap();
             let first = gpu.iter().zip(&cpu).position(|(a, b)| a != b);
             assert!(
@@ -174,6 +190,30 @@ fn random_materials_decode_as_on_the_cpu() {
         let spec = generate(&cfg);
         gpu.agree(&format!("random material {seed} ({cfg:?})"), &spec);
     }
+}
+
+/// The widest network the format allows (FORMAT.md §5.3): four layers, 128 inputs (an NTC
+/// layout of 16 + 16 grid channels, the high-resolution grid read twice, 8 frequencies of the
+/// positional encoding), three hidden layers of 128 and 16 channels. The tiled kernels take
+/// fewer texels a workgroup; the matrix kernel's staged weights (106 KiB) exceed the workgroup
+/// memory most devices offer (lavapipe's included), so there it refuses the network by name and
+/// `upload` takes another kernel, or the weights are read from storage
+/// (`NMAT_WGPU_MATRIX_WEIGHTS=storage`).
+#[test]
+fn the_widest_network_decodes_as_on_the_cpu() {
+    let gpu = Gpu::new();
+    let cfg = FixtureConfig {
+        layout: Layout::Ntc { hi_channels: 16, lo_channels: 16, hi_bits: 4, lo_bits: 4 },
+        ntc_hi_bilinear: true,
+        hidden: vec![128, 128, 128],
+        pe_frequencies: 8,
+        lod_input: 0,
+        ..FixtureConfig::ntc("widest", 17, 40, 24, 16)
+    };
+    let spec = generate(&cfg);
+    assert_eq!(spec.mlp.layers[0].inputs, 128);
+    assert_eq!(spec.mlp.layers.len(), 4);
+    gpu.agree("the widest network", &spec);
 }
 
 /// A 16384² material of 15 mips (the largest the format allows; its grids shrunk as in
