@@ -1,6 +1,7 @@
 //! Indexed-JPEG materials (docs/FORMAT.md §11) on the GPU: every code equal to `nmat_core`'s
 //! decoder — whole chains, odd rectangles, channel subsets, scattered requests (wrapping, clamped
-//! mips), and streams whose entropy-coded bits were damaged (the decode is total on both sides).
+//! mips), materials at the codec's edges (tiny mips, extreme contents and qualities), and
+//! streams whose entropy-coded bits were damaged (the decode is total on both sides).
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
 
@@ -67,9 +68,12 @@ fn check_material(
     ];
     for (rect, mask) in [
         ((w / 3, h / 4, w / 2, h / 2 + 1), masks[1]),
-        ((1, 2, w - 1, h - 2), masks[2]),
+        ((1, 2, w.saturating_sub(1), h.saturating_sub(2)), masks[2]),
         ((w - 1, h - 1, 1, 1), masks[0]),
     ] {
+        if rect.2 == 0 || rect.3 == 0 {
+            continue; // a mip too small for this rectangle
+        }
         let gpu =
             context.submit_region(device, queue, &gm, 0, rect, mask).unwrap().wait(device).unwrap();
         assert!(gpu == cpu_region(m, 0, rect, mask), "{name}: region {rect:?} mask {mask:?}");
@@ -92,6 +96,57 @@ fn jpeg_materials_decode_on_the_gpu_exactly_as_on_the_cpu() {
         ("bricks 4:2:0", bricks_jpeg(nmat_encode::jpeg::Subsampling::S420)),
         ("bricks 4:2:2", bricks_jpeg(nmat_encode::jpeg::Subsampling::S422)),
     ];
+    for (name, bytes) in &materials {
+        let m = Container::parse(bytes).unwrap();
+        check_material(&context, &device, &queue, &m, name);
+    }
+}
+
+/// JPEG materials at the codec's edges: mips of 1 × 1, 1 × 19, 23 × 2 and 17 × 9 texels (MCUs
+/// mostly padding, edge replication), a one-texel checkerboard of 0 and 255 (the largest AC
+/// coefficients, whose IDCT overshoots the range and clamps) and uniform noise (the longest
+/// Huffman codes), at quality 100 (every quantization step 1) in 4:2:0 and quality 1 (steps of
+/// 255) in 4:4:4; and maps all 0 and all 255. Every code of every mip, odd regions and scattered
+/// requests equal the CPU's (`check_material`).
+#[test]
+fn jpeg_materials_at_the_codecs_edges_decode_as_on_the_cpu() {
+    use nmat_encode::jpeg::{JpegOptions, Subsampling, encode_jpeg};
+    let (device, queue) = common::device();
+    let context = Context::new(&device);
+    // The bricks' eight channels (an sRGB colour map, a normal map, two gray maps) over other
+    // texels.
+    let material = |(w, h): (u32, u32), value: &dyn Fn(u32, u32, usize) -> f32, options| {
+        let layout = nmat_encode::demo::bricks(8);
+        let texels: Vec<(u32, u32)> = (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).collect();
+        let planes: Vec<Vec<f32>> = (0..layout.channel_count())
+            .map(|k| texels.iter().map(|&(x, y)| value(x, y, k)).collect())
+            .collect();
+        let mips = nmat_encode::texset::build_mips(w, h, planes);
+        let set = nmat_encode::texset::TextureSet { width: w, height: h, mips, ..layout };
+        encode_jpeg(&set, &options).unwrap().bytes
+    };
+    let checker = |x: u32, y: u32, k: usize| ((x + y + k as u32) % 2) as f32;
+    let noise = |x: u32, y: u32, k: usize| {
+        let h = (x.wrapping_mul(73_856_093) ^ y.wrapping_mul(19_349_663) ^ (k as u32) << 20)
+            .wrapping_mul(2_654_435_761);
+        (h >> 24) as f32 / 255.0
+    };
+    let fine = JpegOptions { quality: 100, subsampling: Subsampling::S420, ..Default::default() };
+    let coarse = JpegOptions { quality: 1, subsampling: Subsampling::S444, ..Default::default() };
+    let mut materials = Vec::new();
+    for size in [(1, 1), (1, 19), (23, 2), (17, 9)] {
+        for (pattern, value) in
+            [("checkerboard", &checker as &dyn Fn(_, _, _) -> _), ("noise", &noise)]
+        {
+            for (quality, options) in [("q100 4:2:0", &fine), ("q1 4:4:4", &coarse)] {
+                let name = format!("{size:?} {pattern} {quality}");
+                materials.push((name, material(size, value, options.clone())));
+            }
+        }
+    }
+    for (level, value) in [("all 0", 0.0), ("all 255", 1.0)] {
+        materials.push((level.to_string(), material((21, 13), &|_, _, _| value, fine.clone())));
+    }
     for (name, bytes) in &materials {
         let m = Container::parse(bytes).unwrap();
         check_material(&context, &device, &queue, &m, name);
