@@ -315,15 +315,16 @@ fn gcd(a: u32, b: u32) -> u32 {
 mod tests {
     use super::*;
     use nmat_core::Container;
-    use nmat_tests::generate::{generate as fixture, golden_configs};
+    use nmat_tests::generate::{generate as fixture, golden_and_random_configs};
 
     /// Every golden fixture (NTC layouts of 1 to 8 bits a code, cells that start inside a word,
-    /// 16 channels, NBC chains whose levels differ in layout) gets generated features, not the
-    /// generic ones, and the NBC fixtures one function per layout, picked by the texel's level.
-    /// Their codes are tested through every kernel (tests/bitexact.rs, tests/cache.rs).
+    /// 16 channels, NBC chains whose levels differ in layout) and 64 random valid materials get
+    /// generated features, not the generic ones, and the NBC fixtures one function per layout,
+    /// picked by the texel's level. Their codes are tested through every kernel
+    /// (tests/bitexact.rs, tests/cache.rs, tests/extremes.rs).
     #[test]
     fn every_fixture_gets_generated_features() {
-        for cfg in golden_configs() {
+        for cfg in golden_and_random_configs(64) {
             let bytes = fixture(&cfg).to_bytes().unwrap();
             let m = Container::parse(&bytes).unwrap();
             let n = m.neural().expect("a neural fixture");

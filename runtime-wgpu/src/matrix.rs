@@ -488,7 +488,9 @@ fn f16_bits(v: i8) -> u16 {
 mod tests {
     use super::*;
     use nmat_core::Container;
-    use nmat_tests::generate::{FixtureConfig, generate, golden_configs};
+    use nmat_tests::generate::{
+        FixtureConfig, generate, golden_and_random_configs, golden_configs,
+    };
 
     /// naga's verdict on `source`: parsed, validated with every capability a device may lack
     /// (cooperative matrices, f16) and written as SPIR-V, as wgpu does on Vulkan.
@@ -571,13 +573,14 @@ mod tests {
     }
 
     /// lavapipe runs no cooperative matrices, so CI cannot run this kernel: its WGSL for every
-    /// golden fixture's network (1 to 16 channels, 2 to 4 layers up to 64 wide) is valid for
-    /// naga and becomes SPIR-V with the cooperative matrix instructions; the widest network the
+    /// golden fixture's network (1 to 16 channels, 2 to 4 layers up to 64 wide) and 64 random
+    /// valid materials' (odd widths, NTC and NBC layouts) is valid for naga and becomes SPIR-V with the cooperative matrix instructions; the widest network the
     /// format allows (four layers of 128) is refused in 48 KiB of workgroup memory, not
     /// miscompiled.
     #[test]
     fn the_matrix_kernel_validates_for_every_fixture_shape() {
-        let mut configs = golden_configs();
+        let golden: Vec<&str> = golden_configs().iter().map(|cfg| cfg.name).collect();
+        let mut configs = golden_and_random_configs(64);
         configs.push(FixtureConfig {
             hidden: vec![128, 128, 128],
             ..FixtureConfig::ntc("widest", 9, 32, 32, 16)
@@ -602,8 +605,8 @@ mod tests {
                 }
             };
             assert_eq!(shape.texels() % 16, 0);
-            if cfg.hidden.iter().all(|&h| h <= 64) {
-                // Networks up to 64 wide keep the 4 subgroups in 48 KiB.
+            if golden.contains(&cfg.name) && cfg.hidden.iter().all(|&h| h <= 64) {
+                // The fixtures' networks up to 64 wide keep the 4 subgroups in 48 KiB.
                 assert_eq!(shape.warps, LAYOUT.0, "{}", cfg.name);
             }
             let features = crate::features::Features::new(n).wgsl(false);

@@ -148,11 +148,12 @@ mod tests {
     }
 
     /// The module made for a material (its features generated, its network unrolled on either
-    /// kind of table) declares only namespaced names too.
+    /// kind of table) declares only namespaced names too, and naga validates it, for every
+    /// golden fixture and 64 random valid materials.
     #[test]
     fn a_module_for_a_material_is_namespaced_too() {
-        use nmat_tests::generate::{generate, golden_configs};
-        for cfg in golden_configs() {
+        use nmat_tests::generate::{generate, golden_and_random_configs};
+        for cfg in golden_and_random_configs(64) {
             let bytes = generate(&cfg).to_bytes().unwrap();
             let m = nmat_core::Container::parse(&bytes).unwrap();
             let n = m.neural().unwrap();
@@ -163,6 +164,12 @@ mod tests {
                     SampleBindings { group: 0, first_binding: 0 }.module_with(&features, &network);
                 assert!(source.contains("fn nmat_u_network(") && source.contains("alias NmatWord"));
                 assert!(foreign(&source).is_empty(), "{}: {:?}", cfg.name, foreign(&source));
+                let module = naga::front::wgsl::parse_str(&source)
+                    .unwrap_or_else(|e| panic!("{cfg:?}: {}", e.emit_to_string(&source)));
+                let flags = naga::valid::ValidationFlags::all();
+                naga::valid::Validator::new(flags, naga::valid::Capabilities::all())
+                    .validate(&module)
+                    .unwrap_or_else(|e| panic!("{cfg:?}: {}", e.emit_to_string(&source)));
             }
         }
     }

@@ -245,14 +245,15 @@ fn narrow(m: u32, s: u32, lo: i32, hi: i32) -> Option<(u32, u32, f32)> {
 mod tests {
     use super::*;
     use nmat_core::{Container, Requant};
-    use nmat_tests::generate::{generate, golden_configs};
+    use nmat_tests::generate::{generate, golden_and_random_configs};
 
     /// Both tiled kernels' WGSL for every golden fixture's network (1 to 16 channels, 2 to 4
-    /// layers up to 64 wide) parses and validates in naga (on a device that refuses a source
-    /// the kernel is only skipped, so this is where a broken source shows on every machine).
+    /// layers up to 64 wide) and 64 random valid materials' (odd widths, 1 to 4 layers, NTC and
+    /// NBC layouts) parses and validates in naga (on a device that refuses a source the kernel
+    /// is only skipped, so this is where a broken source shows on every machine).
     #[test]
     fn the_tiled_kernels_validate_for_every_fixture_shape() {
-        for cfg in golden_configs() {
+        for cfg in golden_and_random_configs(64) {
             let bytes = generate(&cfg).to_bytes().unwrap();
             let m = Container::parse(&bytes).unwrap();
             for kernel in [Kernel::Int32, Kernel::Dot4] {

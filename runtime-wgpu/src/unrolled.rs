@@ -209,13 +209,14 @@ impl Shape {
 mod tests {
     use super::*;
     use nmat_core::Container;
-    use nmat_tests::generate::{FixtureConfig, generate, golden_configs};
+    use nmat_tests::generate::{FixtureConfig, generate, golden_and_random_configs};
 
-    /// Every golden fixture's network, and the widest the format allows (three hidden layers of
-    /// 128), unrolls into WGSL that naga validates, with both entry points, in each part.
+    /// Every golden fixture's network, 64 random valid materials' and the widest the format
+    /// allows (three hidden layers of 128) unroll into WGSL that naga validates, with both entry
+    /// points, in each part.
     #[test]
     fn the_unrolled_kernel_validates_for_every_fixture_shape() {
-        let mut configs = golden_configs();
+        let mut configs = golden_and_random_configs(64);
         configs.push(FixtureConfig {
             hidden: vec![128, 128, 128],
             ..FixtureConfig::ntc("widest", 9, 32, 32, 16)

@@ -422,6 +422,12 @@ pub fn fitting_lod_code(code: u8, f: u8) -> u8 {
     if code <= 1 || u16::from(f) + u16::from(code) <= 16 { code } else { 1 }
 }
 
+/// The golden fixtures' configurations, then `random` random ones (seeds 0, 1, …): the network
+/// shapes and latent layouts a code generator is checked on.
+pub fn golden_and_random_configs(random: u64) -> Vec<FixtureConfig> {
+    golden_configs().into_iter().chain((0..random).map(random_config)).collect()
+}
+
 /// A random but valid configuration: sizes, layouts, bit depths, Q-formats, widths.
 pub fn random_config(seed: u64) -> FixtureConfig {
     let mut r = Rng::new(seed);
