@@ -22,12 +22,13 @@ use nmat_tests::generate::{
 use nmat_wgpu::{Context, GpuError, GpuMaterial, Kernel, TexelRequest};
 
 mod common;
-use common::{cpu_codes, device_with_f16, each_kernel, random_requests};
+use common::{cpu_codes, device, device_with_f16, each_kernel, random_requests};
 
-/// A device with f16 (the matrix kernel's emulation needs it), a `Context` for the kernels the
-/// device runs, one whose matrix kernel is emulated, and one whose emulated matrix kernel reads
-/// its weights from a storage buffer instead of staging them (for networks whose weights exceed
-/// the workgroup memory).
+/// The default device (with cooperative matrices where the adapter has them, and then f16),
+/// or where it lacks f16 (lavapipe) one with f16, which the matrix kernel's emulation needs; a
+/// `Context` for the kernels the device runs, one whose matrix kernel is emulated, and one
+/// whose emulated matrix kernel reads its weights from a storage buffer instead of staging them
+/// (for networks whose weights exceed the workgroup memory).
 struct Gpu {
     device: wgpu::Device,
     queue: wgpu::Queue,
@@ -38,7 +39,10 @@ struct Gpu {
 
 impl Gpu {
     fn new() -> Gpu {
-        let (device, queue) = device_with_f16();
+        let (mut device, mut queue) = device();
+        if !device.features().contains(wgpu::Features::SHADER_F16) {
+            (device, queue) = device_with_f16();
+        }
         let ctx = Context::new(&device);
         let emulated = Context::new(&device);
         emulated.emulate_matrix_for_testing(false, false);
