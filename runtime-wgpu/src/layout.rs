@@ -782,12 +782,7 @@ mod tests {
             ("cache sampling module", crate::GpuTileCache::sample_module(bindings)),
         ];
         for (name, source) in sources {
-            let module = naga::front::wgsl::parse_str(&source)
-                .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&source)));
-            let flags = naga::valid::ValidationFlags::all();
-            naga::valid::Validator::new(flags, naga::valid::Capabilities::all())
-                .validate(&module)
-                .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&source)));
+            crate::naga_check::validate(name, &source);
         }
     }
 

@@ -73,6 +73,8 @@ mod jpeg;
 mod layout;
 mod matrix;
 pub mod measure;
+#[cfg(test)]
+mod naga_check;
 mod sample;
 mod submit;
 mod texture;

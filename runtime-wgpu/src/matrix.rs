@@ -503,11 +503,7 @@ mod tests {
         source: &str,
         capabilities: naga::valid::Capabilities,
     ) -> Result<Vec<u32>, String> {
-        let module = naga::front::wgsl::parse_str(source).map_err(|e| e.emit_to_string(source))?;
-        let flags = naga::valid::ValidationFlags::all();
-        let info = naga::valid::Validator::new(flags, capabilities)
-            .validate(&module)
-            .map_err(|e| e.emit_to_string(source))?;
+        let (module, info) = crate::naga_check::validate_with(source, capabilities)?;
         let options = naga::back::spv::Options { lang_version: (1, 6), ..Default::default() };
         naga::back::spv::write_vec(&module, &info, &options, None).map_err(|e| e.to_string())
     }
@@ -574,9 +570,9 @@ mod tests {
 
     /// lavapipe runs no cooperative matrices, so CI cannot run this kernel: its WGSL for every
     /// golden fixture's network (1 to 16 channels, 2 to 4 layers up to 64 wide) and 64 random
-    /// valid materials' (odd widths, NTC and NBC layouts) is valid for naga and becomes SPIR-V with the cooperative matrix instructions; the widest network the
-    /// format allows (four layers of 128) is refused in 48 KiB of workgroup memory, not
-    /// miscompiled.
+    /// valid materials' (odd widths, NTC and NBC layouts) is valid for naga and becomes SPIR-V
+    /// with the cooperative matrix instructions; the widest network the format allows (four
+    /// layers of 128) is refused in 48 KiB of workgroup memory, not miscompiled.
     #[test]
     fn the_matrix_kernel_validates_for_every_fixture_shape() {
         let golden: Vec<&str> = golden_configs().iter().map(|cfg| cfg.name).collect();

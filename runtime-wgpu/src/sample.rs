@@ -164,12 +164,7 @@ mod tests {
                     SampleBindings { group: 0, first_binding: 0 }.module_with(&features, &network);
                 assert!(source.contains("fn nmat_u_network(") && source.contains("alias NmatWord"));
                 assert!(foreign(&source).is_empty(), "{}: {:?}", cfg.name, foreign(&source));
-                let module = naga::front::wgsl::parse_str(&source)
-                    .unwrap_or_else(|e| panic!("{cfg:?}: {}", e.emit_to_string(&source)));
-                let flags = naga::valid::ValidationFlags::all();
-                naga::valid::Validator::new(flags, naga::valid::Capabilities::all())
-                    .validate(&module)
-                    .unwrap_or_else(|e| panic!("{cfg:?}: {}", e.emit_to_string(&source)));
+                crate::naga_check::validate(&format!("{cfg:?}"), &source);
             }
         }
     }

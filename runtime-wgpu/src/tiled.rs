@@ -263,12 +263,7 @@ mod tests {
                 for part in [Part::Whole, Part::Features, Part::Layers] {
                     let features = crate::features::Features::new(n).wgsl(false);
                     let source = shape.source_part(kernel, part, &features);
-                    let module = naga::front::wgsl::parse_str(&source)
-                        .unwrap_or_else(|e| panic!("{}: {}", cfg.name, e.emit_to_string(&source)));
-                    let flags = naga::valid::ValidationFlags::all();
-                    naga::valid::Validator::new(flags, naga::valid::Capabilities::all())
-                        .validate(&module)
-                        .unwrap_or_else(|e| panic!("{}: {}", cfg.name, e.emit_to_string(&source)));
+                    crate::naga_check::validate(&format!("{cfg:?} {kernel:?} {part:?}"), &source);
                 }
             }
         }

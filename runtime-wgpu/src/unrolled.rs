@@ -229,14 +229,7 @@ mod tests {
             for (dot4, part) in [true, false].into_iter().flat_map(|d| parts.map(|p| (d, p))) {
                 let features = crate::features::Features::new(n).wgsl(false);
                 let source = Shape::new((&m, n), dot4).unwrap().source_part(part, &features);
-                let module = naga::front::wgsl::parse_str(&source)
-                    .unwrap_or_else(|e| panic!("{}: {}", cfg.name, e.emit_to_string(&source)));
-                let flags = naga::valid::ValidationFlags::all();
-                naga::valid::Validator::new(flags, naga::valid::Capabilities::all())
-                    .validate(&module)
-                    .unwrap_or_else(|e| {
-                        panic!("{} {part:?}: {}", cfg.name, e.emit_to_string(&source))
-                    });
+                let module = crate::naga_check::validate(&format!("{cfg:?} {part:?}"), &source);
                 let entries: Vec<&str> =
                     module.entry_points.iter().map(|e| e.name.as_str()).collect();
                 assert!(entries.contains(&"unrolled") && entries.contains(&"unrolled_cache"));

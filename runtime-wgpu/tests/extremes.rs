@@ -17,7 +17,8 @@
 use nmat_core::{ChannelMask, Container, Material, MaterialSpec};
 use nmat_tests::decode_all_u8;
 use nmat_tests::generate::{
-    FixtureConfig, Layout, generate, random_config, set_codes, wide_constant_material,
+    BIAS_LIMIT_128, FixtureConfig, Layout, accumulator_corners, generate, largest_material,
+    random_config, set_codes, wide_constant_material,
 };
 use nmat_wgpu::{Context, GpuError, GpuMaterial, Kernel, TexelRequest};
 
@@ -112,19 +113,14 @@ fn small(name: &'static str) -> MaterialSpec {
 
 /// The accumulator at the format's bound: 128 inputs at ±2^15 (i16::MIN's high byte is −128),
 /// every weight ±127, the bias at ±(2^31 − 1 − 128 · 127 · 2^15) — each sign combination
-/// (FORMAT.md §5.3; `tests/tests/extremes.rs` checks the CPU against i64 sums).
+/// (FORMAT.md §5.3; `tests/tests/extremes.rs` checks the CPU against i64 sums) — then the sum
+/// at its positive extreme against the bias at its negative one, and a sum of −128 · 127 with
+/// no bias.
 #[test]
 fn the_accumulator_at_its_bound_decodes_as_on_the_cpu() {
     let gpu = Gpu::new();
-    let limit = i32::MAX - 128 * 127 * 32768;
-    for (input, weight, bias) in [
-        (i16::MAX, 127, limit),
-        (i16::MIN, 127, -limit),
-        (i16::MIN, -127, limit),
-        (i16::MAX, -127, -limit),
-        (i16::MIN, -127, -limit),
-        (-1, 127, 0),
-    ] {
+    let more = [(i16::MIN, -127, -BIAS_LIMIT_128), (-1, 127, 0)];
+    for (input, weight, bias) in accumulator_corners().into_iter().chain(more) {
         let name = format!("input {input}, weight {weight}, bias {bias}");
         gpu.agree(&name, &wide_constant_material(input, weight, bias));
     }
@@ -220,26 +216,15 @@ fn the_widest_network_decodes_as_on_the_cpu() {
     gpu.agree("the widest network", &spec);
 }
 
-/// A 16384² material of 15 mips (the largest the format allows; its grids shrunk as in
-/// `tests/tests/extremes.rs`): the positional encoding's phase and the addressing at the
+/// A 16384² material of 15 mips (`largest_material`, the largest the format allows, its grids
+/// shrunk): the positional encoding's phase and the addressing at the
 /// largest coordinates. Too large to decode whole on lavapipe: the corners and middles of every
 /// mip, coordinates far outside it (wrapping), and a region at mip 0's far corner, through every
 /// kernel.
 #[test]
 fn the_largest_texture_decodes_as_on_the_cpu() {
     let gpu = Gpu::new();
-    let cfg = FixtureConfig {
-        mip_count: 7,
-        layout: Layout::Ntc { hi_channels: 2, lo_channels: 2, hi_bits: 2, lo_bits: 2 },
-        hidden: vec![8],
-        pe_frequencies: 8,
-        ..FixtureConfig::ntc("huge", 15, 64, 64, 2)
-    };
-    let mut spec = generate(&cfg);
-    spec.width = 16384;
-    spec.height = 16384;
-    spec.mip_count = 15;
-    spec.mip_to_level = (0..15).map(|m: u8| (m / 2).min(3)).collect();
+    let spec = largest_material();
     let bytes = spec.to_bytes().unwrap();
     let m = Container::parse(&bytes).unwrap();
     let mut reqs = Vec::new();

@@ -402,6 +402,42 @@ pub fn wide_constant_material(input: i16, weight: i8, bias: i32) -> MaterialSpec
     spec
 }
 
+/// The largest |bias| the format allows for a fan-in of 128 (FORMAT.md §5.3): with every input
+/// at ±2^15 and every weight ±127 the accumulator then reaches ±(2^31 − 1).
+pub const BIAS_LIMIT_128: i32 = i32::MAX - 128 * 127 * 32768;
+
+/// The (input, weight, bias) of [`wide_constant_material`] whose accumulators reach the bound,
+/// ±(2^31 − 1): the sum at its largest magnitude of each sign, each from both sign pairs of
+/// input and weight, with the bias of the same sign.
+pub fn accumulator_corners() -> [(i16, i8, i32); 4] {
+    [
+        (i16::MAX, 127, BIAS_LIMIT_128),
+        (i16::MIN, 127, -BIAS_LIMIT_128),
+        (i16::MIN, -127, BIAS_LIMIT_128),
+        (i16::MAX, -127, -BIAS_LIMIT_128),
+    ]
+}
+
+/// A 16384² material of 15 mips, the largest the format allows (two grids of 2 channels at 2
+/// bits, one hidden layer of 8, 8 frequencies of the positional encoding, 2 channels): its
+/// grids are those of a 64² material, since the NTC layout's at 16384² (4096²) would be too big
+/// for a test.
+pub fn largest_material() -> MaterialSpec {
+    let cfg = FixtureConfig {
+        mip_count: 7,
+        layout: Layout::Ntc { hi_channels: 2, lo_channels: 2, hi_bits: 2, lo_bits: 2 },
+        hidden: vec![8],
+        pe_frequencies: 8,
+        ..FixtureConfig::ntc("huge", 15, 64, 64, 2)
+    };
+    let mut spec = generate(&cfg);
+    spec.width = 16384;
+    spec.height = 16384;
+    spec.mip_count = 15;
+    spec.mip_to_level = (0..15).map(|m: u8| (m / 2).min(3)).collect();
+    spec
+}
+
 /// Every latent code of `spec` set to `pattern(index, max)`, where `max` is the largest code of
 /// the code's grid (its bits per code all set).
 pub fn set_codes(spec: &mut MaterialSpec, pattern: impl Fn(usize, u8) -> u8) {

@@ -14,7 +14,10 @@ use nmat_core::{
     AddressMode, ChannelMask, Container, Error, Field, Filter, MaterialSpec, Precision,
     SampleRequest,
 };
-use nmat_tests::generate::{FixtureConfig, Layout, generate, set_codes, wide_constant_material};
+use nmat_tests::generate::{
+    BIAS_LIMIT_128, FixtureConfig, Layout, accumulator_corners, generate, largest_material,
+    set_codes, wide_constant_material,
+};
 use nmat_tests::reference;
 
 fn small(name: &'static str) -> MaterialSpec {
@@ -24,13 +27,8 @@ fn small(name: &'static str) -> MaterialSpec {
 // 1. Accumulator bound.
 #[test]
 fn accumulator_at_the_bound_does_not_overflow_and_beyond_is_rejected() {
-    let limit = i32::MAX - 128 * 127 * 32768;
-    for (input, weight, bias) in [
-        (i16::MAX, 127, limit),
-        (i16::MIN, 127, -limit),
-        (i16::MIN, -127, limit),
-        (i16::MAX, -127, -limit),
-    ] {
+    let limit = BIAS_LIMIT_128;
+    for (input, weight, bias) in accumulator_corners() {
         let spec = wide_constant_material(input, weight, bias);
         let bytes = spec.to_bytes().expect("bias at the limit is valid");
         let m = Container::parse(&bytes).unwrap();
@@ -293,19 +291,7 @@ fn sample_handles_every_odd_coordinate_and_lod() {
 // 6. Sizes: the largest texture; mip sizes; positional encoding phase at 16k.
 #[test]
 fn the_largest_texture_decodes_like_the_reference() {
-    let cfg = FixtureConfig {
-        mip_count: 15,
-        layout: Layout::Ntc { hi_channels: 2, lo_channels: 2, hi_bits: 2, lo_bits: 2 },
-        hidden: vec![8],
-        pe_frequencies: 8,
-        ..FixtureConfig::ntc("huge", 15, 16384, 16384, 2)
-    };
-    // Grids of the NTC layout at 16k would be 4096² — too big for a test file; shrink them all.
-    let mut spec = generate(&FixtureConfig { width: 64, height: 64, mip_count: 7, ..cfg.clone() });
-    spec.width = 16384;
-    spec.height = 16384;
-    spec.mip_count = 15;
-    spec.mip_to_level = (0..15).map(|m: u8| (m / 2).min(3)).collect();
+    let spec = largest_material();
     let bytes = spec.to_bytes().unwrap();
     let m = Container::parse(&bytes).unwrap();
     for mip in 0..15u32 {
