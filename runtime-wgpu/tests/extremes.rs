@@ -6,10 +6,11 @@
 //! materials where a kernel's shortcut would show: a fan-in of 128 with every weight ±127, every
 //! input at ±2^15 and the bias at the format's limit (the dot4 split's bytes at −128, the matrix
 //! kernel's f32 sums at their largest, requantization into saturation), latents all 0, all
-//! maximal and alternating at 1 and 8 bits, outputs saturating both ways, all-zero weights, a
-//! zero scale, fused grids that saturate, a 16384² chain (the positional encoding's phase and
-//! the addressing at the largest size), and random sizes, layouts, bit depths, Q-formats and
-//! layer widths (odd widths the generated kernels pad), and the widest network the format allows.
+//! maximal and alternating at 1 and 8 bits a code, outputs saturating both ways, all-zero
+//! weights, a zero scale, fused grids that saturate, a 16384² chain (the positional encoding's
+//! phase and the addressing at the largest size), random sizes, layouts, bit depths, Q-formats
+//! and layer widths (odd widths the generated kernels pad), and the widest network the format
+//! allows.
 //! Each upload's tile entry must pass its probe too (`tile_kernel` the kernel itself).
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
@@ -139,16 +140,16 @@ fn extreme_latents_and_outputs_decode_as_on_the_cpu() {
         ("zero", |_, _| 0),
         ("alternating", |i, max| if i % 2 == 0 { max } else { 0 }),
     ];
-    for bits in [1u8, 8] {
-        let cfg = FixtureConfig {
-            layout: Layout::Ntc { hi_channels: 3, lo_channels: 2, hi_bits: bits, lo_bits: bits },
-            ..FixtureConfig::ntc("lat", 13, 24, 20, 2)
-        };
-        for (pattern_name, pattern) in patterns {
-            let mut spec = generate(&cfg);
-            set_codes(&mut spec, pattern);
-            gpu.agree(&format!("latents {pattern_name} at {bits} bits"), &spec);
-        }
+    // One layout for both depths (a shape to compile, not two): the high-resolution grid at 1
+    // bit a code, the low-resolution one at 8.
+    let cfg = FixtureConfig {
+        layout: Layout::Ntc { hi_channels: 3, lo_channels: 2, hi_bits: 1, lo_bits: 8 },
+        ..FixtureConfig::ntc("lat", 13, 24, 20, 2)
+    };
+    for (pattern_name, pattern) in patterns {
+        let mut spec = generate(&cfg);
+        set_codes(&mut spec, pattern);
+        gpu.agree(&format!("latents {pattern_name} at 1 and 8 bits"), &spec);
     }
     for sign in [1i64, -1] {
         let mut spec = small("clamp");
@@ -176,16 +177,15 @@ fn extreme_latents_and_outputs_decode_as_on_the_cpu() {
 /// Random valid materials (`random_config`: 1–70 texels a side, NTC and NBC layouts, 1–8 bits
 /// per code, 1–16 channels, 0–3 hidden layers of 1–64 neurons, the Q-formats and LOD codes
 /// drawn): shapes the generated kernels pad and layouts their input features are written for.
-/// Four seeds, each a few pipelines per kernel to compile (15–30 s on lavapipe): 2 (NTC with
+/// Three seeds, each a few pipelines per kernel to compile (15–30 s on lavapipe): 2 (NTC with
 /// its high-resolution grid read twice, LOD code 3, 10 and 12 neurons, 14 channels, 55 × 66
 /// clamped), 4 (NBC, three hidden layers of 46, 27 and 39 neurons: the emulated matrix kernel
 /// fits three subgroups in lavapipe's workgroup memory, batches of 48 texels that do not divide
-/// a tile), 7 (NBC of three levels, no hidden layer, 14 channels, wrapping) and 9 (NTC, 62
-/// neurons, 15 channels, wrapping, 3 mips).
+/// a tile) and 7 (NBC of three levels, no hidden layer, 14 channels, wrapping).
 #[test]
 fn random_materials_decode_as_on_the_cpu() {
     let gpu = Gpu::new();
-    for seed in [2, 4, 7, 9] {
+    for seed in [2, 4, 7] {
         let cfg = random_config(seed);
         let spec = generate(&cfg);
         gpu.agree(&format!("random material {seed} ({cfg:?})"), &spec);
