@@ -99,6 +99,7 @@ fn jpeg_materials_decode_on_the_gpu_exactly_as_on_the_cpu() {
     for (name, bytes) in &materials {
         let m = Container::parse(bytes).unwrap();
         check_material(&context, &device, &queue, &m, name);
+        check_transcode(&context, &device, &queue, &m, name);
     }
 }
 
@@ -107,7 +108,8 @@ fn jpeg_materials_decode_on_the_gpu_exactly_as_on_the_cpu() {
 /// coefficients, whose IDCT overshoots the range and clamps) and uniform noise (the longest
 /// Huffman codes), at quality 100 (every quantization step 1) in 4:2:0 and quality 1 (steps of
 /// 255) in 4:4:4; and maps all 0 and all 255. Every code of every mip, odd regions and scattered
-/// requests equal the CPU's (`check_material`).
+/// requests equal the CPU's (`check_material`), and so do their BC blocks in the default layout
+/// (`check_transcode`: blocks padded past tiny mips, flat and two-colour blocks).
 #[test]
 fn jpeg_materials_at_the_codecs_edges_decode_as_on_the_cpu() {
     use nmat_encode::jpeg::{JpegOptions, Subsampling, encode_jpeg};
@@ -311,26 +313,37 @@ fn requests_sharing_mcus_decode_alike_in_one_round_or_many() {
 
 /// BC transcoding decodes a region first (the JPEG kernel here), so a JPEG material's textures
 /// transcode on the GPU as on the CPU, every mip, all textures of a mip in one call.
+/// Every mip of `m` transcoded on the GPU in the default layout equals the CPU's blocks.
+fn check_transcode(
+    context: &Context,
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    m: &Material<'_>,
+    name: &str,
+) {
+    let gm = context.upload(device, queue, m).unwrap();
+    let cpu = nmat_core::Decoder::new(m);
+    let textures = nmat_core::bc::default_layout(m);
+    assert!(!textures.is_empty());
+    for mip in 0..m.mip_count() {
+        let gpu = context.transcode_textures_mip(device, queue, &gm, &textures, mip).unwrap();
+        for (texture, gpu) in textures.iter().zip(gpu) {
+            let region = nmat_core::BlockRegion::mip(m, mip);
+            let row = region.width as usize * texture.format.block_bytes();
+            let mut want = vec![0u8; row * region.height as usize];
+            cpu.transcode_blocks(m, texture, mip, region, &mut want, row).unwrap();
+            assert!(gpu == want, "{name}: {texture:?} mip {mip}");
+        }
+    }
+}
+
 #[test]
 fn jpeg_materials_transcode_as_on_the_cpu() {
     let (device, queue) = common::device();
     let context = Context::new(&device);
     let bytes = fixture();
     let m = Container::parse(&bytes).unwrap();
-    let gm = context.upload(&device, &queue, &m).unwrap();
-    let cpu = nmat_core::Decoder::new(&m);
-    let textures = nmat_core::bc::default_layout(&m);
-    assert!(!textures.is_empty());
-    for mip in 0..m.mip_count() {
-        let gpu = context.transcode_textures_mip(&device, &queue, &gm, &textures, mip).unwrap();
-        for (texture, gpu) in textures.iter().zip(gpu) {
-            let region = nmat_core::BlockRegion::mip(&m, mip);
-            let row = region.width as usize * texture.format.block_bytes();
-            let mut want = vec![0u8; row * region.height as usize];
-            cpu.transcode_blocks(&m, texture, mip, region, &mut want, row).unwrap();
-            assert!(gpu == want, "{texture:?} mip {mip}");
-        }
-    }
+    check_transcode(&context, &device, &queue, &m, "the fixture");
     // The bricks (64², 4:2:0: MCUs of 16 rows) one block row a pass, so that each pass decodes
     // a quarter of a row of MCUs; and straight into BC textures.
     context.limit_pass_bytes_for_testing(1);
