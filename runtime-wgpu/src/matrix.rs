@@ -116,11 +116,25 @@ impl Asked {
 
 /// The variant of an emulated matrix kernel ([`crate::Context::emulate_matrix_for_testing`]):
 /// the products' round trip `paired` ([`PAIRED`]) or not, the weights in a storage buffer
-/// ([`STORAGE_WEIGHTS`]) or staged.
+/// ([`STORAGE_WEIGHTS`]) or staged; and the layout and pads where a test asks for other ones
+/// than the defaults ([`crate::Context::emulate_matrix_layout_for_testing`]), as
+/// `NMAT_WGPU_MATRIX` and `NMAT_WGPU_MATRIX_PAD` do for the real kernel.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct Emulation {
     pub paired: bool,
     pub storage_weights: bool,
+    pub layout: Option<(u32, u32, u32)>,
+    pub pads: Option<(u32, u32, u32)>,
+}
+
+/// Whether `NMAT_WGPU_MATRIX`'s subgroups, texel blocks and batches can be asked for.
+pub(crate) fn valid_layout([w, b, n]: [u32; 3]) -> bool {
+    [w, b, n].iter().all(|x| (1..=64).contains(x))
+}
+
+/// Whether `NMAT_WGPU_MATRIX_PAD`'s row pads can be asked for.
+pub(crate) fn valid_pads([a, w, s]: [u32; 3]) -> bool {
+    a.is_multiple_of(8) && w.is_multiple_of(8) && s.is_multiple_of(4) && a.max(w).max(s) <= 64
 }
 
 /// The invocations of an emulated subgroup.
@@ -156,17 +170,14 @@ impl Shape {
             info.subgroup_min_size
         };
         let default = Asked::DEFAULT;
-        let layout = overridden("NMAT_WGPU_MATRIX", |[w, b, n]| {
-            [w, b, n].iter().all(|x| (1..=64).contains(x))
-        })
-        .unwrap_or(default.layout);
-        let pads = overridden("NMAT_WGPU_MATRIX_PAD", |[a, w, s]| {
-            a.is_multiple_of(8)
-                && w.is_multiple_of(8)
-                && s.is_multiple_of(4)
-                && a.max(w).max(s) <= 64
-        })
-        .unwrap_or(default.pads);
+        let layout = emulated
+            .and_then(|e| e.layout)
+            .or_else(|| overridden("NMAT_WGPU_MATRIX", valid_layout))
+            .unwrap_or(default.layout);
+        let pads = emulated
+            .and_then(|e| e.pads)
+            .or_else(|| overridden("NMAT_WGPU_MATRIX_PAD", valid_pads))
+            .unwrap_or(default.pads);
         let choice = |name: &str, yes: &str, no: &str, default: bool| match std::env::var(name) {
             Ok(v) if v == yes => true,
             Ok(v) if v == no => false,

@@ -355,8 +355,27 @@ impl Context {
     /// than the real kernel. For tests only.
     #[doc(hidden)]
     pub fn emulate_matrix_for_testing(&self, paired: bool, storage_weights: bool) {
-        let emulation = matrix::Emulation { paired, storage_weights };
+        let emulation = matrix::Emulation { paired, storage_weights, layout: None, pads: None };
         *self.matrix_emulation.lock().unwrap_or_else(|e| e.into_inner()) = Some(emulation);
+    }
+
+    /// With [`Context::emulate_matrix_for_testing`] (called first): the emulated matrix
+    /// kernels of the materials uploaded from now on in `layout` (subgroups, texel blocks of 16
+    /// per subgroup, batches) with `pads` (activation, weight and product rows), as
+    /// `NMAT_WGPU_MATRIX` and `NMAT_WGPU_MATRIX_PAD` ask of the real kernel, so that a test can
+    /// check the layouts `scripts/gpu-run.sh` measures. A layout or pads those variables would
+    /// not take is ignored (the defaults stay). For tests only.
+    #[doc(hidden)]
+    pub fn emulate_matrix_layout_for_testing(
+        &self,
+        layout: (u32, u32, u32),
+        pads: (u32, u32, u32),
+    ) {
+        let mut emulation = self.matrix_emulation.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(e) = emulation.as_mut() {
+            e.layout = matrix::valid_layout(layout.into()).then_some(layout);
+            e.pads = matrix::valid_pads(pads.into()).then_some(pads);
+        }
     }
 
     /// Gives the JPEG materials uploaded from now on request passes with scratch slots of at

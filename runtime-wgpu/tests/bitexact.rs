@@ -171,6 +171,52 @@ fn the_matrix_kernel_with_emulated_matrices_decodes_identically() {
     }
 }
 
+/// The layouts `scripts/gpu-run.sh` times the matrix kernel in (`NMAT_WGPU_MATRIX`,
+/// `NMAT_WGPU_MATRIX_PAD`, `NMAT_WGPU_MATRIX_SUMS`, `NMAT_WGPU_MATRIX_WEIGHTS`) that the
+/// default one does not cover, and three subgroups (batches of 48 texels, which do not divide a
+/// tile), emulated: two texel blocks a subgroup, eight batches, the paired round trip without
+/// pads, one subgroup with two texel blocks and the weights in storage. A 10-channel fixture
+/// with partial tiles decodes as the CPU in each, through the kernel and its tile entry (whose
+/// probe must pass), so that a layout's own code is checked before a GPU's time is spent on it
+/// (about 11 s of lavapipe's compilation a layout, cold). A device with less workgroup memory
+/// than a layout needs runs it with fewer subgroups.
+#[test]
+fn the_matrix_kernel_in_every_measured_layout_decodes_identically() {
+    let (device, queue) = common::device_with_f16();
+    let bytes = std::fs::read(fixtures_dir().join("ntc_pbr10_96x80_clamp.nmat")).unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    let cpu = decode_all_u8(&m);
+    let (default_layout, default_pads) = ((4, 1, 4), (8, 8, 4));
+    for (name, paired, storage, layout, pads) in [
+        ("blocks-2", false, false, (4, 2, 4), default_pads),
+        ("batches-8", false, false, (4, 1, 8), default_pads),
+        ("three subgroups", false, false, (3, 1, 4), default_pads),
+        ("paired-pad-0", true, false, default_layout, (0, 0, 0)),
+        ("storage-1x2", false, true, (1, 2, 8), default_pads),
+    ] {
+        let ctx = Context::new(&device);
+        ctx.emulate_matrix_for_testing(paired, storage);
+        ctx.emulate_matrix_layout_for_testing(layout, pads);
+        let gm = ctx.upload_with(&device, &queue, &m, Some(Kernel::Matrix)).unwrap();
+        assert_eq!(gm.tile_kernel(), Kernel::Matrix, "{name}: the tile entry's probe");
+        // The layout asked for: P = 16 · blocks · subgroups · batches, with as many of the
+        // subgroups as the workgroup memory holds (all three where three are asked).
+        let (warps, blocks, batches) = layout;
+        let per_warp = 16 * blocks * batches;
+        let texels = gm.workgroup_texels().unwrap();
+        assert!(
+            texels.is_multiple_of(per_warp) && (1..=warps).contains(&(texels / per_warp)),
+            "{name}"
+        );
+        if warps == 3 {
+            assert_eq!(texels, 3 * per_warp, "{name}");
+        }
+        let gpu = ctx.decode_chain(&device, &queue, &gm, ChannelMask::ALL).unwrap();
+        let first = gpu.iter().zip(&cpu).position(|(a, b)| a != b);
+        assert!(gpu.len() == cpu.len() && first.is_none(), "{name}: first difference at {first:?}");
+    }
+}
+
 /// Never wrong: a kernel whose codes differ from the CPU's on the upload's probe is not used.
 /// The kernel the default upload picks is broken on purpose (`break_kernel_for_testing`: the
 /// last layer's first row requantized to 0, so channel 0 decodes as code 0): the upload falls
