@@ -99,7 +99,7 @@ fn jpeg_materials_decode_on_the_gpu_exactly_as_on_the_cpu() {
     for (name, bytes) in &materials {
         let m = Container::parse(bytes).unwrap();
         check_material(&context, &device, &queue, &m, name);
-        check_transcode(&context, &device, &queue, &m, name);
+        check_transcode(&context, (&device, &queue), &m, name, false);
     }
 }
 
@@ -311,68 +311,58 @@ fn requests_sharing_mcus_decode_alike_in_one_round_or_many() {
     }
 }
 
-/// BC transcoding decodes a region first (the JPEG kernel here), so a JPEG material's textures
-/// transcode on the GPU as on the CPU, every mip, all textures of a mip in one call.
-/// Every mip of `m` transcoded on the GPU in the default layout equals the CPU's blocks.
+/// Every mip of `m` transcoded on the GPU in the default layout, all textures of a mip in one
+/// call, equals the CPU's blocks; with `into_textures` (where the device has BC textures) the
+/// levels of whole BC textures made by `create_bc_textures` too.
 fn check_transcode(
     context: &Context,
-    device: &wgpu::Device,
-    queue: &wgpu::Queue,
+    (device, queue): (&wgpu::Device, &wgpu::Queue),
     m: &Material<'_>,
     name: &str,
+    into_textures: bool,
 ) {
     let gm = context.upload(device, queue, m).unwrap();
     let cpu = nmat_core::Decoder::new(m);
     let textures = nmat_core::bc::default_layout(m);
     assert!(!textures.is_empty());
+    let has_bc = device.features().contains(wgpu::Features::TEXTURE_COMPRESSION_BC);
+    let made = if into_textures && has_bc {
+        context.create_bc_textures(device, queue, &gm, &textures).unwrap()
+    } else {
+        Vec::new()
+    };
     for mip in 0..m.mip_count() {
         let gpu = context.transcode_textures_mip(device, queue, &gm, &textures, mip).unwrap();
-        for (texture, gpu) in textures.iter().zip(gpu) {
+        for (t, (texture, gpu)) in textures.iter().zip(gpu).enumerate() {
             let region = nmat_core::BlockRegion::mip(m, mip);
-            let row = region.width as usize * texture.format.block_bytes();
+            let block_bytes = texture.format.block_bytes();
+            let row = region.width as usize * block_bytes;
             let mut want = vec![0u8; row * region.height as usize];
             cpu.transcode_blocks(m, texture, mip, region, &mut want, row).unwrap();
             assert!(gpu == want, "{name}: {texture:?} mip {mip}");
+            if let Some(made) = made.get(t) {
+                let level = common::read_level(device, queue, made, mip, region, block_bytes);
+                assert!(level == want, "{name}: {texture:?} mip {mip} in a BC texture");
+            }
         }
     }
 }
 
+/// BC transcoding decodes a region first (the JPEG kernel here), so a JPEG material's textures
+/// transcode on the GPU as on the CPU, every mip, all textures of a mip in one call.
 #[test]
 fn jpeg_materials_transcode_as_on_the_cpu() {
     let (device, queue) = common::device();
     let context = Context::new(&device);
     let bytes = fixture();
     let m = Container::parse(&bytes).unwrap();
-    check_transcode(&context, &device, &queue, &m, "the fixture");
+    check_transcode(&context, (&device, &queue), &m, "the fixture", false);
     // The bricks (64², 4:2:0: MCUs of 16 rows) one block row a pass, so that each pass decodes
     // a quarter of a row of MCUs; and straight into BC textures.
     context.limit_pass_bytes_for_testing(1);
     let bytes = bricks_jpeg(nmat_encode::jpeg::Subsampling::S420);
     let m = Container::parse(&bytes).unwrap();
-    let gm = context.upload(&device, &queue, &m).unwrap();
-    let cpu = nmat_core::Decoder::new(&m);
-    let textures = nmat_core::bc::default_layout(&m);
-    let has_bc = device.features().contains(wgpu::Features::TEXTURE_COMPRESSION_BC);
-    let made = if has_bc {
-        context.create_bc_textures(&device, &queue, &gm, &textures).unwrap()
-    } else {
-        Vec::new()
-    };
-    for mip in 0..m.mip_count() {
-        let gpu = context.transcode_textures_mip(&device, &queue, &gm, &textures, mip).unwrap();
-        for (t, (texture, gpu)) in textures.iter().zip(gpu).enumerate() {
-            let region = nmat_core::BlockRegion::mip(&m, mip);
-            let block_bytes = texture.format.block_bytes();
-            let row = region.width as usize * block_bytes;
-            let mut want = vec![0u8; row * region.height as usize];
-            cpu.transcode_blocks(&m, texture, mip, region, &mut want, row).unwrap();
-            assert!(gpu == want, "bricks {texture:?} mip {mip}");
-            if let Some(made) = made.get(t) {
-                let level = common::read_level(&device, &queue, made, mip, region, block_bytes);
-                assert!(level == want, "bricks {texture:?} mip {mip} in a BC texture");
-            }
-        }
-    }
+    check_transcode(&context, (&device, &queue), &m, "bricks", true);
 }
 
 #[test]
