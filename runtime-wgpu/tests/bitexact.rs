@@ -12,7 +12,9 @@ use nmat_tests::{decode_all_u8, fixtures_dir};
 use nmat_wgpu::{Context, GpuError, Kernel, TexelRequest};
 
 mod common;
-use common::{cpu_codes, device, each_kernel, random_requests, trained_material};
+use common::{
+    assert_same_bytes, cpu_codes, device, each_kernel, random_requests, trained_material,
+};
 
 #[test]
 fn golden_fixtures_decode_identically_on_the_gpu() {
@@ -24,10 +26,7 @@ fn golden_fixtures_decode_identically_on_the_gpu() {
         let cpu = decode_all_u8(&m);
         for gm in each_kernel(&ctx, &device, &queue, &m) {
             let gpu = ctx.decode_chain(&device, &queue, &gm, ChannelMask::ALL).unwrap();
-            assert_eq!(gpu.len(), cpu.len(), "{}", cfg.name);
-            let first = gpu.iter().zip(&cpu).position(|(a, b)| a != b);
-            let kernel = gm.kernel();
-            assert!(first.is_none(), "{} {kernel:?}: first difference at code {first:?}", cfg.name);
+            assert_same_bytes(&gpu, &cpu, format!("{} {:?}", cfg.name, gm.kernel()));
         }
     }
 }
@@ -148,9 +147,7 @@ fn the_matrix_kernel_with_emulated_matrices_decodes_identically() {
             let m = Container::parse(bytes).unwrap();
             let gpu = ctx.decode_chain(&device, &queue, &upload(&m), ChannelMask::ALL).unwrap();
             let cpu = decode_all_u8(&m);
-            let first = gpu.iter().zip(&cpu).position(|(a, b)| a != b);
-            let at = format!("{name}, {variant}: first difference at {first:?}");
-            assert!(gpu.len() == cpu.len() && first.is_none(), "{at}");
+            assert_same_bytes(&gpu, &cpu, format!("{name}, {variant}"));
         }
         let bytes = std::fs::read(fixtures_dir().join("ntc_pbr10_96x80_clamp.nmat")).unwrap();
         let m = Container::parse(&bytes).unwrap();
@@ -212,8 +209,7 @@ fn the_matrix_kernel_in_every_measured_layout_decodes_identically() {
             assert_eq!(texels, 3 * per_warp, "{name}");
         }
         let gpu = ctx.decode_chain(&device, &queue, &gm, ChannelMask::ALL).unwrap();
-        let first = gpu.iter().zip(&cpu).position(|(a, b)| a != b);
-        assert!(gpu.len() == cpu.len() && first.is_none(), "{name}: first difference at {first:?}");
+        assert_same_bytes(&gpu, &cpu, name);
     }
 }
 

@@ -24,7 +24,10 @@ use nmat_tests::generate::{
 use nmat_wgpu::{Context, GpuError, GpuMaterial, Kernel, TexelRequest};
 
 mod common;
-use common::{cpu_codes, device, device_with_f16, each_kernel, random_requests};
+use common::{
+    MATRIX_TOO_LARGE, assert_same_bytes, cpu_codes, device, device_with_f16, each_kernel,
+    random_requests,
+};
 
 /// The default device (with cooperative matrices where the adapter has them, and then f16),
 /// or where it lacks f16 (lavapipe) one with f16, which the matrix kernel's emulation needs; a
@@ -66,7 +69,7 @@ impl Gpu {
         match self.emulated.upload_with(&self.device, &self.queue, m, Some(Kernel::Matrix)) {
             Ok(gm) => uploads.push((&self.emulated, gm)),
             Err(GpuError::Kernel { kernel: Kernel::Matrix, reason })
-                if reason.contains("too large for the device's workgroup memory") =>
+                if reason.contains(MATRIX_TOO_LARGE) =>
             {
                 eprintln!("{name}: the emulated matrix kernel refused it: {reason}");
                 let matrix = Some(Kernel::Matrix);
@@ -96,12 +99,7 @@ impl Gpu {
             let kernel = gm.kernel();
             let emulated = if std::ptr::eq(ctx, &self.ctx) { "" } else { " (emulated)" };
             let gpu = ctx.decode_chain(&self.device, &self.queue, &gm, ChannelMask::ALL).unwrap();
-            let first = gpu.iter().zip(&cpu).position(|(a, b)| a != b);
-            assert!(
-                gpu.len() == cpu.len() && first.is_none(),
-                "{name}, {kernel:?}{emulated}: first difference at code {first:?} of {}",
-                cpu.len()
-            );
+            assert_same_bytes(&gpu, &cpu, format!("{name}, {kernel:?}{emulated}"));
             let gpu = ctx.decode_requests(&self.device, &self.queue, &gm, &reqs, odd).unwrap();
             assert_eq!(gpu, cpu_reqs, "{name}, {kernel:?}{emulated}: requests, {odd:?}");
         }

@@ -14,7 +14,7 @@ use nmat_tests::generate::{FixtureConfig, Rng, generate, golden_configs};
 use nmat_wgpu::{Context, GpuError, GpuMaterial};
 
 mod common;
-use common::{device, read_level, trained_material};
+use common::{assert_same_bytes, cpu_blocks, device, read_level, trained_material};
 
 const GPU_FORMATS: [BcFormat; 5] =
     [BcFormat::Bc1, BcFormat::Bc4, BcFormat::Bc5, BcFormat::Bc7Rgb, BcFormat::Bc7Rgba];
@@ -122,15 +122,8 @@ fn check_material(
         let all = pending.wait(device).unwrap();
         assert_eq!(all.len(), textures.len());
         for (texture, gpu) in textures.iter().zip(all) {
-            let region = BlockRegion::mip(m, mip);
-            let row = region.width as usize * texture.format.block_bytes();
-            let mut want = vec![0u8; row * region.height as usize];
-            cpu.transcode_blocks(m, texture, mip, region, &mut want, row).unwrap();
-            let first = gpu.iter().zip(&want).position(|(a, b)| a != b);
-            assert!(
-                gpu.len() == want.len() && first.is_none(),
-                "{name} {texture:?} mip {mip}: first difference at byte {first:?}"
-            );
+            let want = cpu_blocks(&cpu, m, texture, mip);
+            assert_same_bytes(&gpu, &want, format!("{name} {texture:?} mip {mip}"));
         }
     }
 }
@@ -435,15 +428,10 @@ fn whole_chains_transcode_into_bc_textures() {
                 for mip in 0..m.mip_count() {
                     let region = BlockRegion::mip(&m, mip);
                     let block_bytes = texture.format.block_bytes();
-                    let row = region.width as usize * block_bytes;
-                    let mut want = vec![0u8; row * region.height as usize];
-                    cpu.transcode_blocks(&m, texture, mip, region, &mut want, row).unwrap();
+                    let want = cpu_blocks(&cpu, &m, texture, mip);
                     let got = read_level(&device, &queue, gpu_texture, mip, region, block_bytes);
-                    let first = got.iter().zip(&want).position(|(a, b)| a != b);
-                    assert!(
-                        got.len() == want.len() && first.is_none(),
-                        "{texture:?} mip {mip} (banded: {banded}): first difference at byte {first:?}"
-                    );
+                    let what = format!("{texture:?} mip {mip} (banded: {banded})");
+                    assert_same_bytes(&got, &want, what);
                 }
                 if texture.srgb {
                     continue;

@@ -110,7 +110,7 @@ pub fn each_kernel(
             // exceed the workgroup memory.)
             Err(nmat_wgpu::GpuError::Kernel { kernel: nmat_wgpu::Kernel::Matrix, reason })
                 if std::env::var_os("NMAT_REQUIRE_MATRIX").is_none()
-                    || reason.contains("too large for the device's workgroup memory") =>
+                    || reason.contains(MATRIX_TOO_LARGE) =>
             {
                 eprintln!("matrix kernel not tested here: {reason}");
             }
@@ -124,6 +124,40 @@ pub fn each_kernel(
         assert_eq!(Some(chosen.kernel()), uploads.last().map(nmat_wgpu::GpuMaterial::kernel));
     }
     uploads
+}
+
+/// The reason the matrix kernel gives for a network whose staged weights exceed the device's
+/// workgroup memory (a refusal, not a failure).
+#[allow(dead_code)]
+pub const MATRIX_TOO_LARGE: &str = "too large for the device's workgroup memory";
+
+/// `got` equals `want` byte for byte; else fails naming `what` and the first byte that differs.
+#[allow(dead_code)]
+pub fn assert_same_bytes(got: &[u8], want: &[u8], what: impl std::fmt::Display) {
+    let first = got.iter().zip(want).position(|(a, b)| a != b);
+    assert!(
+        got.len() == want.len() && first.is_none(),
+        "{what}: first difference at byte {first:?} of {} (lengths {} and {})",
+        want.len(),
+        got.len(),
+        want.len()
+    );
+}
+
+/// The CPU's blocks of `texture` for the whole of `mip`, block rows without padding, and the
+/// bytes a block takes.
+#[allow(dead_code)]
+pub fn cpu_blocks(
+    cpu: &nmat_core::Decoder,
+    m: &nmat_core::Material<'_>,
+    texture: &nmat_core::bc::BcTexture,
+    mip: u32,
+) -> Vec<u8> {
+    let region = nmat_core::BlockRegion::mip(m, mip);
+    let row = region.width as usize * texture.format.block_bytes();
+    let mut want = vec![0u8; row * region.height as usize];
+    cpu.transcode_blocks(m, texture, mip, region, &mut want, row).unwrap();
+    want
 }
 
 /// `count` requests from an LCG seeded with `seed`: x and y in [−span/2, span/2), mip below
