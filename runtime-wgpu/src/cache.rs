@@ -786,7 +786,8 @@ impl GpuTileCache {
     /// Records the mark pass over `count` [`CacheLookup`]s in `lookups` from byte `offset`
     /// (`STORAGE` usage, offset a multiple of 4): every tile each lookup's filter reads is
     /// marked (the same tiles `nmat_core::TileCache::mark` marks for the same request, where
-    /// u · width and v · height are exact in f32 — filter.wgsl). Several calls may mark one frame.
+    /// u · width and v · height are exact in f32 — filter.wgsl). Several calls may mark one
+    /// frame.
     /// A call with the buffer, offset and count of one of the last few mark or resolve calls
     /// reuses its bind group, so a frame loop over the same G-buffer allocates nothing after its
     /// first frame (the cache holds a reference to those buffers until other calls replace them).

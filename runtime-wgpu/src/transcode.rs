@@ -135,8 +135,8 @@ fn shader_format(format: BcFormat) -> Result<u32, GpuError> {
 }
 
 impl GpuMaterial {
-    /// Every block of `mip` (a mip of w × h texels has ⌈w/4⌉ × ⌈h/4⌉ blocks), or `None` for a mip
-    /// beyond the chain.
+    /// Every block of `mip` (a mip of w × h texels has ⌈w/4⌉ × ⌈h/4⌉ blocks), or `None` for a
+    /// mip beyond the chain.
     pub fn blocks(&self, mip: u32) -> Option<BlockRegion> {
         let &(w, h) = self.mip_sizes.get(mip as usize)?;
         Some(BlockRegion { x: 0, y: 0, width: w.div_ceil(4), height: h.div_ceil(4) })

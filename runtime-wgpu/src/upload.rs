@@ -201,8 +201,9 @@ impl Context {
     }
 
     /// Seconds per texel of a region of mip 0 (up to 1024 × 1024 texels, repeated to at least
-    /// 2^20 texels) decoded through `gm`'s kernel into `out` ([`timing_buffer`]). (A 512² region misled on an H200: it ranked
-    /// the matrix kernel above the reference one, which a 1024² region decodes faster.)
+    /// 2^20 texels) decoded through `gm`'s kernel into `out` ([`timing_buffer`]). (A 512² region
+    /// misled on an H200: it ranked the matrix kernel above the reference one, which a 1024²
+    /// region decodes faster.)
     fn time_region(
         &self,
         device: &wgpu::Device,

@@ -3,8 +3,9 @@
 //! filter: the same counters frame after frame, the same tiles with the CPU's codes byte for
 //! byte, resolved values equal to the CPU's (to f32 rounding) and to the sampling module's
 //! `nmat_sample` bit for bit; the engine's module resolves like the recorded pass; new tiles
-//! decode alike through every kernel; a cache too small overflows as documented; refusals. Coordinates are dyadic, so the f32 footprints of the
-//! GPU and the f64 ones of the CPU pick the same texels (filter.wgsl).
+//! decode alike through every kernel; a cache too small overflows as documented; refusals.
+//! Coordinates are dyadic, so the f32 footprints of the GPU and the f64 ones of the CPU pick the
+//! same texels (filter.wgsl).
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
 
@@ -394,19 +395,34 @@ fn new_tiles_decode_alike_through_every_kernel() {
     }
 }
 
-/// The matrix kernel's tile entry with its weights read from a storage buffer (a bind group of
-/// its own, set with each material's decode of new tiles), its matrix operations emulated
-/// (lavapipe has no matrix units): the tiles are the CPU's.
+/// The matrix kernel's tile entry, its matrix operations emulated (lavapipe has no matrix
+/// units), in two layouts the default one does not cover: with its weights read from a storage
+/// buffer (a bind group of its own, set with each material's decode of new tiles), and with
+/// three subgroups a workgroup (batches of 48 texels, so a tile's 256 end in a partial batch,
+/// whose texels past the tile must not be stored). The tiles are the CPU's.
 #[test]
-fn new_tiles_decode_alike_through_the_matrix_kernel_with_weights_in_storage() {
+fn new_tiles_decode_alike_through_the_matrix_kernel_in_other_layouts() {
     let (device, queue) = common::device_with_f16();
-    let ctx = Context::new(&device);
-    ctx.emulate_matrix_for_testing(false, true);
     let bytes = fixture_bytes();
     let materials = parse(&bytes);
-    let frame = lookups(&materials, 6, 300);
     let device_queue = (&device, &queue);
-    new_tiles_decode_alike_through(&ctx, device_queue, &materials, &frame, Kernel::Matrix, true);
+    for (seed, storage, layout) in [(6, true, (4, 1, 4)), (7, false, (3, 1, 4))] {
+        let ctx = Context::new(&device);
+        ctx.emulate_matrix_for_testing(false, storage);
+        ctx.emulate_matrix_layout_for_testing(layout, (8, 8, 4));
+        let frame = lookups(&materials, seed, 300);
+        new_tiles_decode_alike_through(
+            &ctx,
+            device_queue,
+            &materials,
+            &frame,
+            Kernel::Matrix,
+            true,
+        );
+        // The layout was taken: a workgroup decodes four batches of 16 texels a subgroup.
+        let gm = ctx.upload_with(&device, &queue, &materials[1], Some(Kernel::Matrix)).unwrap();
+        assert_eq!(gm.workgroup_texels(), Some(16 * layout.0 * layout.2), "{layout:?}");
+    }
 }
 
 /// The neural `materials` uploaded with `kernel` (the others as `upload` picks) decode the new

@@ -1,7 +1,8 @@
 //! Inference on sample (`SampleBindings::module`, and `module_for` a material's layout):
 //! `nmat_texel` in a compute shader gives the CPU's codes byte for byte through either, and the
-//! example's fragment shader (`examples/sample_quad.rs`, run here as a module) draws every filter, lod and channel group of the golden fixtures and a
-//! trained material like `Material::sample` on the CPU, to f32 rounding. The coordinates cross
+//! example's fragment shader (`examples/sample_quad.rs`, run here as a module) draws every
+//! filter, lod and channel group of the golden fixtures and a trained material like
+//! `Material::sample` on the CPU, to f32 rounding. The coordinates cross
 //! the material's edges (wrap and clamp addressing) and the lods go past the chain.
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
@@ -40,8 +41,8 @@ fn fragment_shader_samples_like_the_cpu() {
         for first_channel in (0..m.channel_count() as u32).step_by(4) {
             for lod in [0.0, 0.5, 2.25, 40.0] {
                 for filter in filters {
-                    // 20 × 12 pixels over uv [−3/8, 7/8) × [−1/4, 1/2): across the left and top
-                    // edges, a few pixels per texel of mip 0.
+                    // 20 × 12 pixels over uv [−3/8, 7/8) × [−1/4, 1/2): across the left and
+                    // top edges, a few pixels per texel of mip 0.
                     let view = View {
                         size: (20, 12),
                         origin: [-0.375, -0.25],
