@@ -25,6 +25,10 @@ if [ -z "${XDG_RUNTIME_DIR:-}" ] || [ ! -d "${XDG_RUNTIME_DIR}" ]; then
   export XDG_RUNTIME_DIR
   trap 'rm -rf "$XDG_RUNTIME_DIR"' EXIT
 fi
+# On lavapipe the GPU tests spend most of their time compiling shaders (LLVM, each kernel once per
+# network shape), not running them: compile without LLVM's optimization passes (only lavapipe and
+# llvmpipe read this; a GPU's driver ignores it). Set GALLIVM_PERF to keep another value.
+export GALLIVM_PERF="${GALLIVM_PERF-nopt}"
 cargo test --workspace --locked "$@"
 # The CLI's GPU paths exist only in a `--features gpu` build: run its GPU tests there too. With
 # `--workspace` the dependencies keep the features they were just built with, so only the `nmat`
