@@ -180,6 +180,22 @@ pub(crate) fn read_back_after(
         .ok_or_else(|| GpuError::Map("the wait ended before the device".into()))
 }
 
+/// Whether the queue has run `submission`, waiting at most `timeout` for it (zero: asks without
+/// blocking).
+pub(crate) fn finished_within(
+    device: &wgpu::Device,
+    submission: &wgpu::SubmissionIndex,
+    timeout: std::time::Duration,
+) -> Result<bool, GpuError> {
+    let wait =
+        wgpu::PollType::Wait { submission_index: Some(submission.clone()), timeout: Some(timeout) };
+    match device.poll(wait) {
+        Ok(status) => Ok(status.wait_finished()),
+        Err(wgpu::PollError::Timeout) => Ok(false),
+        Err(e) => Err(GpuError::Map(e.to_string())),
+    }
+}
+
 /// [`read_back_after`] `submission`, waiting at most `timeout` for the device: `None` where it
 /// had not finished (the buffer is then left mapping, not to be reused).
 pub(crate) fn read_back_within(

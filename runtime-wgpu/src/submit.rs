@@ -1,11 +1,12 @@
 //! Submit-then-map decodes: the buffers they reuse (a pool per [`Context`]) and the
 //! [`PendingDecode`] that maps the result.
 
-use crate::gpu::{Bound, dispatch_bound, read_back_after, read_back_within};
+use crate::gpu::{Bound, dispatch_bound, finished_within, read_back_after};
 use crate::layout::{Params, ShaderLayout};
 use crate::upload::GpuBody;
 use crate::{Context, GpuError, GpuMaterial};
 use std::sync::{Arc, Mutex};
+use std::time::Duration;
 
 /// Work submitted to the queue; `wait` maps the result: `channels` 8-bit codes per texel, in
 /// request (or row-major) order.
@@ -142,26 +143,29 @@ impl PendingDecode {
         Ok(bytes)
     }
 
+    /// Whether the device has run this decode, waiting at most `wait` for it: with
+    /// `Duration::ZERO` it asks without blocking (e.g. once a frame, for a decode kept in flight
+    /// across frames). Once it says `true`, [`PendingDecode::wait`] maps the codes without
+    /// waiting for the device; `false` leaves the decode as it was, to be asked again, waited on
+    /// or dropped. (Native backends only: wgpu's WebGPU backend answers every poll as done
+    /// without waiting, so on the web it says `true` at once.)
+    pub fn is_finished(&self, device: &wgpu::Device, wait: Duration) -> Result<bool, GpuError> {
+        finished_within(device, &self.submission, wait)
+    }
+
     /// [`PendingDecode::wait`], waiting at most `timeout` for the device: `None` where it had
-    /// not finished (its buffers, left mapping, are then not reused).
+    /// not finished (its buffers, possibly still being written by a kernel that does not end,
+    /// are then not reused).
     pub(crate) fn wait_within(
         mut self,
         device: &wgpu::Device,
-        timeout: std::time::Duration,
+        timeout: Duration,
     ) -> Result<Option<Vec<u8>>, GpuError> {
-        let bytes = (self.len as u64).next_multiple_of(4).max(4);
-        let submission = Some(self.submission.clone());
-        match read_back_within(device, &self.readback, bytes, (submission, Some(timeout)))? {
-            Some(mut codes) => {
-                codes.truncate(self.len);
-                self.give_back();
-                Ok(Some(codes))
-            }
-            None => {
-                self.scratch = None;
-                Ok(None)
-            }
+        if self.is_finished(device, timeout)? {
+            return self.wait(device).map(Some);
         }
+        self.scratch = None;
+        Ok(None)
     }
 
     /// Returns the buffers to the context's pool (at most [`POOL`] are kept).

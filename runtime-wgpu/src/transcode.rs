@@ -5,11 +5,12 @@
 //! be copied into a BC texture. The encoders are `bc.wgsl` and `bc7.wgsl`, ports of
 //! `nmat_core::bc`.
 
-use crate::gpu::{MAX_GROUPS, check_output, dispatch_bound, read_back_after};
+use crate::gpu::{MAX_GROUPS, check_output, dispatch_bound, finished_within, read_back_after};
 use crate::layout::Params;
 use crate::{Context, GpuError, GpuMaterial};
 use nmat_core::bc::{BLOCK_PIXELS, BcFormat, BcTexture};
 use nmat_core::{BlockRegion, ChannelMask};
+use std::time::Duration;
 use wgpu::util::DeviceExt;
 
 /// Blocks per workgroup of `encode_codes` and `encode_pixels` (one invocation each).
@@ -34,6 +35,14 @@ impl PendingBlocks {
         &self.blocks
     }
 
+    /// Whether the device has run the transcoding, waiting at most `wait` for it
+    /// (`Duration::ZERO`: asks without blocking); once it says `true`,
+    /// [`PendingBlocks::wait`] maps the blocks without waiting for the device
+    /// ([`crate::PendingDecode::is_finished`]).
+    pub fn is_finished(&self, device: &wgpu::Device, wait: Duration) -> Result<bool, GpuError> {
+        finished_within(device, &self.submission, wait)
+    }
+
     /// Maps the blocks (blocking until the device has run their submission, not the work
     /// submitted after it) and returns their bytes.
     pub fn wait(self, device: &wgpu::Device) -> Result<Vec<u8>, GpuError> {
@@ -54,6 +63,12 @@ pub struct PendingTextures {
 }
 
 impl PendingTextures {
+    /// Whether the device has run the transcoding, waiting at most `wait` for it
+    /// ([`PendingBlocks::is_finished`]).
+    pub fn is_finished(&self, device: &wgpu::Device, wait: Duration) -> Result<bool, GpuError> {
+        self.blocks.is_finished(device, wait)
+    }
+
     /// Maps the blocks (blocking until the device has run their submission, not the work
     /// submitted after it) and returns each texture's, in the order asked.
     pub fn wait(self, device: &wgpu::Device) -> Result<Vec<Vec<u8>>, GpuError> {

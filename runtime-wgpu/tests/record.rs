@@ -3,13 +3,17 @@
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
 
+use nmat_core::bc::{BcFormat, BcTexture};
 use nmat_core::{ChannelMask, Container};
 use nmat_tests::generate::{generate, golden_configs};
 use nmat_wgpu::{Context, GpuError, TexelRequest};
 use wgpu::BufferUsages as U;
 
 mod common;
-use common::{buffer, cpu_codes, device, random_requests, submit_and_read, trained_material};
+use common::{
+    assert_same_bytes, buffer, cpu_blocks, cpu_codes, device, random_requests, submit_and_read,
+    trained_material,
+};
 
 fn rect(mip: u32, (x0, y0, w, h): (u32, u32, u32, u32)) -> Vec<TexelRequest> {
     (y0..y0 + h)
@@ -157,6 +161,64 @@ fn reused_buffers_keep_materials_and_sizes_apart() {
     in_flight.push(submit(3));
     for (k, (pending, want)) in in_flight.into_iter().enumerate().rev() {
         assert_eq!(pending.wait(&device).unwrap(), want, "in flight, {k}");
+    }
+}
+
+/// Decodes kept in flight are asked about without blocking: right after its submission a whole
+/// mip-0 decode (96 × 80 texels, a fraction of a second on lavapipe) is not finished
+/// (`is_finished` with no wait; a race the device could win is retried), is said to be finished
+/// within a bounded wait, stays finished, and maps the CPU's codes; a submitted transcoding
+/// (BC1 and BC4 of one mip) likewise, with the CPU's blocks. A decode asked
+/// about and then dropped unwaited gives its buffers back, and the next decode is exact.
+#[test]
+fn pending_work_says_whether_it_has_finished_without_blocking() {
+    use std::time::{Duration, Instant};
+    let (device, queue) = device();
+    let ctx = Context::new(&device);
+    let bytes = golden("ntc_pbr10_96x80_clamp");
+    let m = Container::parse(&bytes).unwrap();
+    let gm = ctx.upload(&device, &queue, &m).unwrap();
+    let (r, mask) = ((0, 0, 96, 80), ChannelMask::ALL);
+    let want = cpu_codes(&m, &rect(0, r), mask);
+    // Asks until it says finished, each ask waiting at most 10 ms, for at most 60 s.
+    let finishes = |is_finished: &dyn Fn(Duration) -> bool| {
+        let start = Instant::now();
+        while !is_finished(Duration::from_millis(10)) {
+            assert!(start.elapsed() < Duration::from_secs(60), "not finished in 60 s");
+        }
+        assert!(is_finished(Duration::ZERO), "finished, then not");
+    };
+    let mut unfinished_seen = 0;
+    for _attempt in 0..5 {
+        let pending = ctx.submit_region(&device, &queue, &gm, 0, r, mask).unwrap();
+        if !pending.is_finished(&device, Duration::ZERO).unwrap() {
+            unfinished_seen += 1;
+        }
+        finishes(&|wait| pending.is_finished(&device, wait).unwrap());
+        assert_eq!(pending.wait(&device).unwrap(), want);
+        if unfinished_seen > 0 {
+            break;
+        }
+        eprintln!("the device finished the decode before it was asked; again");
+    }
+    assert_eq!(unfinished_seen, 1, "no decode was seen unfinished in 5 attempts");
+    // Asked, then dropped unwaited: its buffers go back to the pool and serve the next decode.
+    let pending = ctx.submit_region(&device, &queue, &gm, 0, r, mask).unwrap();
+    let _ = pending.is_finished(&device, Duration::ZERO).unwrap();
+    drop(pending);
+    let again = ctx.submit_region(&device, &queue, &gm, 0, r, mask).unwrap();
+    assert_eq!(again.wait(&device).unwrap(), want, "after a dropped decode");
+    // Transcoding: one mip into two textures, asked about, then mapped.
+    let textures = [
+        BcTexture { format: BcFormat::Bc1, channels: [0, 1, 2, 0], srgb: false },
+        BcTexture { format: BcFormat::Bc4, channels: [3, 0, 0, 0], srgb: false },
+    ];
+    let pending = ctx.submit_transcode_textures(&device, &queue, &gm, &textures, 1).unwrap();
+    finishes(&|wait| pending.is_finished(&device, wait).unwrap());
+    let got = pending.wait(&device).unwrap();
+    let cpu = nmat_core::Decoder::new(&m);
+    for (texture, blocks) in textures.iter().zip(&got) {
+        assert_same_bytes(blocks, &cpu_blocks(&cpu, &m, texture, 1), texture.format.name());
     }
 }
 
