@@ -196,7 +196,9 @@ impl PackedLayer {
 }
 
 impl PackedLayer {
-    /// `pairs` cut to the layer's input pairs (an empty range where it starts past them).
+    /// `pairs` cut to the layer's input pairs (an empty range where it starts past them). Used
+    /// by the SIMD kernels only (x86-64 and AArch64).
+    #[cfg(any(target_arch = "x86_64", target_arch = "aarch64"))]
     pub(crate) fn pairs_within(&self, pairs: Range<usize>) -> Range<usize> {
         let end = pairs.end.min(self.in_pairs);
         pairs.start.min(end)..end
