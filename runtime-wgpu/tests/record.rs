@@ -168,9 +168,9 @@ fn reused_buffers_keep_materials_and_sizes_apart() {
 /// last of three whole mip-0 decodes (96 × 80 texels each, a fraction of a second on lavapipe)
 /// is not finished (`is_finished` with no wait; a race the device could win is retried), is
 /// said to be finished within a bounded wait, stays finished — as do the two before it — and
-/// each maps the CPU's codes; a submitted transcoding
-/// (BC1 and BC4 of one mip) likewise, with the CPU's blocks. A decode asked about and then
-/// dropped unwaited gives its buffers back, and the next decode is exact.
+/// each maps the CPU's codes; a submitted transcoding (BC1 and BC4 of one mip) likewise, with
+/// the CPU's blocks. A decode asked about and then dropped unwaited gives its buffers back, and
+/// the next decode is exact.
 #[test]
 fn pending_work_says_whether_it_has_finished_without_blocking() {
     use std::time::{Duration, Instant};

@@ -2,8 +2,8 @@
 //! `nmat_texel` in a compute shader gives the CPU's codes byte for byte through either, and the
 //! example's fragment shader (`examples/sample_quad.rs`, run here as a module) draws every
 //! filter, lod and channel group of the golden fixtures and a trained material like
-//! `Material::sample` on the CPU, to f32 rounding. The coordinates cross
-//! the material's edges (wrap and clamp addressing) and the lods go past the chain.
+//! `Material::sample` on the CPU, to f32 rounding. The coordinates cross the material's edges
+//! (wrap and clamp addressing) and the lods go past the chain.
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
 
