@@ -66,6 +66,14 @@ pub enum GpuError {
     /// The device's queue may stay busy with it; recreate the device, or upload with another
     /// kernel ([`Context::upload_with`]) on a new one.
     Hung { kernel: Kernel, seconds: u32 },
+    /// A call that waits for the device, made on WebGPU in a browser (`wgpu::Backend::
+    /// BrowserWebGpu`), where it could never return: there wgpu's polls do not wait, and a
+    /// buffer's mapping completes only once control is back in the browser's event loop. The
+    /// calls that wait: [`Context::upload`] of a neural material (it reads back each kernel's
+    /// probe), `wait` and `is_finished` of work in flight, the `decode_*` and `transcode_*`
+    /// calls, and the timings of [`crate::measure`]. Refused rather than left blocking; in a
+    /// browser, decode on the CPU (`nmat_core`) for now.
+    CannotWait,
 }
 
 impl std::fmt::Display for GpuError {
@@ -129,6 +137,12 @@ impl std::fmt::Display for GpuError {
                 "the {} kernel's probe did not finish within {seconds} s: it may hang on this \
                  device, whose queue may stay busy (recreate the device)",
                 kernel.name()
+            ),
+            GpuError::CannotWait => write!(
+                f,
+                "this call waits for the device, which WebGPU in a browser cannot do (uploading \
+                 a neural material, wait, is_finished, decode_*, transcode_* and timings are not \
+                 supported there; decode on the CPU)"
             ),
             GpuError::Kernel { kernel, reason } => {
                 write!(f, "the {} kernel does not run on this device: {reason}", kernel.name())

@@ -180,6 +180,23 @@ pub(crate) fn read_back_after(
         .ok_or_else(|| GpuError::Map("the wait ended before the device".into()))
 }
 
+/// Whether the calls that wait for the device can on `backend`: on every backend but WebGPU in a
+/// browser, whose polls return at once and whose mappings complete only in the browser's event
+/// loop (a wait there would never end).
+pub(crate) fn waits_on(backend: wgpu::Backend) -> bool {
+    backend != wgpu::Backend::BrowserWebGpu
+}
+
+/// [`GpuError::CannotWait`] where `device` cannot be waited on ([`waits_on`]); every call that
+/// waits for the device asks this first. Only a WebAssembly build has the browser's backend:
+/// elsewhere there is nothing to ask (and no `AdapterInfo` to copy on every wait).
+pub(crate) fn check_can_wait(device: &wgpu::Device) -> Result<(), GpuError> {
+    if cfg!(target_arch = "wasm32") && !waits_on(device.adapter_info().backend) {
+        return Err(GpuError::CannotWait);
+    }
+    Ok(())
+}
+
 /// Whether the queue has run `submission`, waiting at most `timeout` for it (zero: asks without
 /// blocking).
 pub(crate) fn finished_within(
@@ -187,6 +204,7 @@ pub(crate) fn finished_within(
     submission: &wgpu::SubmissionIndex,
     timeout: std::time::Duration,
 ) -> Result<bool, GpuError> {
+    check_can_wait(device)?;
     let wait =
         wgpu::PollType::Wait { submission_index: Some(submission.clone()), timeout: Some(timeout) };
     match device.poll(wait) {
@@ -204,6 +222,7 @@ pub(crate) fn read_back_within(
     bytes: u64,
     (submission, timeout): (Option<wgpu::SubmissionIndex>, Option<std::time::Duration>),
 ) -> Result<Option<Vec<u8>>, GpuError> {
+    check_can_wait(device)?;
     let (tx, rx) = mpsc::channel();
     buffer.map_async(wgpu::MapMode::Read, ..bytes, move |r| {
         let _ = tx.send(r);
@@ -369,5 +388,24 @@ impl<K: PartialEq> KeptBinds<K> {
     /// Drops the kept groups whose key `drop` names.
     pub fn forget(&self, drop: impl Fn(&K) -> bool) {
         self.kept.lock().unwrap_or_else(|e| e.into_inner()).retain(|(k, _)| !drop(k));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use wgpu::Backend;
+
+    /// Waits are refused on WebGPU in a browser only (wgpu 30's WebGPU backend answers every
+    /// poll at once, and a mapping's callback runs in the browser's event loop); the native
+    /// backends and the no-op one wait. Every backend wgpu has is named here, so a new one
+    /// fails the test until it is decided.
+    #[test]
+    fn only_a_browser_cannot_be_waited_on() {
+        let native = [Backend::Noop, Backend::Vulkan, Backend::Metal, Backend::Dx12, Backend::Gl];
+        for backend in Backend::ALL {
+            let expected = native.contains(&backend);
+            assert!(expected || backend == Backend::BrowserWebGpu, "{backend:?} is not decided");
+            assert_eq!(super::waits_on(backend), expected, "{backend:?}");
+        }
     }
 }

@@ -1,6 +1,6 @@
 //! `nmat-wgpu`: batch decoding of `.nmat` materials on any GPU wgpu reaches (Vulkan, Metal,
-//! D3D12, OpenGL ES, WebGPU), bit-exact with `nmat_core`'s integer decoder: the same 8-bit codes
-//! as every CPU kernel and the C API.
+//! D3D12, OpenGL ES; not yet WebGPU in a browser, [`GpuError::CannotWait`]), bit-exact with
+//! `nmat_core`'s integer decoder: the same 8-bit codes as every CPU kernel and the C API.
 //!
 //! The caller owns the device and queue (engines do); a [`Context`] caches the pipelines;
 //! [`Context::upload`] puts a material's packed latent words (as stored in the file), its int8

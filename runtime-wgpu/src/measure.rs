@@ -85,6 +85,7 @@ pub fn time_recorded(
     repeats: u32,
     mut record: impl FnMut(&mut wgpu::CommandEncoder) -> Result<(), GpuError>,
 ) -> Result<(f64, Clock), GpuError> {
+    crate::gpu::check_can_wait(device)?;
     let repeats = repeats.max(1);
     let mut warm = device.create_command_encoder(&Default::default());
     record(&mut warm)?;
@@ -138,6 +139,7 @@ pub fn time_stages(
     queue: &wgpu::Queue,
     stages: &mut [Stage<'_>],
 ) -> Result<Stages, GpuError> {
+    crate::gpu::check_can_wait(device)?;
     let wait = |device: &wgpu::Device| {
         device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Map(e.to_string()))
     };

@@ -147,8 +147,8 @@ impl PendingDecode {
     /// `Duration::ZERO` it asks without blocking (e.g. once a frame, for a decode kept in flight
     /// across frames). Once it says `true`, [`PendingDecode::wait`] maps the codes without
     /// waiting for the device; `false` leaves the decode as it was, to be asked again, waited on
-    /// or dropped. (Native backends only: wgpu's WebGPU backend answers every poll as done
-    /// without waiting, so on the web it says `true` at once.)
+    /// or dropped. [`GpuError::CannotWait`] on WebGPU in a browser, where nothing can wait for
+    /// the device (its polls do not).
     pub fn is_finished(&self, device: &wgpu::Device, wait: Duration) -> Result<bool, GpuError> {
         finished_within(device, &self.submission, wait)
     }

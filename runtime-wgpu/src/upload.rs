@@ -70,6 +70,9 @@ impl Context {
                 return Ok(GpuMaterial::new(m, (desc, section), Kernel::Reference, body, None));
             }
         };
+        // Every kernel is checked on a probe read back from the device: where no call can wait
+        // for it, say so here (a probe's failure would read as the kernel's).
+        crate::gpu::check_can_wait(device)?;
         // The input features for the material's layout, generated once: unchecked in the
         // kernels' sources, checked for the sampling module (features.rs).
         let features = Features::new(n);
