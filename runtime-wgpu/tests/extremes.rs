@@ -149,13 +149,19 @@ fn extreme_latents_and_outputs_decode_as_on_the_cpu() {
         set_codes(&mut spec, pattern);
         gpu.agree(&format!("latents {pattern_name} at 1 and 8 bits"), &spec);
     }
-    for sign in [1i64, -1] {
+    // At scale 1 the 32-bit requantization (requant.wgsl) multiplies these sums by m'/2^u = 4
+    // (the scale times 2^(14 − 12), output and hidden Q-formats); at 1024 and 1000 (a power of
+    // two, and a mantissa with fewer trailing zeros) by about 4000. The sum is clamped to the
+    // row's saturation range first: near ±2^31 its f32 estimate exceeds i32 by far. Without
+    // that clamp the negative sums at 1024 and 1000 come out wrong on lavapipe (the estimate at
+    // i32's least, minus 1, wraps), scale 1 and the positive sums by chance do not.
+    for (scale, sign) in [(1.0, 1i64), (1.0, -1), (1024.0, 1), (1024.0, -1), (1000.0, -1)] {
         let mut spec = small("clamp");
         let last = spec.mlp.layers.last_mut().unwrap();
         let limit = i64::from(i32::MAX) - i64::from(last.inputs) * 127 * 32768;
         last.bias = vec![(sign * limit) as i32; 3];
-        last.scales = vec![1.0; 3];
-        gpu.agree(&format!("outputs saturating, bias sign {sign}"), &spec);
+        last.scales = vec![scale; 3];
+        gpu.agree(&format!("outputs saturating, scale {scale}, bias sign {sign}"), &spec);
     }
     let mut spec = small("zw");
     spec.mlp.layers.iter_mut().for_each(|l| l.weights_i8.iter_mut().for_each(|w| *w = 0));
