@@ -19,7 +19,7 @@ use nmat_core::{ChannelMask, Container, Material, MaterialSpec};
 use nmat_tests::decode_all_u8;
 use nmat_tests::generate::{
     BIAS_LIMIT_128, FixtureConfig, Layout, accumulator_corners, generate, largest_material,
-    random_config, set_codes, wide_constant_material,
+    random_config, set_codes, terms_in_any_order, wide_constant_material,
 };
 use nmat_wgpu::{Context, GpuError, GpuMaterial, Kernel, TexelRequest};
 
@@ -194,6 +194,16 @@ fn random_materials_decode_as_on_the_cpu() {
         let spec = generate(&cfg);
         gpu.agree(&format!("random material {seed} ({cfg:?})"), &spec);
     }
+}
+
+/// A level whose terms come in an order the NTC and NBC layouts never write
+/// (`terms_in_any_order`: `Bilinear[0]`, `Nearest4[1]`, `Nearest4[0]`, `Bilinear[2, 0]`):
+/// the generated input features of each kernel and tile entry see two nearest terms, a grid
+/// read in both modes in that order and a chain sharing a grid with them.
+#[test]
+fn a_level_of_terms_in_any_order_decodes_as_on_the_cpu() {
+    let gpu = Gpu::new();
+    gpu.agree("a level of terms in any order", &generate(&terms_in_any_order()));
 }
 
 /// The widest network the format allows (FORMAT.md §5.3): four layers, 128 inputs (an NTC

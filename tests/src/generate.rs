@@ -1,7 +1,8 @@
 //! Deterministic generator of test materials: random but seeded latents and weights in the NTC and
-//! NBC layouts of docs/FORMAT.md §8. The weights are built as a quantization-aware trainer would
-//! leave them: int8 codes with per-row scales and i32 biases. The file stores that one network;
-//! the float decoder dequantizes it, so the two decoders differ in arithmetic only.
+//! NBC layouts of docs/FORMAT.md §8, or in a level of any terms. The weights are built as a
+//! quantization-aware trainer would leave them: int8 codes with per-row scales and i32 biases. The
+//! file stores that one network; the float decoder dequantizes it, so the two decoders differ in
+//! arithmetic only.
 
 use nmat_core::{
     Activation, AddressMode, ChannelSpec, ColorSpace, GridSpec, LayerSpec, LevelSpec, MaterialSpec,
@@ -43,6 +44,12 @@ pub enum Layout {
     /// its fused features (bilinear sum of its residual and every coarser one) and, as its low-res
     /// input, the fused next-coarser level. Level l covers mip l; the coarsest covers the rest.
     Nbc { channels: u8, bits_coarse_to_fine: Vec<u8> },
+    /// One level of `terms` read by every mip, over `grids` given as (channels, bits per code),
+    /// grid g at 1/2^(g + 2) of mip 0: the orders and combinations the format allows (FORMAT.md
+    /// §5.2) that the NTC and NBC layouts never write, such as two `Nearest4` terms in a level
+    /// or a grid read bilinearly before it is read by its nearest cells. A chain's grids need
+    /// the same channel count.
+    Terms { grids: Vec<(u8, u8)>, terms: Vec<TermSpec> },
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -309,6 +316,14 @@ pub fn generate(cfg: &FixtureConfig) -> MaterialSpec {
             }
             mip_to_level.extend((0..mip_count).map(|m| (m as usize).min(level_count - 1) as u8));
         }
+        Layout::Terms { grids: layout, terms } => {
+            for (g, &(channels, bits)) in layout.iter().enumerate() {
+                let (w, h) = (scaled(cfg.width, g as u32 + 2), scaled(cfg.height, g as u32 + 2));
+                grids.push(random_grid(&mut rng, w, h, channels, bits, f));
+            }
+            levels.push(LevelSpec { terms: terms.clone() });
+            mip_to_level.extend((0..mip_count).map(|_| 0));
+        }
     }
     let level_width: usize = levels[0]
         .terms
@@ -418,6 +433,27 @@ pub fn accumulator_corners() -> [(i16, i8, i32); 4] {
     ]
 }
 
+/// A material whose one level reads its grids in an order the NTC and NBC layouts never write
+/// (`Layout::Terms`): `Bilinear[0]`, `Nearest4[1]`, `Nearest4[0]`, `Bilinear[2, 0]` — two
+/// nearest terms, the second on a grid read bilinearly before, and a chain that fuses that grid
+/// with another; grids of 3, 5 and 3 channels at 4, 2 and 8 bits per code; 47 inputs, 5 channels.
+pub fn terms_in_any_order() -> FixtureConfig {
+    let term = |mode, grids: &[u8]| TermSpec { mode, grids: grids.to_vec() };
+    FixtureConfig {
+        layout: Layout::Terms {
+            grids: vec![(3, 4), (5, 2), (3, 8)],
+            terms: vec![
+                term(TermMode::Bilinear, &[0]),
+                term(TermMode::Nearest4, &[1]),
+                term(TermMode::Nearest4, &[0]),
+                term(TermMode::Bilinear, &[2, 0]),
+            ],
+        },
+        hidden: vec![24],
+        ..FixtureConfig::ntc("terms_in_any_order", 16, 37, 29, 5)
+    }
+}
+
 /// A 16384² material of 15 mips, the largest the format allows (two grids of 2 channels at 2
 /// bits, one hidden layer of 8, 8 frequencies of the positional encoding, 2 channels): its
 /// grids are those of a 64² material, since the NTC layout's at 16384² (4096²) would be too big
@@ -458,10 +494,11 @@ pub fn fitting_lod_code(code: u8, f: u8) -> u8 {
     if code <= 1 || u16::from(f) + u16::from(code) <= 16 { code } else { 1 }
 }
 
-/// The golden fixtures' configurations, then `random` random ones (seeds 0, 1, …): the network
-/// shapes and latent layouts a code generator is checked on.
+/// The golden fixtures' configurations, [`terms_in_any_order`], then `random` random ones
+/// (seeds 0, 1, …): the network shapes and latent layouts a code generator is checked on.
 pub fn golden_and_random_configs(random: u64) -> Vec<FixtureConfig> {
-    golden_configs().into_iter().chain((0..random).map(random_config)).collect()
+    let configs = golden_configs().into_iter().chain([terms_in_any_order()]);
+    configs.chain((0..random).map(random_config)).collect()
 }
 
 /// A random but valid configuration: sizes, layouts, bit depths, Q-formats, widths.

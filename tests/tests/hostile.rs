@@ -165,6 +165,17 @@ fn specific_corruptions_give_specific_errors() {
         Container::parse(&b).map(|m| m.version_minor())
     };
     assert!(matches!(edit(0, b"NMAX"), Err(Error::Malformed { field: Field::Magic, .. })));
+    // Shorter than the header: another kind of file (a few bytes of a PNG) is named by its
+    // magic, a cut nmat file (its magic or a prefix of it, or nothing) by its length.
+    for short in [&b"\x89PNG\r\n"[..], b"NMAX", b"NX", b"P"] {
+        let got = Container::parse(short);
+        assert!(matches!(got, Err(Error::Malformed { field: Field::Magic, .. })), "{got:?}");
+    }
+    for len in [0, 1, 3, 4, 31] {
+        let got = Container::parse(&good[..len]);
+        let truncated = matches!(got, Err(Error::Truncated { field: Field::FileLength, .. }));
+        assert!(truncated, "{len} bytes: {got:?}");
+    }
     assert!(matches!(
         edit(4, &3u16.to_le_bytes()),
         Err(Error::Unsupported { field: Field::VersionMajor, value: 3, .. })
