@@ -197,9 +197,10 @@ fn random_materials_decode_as_on_the_cpu() {
 }
 
 /// A level whose terms come in an order the NTC and NBC layouts never write
-/// (`terms_in_any_order`: `Bilinear[0]`, `Nearest4[1]`, `Nearest4[0]`, `Bilinear[2, 0]`):
-/// the generated input features of each kernel and tile entry see two nearest terms, a grid
-/// read in both modes in that order and a chain sharing a grid with them.
+/// (`terms_in_any_order`: `Bilinear[0]`, `Nearest4[1]`, `Nearest4[0]` and a chain of eight
+/// grids, `Bilinear[2, 0, 2, 2, 0, 0, 2, 0]`): the generated input features of each kernel and
+/// tile entry see two nearest terms, a grid read in both modes in that order and the longest
+/// chain the format allows, sharing a grid with them.
 #[test]
 fn a_level_of_terms_in_any_order_decodes_as_on_the_cpu() {
     let gpu = Gpu::new();

@@ -434,9 +434,11 @@ pub fn accumulator_corners() -> [(i16, i8, i32); 4] {
 }
 
 /// A material whose one level reads its grids in an order the NTC and NBC layouts never write
-/// (`Layout::Terms`): `Bilinear[0]`, `Nearest4[1]`, `Nearest4[0]`, `Bilinear[2, 0]` — two
-/// nearest terms, the second on a grid read bilinearly before, and a chain that fuses that grid
-/// with another; grids of 3, 5 and 3 channels at 4, 2 and 8 bits per code; 47 inputs, 5 channels.
+/// (`Layout::Terms`): `Bilinear[0]`, `Nearest4[1]`, `Nearest4[0]`, `Bilinear[2, 0, 2, 2, 0, 0,
+/// 2, 0]` — two nearest terms, the second on a grid read bilinearly before, and the longest
+/// chain the format allows (8), fusing that grid with another, each several times; grids of 3,
+/// 5 and 3 channels at 4, 2 and 8 bits per code; 47 inputs (Q.10, so that the sums of eight
+/// latents mostly stay inside i16), 5 channels.
 pub fn terms_in_any_order() -> FixtureConfig {
     let term = |mode, grids: &[u8]| TermSpec { mode, grids: grids.to_vec() };
     FixtureConfig {
@@ -446,10 +448,11 @@ pub fn terms_in_any_order() -> FixtureConfig {
                 term(TermMode::Bilinear, &[0]),
                 term(TermMode::Nearest4, &[1]),
                 term(TermMode::Nearest4, &[0]),
-                term(TermMode::Bilinear, &[2, 0]),
+                term(TermMode::Bilinear, &[2, 0, 2, 2, 0, 0, 2, 0]),
             ],
         },
         hidden: vec![24],
+        input_frac_bits: 10,
         ..FixtureConfig::ntc("terms_in_any_order", 16, 37, 29, 5)
     }
 }

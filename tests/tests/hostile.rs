@@ -4,10 +4,11 @@
 #![allow(clippy::unwrap_used)]
 
 use nmat_core::{
-    ChannelMask, Container, Error, Field, Filter, Material, ParseOptions, Precision, SampleRequest,
+    ChannelMask, Container, Error, Field, Filter, Material, MaterialSpec, ParseOptions, Precision,
+    SampleRequest, SectionKind,
 };
-use nmat_tests::files::refresh_checksum;
-use nmat_tests::generate::{generate, golden_configs};
+use nmat_tests::files::{refresh_checksum, section};
+use nmat_tests::generate::{FixtureConfig, generate, golden_configs, terms_in_any_order};
 use nmat_tests::reference;
 
 fn fixtures() -> Vec<(&'static str, Vec<u8>)> {
@@ -237,4 +238,121 @@ fn specific_corruptions_give_specific_errors() {
         Container::parse(&good[..good.len() - 4]),
         Err(Error::Truncated { field: Field::FileLength, .. })
     ));
+}
+
+/// The parser's rules hold exactly at their edges: a value at a bound parses, the first one past
+/// it is refused by name, and every reserved field is checked on its own. Each case here was
+/// found unchecked by mutating the rule (cargo-mutants on `container.rs`).
+#[test]
+fn the_parser_rules_hold_at_their_edges() {
+    let base = generate(&FixtureConfig::ntc("edges", 3, 20, 10, 3)); // 5 mips, 3 levels
+    let parse =
+        |spec: &MaterialSpec| spec.to_bytes().and_then(|b| Container::parse(&b).map(|_| ()));
+    let refused = |spec: &MaterialSpec, field: Field, index: u32| {
+        let got = parse(spec);
+        let named = match got {
+            Err(Error::Malformed { field: f, index: i, .. }) => (f, i) == (field, index),
+            Err(Error::LimitExceeded { field: f, index: i, .. }) => (f, i) == (field, index),
+            _ => false,
+        };
+        assert!(named, "{field:?} {index}: {got:?}");
+    };
+    let decodes_as_the_reference = |spec: &MaterialSpec| {
+        let bytes = spec.to_bytes().unwrap();
+        let m = Container::parse(&bytes).unwrap();
+        for (x, y, mip) in nmat_tests::texels(&m) {
+            let mut codes = [0u8; 16];
+            let n = m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut codes).unwrap();
+            assert_eq!(codes[..n], reference::decode_u8(spec, x, y, mip)[..], "({x}, {y}) {mip}");
+        }
+    };
+
+    // A channel's range: each end must be finite on its own.
+    for (min, max) in [(f32::NAN, 1.0), (0.0, f32::INFINITY), (f32::NEG_INFINITY, 1.0)] {
+        let mut s = base.clone();
+        (s.channels[1].range_min, s.channels[1].range_max) = (min, max);
+        refused(&s, Field::ChannelRange, 1);
+    }
+    // A mip's level: the last level is the largest.
+    let mut s = base.clone();
+    s.mip_to_level[1] = base.levels.len() as u8;
+    refused(&s, Field::MipToLevel, 1);
+    // The fewest fraction bits of the input format (4) parse and decode.
+    let at_least = FixtureConfig {
+        input_frac_bits: 4,
+        pe_frequencies: 2,
+        ..FixtureConfig::ntc("f4", 4, 12, 9, 2)
+    };
+    decodes_as_the_reference(&generate(&at_least));
+    // A chain of eight grids (the most, §5.2) parses and decodes; none is refused.
+    decodes_as_the_reference(&generate(&terms_in_any_order()));
+    let mut s = base.clone();
+    s.levels[0].terms[1].grids.clear();
+    refused(&s, Field::TermChainLength, 1);
+    // A term's index counts the terms of the levels before it (4 a level).
+    let mut s = base.clone();
+    s.levels[1].terms[1].grids = vec![17];
+    refused(&s, Field::TermGrid, 4 + 1);
+    // Dequantized latents must stay i16 at both ends of the codes (§4.2): offset + max · step.
+    let max = (1i32 << base.grids[0].bits) - 1;
+    for (offset, step) in [(32000, (1000 + max - 1) / max), (0, 33000 / max + 1)] {
+        let mut s = base.clone();
+        s.grids[0].quantization[1] = (offset as i16, step as i16);
+        refused(&s, Field::LatentQuantization, 0);
+    }
+    // Layers: each takes the previous one's outputs, none has no outputs, the last has one a
+    // channel, and every bias of a layer is within the accumulator bound (§5.3).
+    let resized = |l: &mut nmat_core::LayerSpec, inputs: u16, outputs: u16| {
+        let n = usize::from(inputs) * usize::from(outputs);
+        l.weights_i8.resize(n, 1);
+        l.scales.resize(usize::from(outputs), l.scales[0]);
+        l.bias.resize(usize::from(outputs), 0);
+        (l.inputs, l.outputs) = (inputs, outputs);
+    };
+    let mut s = base.clone();
+    let (inputs, outputs) = (s.mlp.layers[1].inputs + 1, s.mlp.layers[1].outputs);
+    resized(&mut s.mlp.layers[1], inputs, outputs);
+    refused(&s, Field::LayerInputs, 1);
+    let mut s = base.clone();
+    let inputs = s.mlp.layers[0].inputs;
+    resized(&mut s.mlp.layers[0], inputs, 0);
+    let outputs = s.mlp.layers[1].outputs;
+    resized(&mut s.mlp.layers[1], 0, outputs);
+    refused(&s, Field::LayerOutputs, 0);
+    let mut s = base.clone();
+    let last = s.mlp.layers.len() - 1;
+    let inputs = s.mlp.layers[last].inputs;
+    resized(&mut s.mlp.layers[last], inputs, 2);
+    refused(&s, Field::LayerOutputs, last as u32);
+    let mut s = base.clone();
+    let inputs = i32::from(s.mlp.layers[0].inputs);
+    s.mlp.layers[0].bias[2] = i32::MAX - inputs * 127 * 32768 + 1;
+    refused(&s, Field::Bias, 0);
+
+    // Reserved fields, each alone (the file patched, its checksum refreshed).
+    let good = base.to_bytes().unwrap();
+    let patched = |kind: SectionKind, at: usize, bytes: &[u8]| {
+        let (offset, _) = section(&good, kind.0);
+        let mut b = good.clone();
+        b[offset + at..offset + at + bytes.len()].copy_from_slice(bytes);
+        refresh_checksum(&mut b);
+        Container::parse(&b).map(|_| ())
+    };
+    let is = |got: Result<(), Error>, field: Field, index: u32| {
+        let named = matches!(got, Err(Error::Malformed { field: f, index: i, .. }) if (f, i) == (field, index));
+        assert!(named, "{field:?} {index}: {got:?}");
+    };
+    // Channel record 1 (after the material's 12 bytes; 32 a channel, §3): byte 19, word 28.
+    is(patched(SectionKind::MATERIAL, 12 + 32 + 19, &[1]), Field::ChannelReserved, 1);
+    is(patched(SectionKind::MATERIAL, 12 + 32 + 28, &[1]), Field::ChannelReserved, 1);
+    // The level table's entry for the first mip past the chain (levels header byte 4 + mip).
+    let mips = usize::from(base.mip_count);
+    is(patched(SectionKind::LEVELS, 4 + mips, &[1]), Field::MipToLevel, mips as u32);
+    // Level 0's header after the 20-byte levels header and the grid records (16 + 4 a channel):
+    // its reserved bytes, then its second term's chain length past the most (8).
+    let level0 = 20 + base.grids.iter().map(|g| 16 + 4 * usize::from(g.channels)).sum::<usize>();
+    is(patched(SectionKind::LEVELS, level0 + 3, &[1]), Field::LevelReserved, 0);
+    is(patched(SectionKind::LEVELS, level0 + 4 + 12 + 1, &[9]), Field::TermChainLength, 1);
+    // Layer 1's record (after the MLP's 8-byte header, 8 a layer): its reserved u16.
+    is(patched(SectionKind::MLP, 8 + 8 + 6, &[1]), Field::LayerReserved, 1);
 }
