@@ -8,14 +8,18 @@ use nmat_core::internals::file_checksum;
 
 /// (offset, length) of the first section of `kind` in the file's table.
 pub fn section(bytes: &[u8], kind: u32) -> (usize, usize) {
+    let e = section_entry(bytes, kind);
+    let word = |k: usize| u32::from_le_bytes(bytes[e + k..e + k + 4].try_into().unwrap());
+    (word(8) as usize, word(12) as usize)
+}
+
+/// Where the table entry of the first section of `kind` starts in the file (16 bytes: kind,
+/// flags, offset, length).
+pub fn section_entry(bytes: &[u8], kind: u32) -> usize {
     let count = u32::from_le_bytes(bytes[16..20].try_into().unwrap()) as usize;
     (0..count)
         .map(|i| 32 + 16 * i)
         .find(|&e| u32::from_le_bytes(bytes[e..e + 4].try_into().unwrap()) == kind)
-        .map(|e| {
-            let word = |k: usize| u32::from_le_bytes(bytes[e + k..e + k + 4].try_into().unwrap());
-            (word(8) as usize, word(12) as usize)
-        })
         .unwrap_or_else(|| panic!("no section of kind {kind}"))
 }
 

@@ -118,8 +118,9 @@ fn assert_spans_agree(m: &Material<'_>, r: &mut Rng, spans: usize) {
 
 /// A level whose terms come in an order the NTC and NBC layouts never write
 /// (`terms_in_any_order`: two `Nearest4` terms, the second on a grid read bilinearly before
-/// it, a chain of eight fusing that grid with another): the per-texel definition equals the independent
-/// reference decoder on every texel of every mip, and every kernel's texels and spans equal it.
+/// it, a chain of eight fusing that grid with another): the per-texel definition equals the
+/// independent reference decoder on every texel of every mip, and every kernel's texels and spans
+/// equal it.
 #[test]
 fn a_level_of_terms_in_any_order_decodes_as_the_reference() {
     let spec = generate(&terms_in_any_order());

@@ -7,7 +7,7 @@ use nmat_core::{
     ChannelMask, Container, Error, Field, Filter, Material, MaterialSpec, ParseOptions, Precision,
     SampleRequest, SectionKind,
 };
-use nmat_tests::files::{refresh_checksum, section};
+use nmat_tests::files::{refresh_checksum, section, section_entry};
 use nmat_tests::generate::{FixtureConfig, generate, golden_configs, terms_in_any_order};
 use nmat_tests::reference;
 
@@ -339,7 +339,10 @@ fn the_parser_rules_hold_at_their_edges() {
         Container::parse(&b).map(|_| ())
     };
     let is = |got: Result<(), Error>, field: Field, index: u32| {
-        let named = matches!(got, Err(Error::Malformed { field: f, index: i, .. }) if (f, i) == (field, index));
+        let named = match got {
+            Err(Error::Malformed { field: f, index: i, .. }) => (f, i) == (field, index),
+            _ => false,
+        };
         assert!(named, "{field:?} {index}: {got:?}");
     };
     // Channel record 1 (after the material's 12 bytes; 32 a channel, §3): byte 19, word 28.
@@ -353,6 +356,27 @@ fn the_parser_rules_hold_at_their_edges() {
     let level0 = 20 + base.grids.iter().map(|g| 16 + 4 * usize::from(g.channels)).sum::<usize>();
     is(patched(SectionKind::LEVELS, level0 + 3, &[1]), Field::LevelReserved, 0);
     is(patched(SectionKind::LEVELS, level0 + 4 + 12 + 1, &[9]), Field::TermChainLength, 1);
+    // Grid 0's record (after the levels header): its reserved u16, named with its value.
+    let got = patched(SectionKind::LEVELS, 20 + 6, &[1, 2]);
+    let field = Field::GridReserved;
+    assert_eq!(got, Err(Error::Malformed { field, index: 0, value: 0x0201 }));
+    // The last level claiming more terms than the section holds (each level here has two).
+    let last = base.levels.len() - 1;
+    let got = patched(SectionKind::LEVELS, level0 + (4 + 2 * 12) * last, &[4]);
+    let truncated = match got {
+        Err(Error::Truncated { field: Field::TermCount, index, .. }) => index == last as u32,
+        _ => false,
+    };
+    assert!(truncated, "{got:?}");
+    // An MLP section that ends inside its table of layer records.
+    let entry = section_entry(&good, SectionKind::MLP.0);
+    let mut b = good.clone();
+    b[entry + 12..entry + 16].copy_from_slice(&12u32.to_le_bytes());
+    refresh_checksum(&mut b);
+    let got = Container::parse(&b).map(|_| ());
+    let truncated = matches!(got, Err(Error::Truncated { field: Field::LayerCount, .. }));
+    assert!(truncated, "{got:?}");
     // Layer 1's record (after the MLP's 8-byte header, 8 a layer): its reserved u16.
-    is(patched(SectionKind::MLP, 8 + 8 + 6, &[1]), Field::LayerReserved, 1);
+    let got = patched(SectionKind::MLP, 8 + 8 + 6, &[1, 2]);
+    assert_eq!(got, Err(Error::Malformed { field: Field::LayerReserved, index: 1, value: 0x0201 }));
 }
