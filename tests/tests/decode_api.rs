@@ -172,6 +172,86 @@ fn stochastic_filtering_averages_to_trilinear() {
     assert_ne!(one, target);
 }
 
+/// Stochastic filtering picks exactly the texel its definition names (FORMAT.md §6.9): mip
+/// `floor(lod) + 1` if `r2 < lod − floor(lod)`, texel `x0 + 1` if `r0 < fx`, `y0 + 1` if
+/// `r1 < fy` — at the edges too: `r` equal to the fraction, 0 at a texel's centre and an
+/// integer LOD (where every `r` picks that texel), and 1.
+#[test]
+fn stochastic_filtering_picks_the_texel_its_definition_names() {
+    let bytes = fixture(0); // 64×64, 7 mips
+    let m = Container::parse(&bytes).unwrap();
+    let last = m.mip_count() - 1;
+    // (u, v, lod): fractions 0.25, 0.5 and 0.5 at mip 1 (exact in f32), then a texel's centre
+    // at mip 2 and LOD 2.
+    let points = [(10.75 / 32.0, 8.0 / 32.0, 1.5f32), (5.5 / 16.0, 9.5 / 16.0, 2.0)];
+    let edges = [0.0, 0.2, 0.25, 0.5, 0.7, 1.0f32];
+    for (u, v, lod) in points {
+        for i in 0..edges.len().pow(3) {
+            let (r0, r1, r2) = (edges[i / 36], edges[i / 6 % 6], edges[i % 6]);
+            let low = f64::from(lod).floor();
+            let mip =
+                if f64::from(r2) < f64::from(lod) - low { low as u32 + 1 } else { low as u32 };
+            let mip = mip.min(last);
+            let (w, h) = m.mip_size(mip);
+            let pick = |c: f32, size: u32, r: f32| {
+                let p = f64::from(c) * f64::from(size) - 0.5;
+                p.floor() as i64 + i64::from(f64::from(r) < p - p.floor())
+            };
+            let (x, y) = (pick(u, w, r0), pick(v, h, r1));
+            let mut want = [0f32; 3];
+            m.decode_texel_unit(x, y, mip, ChannelMask::ALL, &mut want).unwrap();
+            let got = sample(&m, u, v, lod, Filter::Stochastic, Precision::Float, [r0, r1, r2]);
+            let at =
+                format!("({u}, {v}) LOD {lod}, r = ({r0}, {r1}, {r2}): texel ({x}, {y}) mip {mip}");
+            for (a, b) in got.iter().zip(want) {
+                assert!((a - b).abs() < 1e-6, "{at}: {got:?} vs {want:?}");
+            }
+        }
+    }
+}
+
+/// A sample of some channels equals the same channels of a sample of all of them, for every
+/// filter: each channel is mapped to its own range (the fixture's normal channels are signed),
+/// as a texel decode maps it.
+#[test]
+fn samples_map_each_channel_to_its_range_and_subsets_equal_a_full_sample() {
+    let bytes = fixture(1); // 10 channels
+    let m = Container::parse(&bytes).unwrap();
+    let (w, h) = (m.width() as f32, m.height() as f32);
+    for (x, y) in [(0, 0), (7, 3), (40, 21)] {
+        let (u, v) = ((x as f32 + 0.5) / w, (y as f32 + 0.5) / h);
+        let got = sample(&m, u, v, 0.0, Filter::Nearest, Precision::Float, [0.0; 3]);
+        let mut want = [0f32; 10];
+        m.decode_texel(x, y, 0, ChannelMask::ALL, &mut want).unwrap();
+        for (c, (a, b)) in got.iter().zip(want).enumerate() {
+            assert!((a - b).abs() < 1e-6, "texel ({x}, {y}) channel {c}: {a} vs {b}");
+        }
+    }
+    let mut r = Rng::new(6);
+    for filter in [Filter::Nearest, Filter::Bilinear, Filter::Trilinear, Filter::Stochastic] {
+        for _ in 0..40 {
+            let (u, v, lod) = (r.unit() as f32, r.unit() as f32, (r.unit() * 4.0) as f32);
+            let random = [r.unit() as f32, r.unit() as f32, r.unit() as f32];
+            let mask = r.range(1, (1 << 10) - 1) as u16;
+            let full = sample(&m, u, v, lod, filter, Precision::Float, random);
+            let mut sub = [0f32; 16];
+            let req = SampleRequest {
+                u,
+                v,
+                lod,
+                filter,
+                precision: Precision::Float,
+                random,
+                channels: ChannelMask(mask),
+            };
+            let n = m.sample(&req, &mut sub).unwrap();
+            let picked: Vec<f32> =
+                (0..10).filter(|c| mask & (1 << c) != 0).map(|c| full[c]).collect();
+            assert_eq!(sub[..n], picked[..], "{filter:?} mask {mask:#x} at ({u}, {v}) LOD {lod}");
+        }
+    }
+}
+
 #[test]
 fn a_material_is_shared_across_threads() {
     fn assert_sync<T: Sync + Send>(_: &T) {}

@@ -329,7 +329,8 @@ fn the_parser_rules_hold_at_their_edges() {
     s.mlp.layers[0].bias[2] = i32::MAX - inputs * 127 * 32768 + 1;
     refused(&s, Field::Bias, 0);
 
-    // Reserved fields, each alone (the file patched, its checksum refreshed).
+    // Patched files (the checksum refreshed): each reserved field alone, and counts that the
+    // section cannot hold.
     let good = base.to_bytes().unwrap();
     let patched = |kind: SectionKind, at: usize, bytes: &[u8]| {
         let (offset, _) = section(&good, kind.0);
@@ -351,8 +352,8 @@ fn the_parser_rules_hold_at_their_edges() {
     // The level table's entry for the first mip past the chain (levels header byte 4 + mip).
     let mips = usize::from(base.mip_count);
     is(patched(SectionKind::LEVELS, 4 + mips, &[1]), Field::MipToLevel, mips as u32);
-    // Level 0's header after the 20-byte levels header and the grid records (16 + 4 a channel):
-    // its reserved bytes, then its second term's chain length past the most (8).
+    // Level 0's header, after the 20-byte levels header and the grid records (16 + 4 bytes a
+    // channel, §5.1): its reserved bytes, then its second term's chain length past the most (8).
     let level0 = 20 + base.grids.iter().map(|g| 16 + 4 * usize::from(g.channels)).sum::<usize>();
     is(patched(SectionKind::LEVELS, level0 + 3, &[1]), Field::LevelReserved, 0);
     is(patched(SectionKind::LEVELS, level0 + 4 + 12 + 1, &[9]), Field::TermChainLength, 1);
@@ -368,15 +369,16 @@ fn the_parser_rules_hold_at_their_edges() {
         _ => false,
     };
     assert!(truncated, "{got:?}");
-    // An MLP section that ends inside its table of layer records.
+    // An MLP section that ends inside its table of layer records (one record short).
     let entry = section_entry(&good, SectionKind::MLP.0);
     let mut b = good.clone();
-    b[entry + 12..entry + 16].copy_from_slice(&12u32.to_le_bytes());
+    let short = 8 + 8 * (base.mlp.layers.len() as u32 - 1);
+    b[entry + 12..entry + 16].copy_from_slice(&short.to_le_bytes());
     refresh_checksum(&mut b);
     let got = Container::parse(&b).map(|_| ());
     let truncated = matches!(got, Err(Error::Truncated { field: Field::LayerCount, .. }));
     assert!(truncated, "{got:?}");
-    // Layer 1's record (after the MLP's 8-byte header, 8 a layer): its reserved u16.
+    // Layer 1's record (after the MLP's 8-byte header, 8 a layer, §5.3): its reserved u16.
     let got = patched(SectionKind::MLP, 8 + 8 + 6, &[1, 2]);
     assert_eq!(got, Err(Error::Malformed { field: Field::LayerReserved, index: 1, value: 0x0201 }));
 }
