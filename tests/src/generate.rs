@@ -322,7 +322,7 @@ pub fn generate(cfg: &FixtureConfig) -> MaterialSpec {
                 grids.push(random_grid(&mut rng, w, h, channels, bits, f));
             }
             levels.push(LevelSpec { terms: terms.clone() });
-            mip_to_level.extend((0..mip_count).map(|_| 0));
+            mip_to_level.resize(usize::from(mip_count), 0);
         }
     }
     let level_width: usize = levels[0]

@@ -10,7 +10,7 @@ pub(crate) mod reference_container;
 pub mod reference_packed;
 pub mod reference_packed_jpeg;
 
-use nmat_core::{ChannelMask, Material};
+use nmat_core::{ChannelMask, Container, Material, MaterialSpec};
 use std::path::PathBuf;
 
 /// `tests/fixtures/`.
@@ -31,6 +31,19 @@ pub fn texels<'m>(m: &'m Material<'_>) -> impl Iterator<Item = (i64, i64, u32)> 
         let (w, h) = m.mip_size(mip);
         (0..h).flat_map(move |y| (0..w).map(move |x| (i64::from(x), i64::from(y), mip)))
     })
+}
+
+/// Asserts that every texel of every mip of `spec`, written and parsed, decodes to the 8-bit
+/// codes of the independent reference decoder (all channels).
+pub fn assert_decodes_as_the_reference(spec: &MaterialSpec) {
+    let bytes = spec.to_bytes().expect("a valid spec");
+    let m = Container::parse(&bytes).expect("a spec's bytes parse");
+    let mut codes = [0u8; 16];
+    for (x, y, mip) in texels(&m) {
+        let n = m.decode_texel_u8(x, y, mip, ChannelMask::ALL, &mut codes).expect("valid request");
+        let want = reference::decode_u8(spec, x, y, mip);
+        assert_eq!(codes[..n], want[..], "texel ({x}, {y}) mip {mip}");
+    }
 }
 
 /// Integer decode of the whole chain to 8-bit codes, all channels.

@@ -186,8 +186,9 @@ fn stochastic_filtering_picks_the_texel_its_definition_names() {
     let points = [(10.75 / 32.0, 8.0 / 32.0, 1.5f32), (5.5 / 16.0, 9.5 / 16.0, 2.0)];
     let edges = [0.0, 0.2, 0.25, 0.5, 0.7, 1.0f32];
     for (u, v, lod) in points {
-        for i in 0..edges.len().pow(3) {
-            let (r0, r1, r2) = (edges[i / 36], edges[i / 6 % 6], edges[i % 6]);
+        let k = edges.len();
+        for i in 0..k.pow(3) {
+            let (r0, r1, r2) = (edges[i / (k * k)], edges[i / k % k], edges[i % k]);
             let low = f64::from(lod).floor();
             let mip =
                 if f64::from(r2) < f64::from(lod) - low { low as u32 + 1 } else { low as u32 };
