@@ -7,9 +7,9 @@
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
 
-use nmat_core::{ChannelMask, Container, Filter};
+use nmat_core::{ChannelMask, Container, Filter, Precision, SampleRequest};
 use nmat_tests::generate::{generate, golden_configs};
-use nmat_wgpu::{Context, Kernel, SampleBindings};
+use nmat_wgpu::{Context, GpuMaterial, Kernel, SampleBindings};
 
 mod common;
 use common::{buffer, cpu_codes, device, random_requests, submit_and_read, trained_material};
@@ -83,30 +83,9 @@ fn texel_shader(module: &str, mask: u16) -> String {
 fn texel_codes_match_the_cpu_byte_for_byte() {
     let (device, queue) = device();
     let ctx = Context::new(&device);
-    let bindings = SampleBindings { group: 0, first_binding: 0 };
-    let storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Storage { read_only },
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    };
-    let [desc, latents] = bindings.layout_entries(wgpu::ShaderStages::COMPUTE);
-    let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-        label: None,
-        entries: &[desc, latents, storage(2, true), storage(3, false)],
-    });
-    let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-        label: None,
-        bind_group_layouts: &[Some(&layout)],
-        immediate_size: 0,
-    });
-    let pipeline = |module: &str, mask| {
-        common::compute_pipeline(&device, &texel_shader(module, mask), Some(&pipeline_layout))
-    };
+    let harness = Harness::new(&device);
+    let bindings = harness.bindings;
+    let pipeline = |module: &str, mask| harness.pipeline(&device, &texel_shader(module, mask));
     // A module specialised to another material's layout (a 16-channel one with 8-bit codes):
     // bound to any other material, it computes the generic features.
     let config = golden_configs().into_iter().find(|c| c.name == "ntc_16ch_8bit_32").unwrap();
@@ -162,30 +141,8 @@ fn texel_codes_match_the_cpu_byte_for_byte() {
                     .flat_map(|r| [r.x, r.y, r.mip as i32])
                     .flat_map(i32::to_le_bytes)
                     .collect();
-                let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
-                let input = buffer(&device, words.len() as u64, usage, None);
-                queue.write_buffer(&input, 0, &words);
-                let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
-                let out = buffer(&device, 64 * reqs.len() as u64, usage, None);
-                let [desc, latents] = gpu.sample_entries(bindings).unwrap();
-                let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: None,
-                    layout: &layout,
-                    entries: &[
-                        desc,
-                        latents,
-                        wgpu::BindGroupEntry { binding: 2, resource: input.as_entire_binding() },
-                        wgpu::BindGroupEntry { binding: 3, resource: out.as_entire_binding() },
-                    ],
-                });
-                let mut encoder = device.create_command_encoder(&Default::default());
-                {
-                    let mut pass = encoder.begin_compute_pass(&Default::default());
-                    pass.set_pipeline(pipeline);
-                    pass.set_bind_group(0, &group, &[]);
-                    pass.dispatch_workgroups((reqs.len() as u32).div_ceil(64), 1, 1);
-                }
-                let got: Vec<u32> = submit_and_read(&device, &queue, encoder, &out)
+                let got: Vec<u32> = harness
+                    .run(&device, &queue, pipeline, gpu, &words, reqs.len(), 64)
                     .chunks(4)
                     .map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]))
                     .collect();
@@ -206,6 +163,177 @@ fn texel_codes_match_the_cpu_byte_for_byte() {
                     "{name}, mask {mask:#x}: nmat_texel of {module} differs from the CPU"
                 );
             }
+        }
+    }
+}
+
+/// A test's compute shader next to a material: the material's two bindings at 0 and 1 (group
+/// 0), the requests (read) at 2 and the results (written) at 3; one invocation a request, 64 a
+/// workgroup.
+struct Harness {
+    bindings: SampleBindings,
+    layout: wgpu::BindGroupLayout,
+    pipeline_layout: wgpu::PipelineLayout,
+}
+
+impl Harness {
+    fn new(device: &wgpu::Device) -> Harness {
+        let bindings = SampleBindings { group: 0, first_binding: 0 };
+        let storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let [desc, latents] = bindings.layout_entries(wgpu::ShaderStages::COMPUTE);
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: None,
+            entries: &[desc, latents, storage(2, true), storage(3, false)],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: None,
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        Harness { bindings, layout, pipeline_layout }
+    }
+
+    fn pipeline(&self, device: &wgpu::Device, source: &str) -> wgpu::ComputePipeline {
+        common::compute_pipeline(device, source, Some(&self.pipeline_layout))
+    }
+
+    /// The bytes `pipeline` writes for `count` requests read from `input`, `result_bytes` each,
+    /// with `gpu` bound.
+    #[allow(clippy::too_many_arguments)]
+    fn run(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        pipeline: &wgpu::ComputePipeline,
+        gpu: &GpuMaterial,
+        input: &[u8],
+        count: usize,
+        result_bytes: u64,
+    ) -> Vec<u8> {
+        let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
+        let reqs = buffer(device, input.len() as u64, usage, None);
+        queue.write_buffer(&reqs, 0, input);
+        let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
+        let out = buffer(device, result_bytes * count as u64, usage, None);
+        let [desc, latents] = gpu.sample_entries(self.bindings).unwrap();
+        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: None,
+            layout: &self.layout,
+            entries: &[
+                desc,
+                latents,
+                wgpu::BindGroupEntry { binding: 2, resource: reqs.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: out.as_entire_binding() },
+            ],
+        });
+        let mut encoder = device.create_command_encoder(&Default::default());
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, &group, &[]);
+            pass.dispatch_workgroups((count as u32).div_ceil(64), 1, 1);
+        }
+        submit_and_read(device, queue, encoder, &out)
+    }
+}
+
+/// A compute shader writing `nmat_sample`'s 16 values per request (u, v, lod, three random
+/// numbers) with stochastic filtering, the sampling module being `module`.
+fn stochastic_shader(module: &str) -> String {
+    format!(
+        "{module}\n\
+         @group(0) @binding(2) var<storage, read> reqs: array<f32>;\n\
+         @group(0) @binding(3) var<storage, read_write> out: array<f32>;\n\
+         @compute @workgroup_size(64)\n\
+         fn main(@builtin(global_invocation_id) id: vec3<u32>) {{\n\
+             let i = id.x;\n\
+             if (i >= arrayLength(&reqs) / 6u) {{ return; }}\n\
+             let r = 6u * i;\n\
+             let s = nmat_sample(vec2<f32>(reqs[r], reqs[r + 1u]), reqs[r + 2u],\n\
+                 vec3<f32>(reqs[r + 3u], reqs[r + 4u], reqs[r + 5u]), NMAT_STOCHASTIC,\n\
+                 NMAT_ALL_CHANNELS);\n\
+             for (var c = 0u; c < 16u; c++) {{ out[16u * i + c] = s[c]; }}\n\
+         }}\n"
+    )
+}
+
+/// Stochastic filtering on the GPU picks the texel and mip the CPU picks where the random
+/// numbers sit on the edges of FORMAT.md §6.9: equal to a texel's fraction (the next texel is
+/// picked only for a number below it) or to the LOD's fraction; 0, 1 and a number below 0
+/// (which counts as 0); at a texel's centre and an integer LOD, and across the material's left
+/// edge. The random tests of `nmat_sample` draw numbers that almost never equal a fraction.
+/// Coordinates are dyadic on power-of-two materials, so that f32 on the GPU and f64 on the CPU
+/// see the same fractions.
+#[test]
+fn stochastic_sampling_picks_the_cpus_texel_at_every_edge() {
+    let (device, queue) = device();
+    let ctx = Context::new(&device);
+    let harness = Harness::new(&device);
+    let pipeline = harness.pipeline(&device, &stochastic_shader(&harness.bindings.module()));
+    // Below 0 and from 1 up, numbers are clamped.
+    let edges = [-0.5, 0.0, 0.2, 0.25, 0.375, 0.5, 0.7, 1.0f32];
+    let power_of_two = ["ntc_rgb_64", "nbc_8421_64", "ntc_16ch_8bit_32", "trained bricks"];
+    for (name, bytes) in materials().into_iter().filter(|(n, _)| power_of_two.contains(&&**n)) {
+        let m = Container::parse(&bytes).unwrap();
+        let gpu = ctx.upload(&device, &queue, &m).unwrap();
+        // (x, y) in texel space on `mip` (u · width − ½), and the LOD: fractions ¼ and ½ and
+        // LOD fraction ½; a texel's centre at an integer LOD; fractions ¼ on mip 0 (⅜ and ⅞ on
+        // mip 1) left of the material, LOD fraction ¼.
+        let points = [(10.25, 7.5, 1, 1.5f32), (5.0, 6.0, 2, 2.0), (-0.75, 8.25, 0, 0.25)];
+        for (px, py, mip, lod) in points {
+            let (w, h) = m.mip_size(mip);
+            let (u, v) = ((px + 0.5) / w as f32, (py + 0.5) / h as f32);
+            let k = edges.len();
+            let requests: Vec<[f32; 6]> = (0..k.pow(3))
+                .map(|i| [u, v, lod, edges[i / (k * k)], edges[i / k % k], edges[i % k]])
+                .collect();
+            let input: Vec<u8> = requests.iter().flatten().flat_map(|f| f.to_le_bytes()).collect();
+            let got: Vec<f32> = harness
+                .run(&device, &queue, &pipeline, &gpu, &input, requests.len(), 64)
+                .chunks(4)
+                .map(|w| f32::from_le_bytes([w[0], w[1], w[2], w[3]]))
+                .collect();
+            let channels = m.channel_count();
+            let mut picks = Vec::new();
+            for (req, got) in requests.iter().zip(got.chunks(16)) {
+                let mut want = [0f32; 16];
+                let request = SampleRequest {
+                    u,
+                    v,
+                    lod,
+                    filter: Filter::Stochastic,
+                    precision: Precision::Integer,
+                    random: [req[3], req[4], req[5]],
+                    channels: ChannelMask::ALL,
+                };
+                assert_eq!(m.sample(&request, &mut want).unwrap(), channels);
+                for (c, (a, b)) in got.iter().zip(want).take(channels).enumerate() {
+                    let range = &m.channels()[c];
+                    let width = (range.range_max - range.range_min).abs();
+                    assert!(
+                        (a - b).abs() <= TOLERANCE * if width > 0.0 { width } else { 1.0 },
+                        "{name}: ({px}, {py}) on mip {mip}, LOD {lod}, r = {:?}: channel {c} is \
+                         {a} on the GPU, {b} on the CPU",
+                        &req[3..]
+                    );
+                }
+                if !picks.contains(&want) {
+                    picks.push(want);
+                }
+            }
+            // The test could fail: the texels the edges choose between differ (two per axis,
+            // two mips where the LOD has a fraction; one texel at a centre and integer LOD).
+            let expected = if lod.fract() == 0.0 { 1 } else { 8 };
+            assert_eq!(picks.len(), expected, "{name}: ({px}, {py}) on mip {mip}: distinct picks");
         }
     }
 }
