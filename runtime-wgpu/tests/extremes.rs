@@ -19,7 +19,7 @@ use nmat_core::{ChannelMask, Container, Material, MaterialSpec};
 use nmat_tests::decode_all_u8;
 use nmat_tests::generate::{
     BIAS_LIMIT_128, FixtureConfig, Layout, accumulator_corners, generate, largest_material,
-    random_config, set_codes, terms_in_any_order, wide_constant_material,
+    random_config, set_codes, terms_in_any_order, wide_cells, wide_constant_material,
 };
 use nmat_wgpu::{Context, GpuError, GpuMaterial, Kernel, TexelRequest};
 
@@ -205,6 +205,15 @@ fn random_materials_decode_as_on_the_cpu() {
 fn a_level_of_terms_in_any_order_decodes_as_on_the_cpu() {
     let gpu = Gpu::new();
     gpu.agree("a level of terms in any order", &generate(&terms_in_any_order()));
+}
+
+/// Cells of 128, 60 and 64 bits (`wide_cells`: 16 channels at 8 bits, 12 at 5, 8 at 8): a
+/// cell's codes fill four or two whole 32-bit words, or (60 bits) start mid-word and span two or
+/// three. Every kernel and tile entry against the CPU.
+#[test]
+fn wide_cells_decode_as_on_the_cpu() {
+    let gpu = Gpu::new();
+    gpu.agree("cells of up to 128 bits", &generate(&wide_cells()));
 }
 
 /// The widest network the format allows (FORMAT.md §5.3): four layers, 128 inputs (an NTC

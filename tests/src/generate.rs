@@ -457,6 +457,26 @@ pub fn terms_in_any_order() -> FixtureConfig {
     }
 }
 
+/// A material whose grids' cells are wider than one 64-bit read holds (the decoders' window
+/// reads take at most 57 bits; a cell wider than that is read latent by latent): 16 channels at
+/// 8 bits (128 bits a cell), 12 at 5 (60) and 8 at 8 (64), read by their 4 nearest cells and
+/// bilinearly; 92 inputs, 4 channels.
+pub fn wide_cells() -> FixtureConfig {
+    let term = |mode, grid| TermSpec { mode, grids: vec![grid] };
+    FixtureConfig {
+        layout: Layout::Terms {
+            grids: vec![(16, 8), (12, 5), (8, 8)],
+            terms: vec![
+                term(TermMode::Nearest4, 0),
+                term(TermMode::Bilinear, 1),
+                term(TermMode::Bilinear, 2),
+            ],
+        },
+        hidden: vec![16],
+        ..FixtureConfig::ntc("wide_cells", 17, 45, 27, 4)
+    }
+}
+
 /// A 16384² material of 15 mips, the largest the format allows (two grids of 2 channels at 2
 /// bits, one hidden layer of 8, 8 frequencies of the positional encoding, 2 channels): its
 /// grids are those of a 64² material, since the NTC layout's at 16384² (4096²) would be too big
@@ -497,10 +517,11 @@ pub fn fitting_lod_code(code: u8, f: u8) -> u8 {
     if code <= 1 || u16::from(f) + u16::from(code) <= 16 { code } else { 1 }
 }
 
-/// The golden fixtures' configurations, [`terms_in_any_order`], then `random` random ones
+/// The golden fixtures' configurations, [`terms_in_any_order`], [`wide_cells`], then `random`
+/// random ones
 /// (seeds 0, 1, …): the network shapes and latent layouts a code generator is checked on.
 pub fn golden_and_random_configs(random: u64) -> Vec<FixtureConfig> {
-    let configs = golden_configs().into_iter().chain([terms_in_any_order()]);
+    let configs = golden_configs().into_iter().chain([terms_in_any_order(), wide_cells()]);
     configs.chain((0..random).map(random_config)).collect()
 }
 

@@ -7,7 +7,7 @@ use nmat_core::AddressMode;
 use nmat_core::{Argument, ChannelMask, Container, Decoder, Error, Kernel, Material, TexelAt};
 use nmat_tests::assert_decodes_as_the_reference;
 use nmat_tests::generate::{
-    FixtureConfig, Layout, Rng, generate, golden_configs, terms_in_any_order,
+    FixtureConfig, Layout, Rng, generate, golden_configs, terms_in_any_order, wide_cells,
     wide_constant_material,
 };
 
@@ -123,11 +123,26 @@ fn assert_spans_agree(m: &Material<'_>, r: &mut Rng, spans: usize) {
 /// equal it.
 #[test]
 fn a_level_of_terms_in_any_order_decodes_as_the_reference() {
-    let spec = generate(&terms_in_any_order());
+    assert_every_decoder_agrees_with_the_reference(&terms_in_any_order(), 81);
+}
+
+/// Cells wider than the kernels' 64-bit window reads (`wide_cells`: 128, 60 and 64 bits a
+/// cell), which every kernel reads latent by latent: the golden fixtures' cells are at most 48
+/// bits wide. The per-texel definition equals the reference decoder on every texel, and every
+/// kernel's texels and spans equal it.
+#[test]
+fn cells_wider_than_a_window_read_decode_as_the_reference() {
+    assert_every_decoder_agrees_with_the_reference(&wide_cells(), 82);
+}
+
+/// `cfg`'s material through the reference decoder (every texel of every mip, the per-texel
+/// definition), then every kernel's texels and spans at random against the per-texel definition.
+fn assert_every_decoder_agrees_with_the_reference(cfg: &FixtureConfig, seed: u64) {
+    let spec = generate(cfg);
     assert_decodes_as_the_reference(&spec);
     let bytes = spec.to_bytes().unwrap();
     let m = Container::parse(&bytes).unwrap();
-    let mut r = Rng::new(81);
+    let mut r = Rng::new(seed);
     assert_texels_agree(&m, &mut r, 300);
     assert_spans_agree(&m, &mut r, 40);
 }

@@ -3,7 +3,9 @@
 
 use nmat_core::internals::pack_codes;
 use nmat_core::{Argument, ChannelMask, Container, Error, Field, LatentGrid};
-use nmat_tests::generate::{FixtureConfig, Layout, Rng, generate, random_config};
+use nmat_tests::generate::{
+    FixtureConfig, Layout, Rng, generate, random_config, terms_in_any_order, wide_cells,
+};
 use nmat_tests::reference;
 
 #[test]
@@ -138,4 +140,49 @@ fn writer_rejects_inconsistent_specs_with_named_errors() {
     let mut s = base;
     s.grids[0].bits = 9;
     assert!(matches!(s.to_bytes(), Err(Error::Malformed { field: Field::GridBits, .. })));
+}
+
+/// A parsed grid reads back the codes the writer was given, cell by cell and channel by channel
+/// (channel fastest, then x, then y, FORMAT.md §4), and their values `offset + code · step`:
+/// `code`, `value` and `cell_values` (which reads a cell's codes in one 64-bit window where they
+/// fit, latent by latent where not), on random layouts and on cells of up to 128 bits
+/// (`wide_cells`). Past the grid (a cell or channel index out of range) codes read as 0.
+#[test]
+fn grids_read_back_their_codes_and_values() {
+    let configs = (0..40).map(random_config).chain([wide_cells(), terms_in_any_order()]);
+    for cfg in configs {
+        let spec = generate(&cfg);
+        let bytes = spec.to_bytes().unwrap();
+        let m = Container::parse(&bytes).unwrap();
+        let grids = m.neural().expect("a neural material").grids();
+        for (g, (grid, want)) in grids.iter().zip(&spec.grids).enumerate() {
+            let (w, h) = (u32::from(want.width), u32::from(want.height));
+            let channels = usize::from(want.channels);
+            let at = |x: u32, y: u32| format!("seed {} grid {g} cell ({x}, {y})", cfg.seed);
+            let mut values = [i32::MIN; 17];
+            for y in 0..h {
+                for x in 0..w {
+                    grid.cell_values(x, y, &mut values);
+                    let codes = &want.codes[(y * w + x) as usize * channels..][..channels];
+                    let cells = codes.iter().zip(&want.quantization).zip(&values);
+                    for (c, ((&code, &(offset, step)), &got)) in cells.enumerate() {
+                        let value = i32::from(offset) + i32::from(code) * i32::from(step);
+                        assert_eq!(grid.code(x, y, c), code, "{} channel {c}", at(x, y));
+                        assert_eq!(grid.value(x, y, c), value, "{} channel {c}", at(x, y));
+                        assert_eq!(got, value, "{} channel {c}: cell_values", at(x, y));
+                    }
+                    // Entries past the grid's channels are left alone.
+                    assert!(values[channels..].iter().all(|&v| v == i32::MIN), "{}", at(x, y));
+                }
+            }
+            for (x, y) in [(w, 0), (0, h), (w, h), (u32::MAX, u32::MAX)] {
+                grid.cell_values(x, y, &mut values);
+                for (c, (&got, &(offset, _))) in values.iter().zip(&want.quantization).enumerate() {
+                    assert_eq!(grid.code(x, y, c), 0, "{}", at(x, y));
+                    assert_eq!(got, i32::from(offset), "{}", at(x, y));
+                }
+            }
+            assert_eq!(grid.code(0, 0, channels), 0, "seed {} grid {g}", cfg.seed);
+        }
+    }
 }
