@@ -19,7 +19,8 @@ use nmat_core::{ChannelMask, Container, Material, MaterialSpec};
 use nmat_tests::decode_all_u8;
 use nmat_tests::generate::{
     BIAS_LIMIT_128, FixtureConfig, Layout, accumulator_corners, generate, largest_material,
-    random_config, set_codes, terms_in_any_order, wide_cells, wide_constant_material,
+    random_config, set_codes, sixteen_grids_in_one_level, terms_in_any_order, wide_cells,
+    wide_constant_material,
 };
 use nmat_wgpu::{Context, GpuError, GpuMaterial, Kernel, TexelRequest};
 
@@ -214,6 +215,14 @@ fn a_level_of_terms_in_any_order_decodes_as_on_the_cpu() {
 fn wide_cells_decode_as_on_the_cpu() {
     let gpu = Gpu::new();
     gpu.agree("cells of up to 128 bits", &generate(&wide_cells()));
+}
+
+/// A level reading all 16 grids the format allows (`sixteen_grids_in_one_level`: two chains of
+/// 8 and two nearest terms): every kernel's generated features and tile entry against the CPU.
+#[test]
+fn a_level_of_sixteen_grids_decodes_as_on_the_cpu() {
+    let gpu = Gpu::new();
+    gpu.agree("a level of sixteen grids", &generate(&sixteen_grids_in_one_level()));
 }
 
 /// The widest network the format allows (FORMAT.md §5.3): four layers, 128 inputs (an NTC

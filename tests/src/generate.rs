@@ -460,7 +460,7 @@ pub fn terms_in_any_order() -> FixtureConfig {
 /// A material whose grids' cells are wider than one 64-bit read holds (the decoders' window
 /// reads take at most 57 bits; a cell wider than that is read latent by latent): 16 channels at
 /// 8 bits (128 bits a cell), 12 at 5 (60) and 8 at 8 (64), read by their 4 nearest cells and
-/// bilinearly; 92 inputs, 4 channels.
+/// bilinearly; 93 inputs, 4 channels.
 pub fn wide_cells() -> FixtureConfig {
     let term = |mode, grid| TermSpec { mode, grids: vec![grid] };
     FixtureConfig {
@@ -474,6 +474,29 @@ pub fn wide_cells() -> FixtureConfig {
         },
         hidden: vec![16],
         ..FixtureConfig::ntc("wide_cells", 17, 45, 27, 4)
+    }
+}
+
+/// A level that reads all 16 grids the format allows, in two chains of 8 and two nearest terms:
+/// `Bilinear[0..8]`, `Bilinear[8..16]`, `Nearest4[3]`, `Nearest4[12]` — 18 distinct (grid, mode)
+/// pairs, the most a level can have, each of which a decoder steps along a row once; grids of 2
+/// channels at 1 to 8 bits per code; 29 inputs (Q.10, as in [`terms_in_any_order`]), 3
+/// channels.
+pub fn sixteen_grids_in_one_level() -> FixtureConfig {
+    let term = |mode, grids: core::ops::Range<u8>| TermSpec { mode, grids: grids.collect() };
+    FixtureConfig {
+        layout: Layout::Terms {
+            grids: (0..16).map(|g| (2, g % 8 + 1)).collect(),
+            terms: vec![
+                term(TermMode::Bilinear, 0..8),
+                term(TermMode::Bilinear, 8..16),
+                term(TermMode::Nearest4, 3..4),
+                term(TermMode::Nearest4, 12..13),
+            ],
+        },
+        hidden: vec![16],
+        input_frac_bits: 10,
+        ..FixtureConfig::ntc("sixteen_grids_in_one_level", 18, 64, 48, 3)
     }
 }
 
@@ -517,11 +540,12 @@ pub fn fitting_lod_code(code: u8, f: u8) -> u8 {
     if code <= 1 || u16::from(f) + u16::from(code) <= 16 { code } else { 1 }
 }
 
-/// The golden fixtures' configurations, [`terms_in_any_order`], [`wide_cells`], then `random`
-/// random ones
+/// The golden fixtures' configurations, [`terms_in_any_order`], [`wide_cells`],
+/// [`sixteen_grids_in_one_level`], then `random` random ones
 /// (seeds 0, 1, …): the network shapes and latent layouts a code generator is checked on.
 pub fn golden_and_random_configs(random: u64) -> Vec<FixtureConfig> {
-    let configs = golden_configs().into_iter().chain([terms_in_any_order(), wide_cells()]);
+    let unusual = [terms_in_any_order(), wide_cells(), sixteen_grids_in_one_level()];
+    let configs = golden_configs().into_iter().chain(unusual);
     configs.chain((0..random).map(random_config)).collect()
 }
 

@@ -7,8 +7,8 @@ use nmat_core::AddressMode;
 use nmat_core::{Argument, ChannelMask, Container, Decoder, Error, Kernel, Material, TexelAt};
 use nmat_tests::assert_decodes_as_the_reference;
 use nmat_tests::generate::{
-    FixtureConfig, Layout, Rng, generate, golden_configs, terms_in_any_order, wide_cells,
-    wide_constant_material,
+    FixtureConfig, Layout, Rng, generate, golden_configs, sixteen_grids_in_one_level,
+    terms_in_any_order, wide_cells, wide_constant_material,
 };
 
 fn kernels() -> Vec<Kernel> {
@@ -133,6 +133,14 @@ fn a_level_of_terms_in_any_order_decodes_as_the_reference() {
 #[test]
 fn cells_wider_than_a_window_read_decode_as_the_reference() {
     assert_every_decoder_agrees_with_the_reference(&wide_cells(), 82);
+}
+
+/// A level reading all 16 grids (`sixteen_grids_in_one_level`: two chains of 8 and two nearest
+/// terms, 18 grids-and-modes that a span steps along its row): the per-texel definition equals
+/// the reference decoder on every texel, and every kernel's texels and spans equal it.
+#[test]
+fn a_level_of_sixteen_grids_decodes_as_the_reference() {
+    assert_every_decoder_agrees_with_the_reference(&sixteen_grids_in_one_level(), 83);
 }
 
 /// `cfg`'s material through the reference decoder (every texel of every mip, the per-texel
