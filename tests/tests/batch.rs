@@ -158,7 +158,9 @@ fn assert_every_decoder_agrees_with_the_reference(cfg: &FixtureConfig, seed: u64
 /// Long spans, where the first layer starts from the span's sums over the positional encoding
 /// and LOD (`PeriodicSums`): every tabulated period of x (0 to 4 frequencies) and one beyond it
 /// (5), latent features ending mid-pair (odd widths) or not, mip widths that the period does not
-/// divide, wrap and clamp, spans starting outside the mip.
+/// divide, wrap and clamp, spans starting outside the mip; and a first nearest term of one
+/// channel, whose 4 features the texels of a cell share (`shared_pairs`), followed by features
+/// that change from texel to texel.
 #[test]
 fn long_spans_equal_texel_by_texel_decodes_for_every_period() {
     let mut r = Rng::new(80);
@@ -166,14 +168,15 @@ fn long_spans_equal_texel_by_texel_decodes_for_every_period() {
         Layout::Nbc { channels: 5, bits_coarse_to_fine: vec![4, 2] },
         Layout::Ntc { hi_channels: 3, lo_channels: 3, hi_bits: 4, lo_bits: 3 },
         Layout::Nbc { channels: 4, bits_coarse_to_fine: vec![8, 4, 2, 1] },
+        Layout::Ntc { hi_channels: 1, lo_channels: 2, hi_bits: 3, lo_bits: 5 },
     ];
     for frequencies in 0..=5u8 {
         for (l, layout) in layouts.iter().enumerate() {
             let cfg = FixtureConfig {
                 layout: layout.clone(),
                 pe_frequencies: frequencies,
-                // mip / 16, none, mip / 2.
-                lod_input: [1, 0, 4][l],
+                // mip / 16, none, mip / 2, mip / 16.
+                lod_input: [1, 0, 4, 1][l],
                 address_mode: if l == 2 { AddressMode::Clamp } else { AddressMode::Wrap },
                 ..FixtureConfig::ntc("periodic", 100 + u64::from(frequencies), 72, 20, 3)
             };
