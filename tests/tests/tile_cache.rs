@@ -212,8 +212,11 @@ fn end_frame_evicts_the_tiles_a_frame_did_not_mark() {
     // Texel marks: the tile of (x, y) after addressing (clamp here), at the mip asked for.
     cache.begin_frame();
     cache.mark_texel(0, -5, 1000, 0).unwrap(); // clamps to (0, 79): tile (0, 4)
-    cache.mark_texel(0, 17, 3, 1).unwrap();
+    cache.mark_texel(0, 40, 3, 1).unwrap(); // tile (2, 0) of mip 1
     assert_eq!(cache.stats().marked, 2);
+    let mut keys: Vec<_> = cache.pending().map(|t| t.key()).map(|k| (k.mip, k.x, k.y)).collect();
+    keys.sort();
+    assert_eq!(keys, [(0, 0, 4), (1, 2, 0)]);
     assert_eq!(cache.decode_missing_with(&[&d]).unwrap(), 2);
     let stats = cache.end_frame();
     assert_eq!(stats.evicted, 6, "{stats:?}");
@@ -320,7 +323,8 @@ fn bad_arguments_are_typed_errors() {
 }
 
 /// `memory_for` is the one check of `new` and `with_capacity`; the counts here would abort the
-/// process if anything were allocated for them (2^32 − 1 tiles are 96 GiB of slots alone).
+/// process if anything were allocated for them (2^32 − 1 tiles are 96 GiB of slots alone). The
+/// material count's limit is allowed, one more refused.
 #[test]
 fn tile_counts_beyond_the_limit_are_refused_before_anything_is_allocated() {
     type Owned<'m> = TileCache<'m, Vec<Slot>, Vec<u8>>;
@@ -362,6 +366,14 @@ fn tile_counts_beyond_the_limit_are_refused_before_anything_is_allocated() {
     let too_many = vec![&m; MAX_CACHE_MATERIALS + 1];
     bad(Owned::memory_for(&too_many, 5), Argument::Material);
     bad(TileCache::with_capacity(&too_many, 5), Argument::Material);
+    // As many materials as allowed, the last one addressable.
+    let most = vec![&m; MAX_CACHE_MATERIALS];
+    assert_eq!(Owned::memory_for(&most, 5).unwrap(), want);
+    let mut cache = TileCache::with_capacity(&most, 5).unwrap();
+    cache.begin_frame();
+    cache.mark_texel(MAX_CACHE_MATERIALS - 1, 0, 0, 0).unwrap();
+    assert_eq!(cache.pending().count(), 1);
+    bad(cache.mark_texel(MAX_CACHE_MATERIALS, 0, 0, 0), Argument::Material);
 }
 
 #[test]
