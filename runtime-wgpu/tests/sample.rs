@@ -83,9 +83,9 @@ fn texel_shader(module: &str, mask: u16) -> String {
 fn texel_codes_match_the_cpu_byte_for_byte() {
     let (device, queue) = device();
     let ctx = Context::new(&device);
-    let harness = Harness::new(&device);
+    let harness = Harness::new(&device, &queue);
     let bindings = harness.bindings;
-    let pipeline = |module: &str, mask| harness.pipeline(&device, &texel_shader(module, mask));
+    let pipeline = |module: &str, mask| harness.pipeline(&texel_shader(module, mask));
     // A module specialised to another material's layout (a 16-channel one with 8-bit codes):
     // bound to any other material, it computes the generic features.
     let config = golden_configs().into_iter().find(|c| c.name == "ntc_16ch_8bit_32").unwrap();
@@ -142,7 +142,7 @@ fn texel_codes_match_the_cpu_byte_for_byte() {
                     .flat_map(i32::to_le_bytes)
                     .collect();
                 let got: Vec<u32> = harness
-                    .run(&device, &queue, pipeline, gpu, &words, reqs.len(), 64)
+                    .run(pipeline, gpu, &words, reqs.len(), 64)
                     .chunks(4)
                     .map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]))
                     .collect();
@@ -170,14 +170,16 @@ fn texel_codes_match_the_cpu_byte_for_byte() {
 /// A test's compute shader next to a material: the material's two bindings at 0 and 1 (group
 /// 0), the requests (read) at 2 and the results (written) at 3; one invocation a request, 64 a
 /// workgroup.
-struct Harness {
+struct Harness<'d> {
+    device: &'d wgpu::Device,
+    queue: &'d wgpu::Queue,
     bindings: SampleBindings,
     layout: wgpu::BindGroupLayout,
     pipeline_layout: wgpu::PipelineLayout,
 }
 
-impl Harness {
-    fn new(device: &wgpu::Device) -> Harness {
+impl<'d> Harness<'d> {
+    fn new(device: &'d wgpu::Device, queue: &'d wgpu::Queue) -> Harness<'d> {
         let bindings = SampleBindings { group: 0, first_binding: 0 };
         let storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
             binding,
@@ -199,26 +201,24 @@ impl Harness {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        Harness { bindings, layout, pipeline_layout }
+        Harness { device, queue, bindings, layout, pipeline_layout }
     }
 
-    fn pipeline(&self, device: &wgpu::Device, source: &str) -> wgpu::ComputePipeline {
-        common::compute_pipeline(device, source, Some(&self.pipeline_layout))
+    fn pipeline(&self, source: &str) -> wgpu::ComputePipeline {
+        common::compute_pipeline(self.device, source, Some(&self.pipeline_layout))
     }
 
     /// The bytes `pipeline` writes for `count` requests read from `input`, `result_bytes` each,
     /// with `gpu` bound.
-    #[allow(clippy::too_many_arguments)]
     fn run(
         &self,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
         pipeline: &wgpu::ComputePipeline,
         gpu: &GpuMaterial,
         input: &[u8],
         count: usize,
         result_bytes: u64,
     ) -> Vec<u8> {
+        let (device, queue) = (self.device, self.queue);
         let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
         let reqs = buffer(device, input.len() as u64, usage, None);
         queue.write_buffer(&reqs, 0, input);
@@ -277,8 +277,8 @@ fn stochastic_shader(module: &str) -> String {
 fn stochastic_sampling_picks_the_cpus_texel_at_every_edge() {
     let (device, queue) = device();
     let ctx = Context::new(&device);
-    let harness = Harness::new(&device);
-    let pipeline = harness.pipeline(&device, &stochastic_shader(&harness.bindings.module()));
+    let harness = Harness::new(&device, &queue);
+    let pipeline = harness.pipeline(&stochastic_shader(&harness.bindings.module()));
     // Below 0 and from 1 up, numbers are clamped.
     let edges = [-0.5, 0.0, 0.2, 0.25, 0.375, 0.5, 0.7, 1.0f32];
     let power_of_two = ["ntc_rgb_64", "nbc_8421_64", "ntc_16ch_8bit_32", "trained bricks"];
@@ -298,7 +298,7 @@ fn stochastic_sampling_picks_the_cpus_texel_at_every_edge() {
                 .collect();
             let input: Vec<u8> = requests.iter().flatten().flat_map(|f| f.to_le_bytes()).collect();
             let got: Vec<f32> = harness
-                .run(&device, &queue, &pipeline, &gpu, &input, requests.len(), 64)
+                .run(&pipeline, &gpu, &input, requests.len(), 64)
                 .chunks(4)
                 .map(|w| f32::from_le_bytes([w[0], w[1], w[2], w[3]]))
                 .collect();
