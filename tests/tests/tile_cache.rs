@@ -149,7 +149,10 @@ fn the_per_texel_decode_and_jobs_on_threads_fill_the_same_tiles() {
         plain.mark(*i, req).unwrap();
     }
     let marked = plain.stats().marked;
+    // Each decode counts its tile's texels (edge tiles are smaller).
+    let tile_texels: u32 = plain.pending().map(|t| t.rect()).map(|(_, _, w, h)| w * h).sum();
     assert_eq!(plain.decode_missing().unwrap(), marked);
+    assert_eq!(plain.stats().decoded_texels, tile_texels);
     assert_resolved_equal_sample(&plain, &materials, &reqs);
     assert_eq!(plain.stats().resolve_misses, 0);
 
@@ -179,6 +182,7 @@ fn the_per_texel_decode_and_jobs_on_threads_fill_the_same_tiles() {
         }
     });
     assert_eq!(threaded.stats().decoded, marked);
+    assert_eq!(threaded.stats().decoded_texels, tile_texels);
     assert_eq!(threaded.pending().count(), 0);
     assert_resolved_equal_sample(&threaded, &materials, &reqs);
     assert_eq!(threaded.stats().resolve_misses, 0);
