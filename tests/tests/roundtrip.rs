@@ -186,3 +186,44 @@ fn grids_read_back_their_codes_and_values() {
         }
     }
 }
+
+/// A parsed network's layers read back what the writer was given: widths, the Q-format each
+/// reads (the previous layer's output format, the input vector's for the first) and writes, the
+/// activation, every weight, scale and bias, and the float decoder's weights and biases as
+/// FORMAT.md §6.8 derives them (`w · scale`; `bias · scale · 2^−in` in f64, rounded once).
+#[test]
+fn layers_read_back_their_specification() {
+    for seed in 0..40 {
+        let spec = generate(&random_config(seed));
+        let bytes = spec.to_bytes().unwrap();
+        let m = Container::parse(&bytes).unwrap();
+        let layers = m.neural().expect("a neural material").mlp().layers();
+        assert_eq!(layers.len(), spec.mlp.layers.len(), "seed {seed}");
+        let mut in_frac = spec.mlp.input_frac_bits;
+        for (l, (layer, want)) in layers.iter().zip(&spec.mlp.layers).enumerate() {
+            let at = format!("seed {seed} layer {l}");
+            assert_eq!(
+                (layer.inputs(), layer.outputs()),
+                (want.inputs.into(), want.outputs.into())
+            );
+            assert_eq!(layer.in_frac_bits(), in_frac, "{at}");
+            assert_eq!(layer.out_frac_bits(), want.out_frac_bits, "{at}");
+            assert_eq!(layer.activation(), want.activation, "{at}");
+            let lsb = 1.0 / f64::from(1u32 << in_frac);
+            for o in 0..layer.outputs() {
+                let scale = want.scales[o];
+                assert_eq!(layer.scale(o).to_bits(), scale.to_bits(), "{at} row {o}");
+                assert_eq!(layer.bias(o), want.bias[o], "{at} row {o}");
+                let bias = (f64::from(want.bias[o]) * f64::from(scale) * lsb) as f32;
+                assert_eq!(layer.float_bias(o).to_bits(), bias.to_bits(), "{at} row {o}");
+                for i in 0..layer.inputs() {
+                    let w = want.weights_i8[o * layer.inputs() + i];
+                    assert_eq!(layer.weight_i8(o, i), w, "{at} weight ({o}, {i})");
+                    let float = f32::from(w) * scale;
+                    assert_eq!(layer.float_weight(o, i).to_bits(), float.to_bits(), "{at}");
+                }
+            }
+            in_frac = want.out_frac_bits;
+        }
+    }
+}
