@@ -143,6 +143,17 @@ fn a_level_of_sixteen_grids_decodes_as_the_reference() {
     assert_every_decoder_agrees_with_the_reference(&sixteen_grids_in_one_level(), 83);
 }
 
+/// Layers narrower than the golden fixtures' (8 wide at least): hidden layers of 3, 1 and 5,
+/// whose weights the kernels pack by pairs of inputs padded to 16 rows, with an odd last pair.
+/// The per-texel definition equals the reference decoder on every texel, and every kernel's
+/// texels and spans equal it.
+#[test]
+fn narrow_layers_decode_as_the_reference() {
+    let cfg =
+        FixtureConfig { hidden: vec![3, 1, 5], ..FixtureConfig::ntc("narrow", 19, 29, 23, 3) };
+    assert_every_decoder_agrees_with_the_reference(&cfg, 84);
+}
+
 /// `cfg`'s material through the reference decoder (every texel of every mip, the per-texel
 /// definition), then every kernel's texels and spans at random against the per-texel definition.
 fn assert_every_decoder_agrees_with_the_reference(cfg: &FixtureConfig, seed: u64) {
