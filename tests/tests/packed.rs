@@ -3,11 +3,12 @@
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
 
+use nmat_core::internals::coded_latents_len;
 use nmat_core::{
     Argument, Container, Error, Field, PACKED_VERSION_MINOR, ParseOptions, SectionKind, pack,
     unpack, unpack_into, unpacked_len,
 };
-use nmat_tests::files::{jpeg_stream_records, refresh_checksum, section};
+use nmat_tests::files::{jpeg_stream_records, refresh_checksum, section, section_entry};
 use nmat_tests::generate::{
     FixtureConfig, Layout, Rng, generate, random_config, terms_in_any_order,
 };
@@ -19,8 +20,17 @@ fn random_materials_pack_and_unpack_to_the_same_bytes() {
     // Random materials, and a level of terms in an order the NTC and NBC layouts never write.
     for cfg in (0..300).map(random_config).chain([terms_in_any_order()]) {
         let what = format!("{} seed {}", cfg.name, cfg.seed);
-        let bytes = generate(&cfg).to_bytes().unwrap();
+        let spec = generate(&cfg);
+        let bytes = spec.to_bytes().unwrap();
         let packed = pack(&bytes).unwrap_or_else(|e| panic!("{what}: {e}"));
+        // The encoder's estimate of the coded stream, from the codes alone, is its length.
+        let grids: Vec<_> = (spec.grids.iter())
+            .map(|g| {
+                (g.width.into(), g.height.into(), g.channels.into(), g.bits.into(), &g.codes[..])
+            })
+            .collect();
+        let stream = section(&packed, SectionKind::PACKED_LATENTS.0).1 - 8;
+        assert_eq!(coded_latents_len(&grids), stream, "{what}");
         // 2.2, or the file's own minor where it is newer (2.3: a scaled LOD feature, whose
         // header flag the packed file keeps).
         let minor = u16::from_le_bytes([bytes[6], bytes[7]]).max(PACKED_VERSION_MINOR);
@@ -152,10 +162,16 @@ fn hostile_packed_files_end_in_typed_errors() {
         b[32 + 16 * 3 + 12..32 + 16 * 3 + 16].copy_from_slice(&l.to_le_bytes())
     };
     // The stream one byte short, and one byte too long (the next section's padding).
-    assert!(matches!(
+    // The decoder asks for the byte past the stream's `len - 9` (8 header bytes, 1 cut off).
+    assert_eq!(
         patch(&|b| set_len(b, len as u32 - 1)),
-        Err(Error::Truncated { field: Field::PackedStream, .. })
-    ));
+        Err(Error::Truncated {
+            field: Field::PackedStream,
+            index: 0,
+            needed: len as u64 - 8,
+            available: len as u64 - 9
+        })
+    );
     if len % 4 != 0 {
         assert!(matches!(
             patch(&|b| set_len(b, len as u32 + 1)),
@@ -190,6 +206,110 @@ fn hostile_packed_files_end_in_typed_errors() {
     assert_eq!(
         Container::parse(&both).err(),
         Some(Error::Malformed { field: Field::SectionKind, index: 5, value: 6 })
+    );
+}
+
+/// A grid record edit: the LEVELS section, the record's offset in it, the LATENTS length.
+type RecordEdit = (&'static str, fn(&mut [u8], usize, usize));
+
+/// A packed file whose LEVELS section is broken fails to unpack with the error that parsing the
+/// fixed-rate file with the same LEVELS gives (the field at fault, its grid and value), in every
+/// grid of the material, before any unpacked byte is returned.
+#[test]
+fn a_broken_levels_section_is_reported_as_the_parser_reports_it() {
+    // The LEVELS section cut to `length` bytes (its table entry's length), in either file.
+    let cut_levels = |b: &mut Vec<u8>, length: usize| {
+        let e = section_entry(b, SectionKind::LEVELS.0) + 12;
+        b[e..e + 4].copy_from_slice(&(length as u32).to_le_bytes());
+    };
+    let edits: [RecordEdit; 13] = [
+        ("width 0", |l, r, _| l[r..r + 2].fill(0)),
+        ("height 0", |l, r, _| l[r + 2..r + 4].fill(0)),
+        ("width 16385", |l, r, _| l[r..r + 2].copy_from_slice(&16385u16.to_le_bytes())),
+        ("channels 0", |l, r, _| l[r + 4] = 0),
+        ("channels 17", |l, r, _| l[r + 4] = 17),
+        ("bits 0", |l, r, _| l[r + 5] = 0),
+        ("bits 9", |l, r, _| l[r + 5] = 9),
+        ("reserved 1", |l, r, _| l[r + 7] = 1),
+        ("data_offset + 2", |l, r, _| l[r + 8] += 2),
+        ("data_offset at the end of LATENTS", |l, r, latents| {
+            l[r + 8..r + 12].copy_from_slice(&(latents as u32).to_le_bytes())
+        }),
+        ("data_offset past 4 GiB", |l, r, _| l[r + 8..r + 12].fill(0xFC)),
+        ("data_length + 4", |l, r, _| l[r + 12] = l[r + 12].wrapping_add(4)),
+        ("data_length 0", |l, r, _| l[r + 12..r + 16].fill(0)),
+    ];
+    let mut compared = 0;
+    for seed in 0..12 {
+        let bytes = generate(&random_config(seed)).to_bytes().unwrap();
+        let packed = pack(&bytes).unwrap();
+        let (levels_at, levels_len) = section(&bytes, SectionKind::LEVELS.0);
+        let (packed_levels_at, _) = section(&packed, SectionKind::LEVELS.0);
+        let latents_len = section(&bytes, SectionKind::LATENTS.0).1;
+        // Applies `edit` to the LEVELS section of both files and compares the errors.
+        let check = |what: &str, edit: &dyn Fn(&mut Vec<u8>, usize)| {
+            let mut fixed = bytes.clone();
+            edit(&mut fixed, levels_at);
+            refresh_checksum(&mut fixed);
+            let mut edited = packed.clone();
+            edit(&mut edited, packed_levels_at);
+            refresh_checksum(&mut edited);
+            let expected = Container::parse(&fixed).err();
+            assert!(expected.is_some(), "seed {seed}, {what}: the parser accepts it");
+            assert_eq!(
+                unpack(&edited, ParseOptions::default()).err(),
+                expected,
+                "seed {seed}, {what}"
+            );
+        };
+        let levels = &bytes[levels_at..levels_at + levels_len];
+        let mut record = 20;
+        for g in 0..usize::from(levels[1]) {
+            for (name, edit) in edits {
+                check(&format!("grid {g}: {name}"), &|b, at| {
+                    edit(&mut b[at..], record, latents_len)
+                });
+                compared += 1;
+            }
+            // LEVELS ending inside this record.
+            check(&format!("grid {g}: LEVELS cut inside the record"), &|b, _| {
+                cut_levels(b, record + 15)
+            });
+            record += 16 + 4 * usize::from(levels[record + 4]);
+        }
+        let counts: [RecordEdit; 4] = [
+            ("grid_count 0", |l, _, _| l[1] = 0),
+            ("grid_count 17", |l, _, _| l[1] = 17),
+            ("level_count 0", |l, _, _| l[0] = 0),
+            ("level_count 17", |l, _, _| l[0] = 17),
+        ];
+        for (name, edit) in counts {
+            check(name, &|b, at| edit(&mut b[at..], 0, latents_len));
+        }
+        check("LEVELS of 19 bytes", &|b, _| cut_levels(b, 19));
+    }
+    assert!(compared > 12 * 13, "{compared} grid edits");
+    // What the errors are, on one material (the comparison above holds unpacking to the parser).
+    let bytes = generate(&random_config(0)).to_bytes().unwrap();
+    let packed = pack(&bytes).unwrap();
+    let (at, _) = section(&packed, SectionKind::LEVELS.0);
+    let unpack_with = |edit: &dyn Fn(&mut Vec<u8>)| {
+        let mut b = packed.clone();
+        edit(&mut b);
+        refresh_checksum(&mut b);
+        unpack(&b, ParseOptions::default()).err()
+    };
+    assert_eq!(
+        unpack_with(&|b| b[at + 1] = 0),
+        Some(Error::Malformed { field: Field::GridCount, index: 0, value: 0 })
+    );
+    assert_eq!(
+        unpack_with(&|b| b[at + 20 + 4] = 0),
+        Some(Error::Malformed { field: Field::GridChannels, index: 0, value: 0 })
+    );
+    assert_eq!(
+        unpack_with(&|b| b[at + 20 + 5] = 9),
+        Some(Error::Malformed { field: Field::GridBits, index: 0, value: 9 })
     );
 }
 

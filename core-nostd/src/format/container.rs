@@ -475,10 +475,17 @@ fn count(field: Field, value: u8, limit: usize) -> Result<usize, Error> {
     Ok(usize::from(value))
 }
 
-fn parse_levels<'a>(s: &'a [u8], latents: &'a [u8], mip_count: u8) -> Result<Levels<'a>, Error> {
+/// The level and grid counts of a LEVELS section (§5), checked. Shared with the unpacker
+/// (`format/packed.rs`), so that both report the same field for the same fault.
+pub(crate) fn levels_counts(s: &[u8]) -> Result<(usize, usize), Error> {
     need_bytes(s, 0, LEVELS_HEADER_LEN, Field::LevelCount, 0)?;
     let level_count = count(Field::LevelCount, u8_at(s, 0), MAX_LEVELS)?;
     let grid_count = count(Field::GridCount, u8_at(s, 1), MAX_GRIDS)?;
+    Ok((level_count, grid_count))
+}
+
+fn parse_levels<'a>(s: &'a [u8], latents: &'a [u8], mip_count: u8) -> Result<Levels<'a>, Error> {
+    let (level_count, grid_count) = levels_counts(s)?;
     if u16_at(s, 2) != 0 {
         return Err(malformed(Field::LevelsReserved, 0, u16_at(s, 2)));
     }
@@ -497,7 +504,6 @@ fn parse_levels<'a>(s: &'a [u8], latents: &'a [u8], mip_count: u8) -> Result<Lev
     let mut pos = LEVELS_HEADER_LEN;
     let mut grids = heapless::Vec::new();
     for g in 0..grid_count {
-        need_bytes(s, pos, GRID_RECORD_LEN, Field::GridWidth, g)?;
         let grid = parse_grid(s, pos, g, latents)?;
         pos += GRID_RECORD_LEN + 4 * grid.channels();
         grids.push(grid).map_err(|_| malformed(Field::GridCount, g, g as i64))?;
@@ -534,12 +540,23 @@ fn parse_levels<'a>(s: &'a [u8], latents: &'a [u8], mip_count: u8) -> Result<Lev
     Ok(Levels { mip_to_level, grids, levels, widths })
 }
 
-fn parse_grid<'a>(
-    s: &'a [u8],
-    pos: usize,
-    g: usize,
-    latents: &'a [u8],
-) -> Result<LatentGrid<'a>, Error> {
+/// A grid record's shape and where its codes lie (§5.1).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct GridShape {
+    pub(crate) width: u16,
+    pub(crate) height: u16,
+    pub(crate) channels: u8,
+    pub(crate) bits: u8,
+    /// The codes' offset and length in LATENTS.
+    pub(crate) offset: usize,
+    pub(crate) length: usize,
+}
+
+/// Grid record `g`, at `pos` in the LEVELS section `s`, checked but for its quantization and
+/// its data's place in LATENTS. Shared with the unpacker (`format/packed.rs`), so that both
+/// report the same field for the same fault.
+pub(crate) fn grid_shape(s: &[u8], pos: usize, g: usize) -> Result<GridShape, Error> {
+    need_bytes(s, pos, GRID_RECORD_LEN, Field::GridWidth, g)?;
     let grid_dim = |field, v: u16| {
         if v == 0 {
             return Err(malformed(field, g, 0));
@@ -570,6 +587,16 @@ fn parse_grid<'a>(
     if !offset.is_multiple_of(4) {
         return Err(malformed(Field::GridDataOffset, g, offset as i64));
     }
+    Ok(GridShape { width, height, channels, bits, offset, length })
+}
+
+fn parse_grid<'a>(
+    s: &'a [u8],
+    pos: usize,
+    g: usize,
+    latents: &'a [u8],
+) -> Result<LatentGrid<'a>, Error> {
+    let GridShape { width, height, channels, bits, offset, length } = grid_shape(s, pos, g)?;
     let data = take(latents, offset, length, Field::GridDataOffset, g)?;
     let quant_len = 4 * usize::from(channels);
     let quant = take(s, pos + GRID_RECORD_LEN, quant_len, Field::LatentQuantization, g)?;

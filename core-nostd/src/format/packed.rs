@@ -8,17 +8,16 @@
 //! upper neighbours in the same grid channel. Decoding is `no_std`, allocation-free and bounded:
 //! a stream can stand for at most [`MAX_EXPANSION`] times its length.
 
-use crate::bytes::{slice, u8_at, u16_at, u32_at};
+use crate::bytes::{u8_at, u16_at, u32_at};
 use crate::error::{Error, Field, malformed, unsupported};
 use crate::format::channel::mip_size;
 use crate::format::checksum::file_checksum;
 use crate::format::container::{
     GRID_RECORD_LEN, HEADER_LEN, Header, LEVELS_HEADER_LEN, ParseOptions, SECTION_ENTRY_LEN,
-    SECTION_REQUIRED, SectionEntry, SectionKind, check_checksum, parse_material, read_header,
-    section_entries,
+    SECTION_REQUIRED, SectionEntry, SectionKind, check_checksum, grid_shape, levels_counts,
+    parse_material, read_header, section_entries,
 };
 use crate::jpeg::{Jpeg, Streams};
-use crate::limits::MAX_GRIDS;
 
 /// Bytes before the payload of a packed section (the coded stream, or the bare JPEG body).
 pub const PACKED_HEADER_LEN: usize = 8;
@@ -232,45 +231,26 @@ struct GridRecord {
     length: usize,
 }
 
-/// The grid records of a LEVELS section, each checked as far as unpacking needs (§5.1): the
-/// whole section is validated again when the unpacked file is parsed.
+/// The grid records of a LEVELS section, each checked as the parser checks it (§5.1), but for its
+/// quantization and its data's place in LATENTS: the whole section is validated again when the
+/// unpacked file is parsed.
 fn grid_records(
     levels: &[u8],
 ) -> Result<impl Iterator<Item = Result<GridRecord, Error>> + '_, Error> {
-    let grid_count = usize::from(u8_at(levels, 1));
-    if levels.len() < LEVELS_HEADER_LEN || grid_count == 0 || grid_count > MAX_GRIDS {
-        return Err(malformed(Field::GridCount, 0, grid_count as i64));
-    }
+    let (_, grid_count) = levels_counts(levels)?;
     let mut pos = LEVELS_HEADER_LEN;
     Ok((0..grid_count).map(move |index| {
-        let rec = slice(levels, pos, GRID_RECORD_LEN).ok_or(Error::Truncated {
-            field: Field::GridWidth,
-            index: index as u32,
-            needed: (pos + GRID_RECORD_LEN) as u64,
-            available: levels.len() as u64,
-        })?;
-        let grid = GridRecord {
+        let shape = grid_shape(levels, pos, index)?;
+        pos += GRID_RECORD_LEN + 4 * usize::from(shape.channels);
+        Ok(GridRecord {
             index,
-            width: u32::from(u16_at(rec, 0)),
-            height: u32::from(u16_at(rec, 2)),
-            channels: u32::from(u8_at(rec, 4)),
-            bits: u32::from(u8_at(rec, 5)),
-            offset: u32_at(rec, 8) as usize,
-            length: u32_at(rec, 12) as usize,
-        };
-        if grid.channels == 0 || grid.channels > 16 {
-            return Err(malformed(Field::GridChannels, index, grid.channels));
-        }
-        if grid.bits == 0 || grid.bits > 8 {
-            return Err(malformed(Field::GridBits, index, grid.bits));
-        }
-        let expected =
-            crate::neural::latents::packed_len(grid.width, grid.height, grid.channels, grid.bits);
-        if grid.width == 0 || grid.height == 0 || expected != Some(grid.length) {
-            return Err(malformed(Field::GridDataLength, index, grid.length as i64));
-        }
-        pos += GRID_RECORD_LEN + 4 * grid.channels as usize;
-        Ok(grid)
+            width: u32::from(shape.width),
+            height: u32::from(shape.height),
+            channels: u32::from(shape.channels),
+            bits: u32::from(shape.bits),
+            offset: shape.offset,
+            length: shape.length,
+        })
     }))
 }
 
@@ -299,9 +279,9 @@ fn code_grid(
     let (w, h, c, b) =
         (grid.width as usize, grid.height as usize, grid.channels as usize, grid.bits);
     let top = 1u32 << b;
-    let mut probs = [PROB_ONE / 2; CONTEXTS];
     for j in 0..c {
-        probs.fill(PROB_ONE / 2);
+        // Every channel starts from even odds.
+        let mut probs = [PROB_ONE / 2; CONTEXTS];
         for y in 0..h {
             let mut left = 4; // no neighbour at x = 0
             for x in 0..w {
@@ -325,7 +305,7 @@ fn code_grid(
 
 /// The neighbour class of a code: its two most significant bits.
 fn class(code: u32, bits: u32) -> usize {
-    (if bits > 2 { code >> (bits - 2) } else { code }) as usize
+    (code >> bits.saturating_sub(2)) as usize
 }
 
 /// Code `index` of a bit-packed grid (§4.1); bits past the end read as 0.
@@ -345,10 +325,9 @@ fn set_code(data: &mut [u8], index: usize, bits: u32, code: u32) {
     let mask = ((1u64 << bits) - 1) << shift;
     let old = u64::from(u32_at(data, at)) | (u64::from(u32_at(data, at + 4)) << 32);
     let new = (old & !mask) | (u64::from(code) << shift);
+    // The high word is written back unchanged where the code does not reach it.
     copy(data, at, &(new as u32).to_le_bytes());
-    if shift + bits as usize > 32 {
-        copy(data, at + 4, &((new >> 32) as u32).to_le_bytes());
-    }
+    copy(data, at + 4, &((new >> 32) as u32).to_le_bytes());
 }
 
 fn put_u32(out: &mut [u8], at: usize, v: u32) {
