@@ -7,7 +7,7 @@ use nmat_core::{
     ChannelMask, Container, Error, Field, Filter, Material, MaterialSpec, ParseOptions, Precision,
     SampleRequest, SectionKind,
 };
-use nmat_tests::files::{refresh_checksum, section, section_entry};
+use nmat_tests::files::{jpeg_stream_records, refresh_checksum, section, section_entry};
 use nmat_tests::generate::{FixtureConfig, generate, golden_configs, terms_in_any_order};
 use nmat_tests::{assert_decodes_as_the_reference, reference};
 
@@ -371,4 +371,273 @@ fn the_parser_rules_hold_at_their_edges() {
     // Layer 1's record (after the MLP's 8-byte header, 8 a layer, §5.3): its reserved u16.
     let got = patched(SectionKind::MLP, 8 + 8 + 6, &[1, 2]);
     assert_eq!(got, Err(Error::Malformed { field: Field::LayerReserved, index: 1, value: 0x0201 }));
+}
+
+/// An edit of a section's bytes.
+type Edit<'a> = Box<dyn Fn(&mut [u8]) + 'a>;
+
+/// The committed JPEG material: one 4:2:0 colour map of 3 × 2 MCUs, one mip, 2 quantization
+/// and 4 Huffman tables (tests/fixtures/jpeg/README.md).
+fn jpeg_material() -> Vec<u8> {
+    std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/jpeg/pattern_420_37x21.nmat"))
+        .unwrap()
+}
+
+/// The JPEG section's rules (FORMAT.md §11.1) hold at their edges, each refused by name with the
+/// element and value at fault: the header's counts and reserved bytes, the map, the quantization
+/// and Huffman tables, the stream record's table references and reserved bytes, the stream's
+/// length and its index of MCU offsets. Found unchecked by mutating `jpeg/mod.rs` (cargo-mutants).
+#[test]
+fn the_jpeg_section_rules_hold_at_their_edges() {
+    use Error::{LimitExceeded, Malformed, Truncated, Unsupported};
+    let bytes = jpeg_material();
+    let (at, len) = section(&bytes, SectionKind::JPEG.0);
+    assert!(Container::parse(&bytes).is_ok());
+    let s = &bytes[at..at + len];
+    assert_eq!((s[2], s[3], s[4]), (1, 2, 4), "maps, quantization and Huffman tables");
+    let u16_of = |at: usize| usize::from(u16::from_le_bytes([s[at], s[at + 1]]));
+    let u32_of = |at: usize| u32::from_le_bytes(s[at..at + 4].try_into().unwrap()) as usize;
+    let quant = 8 + 4;
+    let mut huffman = vec![quant + 2 * 64];
+    for t in 0..3 {
+        huffman.push((huffman[t] + 20 + u16_of(huffman[t] + 2) + 3) & !3);
+    }
+    let record = jpeg_stream_records(s);
+    assert_eq!(record, (huffman[3] + 20 + u16_of(huffman[3] + 2) + 3) & !3);
+    let (body, entropy) = (u32_of(record), u32_of(record + 4));
+    // 6 MCUs: one index group (20 bytes), then 6 · 3 DC values of 12 bits (28 bytes padded).
+    let (index, end_bit) = (body, 8 * entropy);
+    let align4 = |n: usize| (n + 3) & !3;
+    assert_eq!(align4(body + 20 + 28 + entropy), len);
+    let first_mcu = u32_of(index);
+
+    let parse = |edit: &dyn Fn(&mut [u8])| {
+        let mut b = bytes.clone();
+        edit(&mut b[at..at + len]);
+        refresh_checksum(&mut b);
+        Container::parse(&b).map(|_| ()).err()
+    };
+    let put16 = |s: &mut [u8], at: usize, v: usize| {
+        s[at..at + 2].copy_from_slice(&(v as u16).to_le_bytes())
+    };
+    let put32 = |s: &mut [u8], at: usize, v: usize| {
+        s[at..at + 4].copy_from_slice(&(v as u32).to_le_bytes())
+    };
+    let cases: Vec<(&str, Edit<'_>, Error)> = vec![
+        // The header.
+        (
+            "version 2",
+            Box::new(|s| s[0] = 2),
+            Unsupported { field: Field::JpegVersion, index: 0, value: 2 },
+        ),
+        (
+            "no map",
+            Box::new(|s| s[2] = 0),
+            Malformed { field: Field::JpegMapCount, index: 0, value: 0 },
+        ),
+        (
+            "more maps than channels",
+            Box::new(|s| s[2] = 4),
+            LimitExceeded { field: Field::JpegMapCount, index: 0, value: 4, limit: 3 },
+        ),
+        (
+            "no quantization table",
+            Box::new(|s| s[3] = 0),
+            Malformed { field: Field::JpegQuantCount, index: 0, value: 0 },
+        ),
+        (
+            "17 quantization tables",
+            Box::new(|s| s[3] = 17),
+            LimitExceeded { field: Field::JpegQuantCount, index: 0, value: 17, limit: 16 },
+        ),
+        (
+            "one Huffman table",
+            Box::new(|s| s[4] = 1),
+            Malformed { field: Field::JpegHuffmanCount, index: 0, value: 1 },
+        ),
+        (
+            "33 Huffman tables",
+            Box::new(|s| s[4] = 33),
+            LimitExceeded { field: Field::JpegHuffmanCount, index: 0, value: 33, limit: 32 },
+        ),
+        (
+            "header byte 5",
+            Box::new(|s| s[5] = 9),
+            Malformed { field: Field::JpegReserved, index: 0, value: 9 },
+        ),
+        (
+            "header byte 6",
+            Box::new(|s| s[6] = 9),
+            Malformed { field: Field::JpegReserved, index: 0, value: 9 },
+        ),
+        (
+            "header byte 7",
+            Box::new(|s| s[7] = 9),
+            Malformed { field: Field::JpegReserved, index: 0, value: 9 },
+        ),
+        // The map: from channel 0, of 1 or 3 channels, sampling 1×1 for gray, 1–2 for colour.
+        (
+            "map from channel 1",
+            Box::new(|s| s[8] = 1),
+            Malformed { field: Field::JpegMap, index: 0, value: 1 },
+        ),
+        (
+            "map of 2 channels",
+            Box::new(|s| s[9] = 2),
+            Unsupported { field: Field::JpegMapChannels, index: 0, value: 2 },
+        ),
+        (
+            "gray map sampled 2×2",
+            Box::new(|s| s[9] = 1),
+            Unsupported { field: Field::JpegSubsampling, index: 0, value: 0x0202 },
+        ),
+        (
+            "luma sampled 3×2",
+            Box::new(|s| s[10] = 3),
+            Unsupported { field: Field::JpegSubsampling, index: 0, value: 0x0302 },
+        ),
+        (
+            "luma sampled 2×0",
+            Box::new(|s| s[11] = 0),
+            Unsupported { field: Field::JpegSubsampling, index: 0, value: 0x0200 },
+        ),
+        // Quantization: every value 1–255, the last of the second table too.
+        (
+            "a quantization value 0",
+            Box::new(move |s| s[quant + 127] = 0),
+            Malformed { field: Field::JpegQuantTable, index: 1, value: 0 },
+        ),
+        // Huffman tables: class 0 or 1, a zero byte, 1–256 symbols as the counts say, codes
+        // that fit their lengths, baseline symbols.
+        (
+            "Huffman class 2",
+            Box::new(|s| s[huffman[1]] = 2),
+            Malformed { field: Field::JpegHuffmanTable, index: 1, value: 2 },
+        ),
+        (
+            "Huffman byte 1",
+            Box::new(|s| s[huffman[1] + 1] = 1),
+            Malformed { field: Field::JpegHuffmanTable, index: 1, value: 1 },
+        ),
+        (
+            "no Huffman symbol",
+            Box::new(|s| put16(s, huffman[2] + 2, 0)),
+            Malformed { field: Field::JpegHuffmanTable, index: 2, value: 0 },
+        ),
+        (
+            "257 Huffman symbols",
+            Box::new(|s| put16(s, huffman[2] + 2, 257)),
+            Malformed { field: Field::JpegHuffmanTable, index: 2, value: 257 },
+        ),
+        (
+            "counts one short of the symbols",
+            Box::new(|s| s[huffman[0] + 4 + 1] -= 1),
+            Malformed { field: Field::JpegHuffmanTable, index: 0, value: 12 },
+        ),
+        (
+            "codes overflowing length 3",
+            Box::new(|s| (s[huffman[0] + 4], s[huffman[0] + 5]) = (1, 0)),
+            Malformed { field: Field::JpegHuffmanTable, index: 0, value: 3 },
+        ),
+        (
+            "DC symbol 12",
+            Box::new(|s| s[huffman[2] + 20 + 11] = 12),
+            Malformed { field: Field::JpegHuffmanSymbol, index: 2, value: 12 },
+        ),
+        (
+            "AC symbol of size 11",
+            Box::new(|s| s[huffman[3] + 20] = 0x1B),
+            Malformed { field: Field::JpegHuffmanSymbol, index: 3, value: 0x1B },
+        ),
+        // The stream record: after the records, 4-aligned, tables that exist and are of their
+        // kind's class, reserved bytes 0.
+        (
+            "stream inside the records",
+            Box::new(move |s| put32(s, record, body - 4)),
+            Malformed { field: Field::JpegStreamOffset, index: 0, value: body as i64 - 4 },
+        ),
+        (
+            "stream offset + 2",
+            Box::new(move |s| put32(s, record, body + 2)),
+            Malformed { field: Field::JpegStreamOffset, index: 0, value: body as i64 + 2 },
+        ),
+        (
+            "Cr quantized by table 2",
+            Box::new(move |s| s[record + 8 + 2] = 2),
+            Malformed { field: Field::JpegTableRef, index: 0, value: 2 },
+        ),
+        (
+            "Y's DC coded by an AC table",
+            Box::new(move |s| s[record + 8 + 3] = 1),
+            Malformed { field: Field::JpegTableRef, index: 0, value: 1 },
+        ),
+        (
+            "Cb's AC coded by a DC table",
+            Box::new(move |s| s[record + 8 + 6 + 1] = 2),
+            Malformed { field: Field::JpegTableRef, index: 0, value: 2 },
+        ),
+        (
+            "Cr's DC coded by table 4",
+            Box::new(move |s| s[record + 8 + 3 + 2] = 4),
+            Malformed { field: Field::JpegTableRef, index: 0, value: 4 },
+        ),
+        (
+            "record byte 17",
+            Box::new(move |s| s[record + 17] = 5),
+            Malformed { field: Field::JpegReserved, index: 0, value: 5 },
+        ),
+        (
+            "record byte 19",
+            Box::new(move |s| s[record + 19] = 6),
+            Malformed { field: Field::JpegReserved, index: 0, value: 6 },
+        ),
+        // The stream's length: past the section, or leaving bytes after the last stream.
+        (
+            "entropy + 2",
+            Box::new(move |s| put32(s, record + 4, entropy + 2)),
+            Truncated {
+                field: Field::JpegStreamLength,
+                index: 0,
+                needed: (body + 48 + entropy + 2) as u64,
+                available: len as u64,
+            },
+        ),
+        (
+            "entropy - 4",
+            Box::new(move |s| put32(s, record + 4, entropy - 4)),
+            Malformed { field: Field::SectionContent, index: 5, value: len as i64 },
+        ),
+        // The index: MCU offsets inside the entropy data, never going back, 0 past the last MCU.
+        (
+            "first MCU past the end",
+            Box::new(move |s| put32(s, index, end_bit + 1)),
+            Malformed { field: Field::JpegIndex, index: 0, value: end_bit as i64 + 1 },
+        ),
+        (
+            "an MCU before the one before it",
+            Box::new(move |s| {
+                put16(s, index + 4, 4000);
+                put16(s, index + 6, 3999);
+            }),
+            Malformed { field: Field::JpegIndex, index: 0, value: first_mcu as i64 + 3999 },
+        ),
+        (
+            "an offset for a seventh MCU",
+            Box::new(move |s| put16(s, index + 4 + 2 * 5, 1)),
+            Malformed { field: Field::JpegIndex, index: 0, value: 1 },
+        ),
+    ];
+    for (what, edit, expected) in &cases {
+        assert_eq!(parse(edit.as_ref()), Some(*expected), "{what}");
+    }
+    // At the edges themselves: an MCU may start at the very end of the data (the parser does not
+    // decode), and the stream may end exactly at the section's end.
+    assert_eq!(
+        parse(&|s| {
+            put32(s, index, 0);
+            (0..5).for_each(|j| put16(s, index + 4 + 2 * j, end_bit));
+        }),
+        None
+    );
+    assert_eq!(parse(&|s| put32(s, record + 4, entropy + 1)), None);
 }
