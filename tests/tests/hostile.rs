@@ -549,6 +549,11 @@ fn the_jpeg_section_rules_hold_at_their_edges() {
             Box::new(|s| s[huffman[3] + 20] = 0x1B),
             Malformed { field: Field::JpegHuffmanSymbol, index: 3, value: 0x1B },
         ),
+        (
+            "AC symbol of size 0, neither end-of-block nor 16 zeros",
+            Box::new(|s| s[huffman[3] + 20] = 0x10),
+            Malformed { field: Field::JpegHuffmanSymbol, index: 3, value: 0x10 },
+        ),
         // The stream record: after the records, 4-aligned, tables that exist and are of their
         // kind's class, reserved bytes 0.
         (
@@ -630,6 +635,36 @@ fn the_jpeg_section_rules_hold_at_their_edges() {
     for (what, edit, expected) in &cases {
         assert_eq!(parse(edit.as_ref()), Some(*expected), "{what}");
     }
+    // The parsed section reads back the layout found above from its bytes (§11.1, §11.2).
+    let m = Container::parse(&bytes).unwrap();
+    let jpeg = m.jpeg().unwrap();
+    assert_eq!(jpeg.maps()[0].blocks_per_mcu(), 4 + 2, "2 × 2 luma blocks, Cb and Cr");
+    let p = jpeg.stream_parts(0, 0).unwrap();
+    assert_eq!((p.index_at, p.dc_at, p.data_at, p.data_len), (body, body + 20, body + 48, entropy));
+    assert_eq!(p.mcus, (3, 2));
+    let refs = &s[record + 8..record + 17];
+    assert_eq!(
+        p.quant_at.to_vec(),
+        refs[..3].iter().map(|&t| quant + 64 * usize::from(t)).collect::<Vec<_>>()
+    );
+    assert_eq!((&p.dc_table[..], &p.ac_table[..]), (&refs[3..6], &refs[6..9]));
+    assert!(jpeg.stream_parts(1, 0).is_none() && jpeg.stream_parts(0, 1).is_none());
+    for (t, &h) in huffman.iter().enumerate() {
+        let counts: [u8; 16] = s[h + 4..h + 20].try_into().unwrap();
+        assert_eq!(jpeg.huffman_table(t as u8), Some((s[h], counts, h + 20)), "table {t}");
+    }
+    assert_eq!(jpeg.huffman_table(4), None);
+    assert_eq!(
+        (jpeg.mcu_grid(0, 0), jpeg.mcu_grid(0, 1), jpeg.mcu_grid(1, 0)),
+        ((3, 2), (0, 0), (0, 0))
+    );
+    // Index: one group of 20 bytes; DC values: 6 MCUs × 3 × 12 bits.
+    let overhead = (8 * 20 + 6 * 3 * 12, 8 * entropy as u64);
+    assert_eq!((jpeg.overhead_bits(), jpeg.stream_overhead_bits(0, 0)), (overhead, overhead));
+    assert_eq!(
+        (jpeg.stream_overhead_bits(0, 1), jpeg.stream_overhead_bits(1, 0)),
+        ((0, 0), (0, 0))
+    );
     // At the edges themselves: an MCU may start at the very end of the data (the parser does not
     // decode), and the stream may end exactly at the section's end.
     assert_eq!(
@@ -640,4 +675,17 @@ fn the_jpeg_section_rules_hold_at_their_edges() {
         None
     );
     assert_eq!(parse(&|s| put32(s, record + 4, entropy + 1)), None);
+}
+
+/// `check_huffman_table` (also the indexer's check of a JPEG's tables) at its edges: no code,
+/// 257 codes, and 256 codes, the most, that fit their lengths (FORMAT.md §11.1).
+#[test]
+fn huffman_tables_hold_one_to_256_codes() {
+    use nmat_core::internals::{HuffmanProblem, check_huffman_table};
+    assert_eq!(check_huffman_table(0, &[0; 16], &[]), Err(HuffmanProblem::Count(0)));
+    let mut counts = [0u8; 16];
+    (counts[8], counts[9]) = (255, 1); // 255 codes of 9 bits, 1 of 10
+    assert_eq!(check_huffman_table(0, &counts, &[3; 256]), Ok(()));
+    counts[9] = 2;
+    assert_eq!(check_huffman_table(0, &counts, &[3; 257]), Err(HuffmanProblem::Count(257)));
 }
