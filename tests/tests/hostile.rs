@@ -4,8 +4,8 @@
 #![allow(clippy::unwrap_used)]
 
 use nmat_core::{
-    ChannelMask, Container, Error, Field, Filter, Material, MaterialSpec, ParseOptions, Precision,
-    SampleRequest, SectionKind,
+    ChannelMask, Container, Error, Field, Filter, JpegMap, Material, MaterialSpec, ParseOptions,
+    Precision, SampleRequest, SectionKind,
 };
 use nmat_tests::files::{jpeg_stream_records, refresh_checksum, section, section_entry};
 use nmat_tests::generate::{FixtureConfig, generate, golden_configs, terms_in_any_order};
@@ -639,6 +639,9 @@ fn the_jpeg_section_rules_hold_at_their_edges() {
     let m = Container::parse(&bytes).unwrap();
     let jpeg = m.jpeg().unwrap();
     assert_eq!(jpeg.maps()[0].blocks_per_mcu(), 4 + 2, "2 × 2 luma blocks, Cb and Cr");
+    let map =
+        |channel_count, luma_h, luma_v| JpegMap { first_channel: 0, channel_count, luma_h, luma_v };
+    assert_eq!((map(3, 2, 1).blocks_per_mcu(), map(1, 1, 1).blocks_per_mcu()), (2 + 2, 1));
     let p = jpeg.stream_parts(0, 0).unwrap();
     assert_eq!((p.index_at, p.dc_at, p.data_at, p.data_len), (body, body + 20, body + 48, entropy));
     assert_eq!(p.mcus, (3, 2));
