@@ -9,7 +9,7 @@ use nmat_core::{
 };
 use nmat_tests::files::{jpeg_stream_records, refresh_checksum, section, section_entry};
 use nmat_tests::generate::{FixtureConfig, generate, golden_configs, terms_in_any_order};
-use nmat_tests::{assert_decodes_as_the_reference, reference};
+use nmat_tests::{assert_decodes_as_the_reference, fixtures_dir, reference};
 
 fn fixtures() -> Vec<(&'static str, Vec<u8>)> {
     golden_configs().into_iter().map(|c| (c.name, generate(&c).to_bytes().unwrap())).collect()
@@ -379,8 +379,7 @@ type Edit<'a> = Box<dyn Fn(&mut [u8]) + 'a>;
 /// The committed JPEG material: one 4:2:0 colour map of 3 × 2 MCUs, one mip, 2 quantization
 /// and 4 Huffman tables (tests/fixtures/jpeg/README.md).
 fn jpeg_material() -> Vec<u8> {
-    std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/jpeg/pattern_420_37x21.nmat"))
-        .unwrap()
+    std::fs::read(fixtures_dir().join("jpeg/pattern_420_37x21.nmat")).unwrap()
 }
 
 /// The JPEG section's rules (FORMAT.md §11.1) hold at their edges, each refused by name with the
