@@ -95,6 +95,13 @@ fn jpeg_materials_decode_on_the_gpu_exactly_as_on_the_cpu() {
         ("fixture 37×21 4:2:0 with restarts", fixture()),
         ("bricks 4:2:0", bricks_jpeg(nmat_encode::jpeg::Subsampling::S420)),
         ("bricks 4:2:2", bricks_jpeg(nmat_encode::jpeg::Subsampling::S422)),
+        // Four maps (4:2:0, gray, luma 1 × 2 — which the encoder never writes —, gray), 4 mips,
+        // exactly two Huffman tables; its CPU codes are checked against FORMAT.md §11 in
+        // tests/tests/golden.rs.
+        (
+            "DC-only, four maps, luma 1 × 2",
+            nmat_tests::generate_jpeg::DcJpegMaterial::new(7).spec.to_bytes().unwrap(),
+        ),
     ];
     for (name, bytes) in &materials {
         let m = Container::parse(bytes).unwrap();

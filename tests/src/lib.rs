@@ -1,10 +1,12 @@
-//! Shared helpers of the nmat test suite: the deterministic material generator, an independent
+//! Shared helpers of the nmat test suite: the deterministic material generators (neural, and a
+//! DC-only JPEG material whose codes follow from FORMAT.md §11, `generate_jpeg`), an independent
 //! reference decoder, independent packers/unpackers of FORMAT.md §12 (`reference_packed` for
 //! neural materials, `reference_packed_jpeg` for JPEG materials, §12.5), fixture I/O and hashing.
 //! The tests themselves live in `tests/tests/`.
 
 pub mod files;
 pub mod generate;
+pub mod generate_jpeg;
 pub mod reference;
 pub(crate) mod reference_container;
 pub mod reference_packed;

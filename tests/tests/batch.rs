@@ -227,6 +227,7 @@ fn scattered_texels_in_one_call_equal_texel_by_texel_decodes() {
     let mut files: Vec<Vec<u8>> =
         golden_configs().iter().map(|cfg| generate(cfg).to_bytes().unwrap()).collect();
     files.push(jpeg);
+    files.push(nmat_tests::generate_jpeg::DcJpegMaterial::new(9).spec.to_bytes().unwrap());
     let mut r = Rng::new(81);
     for (f, bytes) in files.iter().enumerate() {
         let m = Container::parse(bytes).unwrap();

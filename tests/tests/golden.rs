@@ -212,3 +212,67 @@ fn the_committed_jpeg_material_decodes_like_djpeg_on_every_path() {
         }
     }
 }
+
+/// A JPEG material of four maps (4:2:0, gray, luma 1 × 2, gray), four mips and streams of up to
+/// five index groups, built in code with DC-only blocks so that every code follows from
+/// FORMAT.md §11 (`nmat_tests::generate_jpeg`): decoded texel by texel, and on every kernel by
+/// region (each whole mip, a rectangle across MCUs, channels of several maps), by span (every
+/// row, one that wraps around the edges) — the sums over maps, mips and index groups that the
+/// one-map fixture above cannot check.
+#[test]
+fn a_jpeg_material_of_several_maps_and_mips_decodes_as_the_format_says() {
+    use nmat_core::{Decoder, Kernel};
+    use nmat_tests::generate_jpeg::DcJpegMaterial;
+    let material = &DcJpegMaterial::new(7);
+    let bytes = material.spec.to_bytes().expect("a valid JPEG material");
+    let m = Container::parse(&bytes).unwrap();
+    assert_eq!((m.mip_count(), m.mip_size(3), m.channel_count()), (4, (8, 4), 8));
+    let expected: Vec<u8> = (0..4).flat_map(|mip| material.mip_codes(mip)).collect();
+    assert!(decode_all_u8(&m) == expected, "texel by texel, 8 bits");
+    let n = 8usize;
+    // Channels 2 (B of the 4:2:0 map), 3 (gray), 5 (G of the 1 × 2 map) and 7 (gray).
+    let some = [2usize, 3, 5, 7];
+    let mask = ChannelMask(some.iter().map(|c| 1u16 << c).sum());
+    for kernel in Kernel::ALL.into_iter().filter(|k| k.is_available()) {
+        let d = Decoder::with_kernel(&m, kernel).unwrap();
+        for mip in 0..4 {
+            let (w, h) = m.mip_size(mip);
+            let (w, h) = (w as usize, h as usize);
+            let codes = material.mip_codes(mip);
+            let mut out = vec![0u8; w * h * n];
+            d.decode_region_u8(&m, mip, (0, 0, w as u32, h as u32), ChannelMask::ALL, &mut out, 0)
+                .unwrap();
+            assert!(out == codes, "{kernel:?}: mip {mip} as a region");
+            let mut picked = vec![0u8; w * h * some.len()];
+            d.decode_region_u8(&m, mip, (0, 0, w as u32, h as u32), mask, &mut picked, 0).unwrap();
+            let want: Vec<u8> = codes.chunks(n).flat_map(|t| some.iter().map(|&c| t[c])).collect();
+            assert!(picked == want, "{kernel:?}: mip {mip}, channels {some:?} as a region");
+            for y in 0..h {
+                let mut row = vec![0u8; w * n];
+                d.decode_span_u8(&m, 0, y as i64, mip, w, ChannelMask::ALL, &mut row).unwrap();
+                assert!(
+                    row[..] == codes[y * w * n..(y + 1) * w * n],
+                    "{kernel:?}: mip {mip} row {y}"
+                );
+            }
+        }
+        // A rectangle of mip 0 that starts and ends inside MCUs of every map.
+        let (x0, y0, rw, rh) = (5u32, 3u32, 51u32, 29u32);
+        let mut out = vec![0u8; (rw * rh) as usize * n];
+        d.decode_region_u8(&m, 0, (x0, y0, rw, rh), ChannelMask::ALL, &mut out, 0).unwrap();
+        let cut: Vec<u8> = (y0..y0 + rh)
+            .flat_map(|y| (x0..x0 + rw).flat_map(move |x| (0..n).map(move |c| (c, x, y))))
+            .map(|(c, x, y)| material.code(c, x, y, 0))
+            .collect();
+        assert!(out == cut, "{kernel:?}: a rectangle across MCUs");
+        // A span of mip 1 (35 × 18) from x = −5 over 45 texels: it wraps at both edges.
+        let mut row = vec![0u8; 45 * some.len()];
+        d.decode_span_u8(&m, -5, 17, 1, 45, mask, &mut row).unwrap();
+        let want: Vec<u8> = (-5i64..40)
+            .flat_map(|x| {
+                some.iter().map(move |&c| material.code(c, x.rem_euclid(35) as u32, 17, 1))
+            })
+            .collect();
+        assert!(row == want, "{kernel:?}: a span that wraps");
+    }
+}

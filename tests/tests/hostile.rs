@@ -691,3 +691,136 @@ fn huffman_tables_hold_one_to_256_codes() {
     counts[9] = 2;
     assert_eq!(check_huffman_table(0, &counts, &[3; 257]), Err(HuffmanProblem::Count(257)));
 }
+
+/// The JPEG section of a material of four maps and four mips (`nmat_tests::generate_jpeg`): each
+/// stream's parts, MCU grid and overhead read back as the writer laid them out — offsets summed
+/// over the records before it, index groups past the first, the fewest Huffman tables (2) — and
+/// the parser's rules that span streams and index groups: a stream that starts inside the one
+/// before it, an index group whose base goes back past the group before it, an entry past the
+/// last MCU in a later group.
+#[test]
+fn the_jpeg_section_of_several_maps_and_mips_reads_back_as_written() {
+    use nmat_tests::generate_jpeg::DcJpegMaterial;
+    let material = DcJpegMaterial::new(3);
+    let spec = &material.spec;
+    let bytes = spec.to_bytes().unwrap();
+    let (at, len) = section(&bytes, SectionKind::JPEG.0);
+    let s = &bytes[at..at + len];
+    assert_eq!((s[2], s[3], s[4]), (4, 3, 2), "maps, quantization and Huffman tables");
+    let m = Container::parse(&bytes).unwrap();
+    let jpeg = m.jpeg().unwrap();
+    let u16_of = |at: usize| u64::from(u16::from_le_bytes([s[at], s[at + 1]]));
+    let u32_of = |at: usize| u64::from(u32::from_le_bytes(s[at..at + 4].try_into().unwrap()));
+    let quant = 8 + 4 * 4;
+    let mut parts = vec![];
+    let mut total = (0, 0);
+    for (k, map) in spec.maps.iter().enumerate() {
+        let values = if map.channel_count == 3 { 3 } else { 1 };
+        for mip in 0..4u32 {
+            let stream = &spec.streams[k * 4 + mip as usize];
+            let p = jpeg.stream_parts(k, mip).unwrap();
+            let (w, h) = m.mip_size(mip);
+            let (mw, mh) = map.mcu_size();
+            let grid = (w.div_ceil(mw), h.div_ceil(mh));
+            let at = format!("map {k} mip {mip}");
+            assert_eq!((p.mcus, jpeg.mcu_grid(k, mip)), (grid, grid), "{at}");
+            let mcus = (grid.0 * grid.1) as usize;
+            assert_eq!(p.dc_at - p.index_at, 20 * mcus.div_ceil(9), "{at}: index groups");
+            assert_eq!(p.data_at - p.dc_at, (mcus * values * 12).div_ceil(32) * 4, "{at}: DCs");
+            assert_eq!(&s[p.data_at..p.data_at + p.data_len], &stream.data[..], "{at}: data");
+            for (i, &bit) in stream.mcu_bits.iter().enumerate() {
+                let group = p.index_at + 20 * (i / 9);
+                let rel = if i % 9 == 0 { 0 } else { u16_of(group + 4 + 2 * (i % 9 - 1)) };
+                assert_eq!(u32_of(group) + rel, bit, "{at}: MCU {i}'s offset");
+            }
+            for (c, &t) in stream.quant.iter().enumerate() {
+                assert_eq!(p.quant_at[c], quant + 64 * usize::from(t), "{at}: component {c}");
+                let table = &s[p.quant_at[c]..p.quant_at[c] + 64];
+                assert_eq!(table, &spec.quant_tables[usize::from(t)][..], "{at}: component {c}");
+            }
+            assert_eq!((p.dc_table, p.ac_table), (stream.dc, stream.ac), "{at}");
+            let bits = jpeg.stream_overhead_bits(k, mip);
+            let index_and_dc = 8 * 20 * mcus.div_ceil(9) + mcus * values * 12;
+            assert_eq!(bits, (index_and_dc as u64, 8 * stream.data.len() as u64), "{at}");
+            total = (total.0 + bits.0, total.1 + bits.1);
+            parts.push(p);
+        }
+    }
+    assert_eq!(jpeg.overhead_bits(), total);
+    assert!(jpeg.stream_parts(4, 0).is_none() && jpeg.stream_parts(0, 4).is_none());
+    assert_eq!((jpeg.mcu_grid(4, 0), jpeg.mcu_grid(0, 4)), ((0, 0), (0, 0)));
+    assert_eq!(
+        (jpeg.stream_overhead_bits(4, 0), jpeg.stream_overhead_bits(3, 4)),
+        ((0, 0), (0, 0))
+    );
+    let huffman = 8 + 4 * 4 + 3 * 64;
+    assert_eq!(
+        jpeg.huffman_table(0),
+        Some((0, s[huffman + 4..huffman + 20].try_into().unwrap(), huffman + 20))
+    );
+    let second = (huffman + 20 + 12 + 3) & !3;
+    assert_eq!(
+        jpeg.huffman_table(1),
+        Some((1, s[second + 4..second + 20].try_into().unwrap(), second + 20))
+    );
+    assert_eq!(jpeg.huffman_table(2), None);
+
+    let parse = |edit: &dyn Fn(&mut [u8])| {
+        let mut b = bytes.clone();
+        edit(&mut b[at..at + len]);
+        refresh_checksum(&mut b);
+        Container::parse(&b).map(|_| ()).err()
+    };
+    let put = |s: &mut [u8], at: usize, v: u64, n: usize| {
+        s[at..at + n].copy_from_slice(&v.to_le_bytes()[..n]);
+    };
+    // Every stream but the first moved back by 4 bytes starts inside the one before it.
+    let records = jpeg_stream_records(s);
+    for (i, p) in parts.iter().enumerate().skip(1) {
+        assert_eq!(
+            parse(&|s| put(s, records + 20 * i, p.index_at as u64 - 4, 4)),
+            Some(Error::Malformed {
+                field: Field::JpegStreamOffset,
+                index: i as u32,
+                value: p.index_at as i64 - 4
+            }),
+            "stream {i}"
+        );
+    }
+    // Map 0 at mip 0 (4:2:0, 5 × 3 = 15 MCUs): the second group holds MCUs 9 … 14, then 3
+    // entries that must be 0.
+    let (p, mcu_bits) = (&parts[0], &spec.streams[0].mcu_bits);
+    assert_eq!(mcu_bits.len(), 15);
+    let second = p.index_at + 20;
+    let eighth = mcu_bits[8];
+    assert_eq!(
+        parse(&|s| put(s, second, eighth - 1, 4)),
+        Some(Error::Malformed { field: Field::JpegIndex, index: 0, value: eighth as i64 - 1 }),
+        "the second group's base before MCU 8"
+    );
+    assert_eq!(parse(&|s| put(s, second, eighth, 4)), None, "the second group's base at MCU 8");
+    assert_eq!(
+        parse(&|s| put(s, second + 4 + 2 * 5, 1, 2)),
+        Some(Error::Malformed { field: Field::JpegIndex, index: 0, value: 1 }),
+        "MCU 15's entry"
+    );
+    let end = 8 * p.data_len as u64;
+    assert_eq!(
+        parse(&|s| put(s, second + 4 + 2 * 4, end - u32_of(second), 2)),
+        None,
+        "MCU 14 at the very end of the data"
+    );
+    assert_eq!(
+        parse(&|s| {
+            put(s, second, end, 4);
+            (0..5).for_each(|j| put(s, second + 4 + 2 * j, 0, 2));
+        }),
+        None,
+        "the second group's MCUs all at the end"
+    );
+    assert_eq!(
+        parse(&|s| put(s, second, end + 1, 4)),
+        Some(Error::Malformed { field: Field::JpegIndex, index: 0, value: end as i64 + 1 }),
+        "the second group's base past the end"
+    );
+}

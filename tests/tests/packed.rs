@@ -337,6 +337,25 @@ fn a_jpeg_material_packs_without_its_index_and_unpacks_to_the_same_bytes() {
     );
 }
 
+/// A JPEG material of four maps and four mips (`nmat_tests::generate_jpeg`: streams of 1 to 45
+/// MCUs, no restart markers) packs to what the reference packer written from FORMAT.md §12.5
+/// writes, and each unpacks the other's packed file to the fixed-rate bytes.
+#[test]
+fn a_jpeg_material_of_several_maps_and_mips_packs_like_the_reference() {
+    use nmat_tests::files::assert_same_bytes;
+    use nmat_tests::reference_packed_jpeg;
+    for seed in 0..4 {
+        let bytes = nmat_tests::generate_jpeg::DcJpegMaterial::new(seed).spec.to_bytes().unwrap();
+        let packed = pack(&bytes).unwrap();
+        let reference = reference_packed_jpeg::pack(&bytes).unwrap();
+        assert_same_bytes(&format!("seed {seed}: pack"), &packed, &reference);
+        let unpacked = unpack(&packed, ParseOptions::default()).unwrap();
+        assert_same_bytes(&format!("seed {seed}: unpack"), &unpacked, &bytes);
+        let by_reference = reference_packed_jpeg::unpack(&packed).unwrap();
+        assert_same_bytes(&format!("seed {seed}: reference unpack"), &by_reference, &bytes);
+    }
+}
+
 #[test]
 fn hostile_packed_jpeg_files_end_in_typed_errors() {
     let packed = jpeg_fixture("pattern_420_37x21.packed.nmat");

@@ -11,13 +11,18 @@ use nmat_core::{
 use nmat_core::{MAX_CACHE_MATERIALS, MAX_CACHE_TILES};
 use nmat_tests::fixtures_dir;
 use nmat_tests::generate::Rng;
+use nmat_tests::generate_jpeg::DcJpegMaterial;
 
-/// Three materials of different codecs, sizes, channel counts and address modes.
+/// Four materials of different codecs, sizes, channel counts and address modes: two neural,
+/// the committed JPEG one and a JPEG one of four maps and four mips.
 fn fixture_bytes() -> Vec<Vec<u8>> {
-    ["ntc_rgb_64.nmat", "ntc_pbr10_96x80_clamp.nmat", "jpeg/pattern_420_37x21.nmat"]
-        .iter()
-        .map(|name| std::fs::read(fixtures_dir().join(name)).unwrap())
-        .collect()
+    let mut files: Vec<Vec<u8>> =
+        ["ntc_rgb_64.nmat", "ntc_pbr10_96x80_clamp.nmat", "jpeg/pattern_420_37x21.nmat"]
+            .iter()
+            .map(|name| std::fs::read(fixtures_dir().join(name)).unwrap())
+            .collect();
+    files.push(DcJpegMaterial::new(5).spec.to_bytes().unwrap());
+    files
 }
 
 fn random_request(r: &mut Rng, m: &Material<'_>) -> SampleRequest {
@@ -416,7 +421,7 @@ fn footprints_from_threads_marked_together_equal_marking_each_lookup() {
 
     // Keys the materials do not have are refused.
     let key = |material, mip, x, y| nmat_core::TileKey { material, mip, x, y };
-    bad(split.mark_tiles(&[key(3, 0, 0, 0)]), Argument::Material);
+    bad(split.mark_tiles(&[key(4, 0, 0, 0)]), Argument::Material);
     bad(split.mark_tiles(&[key(0, 7, 0, 0)]), Argument::Mip); // 64×64: 7 mips, 0 to 6
     bad(split.mark_tiles(&[key(0, 0, 4, 0)]), Argument::Region); // 4 tiles across
     bad(split.mark_tiles(&[key(2, 0, 0, 2)]), Argument::Region); // 37×21: 2 tile rows
