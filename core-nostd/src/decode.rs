@@ -658,4 +658,19 @@ mod tests {
             assert_eq!(a.to_bits(), b.to_bits(), "{v}");
         }
     }
+
+    /// The unit clamp gives values in [0, 1] as bits a caller can compare: +0 for every value
+    /// at or below 0, −0 and NaN included; 1 from 1 up; the value itself between.
+    #[test]
+    fn the_unit_clamp_gives_positive_zero_below_and_one_above() {
+        for v in [-0.0f32, 0.0, -1.0, f32::NAN, f32::NEG_INFINITY, -f32::MIN_POSITIVE] {
+            assert_eq!(unit(v).to_bits(), 0.0f32.to_bits(), "{v}");
+        }
+        for v in [1.0f32, 1.5, f32::INFINITY] {
+            assert_eq!(unit(v).to_bits(), 1.0f32.to_bits(), "{v}");
+        }
+        for v in [f32::MIN_POSITIVE, 0.25, 1.0 - f32::EPSILON / 2.0] {
+            assert_eq!(unit(v).to_bits(), v.to_bits(), "{v}");
+        }
+    }
 }

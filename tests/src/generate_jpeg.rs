@@ -85,7 +85,7 @@ fn ycc_to_rgb(y: u8, cb: u8, cr: u8) -> [u8; 3] {
 
 impl DcJpegMaterial {
     /// 70 × 37 texels, 4 mips, 8 channels in 4 maps: RGB 4:2:0 (16 × 16 MCUs), gray, RGB with
-    /// luma 1 × 2 (8 × 16 MCUs), gray. Mip 0's gray maps have 45 MCUs (5 index groups). DC
+    /// luma 1 × 2 (8 × 16 MCUs; a normal map, range −1 … 1), gray (a height, range 0 … 0.25). Mip 0's gray maps have 45 MCUs (5 index groups). DC
     /// values are random (seeded), `|dc · q0| ≤ 950`, so no sample clamps in the IDCT.
     pub fn new(seed: u64) -> DcJpegMaterial {
         let mut rng = Rng::new(seed);
@@ -165,13 +165,18 @@ impl DcJpegMaterial {
                     4..=6 => (Semantic::NORMAL, c as u8 - 4),
                     _ => (Semantic::HEIGHT, 0),
                 };
+                let (range_min, range_max) = match c {
+                    4..=6 => (-1.0, 1.0),
+                    7 => (0.0, 0.25),
+                    _ => (0.0, 1.0),
+                };
                 ChannelSpec {
                     name: name.to_string(),
                     semantic,
                     component,
                     color_space: if c < 3 { ColorSpace::Srgb } else { ColorSpace::Linear },
-                    range_min: 0.0,
-                    range_max: 1.0,
+                    range_min,
+                    range_max,
                 }
             })
             .collect();

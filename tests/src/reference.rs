@@ -152,13 +152,19 @@ fn address(spec: &MaterialSpec, x: i64, y: i64, mip: u32) -> (i64, i64, u32) {
     (wrap_or_clamp(x, w, spec.address_mode), wrap_or_clamp(y, h, spec.address_mode), mip)
 }
 
-/// Integer decode of every channel: the last layer's Q.f outputs.
-pub fn decode_int_raw(spec: &MaterialSpec, x: i64, y: i64, mip: u32) -> Vec<i64> {
+/// The integer network's input vector of texel (x, y) of `mip`, addressed: the features rounded
+/// to the input format's Q.f and saturated to i16 (§6.3).
+pub fn input_vector(spec: &MaterialSpec, x: i64, y: i64, mip: u32) -> Vec<i64> {
     let (x, y, mip) = address(spec, x, y, mip);
-    let mut act: Vec<i64> = features(spec, x, y, mip)
+    features(spec, x, y, mip)
         .into_iter()
         .map(|r| ((r + 32768).div_euclid(65536)).clamp(-32768, 32767))
-        .collect();
+        .collect()
+}
+
+/// Integer decode of every channel: the last layer's Q.f outputs.
+pub fn decode_int_raw(spec: &MaterialSpec, x: i64, y: i64, mip: u32) -> Vec<i64> {
+    let mut act = input_vector(spec, x, y, mip);
     let mut frac = u32::from(spec.mlp.input_frac_bits);
     for l in &spec.mlp.layers {
         act = layer_int(l, &act, frac);

@@ -215,10 +215,10 @@ fn the_committed_jpeg_material_decodes_like_djpeg_on_every_path() {
 
 /// A JPEG material of four maps (4:2:0, gray, luma 1 × 2, gray), four mips and streams of up to
 /// five index groups, built in code with DC-only blocks so that every code follows from
-/// FORMAT.md §11 (`nmat_tests::generate_jpeg`): decoded texel by texel, and on every kernel by
-/// region (each whole mip, a rectangle across MCUs, channels of several maps), by span (every
-/// row, one that wraps around the edges) — the sums over maps, mips and index groups that the
-/// one-map fixture above cannot check.
+/// FORMAT.md §11 (`nmat_tests::generate_jpeg`): decoded texel by texel (8-bit codes, unit and
+/// ranged floats), and on every kernel by region (each whole mip, a rectangle across MCUs,
+/// channels of several maps), by span (every row, one that wraps around the edges) — the sums
+/// over maps, mips and index groups that the one-map fixture above cannot check.
 #[test]
 fn a_jpeg_material_of_several_maps_and_mips_decodes_as_the_format_says() {
     use nmat_core::{Decoder, Kernel};
@@ -229,6 +229,24 @@ fn a_jpeg_material_of_several_maps_and_mips_decodes_as_the_format_says() {
     assert_eq!((m.mip_count(), m.mip_size(3), m.channel_count()), (4, (8, 4), 8));
     let expected: Vec<u8> = (0..4).flat_map(|mip| material.mip_codes(mip)).collect();
     assert!(decode_all_u8(&m) == expected, "texel by texel, 8 bits");
+    // The float decoders (FORMAT.md §11.5): `c / 255`, and in the channel's range
+    // `range_min · (1 − c/255) + range_max · c/255`; a mask of one channel of each map.
+    let ranges: Vec<(f32, f32)> =
+        material.spec.channels.iter().map(|c| (c.range_min, c.range_max)).collect();
+    let one_a_map = [1usize, 3, 6, 7];
+    let mask = ChannelMask(one_a_map.iter().map(|c| 1u16 << c).sum());
+    for (x, y, mip) in texels(&m) {
+        let (mut unit, mut ranged) = ([0f32; 16], [0f32; 16]);
+        assert_eq!(m.decode_texel_unit(x, y, mip, mask, &mut unit).unwrap(), 4);
+        assert_eq!(m.decode_texel(x, y, mip, mask, &mut ranged).unwrap(), 4);
+        for (k, &c) in one_a_map.iter().enumerate() {
+            let u = f32::from(material.code(c, x as u32, y as u32, mip)) / 255.0;
+            let (lo, hi) = ranges[c];
+            let at = format!("channel {c} at ({x}, {y}) mip {mip}");
+            assert_eq!(unit[k].to_bits(), u.to_bits(), "unit {at}");
+            assert_eq!(ranged[k].to_bits(), (lo * (1.0 - u) + hi * u).to_bits(), "ranged {at}");
+        }
+    }
     let n = 8usize;
     // Channels 2 (B of the 4:2:0 map), 3 (gray), 5 (G of the 1 × 2 map) and 7 (gray).
     let some = [2usize, 3, 5, 7];
@@ -275,4 +293,33 @@ fn a_jpeg_material_of_several_maps_and_mips_decodes_as_the_format_says() {
             .collect();
         assert!(row == want, "{kernel:?}: a span that wraps");
     }
+}
+
+/// The integer network's input vector (`internals::input_vector`, which the encoder's refit
+/// starts from) equals the reference's (FORMAT.md §6.3: features rounded and saturated to i16),
+/// zeros past the input width, at texels inside and outside every mip (wrapped or clamped) of
+/// every golden material; a JPEG material has none.
+#[test]
+fn the_input_vector_is_the_reference_s() {
+    use nmat_core::internals::input_vector;
+    for cfg in golden_configs() {
+        let spec = generate(&cfg);
+        let bytes = spec.to_bytes().unwrap();
+        let m = Container::parse(&bytes).unwrap();
+        let width = usize::from(spec.mlp.layers[0].inputs);
+        for mip in 0..m.mip_count() + 1 {
+            let (w, h) = m.mip_size(mip);
+            let (w, h) = (i64::from(w), i64::from(h));
+            for (x, y) in [(0, 0), (w - 1, h - 1), (w / 2, h / 3), (-3, h + 5), (2 * w + 1, -h)] {
+                let got = input_vector(&m, x, y, mip).unwrap();
+                let want = reference::input_vector(&spec, x, y, mip);
+                assert_eq!(want.len(), width, "{}", cfg.name);
+                let got: Vec<i64> = got.iter().map(|&v| i64::from(v)).collect();
+                assert_eq!(got[..width], want[..], "{} ({x}, {y}) mip {mip}", cfg.name);
+                assert!(got[width..].iter().all(|&v| v == 0), "{}: past the inputs", cfg.name);
+            }
+        }
+    }
+    let jpeg = std::fs::read(fixtures_dir().join("jpeg/pattern_420_37x21.nmat")).unwrap();
+    assert_eq!(input_vector(&Container::parse(&jpeg).unwrap(), 0, 0, 0), None);
 }
