@@ -1,7 +1,7 @@
 //! A JPEG material built in code, with the codes every texel must decode to computed here from
 //! docs/FORMAT.md §11 alone: several maps (4:2:0, luma 1 × 2, gray), several mips, streams of
 //! several index groups, three quantization tables picked differently by every stream and
-//! exactly two Huffman tables. Every block holds its DC coefficient only (an end-of-block right
+//! exactly two Huffman tables, one of 256 symbols. Every block holds its DC coefficient only (an end-of-block right
 //! after it), so its 64 samples are one value, `clamp(floor((dc · q0 + 4) / 8) + 128)`: in §11.4
 //! with only `x0` non-zero, pass 1 gives `4 · dc · q0` down each column and pass 2 shifts
 //! `that · 2^13 + 2^17` right by 18. A colour texel is §11.5 of its block's Y and its MCU's Cb
@@ -17,7 +17,7 @@ use nmat_core::{
 
 /// The DC Huffman table: sizes 0 ..= 11, all of length 4, so size `s` is the code `s`.
 const DC_TABLE: u8 = 0;
-/// The AC Huffman table: only end-of-block, the code `0`.
+/// The AC Huffman table: end-of-block is the code `0` (and 255 longer codes are never used).
 const AC_TABLE: u8 = 1;
 
 /// A DC-only JPEG material and the DC value of each of its blocks.
@@ -103,11 +103,14 @@ impl DcJpegMaterial {
             .collect();
         let mut dc_counts = [0u8; 16];
         dc_counts[3] = 12;
+        // End-of-block as the code `0`, then 255 codes of 9 bits that the data never uses: a
+        // table of 256 symbols, the most a table may hold.
         let mut ac_counts = [0u8; 16];
-        ac_counts[0] = 1;
+        (ac_counts[0], ac_counts[8]) = (1, 255);
+        let ac_values = [0x00].into_iter().chain([0x01; 255]).collect();
         let huffman_tables = vec![
             HuffmanTableSpec { class: 0, counts: dc_counts, values: (0..12).collect() },
-            HuffmanTableSpec { class: 1, counts: ac_counts, values: vec![0x00] },
+            HuffmanTableSpec { class: 1, counts: ac_counts, values: ac_values },
         ];
         let mut streams = Vec::new();
         let mut blocks = Vec::new();

@@ -694,10 +694,11 @@ fn huffman_tables_hold_one_to_256_codes() {
 
 /// The JPEG section of a material of four maps and four mips (`nmat_tests::generate_jpeg`): each
 /// stream's parts, MCU grid and overhead read back as the writer laid them out — offsets summed
-/// over the records before it, index groups past the first, the fewest Huffman tables (2) — and
-/// the parser's rules that span streams and index groups: a stream that starts inside the one
-/// before it, an index group whose base goes back past the group before it, an entry past the
-/// last MCU in a later group.
+/// over the records before it, index groups past the first, the fewest Huffman tables (2), a
+/// table of the most symbols (256) — and the parser's rules that span streams and index groups:
+/// a stream that starts inside the one before it (or inside the records), a section that ends
+/// inside the records, an index group whose base goes back past the group before it, an entry
+/// past the last MCU in a later group; and a symbol count of 65535.
 #[test]
 fn the_jpeg_section_of_several_maps_and_mips_reads_back_as_written() {
     use nmat_tests::generate_jpeg::DcJpegMaterial;
@@ -774,9 +775,18 @@ fn the_jpeg_section_of_several_maps_and_mips_reads_back_as_written() {
     let put = |s: &mut [u8], at: usize, v: u64, n: usize| {
         s[at..at + n].copy_from_slice(&v.to_le_bytes()[..n]);
     };
-    // Every stream but the first moved back by 4 bytes starts inside the one before it.
+    // The AC table holds 256 symbols, the most; a count of 65535 is refused by name before its
+    // symbols are looked for.
+    assert_eq!(s[second + 2..second + 4], [0, 1], "256 symbols");
+    assert_eq!(
+        parse(&|s| put(s, second + 2, 65535, 2)),
+        Some(Error::Malformed { field: Field::JpegHuffmanTable, index: 1, value: 65535 })
+    );
+    // Every stream moved back by 4 bytes starts inside the one before it (the first: inside the
+    // stream records).
     let records = jpeg_stream_records(s);
-    for (i, p) in parts.iter().enumerate().skip(1) {
+    assert_eq!(parts[0].index_at, records + 20 * 16);
+    for (i, p) in parts.iter().enumerate() {
         assert_eq!(
             parse(&|s| put(s, records + 20 * i, p.index_at as u64 - 4, 4)),
             Some(Error::Malformed {
@@ -787,6 +797,20 @@ fn the_jpeg_section_of_several_maps_and_mips_reads_back_as_written() {
             "stream {i}"
         );
     }
+    // A section that ends inside the stream records.
+    let mut cut = bytes.clone();
+    let entry = section_entry(&cut, SectionKind::JPEG.0);
+    cut[entry + 12..entry + 16].copy_from_slice(&(records as u32 + 20 * 15).to_le_bytes());
+    refresh_checksum(&mut cut);
+    assert_eq!(
+        Container::parse(&cut).err(),
+        Some(Error::Truncated {
+            field: Field::JpegStream,
+            index: 0,
+            needed: records as u64 + 20 * 16,
+            available: records as u64 + 20 * 15
+        })
+    );
     // Map 0 at mip 0 (4:2:0, 5 × 3 = 15 MCUs): the second group holds MCUs 9 … 14, then 3
     // entries that must be 0.
     let (p, mcu_bits) = (&parts[0], &spec.streams[0].mcu_bits);
