@@ -1,13 +1,13 @@
 //! A JPEG material built in code, with the codes every texel must decode to computed here from
 //! docs/FORMAT.md §11 alone: several maps (4:2:0, luma 1 × 2, gray), several mips, streams of
 //! several index groups, three quantization tables picked differently by every stream and
-//! exactly two Huffman tables, one of 256 symbols. Every block holds its DC coefficient only (an end-of-block right
-//! after it), so its 64 samples are one value, `clamp(floor((dc · q0 + 4) / 8) + 128)`: in §11.4
-//! with only `x0` non-zero, pass 1 gives `4 · dc · q0` down each column and pass 2 shifts
-//! `that · 2^13 + 2^17` right by 18. A colour texel is §11.5 of its block's Y and its MCU's Cb
-//! and Cr. What the committed, djpeg-checked fixture (one map, one mip, 6 MCUs) cannot give:
-//! sums over stream records, index groups past the first, slots of selected channels across
-//! maps.
+//! exactly two Huffman tables, one of 256 symbols. Every block holds its DC coefficient only
+//! (an end-of-block right after it), so its 64 samples are one value, `clamp(floor((dc · q0 +
+//! 4) / 8) + 128)`: in §11.4 with only `x0` non-zero, pass 1 gives `4 · dc · q0` down each
+//! column and pass 2 shifts `that · 2^13 + 2^17` right by 18. A colour texel is §11.5 of its
+//! block's Y and its MCU's Cb and Cr. What the committed, djpeg-checked fixture (one map, one
+//! mip, 6 MCUs) cannot give: sums over stream records, index groups past the first, slots of
+//! selected channels across maps.
 
 use crate::generate::Rng;
 use nmat_core::{
@@ -85,8 +85,9 @@ fn ycc_to_rgb(y: u8, cb: u8, cr: u8) -> [u8; 3] {
 
 impl DcJpegMaterial {
     /// 70 × 37 texels, 4 mips, 8 channels in 4 maps: RGB 4:2:0 (16 × 16 MCUs), gray, RGB with
-    /// luma 1 × 2 (8 × 16 MCUs; a normal map, range −1 … 1), gray (a height, range 0 … 0.25). Mip 0's gray maps have 45 MCUs (5 index groups). DC
-    /// values are random (seeded), `|dc · q0| ≤ 950`, so no sample clamps in the IDCT.
+    /// luma 1 × 2 (8 × 16 MCUs; a normal map: x, y in −1 … 1, z in 0 … 1), gray (a height, range 0 … 0.25).
+    /// Mip 0's gray maps have 45 MCUs (5 index groups). DC values are random (seeded), `|dc ·
+    /// q0| ≤ 950`, so no sample clamps in the IDCT.
     pub fn new(seed: u64) -> DcJpegMaterial {
         let mut rng = Rng::new(seed);
         let (width, height, mip_count) = (70u32, 37u32, 4u8);
@@ -169,7 +170,7 @@ impl DcJpegMaterial {
                     _ => (Semantic::HEIGHT, 0),
                 };
                 let (range_min, range_max) = match c {
-                    4..=6 => (-1.0, 1.0),
+                    4 | 5 => (-1.0, 1.0),
                     7 => (0.0, 0.25),
                     _ => (0.0, 1.0),
                 };

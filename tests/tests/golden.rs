@@ -234,7 +234,8 @@ fn a_jpeg_material_of_several_maps_and_mips_decodes_as_the_format_says() {
     let ranges: Vec<(f32, f32)> =
         material.spec.channels.iter().map(|c| (c.range_min, c.range_max)).collect();
     let one_a_map = [1usize, 3, 6, 7];
-    let mask = ChannelMask(one_a_map.iter().map(|c| 1u16 << c).sum());
+    let one_a_map_mask = ChannelMask(one_a_map.iter().map(|c| 1u16 << c).sum());
+    let mask = one_a_map_mask;
     for (x, y, mip) in texels(&m) {
         let (mut unit, mut ranged) = ([0f32; 16], [0f32; 16]);
         assert_eq!(m.decode_texel_unit(x, y, mip, mask, &mut unit).unwrap(), 4);
@@ -283,6 +284,36 @@ fn a_jpeg_material_of_several_maps_and_mips_decodes_as_the_format_says() {
             .map(|(c, x, y)| material.code(c, x, y, 0))
             .collect();
         assert!(out == cut, "{kernel:?}: a rectangle across MCUs");
+        // Every row of mip 1 as 16-bit codes (257 · c) and as values in the channels' ranges
+        // (one channel of each map); a mip past the chain is the last one; empty rectangles.
+        let (w, h) = (35usize, 18usize);
+        for y in 0..h {
+            let (mut u16s, mut floats) = (vec![0u16; w * n], vec![0f32; w * 4]);
+            d.decode_span_u16(&m, 0, y as i64, 1, w, ChannelMask::ALL, &mut u16s).unwrap();
+            d.decode_span_f32(&m, 0, y as i64, 1, w, one_a_map_mask, &mut floats).unwrap();
+            for x in 0..w {
+                for c in 0..n {
+                    let code = u16::from(material.code(c, x as u32, y as u32, 1));
+                    assert_eq!(u16s[x * n + c], 257 * code, "{kernel:?}: u16 ({x}, {y}) {c}");
+                }
+                for (k, &c) in one_a_map.iter().enumerate() {
+                    let u = f32::from(material.code(c, x as u32, y as u32, 1)) / 255.0;
+                    let (lo, hi) = ranges[c];
+                    let want = (lo * (1.0 - u) + hi * u).to_bits();
+                    assert_eq!(floats[x * 4 + k].to_bits(), want, "{kernel:?}: f32 ({x}, {y}) {c}");
+                }
+            }
+        }
+        let (mut past, mut last) = (vec![0u8; 8 * n], vec![0u8; 8 * n]);
+        d.decode_span_u8(&m, 0, 3, 9, 8, ChannelMask::ALL, &mut past).unwrap();
+        d.decode_span_u8(&m, 0, 3, 3, 8, ChannelMask::ALL, &mut last).unwrap();
+        assert!(past == last, "{kernel:?}: mip 9 is mip 3");
+        let mut untouched = vec![7u8; 8 * n];
+        for rect in [(0, 0, 0, 5), (0, 0, 5, 0), (70, 37, 0, 0)] {
+            let per_row = d.decode_region_u8(&m, 0, rect, ChannelMask::ALL, &mut untouched, 0);
+            assert_eq!(per_row, Ok(rect.2 as usize * n), "{kernel:?}: codes per row of {rect:?}");
+        }
+        assert!(untouched.iter().all(|&v| v == 7), "{kernel:?}: an empty rectangle writes nothing");
         // A span of mip 1 (35 × 18) from x = −5 over 45 texels: it wraps at both edges.
         let mut row = vec![0u8; 45 * some.len()];
         d.decode_span_u8(&m, -5, 17, 1, 45, mask, &mut row).unwrap();
