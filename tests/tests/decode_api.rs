@@ -281,3 +281,57 @@ fn decode_cost_counts_the_texels_and_the_networks_multiply_adds() {
     // A mip beyond the chain is clamped to the last one (1×1), like `mip_size`.
     assert_eq!(m.decode_cost(99).texels, 1);
 }
+
+/// `Decoder::decode_region_u8` refuses what it cannot do, each by name with the value and the
+/// limit, and writes nothing: a mip past the chain, a rectangle past the mip on either axis
+/// alone (the axis past it is the one reported; x where both are), one whose end overflows u32,
+/// a row pitch shorter than a row or so long that the rows overflow memory, an output too short
+/// for the last row; for a neural and a JPEG material alike.
+#[test]
+fn regions_the_mip_or_the_output_cannot_hold_are_refused_by_name() {
+    use nmat_core::Decoder;
+    let jpeg = nmat_tests::generate_jpeg::DcJpegMaterial::new(1).spec.to_bytes().unwrap();
+    for bytes in [fixture(0), jpeg] {
+        let m = Container::parse(&bytes).unwrap();
+        let d = Decoder::new(&m);
+        let (w, h) = m.mip_size(0);
+        let n = m.channel_count();
+        let mut out = vec![9u8; (w * h) as usize * n];
+        let mut region = |mip, rect, pitch| {
+            d.decode_region_u8(&m, mip, rect, ChannelMask::ALL, &mut out, pitch).unwrap_err()
+        };
+        let bad = |argument, value: u64, limit: u64| Error::BadArgument { argument, value, limit };
+        let mips = m.mip_count();
+        assert_eq!(region(mips, (0, 0, 1, 1), 0), bad(Argument::Mip, mips.into(), mips.into()));
+        let x_past = (w - 4, 0, 5, 1);
+        assert_eq!(region(0, x_past, 0), bad(Argument::Region, (w + 1).into(), w.into()));
+        let y_past = (0, h - 2, 1, 3);
+        assert_eq!(region(0, y_past, 0), bad(Argument::Region, (h + 1).into(), h.into()));
+        let both = (1, 1, w, h);
+        assert_eq!(region(0, both, 0), bad(Argument::Region, (w + 1).into(), w.into()));
+        let end = u64::from(u32::MAX) + 2;
+        assert_eq!(region(0, (u32::MAX, 0, 2, 1), 0), bad(Argument::Region, end, w.into()));
+        let row = 3 * n as u64;
+        assert_eq!(region(0, (0, 0, 3, 2), 3 * n - 1), bad(Argument::RowPitch, row - 1, row));
+        let huge = usize::MAX / 2;
+        let overflow = bad(Argument::RowPitch, huge as u64, (usize::MAX / 3) as u64);
+        assert_eq!(region(0, (0, 0, 3, 3), huge), overflow);
+        // Rows 3n + 7 codes apart: the third row ends at 2 · (3n + 7) + 3n.
+        let pitch = 3 * n + 7;
+        let needed = 2 * pitch + 3 * n;
+        let mut short = vec![9u8; needed - 1];
+        let got = d.decode_region_u8(&m, 0, (0, 0, 3, 3), ChannelMask::ALL, &mut short, pitch);
+        assert_eq!(got, Err(bad(Argument::Output, needed as u64 - 1, needed as u64)));
+        assert!(out.iter().chain(&short).all(|&v| v == 9), "a refused region writes nothing");
+        // At the limits themselves: the last texel, the whole mip, a pitch of one row.
+        assert_eq!(
+            d.decode_region_u8(&m, 0, (w - 1, h - 1, 1, 1), ChannelMask::ALL, &mut out, 0),
+            Ok(n)
+        );
+        let whole = (0, 0, w, h);
+        assert_eq!(
+            d.decode_region_u8(&m, 0, whole, ChannelMask::ALL, &mut out, w as usize * n),
+            Ok(w as usize * n)
+        );
+    }
+}
