@@ -5,11 +5,11 @@
 
 use nmat_core::AddressMode;
 use nmat_core::{Argument, ChannelMask, Container, Decoder, Error, Kernel, Material, TexelAt};
-use nmat_tests::assert_decodes_as_the_reference;
 use nmat_tests::generate::{
     FixtureConfig, Layout, Rng, generate, golden_configs, sixteen_grids_in_one_level,
     terms_in_any_order, wide_cells, wide_constant_material,
 };
+use nmat_tests::{assert_decodes_as_the_reference, fixtures_dir};
 
 fn kernels() -> Vec<Kernel> {
     Kernel::ALL.into_iter().filter(|k| k.is_available()).collect()
@@ -85,10 +85,17 @@ fn spans_equal_texel_by_texel_decodes() {
         let m = Container::parse(&bytes).unwrap();
         assert_spans_agree(&m, &mut r, 20);
     }
+    // JPEG materials: the committed one and one of four maps and four mips.
+    let committed = std::fs::read(fixtures_dir().join("jpeg/pattern_420_37x21.nmat")).unwrap();
+    let four_maps = nmat_tests::generate_jpeg::DcJpegMaterial::new(2).spec.to_bytes().unwrap();
+    for bytes in [committed, four_maps] {
+        assert_spans_agree(&Container::parse(&bytes).unwrap(), &mut r, 20);
+    }
 }
 
-/// Spans of every kernel, u8 and float, equal the texel-by-texel `Material` decodes: `spans`
-/// spans of 0–70 texels each, some starting or ending outside the mip.
+/// Spans of every kernel, u8, u16 and float, equal the texel-by-texel `Material` decodes and
+/// say how many values they wrote: `spans` spans of 0–70 texels each, some starting or ending
+/// outside the mip.
 fn assert_spans_agree(m: &Material<'_>, r: &mut Rng, spans: usize) {
     for kernel in kernels() {
         let d = Decoder::with_kernel(m, kernel).unwrap();
@@ -98,18 +105,22 @@ fn assert_spans_agree(m: &Material<'_>, r: &mut Rng, spans: usize) {
             let mask = random_mask(r, m);
             let n = m.required_len(mask).unwrap();
             let mut span8 = vec![0u8; count * n];
+            let mut span16 = vec![0u16; count * n];
             let mut spanf = vec![0f32; count * n];
-            assert_eq!(
+            let written = (
                 d.decode_span_u8(m, x0, y, mip, count, mask, &mut span8).unwrap(),
-                count * n
+                d.decode_span_u16(m, x0, y, mip, count, mask, &mut span16).unwrap(),
+                d.decode_span_f32(m, x0, y, mip, count, mask, &mut spanf).unwrap(),
             );
-            d.decode_span_f32(m, x0, y, mip, count, mask, &mut spanf).unwrap();
+            assert_eq!(written, (count * n, count * n, count * n), "{kernel:?}: values written");
             for i in 0..count {
-                let (mut t8, mut tf) = ([0u8; 16], [0f32; 16]);
+                let (mut t8, mut t16, mut tf) = ([0u8; 16], [0u16; 16], [0f32; 16]);
                 m.decode_texel_u8(x0 + i as i64, y, mip, mask, &mut t8).unwrap();
+                m.decode_texel_u16(x0 + i as i64, y, mip, mask, &mut t16).unwrap();
                 m.decode_texel(x0 + i as i64, y, mip, mask, &mut tf).unwrap();
                 let at = format!("{kernel:?} span at ({x0}, {y}) mip {mip}, texel {i}");
                 assert_eq!(span8[i * n..(i + 1) * n], t8[..n], "u8 {at}");
+                assert_eq!(span16[i * n..(i + 1) * n], t16[..n], "u16 {at}");
                 assert_eq!(spanf[i * n..(i + 1) * n], tf[..n], "float {at}");
             }
         }

@@ -289,8 +289,9 @@ fn a_jpeg_material_of_several_maps_and_mips_decodes_as_the_format_says() {
         let (w, h) = (35usize, 18usize);
         for y in 0..h {
             let (mut u16s, mut floats) = (vec![0u16; w * n], vec![0f32; w * 4]);
-            d.decode_span_u16(&m, 0, y as i64, 1, w, ChannelMask::ALL, &mut u16s).unwrap();
-            d.decode_span_f32(&m, 0, y as i64, 1, w, one_a_map_mask, &mut floats).unwrap();
+            let u16_count = d.decode_span_u16(&m, 0, y as i64, 1, w, ChannelMask::ALL, &mut u16s);
+            let f32_count = d.decode_span_f32(&m, 0, y as i64, 1, w, one_a_map_mask, &mut floats);
+            assert_eq!((u16_count, f32_count), (Ok(w * n), Ok(w * 4)), "{kernel:?}: row {y}");
             for x in 0..w {
                 for c in 0..n {
                     let code = u16::from(material.code(c, x as u32, y as u32, 1));
