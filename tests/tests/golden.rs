@@ -309,6 +309,10 @@ fn a_jpeg_material_of_several_maps_and_mips_decodes_as_the_format_says() {
         d.decode_span_u8(&m, 0, 3, 9, 8, ChannelMask::ALL, &mut past).unwrap();
         d.decode_span_u8(&m, 0, 3, 3, 8, ChannelMask::ALL, &mut last).unwrap();
         assert!(past == last, "{kernel:?}: mip 9 is mip 3");
+        let (mut past, mut last) = (vec![0f32; 8 * n], vec![0f32; 8 * n]);
+        d.decode_span_f32(&m, 0, 3, 9, 8, ChannelMask::ALL, &mut past).unwrap();
+        d.decode_span_f32(&m, 0, 3, 3, 8, ChannelMask::ALL, &mut last).unwrap();
+        assert!(past == last, "{kernel:?}: mip 9 is mip 3, as floats");
         let mut untouched = vec![7u8; 8 * n];
         for rect in [(0, 0, 0, 5), (0, 0, 5, 0), (70, 37, 0, 0)] {
             let per_row = d.decode_region_u8(&m, 0, rect, ChannelMask::ALL, &mut untouched, 0);
