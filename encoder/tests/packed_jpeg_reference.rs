@@ -15,6 +15,7 @@ use nmat_encode::Storage;
 use nmat_encode::jpeg::{JpegOptions, Subsampling, encode_jpeg, index_jpeg, material_from_jpeg};
 use nmat_tests::files::{assert_same_bytes, jpeg_stream_records, refresh_checksum, section};
 use nmat_tests::generate::Rng;
+use nmat_tests::generate_jpeg::BitWriter;
 use nmat_tests::reference_packed_jpeg;
 
 fn core_unpack(bytes: &[u8]) -> Result<Vec<u8>, nmat_core::Error> {
@@ -495,27 +496,6 @@ fn huffman_codes(body: &[u8], at: usize) -> (u8, Vec<Option<(u32, u32)>>, usize)
     (body[at], codes, (20 + count).div_ceil(4) * 4)
 }
 
-/// Most significant bit first.
-#[derive(Default)]
-struct BitWriter {
-    bytes: Vec<u8>,
-    bits: usize,
-}
-
-impl BitWriter {
-    fn put(&mut self, value: u32, length: u32) {
-        for i in (0..length).rev() {
-            if self.bits.is_multiple_of(8) {
-                self.bytes.push(0);
-            }
-            if (value >> i) & 1 == 1 {
-                *self.bytes.last_mut().unwrap() |= 0x80 >> (self.bits % 8);
-            }
-            self.bits += 1;
-        }
-    }
-}
-
 /// One block of exactly `length` bits with the given tables: DC category 0, then AC
 /// coefficients of run 0 (categories 1 … 10, their `s` bits all ones), then end of block unless
 /// all 63 are there. Panics if no such block has that length.
@@ -604,7 +584,7 @@ fn packed_with_span(span: u32) -> Vec<u8> {
             block_of_length(&mut w, dc, ac, length);
         }
     }
-    let data = w.bytes;
+    let data = w.into_bytes();
     let records_end = records + 20;
     // jpeg_length: records, then the stream's index (one group), 27 DC values and the data.
     let jpeg_length = (records_end + 20 + (27 * 12usize).div_ceil(8).div_ceil(4) * 4 + data.len())

@@ -29,15 +29,16 @@ pub struct DcJpegMaterial {
     blocks: Vec<Vec<Vec<i32>>>,
 }
 
-/// Bits written most significant first.
+/// Bits written most significant first, as JPEG's entropy-coded data holds them.
 #[derive(Default)]
-struct BitWriter {
+pub struct BitWriter {
     bytes: Vec<u8>,
     bits: u64,
 }
 
 impl BitWriter {
-    fn put(&mut self, value: u32, count: u32) {
+    /// The `count` low bits of `value`, its highest first.
+    pub fn put(&mut self, value: u32, count: u32) {
         for k in (0..count).rev() {
             if self.bits.is_multiple_of(8) {
                 self.bytes.push(0);
@@ -48,8 +49,13 @@ impl BitWriter {
         }
     }
 
+    /// Bits written so far.
+    pub fn bits(&self) -> u64 {
+        self.bits
+    }
+
     /// A DC difference (T.81 F.1.2.1: its size as the DC symbol, then its bits, a negative
-    /// difference as `d − 1` in those bits), then end-of-block.
+    /// difference as `d − 1` in those bits), then end-of-block, with this module's tables.
     fn block(&mut self, diff: i32) {
         let size = 32 - diff.unsigned_abs().leading_zeros();
         self.put(size, 4);
@@ -58,8 +64,13 @@ impl BitWriter {
         self.put(0, 1);
     }
 
+    /// The data, its last byte padded with 0 bits.
+    pub fn into_bytes(self) -> Vec<u8> {
+        self.bytes
+    }
+
     /// The data, its last byte padded with 1 bits as JPEG writers do.
-    fn finish(mut self) -> Vec<u8> {
+    pub fn finish(mut self) -> Vec<u8> {
         while !self.bits.is_multiple_of(8) {
             self.put(1, 1);
         }
@@ -130,7 +141,7 @@ impl DcJpegMaterial {
                 let (mut mcu_bits, mut dcs, mut stream_blocks) = (vec![], vec![], vec![]);
                 let mut previous = [0i32; 3];
                 for _ in 0..mcus {
-                    mcu_bits.push(bw.bits);
+                    mcu_bits.push(bw.bits());
                     let components =
                         (0..luma_blocks).map(|_| 0).chain(if colour { vec![1, 2] } else { vec![] });
                     let mut mcu = vec![];
