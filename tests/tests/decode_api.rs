@@ -307,6 +307,9 @@ fn regions_the_mip_or_the_output_cannot_hold_are_refused_by_name() {
         assert_eq!(region(0, x_past, 0), bad(Argument::Region, (w + 1).into(), w.into()));
         let y_past = (0, h - 2, 1, 3);
         assert_eq!(region(0, y_past, 0), bad(Argument::Region, (h + 1).into(), h.into()));
+        let y_past_full_width = (0, h - 2, w, 3);
+        let y_error = bad(Argument::Region, (h + 1).into(), h.into());
+        assert_eq!(region(0, y_past_full_width, 0), y_error);
         let both = (1, 1, w, h);
         assert_eq!(region(0, both, 0), bad(Argument::Region, (w + 1).into(), w.into()));
         let end = u64::from(u32::MAX) + 2;
