@@ -759,10 +759,10 @@ fn the_jpeg_section_of_several_maps_and_mips_reads_back_as_written() {
         jpeg.huffman_table(0),
         Some((0, s[huffman + 4..huffman + 20].try_into().unwrap(), huffman + 20))
     );
-    let second = (huffman + 20 + 12 + 3) & !3;
+    let ac_table = (huffman + 20 + 12 + 3) & !3;
     assert_eq!(
         jpeg.huffman_table(1),
-        Some((1, s[second + 4..second + 20].try_into().unwrap(), second + 20))
+        Some((1, s[ac_table + 4..ac_table + 20].try_into().unwrap(), ac_table + 20))
     );
     assert_eq!(jpeg.huffman_table(2), None);
 
@@ -777,9 +777,9 @@ fn the_jpeg_section_of_several_maps_and_mips_reads_back_as_written() {
     };
     // The AC table holds 256 symbols, the most; a count of 65535 is refused by name before its
     // symbols are looked for.
-    assert_eq!(s[second + 2..second + 4], [0, 1], "256 symbols");
+    assert_eq!(s[ac_table + 2..ac_table + 4], [0, 1], "256 symbols");
     assert_eq!(
-        parse(&|s| put(s, second + 2, 65535, 2)),
+        parse(&|s| put(s, ac_table + 2, 65535, 2)),
         Some(Error::Malformed { field: Field::JpegHuffmanTable, index: 1, value: 65535 })
     );
     // Every stream moved back by 4 bytes starts inside the one before it (the first: inside the
@@ -811,39 +811,39 @@ fn the_jpeg_section_of_several_maps_and_mips_reads_back_as_written() {
             available: records as u64 + 20 * 15
         })
     );
-    // Map 0 at mip 0 (4:2:0, 5 × 3 = 15 MCUs): the second group holds MCUs 9 … 14, then 3
-    // entries that must be 0.
+    // Map 0 at mip 0 (4:2:0, 5 × 3 = 15 MCUs): its second index group (`group1`) holds MCUs
+    // 9 … 14, then 3 entries that must be 0.
     let (p, mcu_bits) = (&parts[0], &spec.streams[0].mcu_bits);
     assert_eq!(mcu_bits.len(), 15);
-    let second = p.index_at + 20;
+    let group1 = p.index_at + 20;
     let eighth = mcu_bits[8];
     assert_eq!(
-        parse(&|s| put(s, second, eighth - 1, 4)),
+        parse(&|s| put(s, group1, eighth - 1, 4)),
         Some(Error::Malformed { field: Field::JpegIndex, index: 0, value: eighth as i64 - 1 }),
         "the second group's base before MCU 8"
     );
-    assert_eq!(parse(&|s| put(s, second, eighth, 4)), None, "the second group's base at MCU 8");
+    assert_eq!(parse(&|s| put(s, group1, eighth, 4)), None, "the second group's base at MCU 8");
     assert_eq!(
-        parse(&|s| put(s, second + 4 + 2 * 5, 1, 2)),
+        parse(&|s| put(s, group1 + 4 + 2 * 5, 1, 2)),
         Some(Error::Malformed { field: Field::JpegIndex, index: 0, value: 1 }),
         "MCU 15's entry"
     );
     let end = 8 * p.data_len as u64;
     assert_eq!(
-        parse(&|s| put(s, second + 4 + 2 * 4, end - u32_of(second), 2)),
+        parse(&|s| put(s, group1 + 4 + 2 * 4, end - u32_of(group1), 2)),
         None,
         "MCU 14 at the very end of the data"
     );
     assert_eq!(
         parse(&|s| {
-            put(s, second, end, 4);
-            (0..5).for_each(|j| put(s, second + 4 + 2 * j, 0, 2));
+            put(s, group1, end, 4);
+            (0..5).for_each(|j| put(s, group1 + 4 + 2 * j, 0, 2));
         }),
         None,
         "the second group's MCUs all at the end"
     );
     assert_eq!(
-        parse(&|s| put(s, second, end + 1, 4)),
+        parse(&|s| put(s, group1, end + 1, 4)),
         Some(Error::Malformed { field: Field::JpegIndex, index: 0, value: end as i64 + 1 }),
         "the second group's base past the end"
     );
