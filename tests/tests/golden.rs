@@ -217,8 +217,9 @@ fn the_committed_jpeg_material_decodes_like_djpeg_on_every_path() {
 /// five index groups, built in code with DC-only blocks so that every code follows from
 /// FORMAT.md §11 (`nmat_tests::generate_jpeg`): decoded texel by texel (8-bit codes, unit and
 /// ranged floats), and on every kernel by region (each whole mip, a rectangle across MCUs,
-/// channels of several maps), by span (every row, one that wraps around the edges) — the sums
-/// over maps, mips and index groups that the one-map fixture above cannot check.
+/// channels of several maps, empty rectangles), by span (8-bit, 16-bit and ranged floats; every
+/// row, one that wraps around the edges, a mip past the chain) — the sums over maps, mips and
+/// index groups that the one-map fixture above cannot check.
 #[test]
 fn a_jpeg_material_of_several_maps_and_mips_decodes_as_the_format_says() {
     use nmat_core::{Decoder, Kernel};
@@ -235,11 +236,10 @@ fn a_jpeg_material_of_several_maps_and_mips_decodes_as_the_format_says() {
         material.spec.channels.iter().map(|c| (c.range_min, c.range_max)).collect();
     let one_a_map = [1usize, 3, 6, 7];
     let one_a_map_mask = ChannelMask(one_a_map.iter().map(|c| 1u16 << c).sum());
-    let mask = one_a_map_mask;
     for (x, y, mip) in texels(&m) {
         let (mut unit, mut ranged) = ([0f32; 16], [0f32; 16]);
-        assert_eq!(m.decode_texel_unit(x, y, mip, mask, &mut unit).unwrap(), 4);
-        assert_eq!(m.decode_texel(x, y, mip, mask, &mut ranged).unwrap(), 4);
+        assert_eq!(m.decode_texel_unit(x, y, mip, one_a_map_mask, &mut unit).unwrap(), 4);
+        assert_eq!(m.decode_texel(x, y, mip, one_a_map_mask, &mut ranged).unwrap(), 4);
         for (k, &c) in one_a_map.iter().enumerate() {
             let u = f32::from(material.code(c, x as u32, y as u32, mip)) / 255.0;
             let (lo, hi) = ranges[c];
