@@ -356,6 +356,69 @@ fn a_jpeg_material_of_several_maps_and_mips_packs_like_the_reference() {
     }
 }
 
+/// A stream whose last MCU starts exactly at the end of its data (a restart after every MCU,
+/// the last MCU all zero bits: DC difference 0 and end-of-block, which bits past the end read
+/// as) packs as the reference packer packs it and unpacks to the same bytes (§12.5 refuses only
+/// an MCU that would start past the data); one bit further, the fixed-rate file is refused.
+#[test]
+fn a_last_mcu_at_the_very_end_of_its_data_packs() {
+    use nmat_core::{
+        AddressMode, ChannelSpec, ColorSpace, HuffmanTableSpec, JpegMap, JpegMaterialSpec,
+        JpegStreamSpec, Semantic,
+    };
+    use nmat_tests::reference_packed_jpeg;
+    let mut dc_counts = [0u8; 16];
+    dc_counts[3] = 12; // DC sizes 0 … 11 as 4-bit codes
+    let mut ac_counts = [0u8; 16];
+    ac_counts[0] = 1; // end-of-block is `0`
+    // 16 × 8 gray: two 8 × 8 MCUs. MCU 0: size 2 (`0010`), difference 3 (`11`), end-of-block
+    // (`0`), padded with a 1 bit to the restart: 0x2D. MCU 1 starts at bit 8, the end.
+    let material = |second_mcu_at: u64| JpegMaterialSpec {
+        width: 16,
+        height: 8,
+        mip_count: 1,
+        address_mode: AddressMode::Wrap,
+        channels: vec![ChannelSpec {
+            name: "height".to_string(),
+            semantic: Semantic::HEIGHT,
+            component: 0,
+            color_space: ColorSpace::Linear,
+            range_min: 0.0,
+            range_max: 1.0,
+        }],
+        maps: vec![JpegMap { first_channel: 0, channel_count: 1, luma_h: 1, luma_v: 1 }],
+        quant_tables: vec![[4; 64]],
+        huffman_tables: vec![
+            HuffmanTableSpec { class: 0, counts: dc_counts, values: (0..12).collect() },
+            HuffmanTableSpec { class: 1, counts: ac_counts, values: vec![0] },
+        ],
+        streams: vec![JpegStreamSpec {
+            quant: [0; 3],
+            dc: [0; 3],
+            ac: [1, 0, 0],
+            mcu_bits: vec![0, second_mcu_at],
+            dcs: vec![3, 0],
+            data: vec![0x2D],
+        }],
+        optional_sections: vec![],
+    };
+    let fixed = material(8).to_bytes().unwrap();
+    let m = Container::parse(&fixed).unwrap();
+    let mut codes = [0u8; 1];
+    m.decode_texel_u8(0, 0, 0, nmat_core::ChannelMask::ALL, &mut codes).unwrap();
+    assert_eq!(codes[0], 128 + (3 * 4 + 4) / 8, "MCU 0: DC 3 · 4");
+    m.decode_texel_u8(15, 7, 0, nmat_core::ChannelMask::ALL, &mut codes).unwrap();
+    assert_eq!(codes[0], 128, "MCU 1: DC 0 after the restart");
+    let packed = pack(&fixed).unwrap();
+    assert_eq!(packed, reference_packed_jpeg::pack(&fixed).unwrap(), "as the reference packs");
+    assert_eq!(unpack(&packed, ParseOptions::default()).unwrap().as_ref(), &fixed[..]);
+    // An MCU past the data: the fixed-rate file is refused, so nothing can be packed.
+    assert_eq!(
+        material(9).to_bytes().err(),
+        Some(Error::Malformed { field: Field::JpegIndex, index: 0, value: 9 })
+    );
+}
+
 #[test]
 fn hostile_packed_jpeg_files_end_in_typed_errors() {
     let packed = jpeg_fixture("pattern_420_37x21.packed.nmat");
