@@ -326,6 +326,11 @@ fn transcode_refuses_bad_arguments() {
     let d = Decoder::new(&m);
     let t = BcTexture { format: BcFormat::Bc1, channels: [0, 1, 2, 2], srgb: true };
     let all = BlockRegion::mip(&m, 0);
+    // 64 × 64 texels, 7 mips: 16 × 16 blocks, the last mip's one block, none past the chain.
+    let blocks = |mip| BlockRegion::mip(&m, mip);
+    assert_eq!((all.x, all.y, all.width, all.height), (0, 0, 16, 16));
+    assert_eq!((blocks(6).width, blocks(6).height, m.mip_count()), (1, 1, 7));
+    assert_eq!((blocks(7).width, blocks(7).height), (0, 0), "a mip past the chain");
     let row = all.width as usize * 8;
     let mut out = vec![0u8; row * all.height as usize];
     let argument = |e: Error| match e {
