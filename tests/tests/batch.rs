@@ -86,11 +86,16 @@ fn spans_equal_texel_by_texel_decodes() {
         assert_spans_agree(&m, &mut r, 20);
     }
     // JPEG materials: the committed one and one of four maps and four mips.
-    let committed = std::fs::read(fixtures_dir().join("jpeg/pattern_420_37x21.nmat")).unwrap();
+    let committed = committed_jpeg();
     let four_maps = nmat_tests::generate_jpeg::DcJpegMaterial::new(2).spec.to_bytes().unwrap();
     for bytes in [committed, four_maps] {
         assert_spans_agree(&Container::parse(&bytes).unwrap(), &mut r, 20);
     }
+}
+
+/// The committed JPEG material (tests/fixtures/jpeg/README.md).
+fn committed_jpeg() -> Vec<u8> {
+    std::fs::read(fixtures_dir().join("jpeg/pattern_420_37x21.nmat")).unwrap()
 }
 
 /// Spans of every kernel, u8, u16 and float, equal the texel-by-texel `Material` decodes and
@@ -232,9 +237,7 @@ fn long_spans_equal_texel_by_texel_decodes_for_every_period() {
 /// the chain clamps), coordinates outside the mip, the channels; on every kernel and codec.
 #[test]
 fn scattered_texels_in_one_call_equal_texel_by_texel_decodes() {
-    let jpeg =
-        std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/jpeg/pattern_420_37x21.nmat"))
-            .unwrap();
+    let jpeg = committed_jpeg();
     let mut files: Vec<Vec<u8>> =
         golden_configs().iter().map(|cfg| generate(cfg).to_bytes().unwrap()).collect();
     files.push(jpeg);
