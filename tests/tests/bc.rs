@@ -407,4 +407,27 @@ fn constant_channels_transcode_to_their_value() {
     for block in out.chunks(16) {
         assert!(decode_block(BcFormat::Bc5, block).iter().all(|p| p[0] == 128 && p[1] == 191));
     }
+    // The rule itself, by hand: X, Y and Z of a normal map in −1 … 1, anything else (a normal
+    // map's fourth component too) in 0 … 1, clamped, rounded; a decoded channel has no code.
+    use nmat_core::Semantic as S;
+    for (semantic, component, value, code) in [
+        (S::NORMAL, 0, 0.5, Some(191)),
+        (S::NORMAL, 2, -1.0, Some(0)),
+        (S::NORMAL, 3, 0.5, Some(128)),
+        (S::NORMAL, 3, -0.5, Some(0)),
+        (S::ALBEDO, 1, 2.0, Some(255)),
+        (S::HEIGHT, 0, 0.2, Some(51)),
+    ] {
+        let channel = nmat_core::Channel {
+            name: "c",
+            semantic,
+            component,
+            color_space: nmat_core::ColorSpace::Linear,
+            range_min: value,
+            range_max: value,
+        };
+        assert_eq!(channel.constant_code(), code, "{semantic:?} {component} at {value}");
+        let decoded = nmat_core::Channel { range_max: value + 1.0, ..channel };
+        assert_eq!(decoded.constant_code(), None, "{semantic:?} {component} decoded");
+    }
 }

@@ -2,11 +2,14 @@
 //! parser would refuse.
 
 use nmat_core::internals::pack_codes;
-use nmat_core::{Argument, ChannelMask, Container, Error, Field, LatentGrid};
+use nmat_core::{
+    Argument, ChannelMask, Container, Error, Field, LatentGrid, Material, MaterialSpec, SectionKind,
+};
 use nmat_tests::generate::{
     FixtureConfig, Layout, Rng, generate, random_config, terms_in_any_order, wide_cells,
 };
-use nmat_tests::reference;
+use nmat_tests::generate_jpeg::DcJpegMaterial;
+use nmat_tests::{files, reference};
 
 #[test]
 fn random_materials_round_trip_exactly() {
@@ -18,9 +21,20 @@ fn random_materials_round_trip_exactly() {
             spec.optional_sections
                 .push((0x1000 + seed as u32, vec![seed as u8; seed as usize % 9]));
         }
+        // Constant channels (one value, nothing decoded): one in five materials has one, and
+        // one in fifty has nothing else.
+        let constant = match seed % 50 {
+            7 => spec.channels.len(),
+            _ if seed % 5 == 1 => 1,
+            _ => 0,
+        };
+        for c in &mut spec.channels[..constant] {
+            c.range_max = c.range_min;
+        }
         let bytes = spec.to_bytes().unwrap_or_else(|e| panic!("seed {seed}: {e}\n{cfg:?}"));
         let m = Container::parse(&bytes).unwrap();
         assert_eq!(m.to_spec().as_ref(), Some(&spec), "seed {seed}");
+        assert_says_what_its_file_holds(&m, &spec, &bytes, seed);
         let back = m.to_spec().expect("a neural material").to_bytes().unwrap();
         assert_eq!(back, bytes, "seed {seed}: re-serialization differs");
         // And the decoders agree with the reference on a few texels of every mip.
@@ -36,6 +50,37 @@ fn random_materials_round_trip_exactly() {
             }
         }
     }
+}
+
+/// What a parsed material says of itself — its network's input format, its sections, its
+/// informative channels and BPPC — against the spec it was written from and the section table
+/// read from its bytes (FORMAT.md §1.2, §3, §5.3).
+fn assert_says_what_its_file_holds(m: &Material<'_>, spec: &MaterialSpec, bytes: &[u8], seed: u64) {
+    let mlp = m.neural().expect("a neural material").mlp();
+    let s = &spec.mlp;
+    assert_eq!(
+        (mlp.input_frac_bits(), mlp.pe_frequencies(), mlp.lod_input(), mlp.lod_code()),
+        (s.input_frac_bits, s.pe_frequencies, s.lod_input != 0, s.lod_input),
+        "seed {seed}: the network's input format"
+    );
+    assert_eq!(m.file_len(), bytes.len(), "seed {seed}");
+    for kind in 1..=4 {
+        let len = files::section(bytes, kind).1;
+        assert_eq!(m.section_len(SectionKind(kind)), Some(len), "seed {seed}: section {kind}");
+    }
+    assert_eq!(m.section_len(SectionKind::JPEG), None, "seed {seed}: a neural material");
+    for (kind, data) in &spec.optional_sections {
+        assert_eq!(m.optional_section(SectionKind(*kind)), Some(&data[..]), "seed {seed}");
+        assert_eq!(m.section_len(SectionKind(*kind)), Some(data.len()), "seed {seed}");
+    }
+    let absent = SectionKind(0x7E57_0000);
+    assert_eq!((m.optional_section(absent), m.section_len(absent)), (None, None), "seed {seed}");
+    // BPPC counts the channels that carry information, at least one (README, "Quality").
+    let informative = spec.channels.iter().filter(|c| c.range_min != c.range_max).count().max(1);
+    assert_eq!(m.informative_channels(), informative, "seed {seed}");
+    let texels = f64::from(spec.width) * f64::from(spec.height) * informative as f64;
+    assert_eq!(m.bppc(), bytes.len() as f64 * 8.0 / texels, "seed {seed}");
+    assert_eq!(m.bppc_of(3), 24.0 / texels, "seed {seed}: a packed file of 3 bytes");
 }
 
 #[test]
@@ -78,9 +123,22 @@ fn writer_rejects_inconsistent_specs_with_named_errors() {
     s.mlp.layers[0].bias.push(0);
     assert!(spec_error(s.to_bytes()));
 
+    // Vectors longer than the record that holds them, named with their length and the limit.
+    let too_long = |e: Result<Vec<u8>, Error>, value, limit| {
+        assert_eq!(e, Err(Error::BadArgument { argument: Argument::Spec, value, limit }));
+    };
     let mut s = base.clone();
     s.channels[0].name = "a-name-longer-than-16".into();
-    assert!(spec_error(s.to_bytes()));
+    too_long(s.to_bytes(), 21, 16);
+    s.mip_to_level = vec![0; 17];
+    s.channels[0].name = "sixteen-bytes-ok".into();
+    too_long(s.to_bytes(), 17, 16);
+    // At the limits: a name of 16 bytes (no NUL) and a table of all 16 mips, zeros past the chain.
+    s.mip_to_level = vec![0; 16];
+    let bytes = s.to_bytes().unwrap();
+    let back = Container::parse(&bytes).unwrap().to_spec().unwrap();
+    assert_eq!(back.channels[0].name, "sixteen-bytes-ok");
+    assert_eq!(back.mip_to_level, vec![0; usize::from(s.mip_count)]);
 
     let mut s = base.clone();
     s.channels[1].name = String::new();
@@ -226,4 +284,25 @@ fn layers_read_back_their_specification() {
             in_frac = want.out_frac_bits;
         }
     }
+}
+
+#[test]
+fn a_jpeg_material_says_which_sections_it_has() {
+    let mut spec = DcJpegMaterial::new(3).spec;
+    spec.optional_sections = vec![(0x7E57_0001, vec![7; 5]), (0x7E57_0002, vec![])];
+    // A constant channel (the height map's) leaves 7 informative channels of 8.
+    spec.channels[7].range_max = spec.channels[7].range_min;
+    let bytes = spec.to_bytes().unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    assert_eq!(m.file_len(), bytes.len());
+    // MATERIAL and JPEG, none of a neural material's (FORMAT.md §11).
+    for kind in 1..=5 {
+        let len = [1, 5].contains(&kind).then(|| files::section(&bytes, kind).1);
+        assert_eq!(m.section_len(SectionKind(kind)), len, "section {kind}");
+    }
+    assert_eq!(m.optional_section(SectionKind(0x7E57_0001)), Some(&[7u8; 5][..]));
+    assert_eq!(m.section_len(SectionKind(0x7E57_0002)), Some(0));
+    assert_eq!(m.informative_channels(), 7);
+    assert_eq!(m.bppc(), bytes.len() as f64 * 8.0 / (70.0 * 37.0 * 7.0));
+    assert!(m.to_spec().is_none(), "a JPEG material has no neural spec");
 }
