@@ -682,3 +682,106 @@ fn the_chain_decode_reports_every_texel_once_and_decodes_what_the_definition_doe
     assert_eq!(total, texels);
     assert_eq!(q.psnr, nmat_encode::metrics::chain_quality(&m, &set).psnr);
 }
+
+/// The quality figures every table of the project reports (PSNR over all channels of the whole
+/// chain, MSE per mip and channel, PSNR of channel subsets, SSIM at mip 0, mean error, BPPC),
+/// against a source made of the decode itself plus errors placed by hand, so that each figure
+/// follows by arithmetic, not from the code measured.
+#[test]
+fn quality_figures_follow_from_known_errors() {
+    use nmat_encode::metrics::{chain_quality, decode_mip, psnr, ssim_channel};
+    use nmat_encode::texset::{ChannelInfo, MipImage, TextureSet};
+    use nmat_tests::generate::{FixtureConfig, generate};
+    // albedo r, g, b and a normal's x held constant at 0.5 (unit (0.5 + 1) / 2 in −1 … 1);
+    // mips 24 × 16, 12 × 8, 6 × 4, 3 × 2, 1 × 1: 511 texels.
+    let mut spec = generate(&FixtureConfig::ntc("quality", 4, 24, 16, 4));
+    (spec.channels[3].range_min, spec.channels[3].range_max) = (0.5, 0.5);
+    let bytes = spec.to_bytes().unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    let mut mips: Vec<MipImage> = (0..m.mip_count())
+        .map(|mip| {
+            let (width, height) = m.mip_size(mip);
+            let mut data = decode_mip(&m, mip);
+            data.chunks_mut(4).for_each(|px| px[3] = 0.75);
+            MipImage { width, height, data }
+        })
+        .collect();
+    let decoded0 = mips[0].data.clone();
+    // Mip 0, channel 0: every texel 0.125 below the decode. Mip 1, channel 1: the even columns
+    // (48 of 96 texels) 0.25 above. Mip 2, the constant channel: 0.5 above its value.
+    mips[0].data.chunks_mut(4).for_each(|px| px[0] -= 0.125);
+    for (i, px) in mips[1].data.chunks_mut(4).enumerate() {
+        if i % 12 % 2 == 0 {
+            px[1] += 0.25;
+        }
+    }
+    mips[2].data.chunks_mut(4).for_each(|px| px[3] += 0.5);
+    let channel = |name: &str, role, component| ChannelInfo {
+        name: name.into(),
+        role,
+        component,
+        constant: None,
+    };
+    let set = TextureSet {
+        width: 24,
+        height: 16,
+        channels: vec![
+            channel("albedo.r", Role::Albedo, 0),
+            channel("albedo.g", Role::Albedo, 1),
+            channel("albedo.b", Role::Albedo, 2),
+            ChannelInfo { constant: Some(0.75), ..channel("normal.x", Role::Normal, 0) },
+        ],
+        maps: vec![],
+        mips,
+    };
+    let q = chain_quality(&m, &set);
+    let near = |a: f64, b: f64, what: &str| {
+        assert!((a - b).abs() <= 1e-6 * b.abs().max(1.0), "{what}: {a} vs {b}")
+    };
+    let mut mse = vec![vec![0.0; 4]; 5];
+    (mse[0][0], mse[1][1], mse[2][3]) = (0.125 * 0.125, 0.25 * 0.25 / 2.0, 0.25);
+    assert_eq!(q.mse.len(), 5);
+    for (mip, (got, want)) in q.mse.iter().zip(&mse).enumerate() {
+        for c in 0..4 {
+            near(got[c], want[c], &format!("MSE of mip {mip} channel {c}"));
+        }
+    }
+    // Squared errors 384 · 0.125² + 48 · 0.25² + 24 · 0.5² = 15 over 511 · 4 samples.
+    near(q.psnr, -10.0 * (15.0f64 / 2044.0).log10(), "PSNR of the chain");
+    near(psnr(15.0 / 2044.0), q.psnr, "psnr()");
+    assert_eq!(psnr(0.0), f64::INFINITY);
+    near(q.psnr_of(&[0], Some(0), &set), -10.0 * (0.015625f64).log10(), "channel 0 at mip 0");
+    near(q.psnr_of(&[1], None, &set), -10.0 * (3.0f64 / 511.0).log10(), "channel 1, chain");
+    near(q.psnr_of(&[0, 1], Some(1), &set), -10.0 * (3.0f64 / 192.0).log10(), "0, 1 at mip 1");
+    assert_eq!(q.psnr_of(&[2], None, &set), f64::INFINITY, "an exact channel");
+    let mean = [0.125 * 384.0 / 511.0, -0.25 * 48.0 / 511.0, 0.0, -0.5 * 24.0 / 511.0];
+    for c in 0..4 {
+        near(q.mean_error[c], mean[c], &format!("mean error of channel {c}"));
+    }
+    // SSIM at mip 0: 1 for the three exact channels, channel 0's own for the offset one.
+    let src0 = &set.mips[0].data;
+    let s0 = ssim_channel(src0, &decoded0, 24, 16, 4, 0);
+    assert!(s0 < 0.99, "an offset of 0.125 is seen: {s0}");
+    near(q.ssim, (s0 + 3.0) / 4.0, "SSIM");
+    // Three informative channels (the constant one costs nothing).
+    near(q.bppc, bytes.len() as f64 * 8.0 / (24.0 * 16.0 * 3.0), "BPPC");
+}
+
+/// SSIM's closed forms (Wang et al. 2004): 1 for equal images, and for two flat images of
+/// values a and b, whose variances and covariance are 0, `(2ab + c1) / (a² + b² + c1)`, c1 =
+/// 0.01²; on an image smaller than the 11 × 11 window too.
+#[test]
+fn ssim_has_its_closed_forms() {
+    use nmat_encode::metrics::ssim_channel;
+    let mut rng = nmat_tests::generate::Rng::new(5);
+    for (w, h) in [(20u32, 17u32), (7, 5)] {
+        let n = (w * h) as usize * 2;
+        let noise: Vec<f32> = (0..n).map(|_| rng.unit() as f32).collect();
+        assert_eq!(ssim_channel(&noise, &noise, w, h, 2, 1), 1.0, "{w} × {h}");
+        let flat = |v: f32| vec![v; n];
+        let (a, b) = (0.5f64, 0.625f64);
+        let want = (2.0 * a * b + 1e-4) / (a * a + b * b + 1e-4);
+        let got = ssim_channel(&flat(0.5), &flat(0.625), w, h, 2, 0);
+        assert!((got - want).abs() < 1e-9, "{w} × {h}: {got} vs {want}");
+    }
+}
