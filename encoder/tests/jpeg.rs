@@ -331,22 +331,25 @@ mod encode {
     }
 }
 
-/// The committed JPEG fixture of the C API test (tests/fixtures/jpeg/README.md): the `.nmat` is the
-/// `.jpg` indexed today, the `.u8` is djpeg's decode of the `.jpg`, and the material decodes to it.
+/// The committed JPEG fixtures (tests/fixtures/jpeg/README.md; the 4:2:0 one is the C API
+/// test's): each `.nmat` is its `.jpg` indexed today, each `.u8` is djpeg's decode of the `.jpg`,
+/// and the material decodes to it.
 #[test]
-fn the_committed_jpeg_fixture_is_its_jpeg_indexed_and_decodes_like_djpeg() {
+fn the_committed_jpeg_fixtures_are_their_jpegs_indexed_and_decode_like_djpeg() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/jpeg");
-    let read = |ext: &str| std::fs::read(dir.join(format!("pattern_420_37x21.{ext}"))).unwrap();
-    let (jpg, nmat, expected) = (read("jpg"), read("nmat"), read("u8"));
-    let indexed =
-        material_from_jpeg(&index_jpeg(&jpg).unwrap(), "pattern_420_37x21.png").to_bytes().unwrap();
-    assert!(indexed == nmat, "indexing the .jpg no longer gives the committed .nmat");
-    if let Some(samples) = djpeg(&jpg) {
-        assert!(samples == expected, "djpeg no longer gives the committed .u8");
+    for name in ["pattern_420_37x21", "pattern_422_37x21"] {
+        let read = |ext: &str| std::fs::read(dir.join(format!("{name}.{ext}"))).unwrap();
+        let (jpg, nmat, expected) = (read("jpg"), read("nmat"), read("u8"));
+        let source = format!("{name}.png");
+        let indexed = material_from_jpeg(&index_jpeg(&jpg).unwrap(), &source).to_bytes().unwrap();
+        assert!(indexed == nmat, "{name}: indexing the .jpg no longer gives the committed .nmat");
+        if let Some(samples) = djpeg(&jpg) {
+            assert!(samples == expected, "{name}: djpeg no longer gives the committed .u8");
+        }
+        assert_eq!(Container::parse(&nmat).unwrap().mip_size(0), (37, 21));
+        let decoded = decode_material(&nmat);
+        assert!(decoded == expected, "{name}: the material no longer decodes to the committed .u8");
     }
-    assert_eq!(Container::parse(&nmat).unwrap().mip_size(0), (37, 21));
-    let decoded = decode_material(&nmat);
-    assert!(decoded == expected, "the material no longer decodes to the committed .u8");
 }
 
 /// The inputs the `jpeg` fuzz target found (fuzz/regressions/jpeg/): indexed once, each made a
