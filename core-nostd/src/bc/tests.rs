@@ -336,3 +336,26 @@ fn bc7_alpha_and_invalid_pixels() {
     }
     assert!(seven < split, "BC7 with alpha {seven}, BC1 + BC4 {split}");
 }
+
+/// The principal axis's ends are the extreme points of a set spread along one direction, far
+/// from the origin and in any order (the covariance is centred on the mean), and only the first
+/// `dims` coordinates count (BC1 and BC7 RGB pass 3 with alpha in the fourth). Which end comes
+/// first follows the axis's sign, which the encoders do not rely on.
+#[test]
+fn principal_ends_are_the_extremes_along_the_spread() {
+    let ends =
+        |points: &[[i64; 4]], dims| principal_ends(points, dims).map(|(a, b)| (a.min(b), a.max(b)));
+    // Along (1, −1, 0) around (200, 200, 200): every point has the same sum, the mean's
+    // direction, and the ends are points 1 (t = 6) and 3 (t = −5).
+    let t = [0i64, 6, 2, -5, 1, -3, 4];
+    let points: [[i64; 4]; 7] =
+        core::array::from_fn(|i| [200 + 9 * t[i], 200 - 9 * t[i], 200, (i as i64 * 97) % 256]);
+    assert_eq!(ends(&points, 3), Some((1, 3)));
+    // The fourth coordinate (spread more than the others, in another order) counts at 4 dims.
+    let alpha = points.map(|[r, g, b, a]| [r, g, b, a * 4]);
+    assert_eq!(ends(&alpha, 3), Some((1, 3)));
+    // Alpha 4 · (97 · i mod 256): 0 at point 0, 916 at point 5, the next 140 away.
+    assert_eq!(ends(&alpha, 4), Some((0, 5)));
+    // No spread: none.
+    assert_eq!(principal_ends(&[[7, 7, 7, 0]; 5], 3), None);
+}
