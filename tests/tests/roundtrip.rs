@@ -75,7 +75,8 @@ fn assert_says_what_its_file_holds(m: &Material<'_>, spec: &MaterialSpec, bytes:
     }
     let absent = SectionKind(0x7E57_0000);
     assert_eq!((m.optional_section(absent), m.section_len(absent)), (None, None), "seed {seed}");
-    // BPPC counts the channels that carry information, at least one (README, "Quality").
+    // BPPC counts the channels that carry information, at least one (docs/ENCODING.md, "Quality
+    // measures").
     let informative = spec.channels.iter().filter(|c| c.range_min != c.range_max).count().max(1);
     assert_eq!(m.informative_channels(), informative, "seed {seed}");
     let texels = f64::from(spec.width) * f64::from(spec.height) * informative as f64;
