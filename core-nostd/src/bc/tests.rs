@@ -113,6 +113,29 @@ fn bc4_is_near_the_exhaustive_optimum() {
     assert!(ours * 100 <= best * 115, "total error {ours}, optimum {best}");
 }
 
+/// Whatever endpoints the search picks, each pixel gets its nearest palette entry, and on a tie
+/// (a value exactly between two entries) the smaller one, as the module says; checked against
+/// the palette read from the block's own bytes.
+#[test]
+fn bc4_pixels_take_the_nearest_entry_the_smaller_on_a_tie() {
+    let mut rng = Rng(11);
+    let mut ties = 0;
+    for _ in 0..3000 {
+        let values = rng.block();
+        let block = encode_bc4(&values, ALL_VALID);
+        let palette = bc4::tests_palette(block[0], block[1]);
+        let decoded = decode_bc4(&block);
+        for (&v, &got) in values.iter().zip(&decoded) {
+            let nearest = palette.iter().map(|&q| sq(v, q)).min().unwrap();
+            let mut candidates = palette.iter().filter(|&&q| sq(v, q) == nearest);
+            let want = *candidates.clone().min().unwrap();
+            ties += usize::from(candidates.any(|&q| q != want));
+            assert_eq!(got, want, "value {v}, endpoints {} {}", block[0], block[1]);
+        }
+    }
+    assert!(ties > 200, "only {ties} ties: the test needs more of them");
+}
+
 /// Pixels outside the image do not change the block, and get index 0.
 #[test]
 fn invalid_pixels_are_ignored() {
