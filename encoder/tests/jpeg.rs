@@ -349,6 +349,10 @@ fn the_committed_jpeg_fixtures_are_their_jpegs_indexed_and_decode_like_djpeg() {
         assert_eq!(Container::parse(&nmat).unwrap().mip_size(0), (37, 21));
         let decoded = decode_material(&nmat);
         assert!(decoded == expected, "{name}: the material no longer decodes to the committed .u8");
+        // What the quality measures compare with the source (tiles of whole MCU rows).
+        let unit: Vec<f32> = expected.iter().map(|&c| f32::from(c) / 255.0).collect();
+        let m = Container::parse(&nmat).unwrap();
+        assert!(nmat_encode::metrics::decode_mip(&m, 0) == unit, "{name}: metrics::decode_mip");
     }
 }
 
