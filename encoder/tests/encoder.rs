@@ -767,9 +767,46 @@ fn quality_figures_follow_from_known_errors() {
     near(q.bppc, bytes.len() as f64 * 8.0 / (24.0 * 16.0 * 3.0), "BPPC");
 }
 
+/// SSIM as Wang et al. (2004) define it, written here apart from the encoder's: an 11 × 11
+/// Gaussian window (σ = 1.5) normalized to 1, statistics about the window's mean (two passes),
+/// K1 = 0.01, K2 = 0.03, dynamic range 1, averaged over the window centres 5 or more texels from
+/// every edge (every texel, edges clamped, on a side of 10 or fewer).
+fn ssim_reference(a: &[f64], b: &[f64], w: i64, h: i64) -> f64 {
+    let (c1, c2) = (0.01f64 * 0.01, 0.03f64 * 0.03);
+    let at =
+        |img: &[f64], x: i64, y: i64| img[(y.clamp(0, h - 1) * w + x.clamp(0, w - 1)) as usize];
+    let centres = |n: i64| if n > 10 { 5..n - 5 } else { 0..n };
+    let mut window = Vec::new();
+    for dy in -5i64..=5 {
+        for dx in -5i64..=5 {
+            window.push((dx, dy, (-((dx * dx + dy * dy) as f64) / (2.0 * 1.5 * 1.5)).exp()));
+        }
+    }
+    let total: f64 = window.iter().map(|&(_, _, g)| g).sum();
+    let (mut sum, mut count) = (0.0, 0.0);
+    for y in centres(h) {
+        for x in centres(w) {
+            let mean = |img: &[f64]| {
+                window.iter().map(|&(dx, dy, g)| g * at(img, x + dx, y + dy)).sum::<f64>() / total
+            };
+            let (ma, mb) = (mean(a), mean(b));
+            let moment = |f: &dyn Fn(i64, i64) -> f64| {
+                window.iter().map(|&(dx, dy, g)| g * f(x + dx, y + dy)).sum::<f64>() / total
+            };
+            let va = moment(&|x, y| (at(a, x, y) - ma).powi(2));
+            let vb = moment(&|x, y| (at(b, x, y) - mb).powi(2));
+            let cov = moment(&|x, y| (at(a, x, y) - ma) * (at(b, x, y) - mb));
+            sum += ((2.0 * ma * mb + c1) * (2.0 * cov + c2))
+                / ((ma * ma + mb * mb + c1) * (va + vb + c2));
+            count += 1.0;
+        }
+    }
+    sum / count
+}
+
 /// SSIM's closed forms (Wang et al. 2004): 1 for equal images, and for two flat images of
 /// values a and b, whose variances and covariance are 0, `(2ab + c1) / (a² + b² + c1)`, c1 =
-/// 0.01²; on an image smaller than the 11 × 11 window too.
+/// 0.01²; and [`ssim_reference`] on noise. On an image smaller than the 11 × 11 window too.
 #[test]
 fn ssim_has_its_closed_forms() {
     use nmat_encode::metrics::ssim_channel;
@@ -783,5 +820,13 @@ fn ssim_has_its_closed_forms() {
         let want = (2.0 * a * b + 1e-4) / (a * a + b * b + 1e-4);
         let got = ssim_channel(&flat(0.5), &flat(0.625), w, h, 2, 0);
         assert!((got - want).abs() < 1e-9, "{w} × {h}: {got} vs {want}");
+        // Noise against noise plus noise (channel 1 of 2): the definition itself.
+        let other: Vec<f32> = noise.iter().map(|&v| v * 0.7 + rng.unit() as f32 * 0.3).collect();
+        let channel =
+            |img: &[f32]| img.iter().skip(1).step_by(2).map(|&v| f64::from(v)).collect::<Vec<_>>();
+        let want = ssim_reference(&channel(&noise), &channel(&other), w.into(), h.into());
+        let got = ssim_channel(&noise, &other, w, h, 2, 1);
+        assert!((got - want).abs() < 1e-9, "{w} × {h}: {got} vs the definition's {want}");
+        assert!(got < 0.9, "{w} × {h}: {got}");
     }
 }
