@@ -223,6 +223,22 @@ mod tests {
         }
     }
 
+    /// The names in transcoded files' names (`albedo.bc1.ktx2`, docs/TRANSCODING.md): both BC7
+    /// forms are `bc7`, one GPU format.
+    #[test]
+    fn formats_have_the_names_of_their_files() {
+        let names = [
+            (BcFormat::Bc1, "bc1"),
+            (BcFormat::Bc4, "bc4"),
+            (BcFormat::Bc5, "bc5"),
+            (BcFormat::Bc7Rgb, "bc7"),
+            (BcFormat::Bc7Rgba, "bc7"),
+        ];
+        for (format, name) in names {
+            assert_eq!(format.name(), name, "{format:?}");
+        }
+    }
+
     #[test]
     fn maps_get_the_usual_formats() {
         let channels = [
