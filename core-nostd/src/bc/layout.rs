@@ -267,7 +267,8 @@ mod tests {
     }
 
     /// Albedo with alpha: BC1 of the colour and BC4 of the alpha; two gray maps of the same
-    /// semantic in a row stay separate (each starts at component 0).
+    /// semantic in a row stay separate (each starts at component 0); a normal map's fourth
+    /// component gets its own BC4 too (after the BC5 of X and Y, Z left to the shader).
     #[test]
     fn alpha_and_repeated_maps() {
         let channels = [
@@ -277,22 +278,33 @@ mod tests {
             ch(Semantic::ALBEDO, 3, true),
             ch(Semantic::HEIGHT, 0, false),
             ch(Semantic::HEIGHT, 0, false),
+            ch(Semantic::NORMAL, 0, false),
+            ch(Semantic::NORMAL, 1, false),
+            ch(Semantic::NORMAL, 2, false),
+            ch(Semantic::NORMAL, 3, false),
         ];
         let got = layout_of(&channels, |_| None);
         let formats: heapless::Vec<(BcFormat, u8), 8> =
             got.iter().map(|t| (t.format, t.channels[0])).collect();
         assert_eq!(
             formats.as_slice(),
-            &[(BcFormat::Bc1, 0), (BcFormat::Bc4, 3), (BcFormat::Bc4, 4), (BcFormat::Bc4, 5)]
+            &[
+                (BcFormat::Bc1, 0),
+                (BcFormat::Bc4, 3),
+                (BcFormat::Bc4, 4),
+                (BcFormat::Bc4, 5),
+                (BcFormat::Bc5, 6),
+                (BcFormat::Bc4, 9)
+            ]
         );
-        // Every channel exactly once.
-        let mut seen = [0u8; 6];
+        // Every channel exactly once, but the normal map's Z.
+        let mut seen = [0u8; 10];
         for t in &got {
             for &c in t.channel_list() {
                 seen[usize::from(c)] += 1;
             }
         }
-        assert_eq!(seen, [1; 6]);
+        assert_eq!(seen, [1, 1, 1, 1, 1, 1, 1, 1, 0, 1]);
     }
 
     /// A chosen format: groups of its component count, short groups repeat their last channel,
