@@ -807,12 +807,13 @@ fn ssim_reference(a: &[f64], b: &[f64], w: i64, h: i64) -> f64 {
 /// SSIM's closed forms (Wang et al. 2004): 1 for equal images, and for two flat images of
 /// values a and b, whose variances and covariance are 0, `(2ab + c1) / (a² + b² + c1)`, c1 =
 /// 0.01²; and [`ssim_reference`] on noise. On images smaller than the 11 × 11 window too, and
-/// one of 10 × 11 (all 10 columns, the one row of centres 5 from the edges).
+/// 10 × 11 and 11 × 10 (all 10 columns or rows, the one row or column of centres 5 from the
+/// edges).
 #[test]
 fn ssim_has_its_closed_forms() {
     use nmat_encode::metrics::ssim_channel;
     let mut rng = nmat_tests::generate::Rng::new(5);
-    for (w, h) in [(20u32, 17u32), (7, 5), (10, 11)] {
+    for (w, h) in [(20u32, 17u32), (7, 5), (10, 11), (11, 10)] {
         let n = (w * h) as usize * 2;
         let noise: Vec<f32> = (0..n).map(|_| rng.unit() as f32).collect();
         assert_eq!(ssim_channel(&noise, &noise, w, h, 2, 1), 1.0, "{w} × {h}");
