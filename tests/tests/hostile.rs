@@ -109,8 +109,26 @@ fn every_bit_flip_past_the_checksum_is_an_error_or_a_valid_decode() {
                         }
                         Err(e) => {
                             rejected += 1;
-                            // Errors render, and name a field or cause.
-                            assert!(!e.to_string().is_empty());
+                            // Errors render, and name the field at fault as FORMAT.md does
+                            // (its Debug name); the version, packing and flags refusals say
+                            // what to do instead.
+                            let message = e.to_string();
+                            let field = match e {
+                                Error::Malformed { field, .. }
+                                | Error::LimitExceeded { field, .. }
+                                | Error::Truncated { field, .. }
+                                | Error::Unsupported { field, .. } => Some(field),
+                                _ => None,
+                            };
+                            match field {
+                                Some(Field::VersionMajor | Field::Packed | Field::Flags) => {
+                                    assert!(message.contains("nmat"), "{message}")
+                                }
+                                Some(f) => {
+                                    assert!(message.contains(&format!("{f:?}[")), "{message}")
+                                }
+                                None => assert!(!message.is_empty()),
+                            }
                         }
                     }
                     b[bit / 8] ^= 1 << (bit % 8);
