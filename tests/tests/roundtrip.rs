@@ -307,3 +307,22 @@ fn a_jpeg_material_says_which_sections_it_has() {
     assert_eq!(m.bppc(), bytes.len() as f64 * 8.0 / (70.0 * 37.0 * 7.0));
     assert!(m.to_spec().is_none(), "a JPEG material has no neural spec");
 }
+
+/// An MCU more than 65535 bits after the first of its index group cannot be indexed (FORMAT.md
+/// §11.2: 16-bit offsets within a group of 9): the writer names the MCU, the offset and the limit.
+#[test]
+fn the_jpeg_writer_names_an_mcu_too_far_from_its_group_s_first() {
+    let mut spec = DcJpegMaterial::new(1).spec;
+    let stream = spec.streams.iter_mut().find(|s| s.mcu_bits.len() >= 14).unwrap();
+    // MCU 13: the fifth of the second group.
+    stream.mcu_bits[13] = stream.mcu_bits[9] + 65536;
+    assert_eq!(
+        spec.to_bytes(),
+        Err(Error::LimitExceeded {
+            field: Field::JpegIndex,
+            index: 13,
+            value: 65536,
+            limit: 65535
+        })
+    );
+}
