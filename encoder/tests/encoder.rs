@@ -742,6 +742,7 @@ fn quality_figures_follow_from_known_errors() {
     (mse[0][0], mse[1][1], mse[2][3]) = (0.125 * 0.125, 0.25 * 0.25 / 2.0, 0.25);
     assert_eq!(q.mse.len(), 5);
     for (mip, (got, want)) in q.mse.iter().zip(&mse).enumerate() {
+        assert_eq!(got.len(), 4, "mip {mip}");
         for c in 0..4 {
             near(got[c], want[c], &format!("MSE of mip {mip} channel {c}"));
         }
@@ -755,8 +756,9 @@ fn quality_figures_follow_from_known_errors() {
     near(q.psnr_of(&[0, 1], Some(1), &set), -10.0 * (3.0f64 / 192.0).log10(), "0, 1 at mip 1");
     assert_eq!(q.psnr_of(&[2], None, &set), f64::INFINITY, "an exact channel");
     let mean = [0.125 * 384.0 / 511.0, -0.25 * 48.0 / 511.0, 0.0, -0.5 * 24.0 / 511.0];
-    for c in 0..4 {
-        near(q.mean_error[c], mean[c], &format!("mean error of channel {c}"));
+    assert_eq!(q.mean_error.len(), 4);
+    for (c, (&got, want)) in q.mean_error.iter().zip(mean).enumerate() {
+        near(got, want, &format!("mean error of channel {c}"));
     }
     // SSIM at mip 0: 1 for the three exact channels, channel 0's own for the offset one.
     let src0 = &set.mips[0].data;

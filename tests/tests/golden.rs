@@ -169,54 +169,55 @@ fn packed_fixtures_are_reproducible_and_unpack_to_their_twins() {
     }
 }
 
-/// The committed JPEG material (tests/fixtures/jpeg/README.md) decodes to djpeg's decode of its
-/// JPEG, the committed `.u8`, through every integer path of the core: texel by texel (8 and 16
-/// bits), on every kernel by region (the whole mip, a rectangle cut across MCUs, one channel) and
-/// by span. `encoder/tests/jpeg.rs` checks that the `.u8` is still what djpeg gives.
-/// The committed JPEG materials (tests/fixtures/jpeg/README.md): 4:2:0 with restart markers,
-/// 4:2:2 without; each against djpeg's decode of its `.jpg`.
+/// The committed JPEG materials (tests/fixtures/jpeg/README.md: 4:2:0 with restart markers,
+/// 4:2:2 without) decode to djpeg's decode of their JPEGs, the committed `.u8` files, through
+/// every integer path of the core: texel by texel (8 and 16 bits), on every kernel by region (the
+/// whole mip, a rectangle cut across MCUs, one channel) and by span. `encoder/tests/jpeg.rs`
+/// checks that the `.u8` files are still what djpeg gives.
 #[test]
 fn the_committed_jpeg_materials_decode_like_djpeg_on_every_path() {
-    for name in ["pattern_420_37x21", "pattern_422_37x21"] {
-        committed_jpeg_material_decodes_like_djpeg(name);
-    }
-}
-
-fn committed_jpeg_material_decodes_like_djpeg(name: &str) {
     use nmat_core::{Decoder, Kernel};
-    let dir = fixtures_dir().join("jpeg");
-    let nmat = std::fs::read(dir.join(format!("{name}.nmat"))).unwrap();
-    let expected = std::fs::read(dir.join(format!("{name}.u8"))).unwrap();
-    let m = Container::parse(&nmat).unwrap();
-    let (w, h) = (37usize, 21usize);
-    assert_eq!((m.mip_count(), m.mip_size(0), m.channel_count()), (1, (37, 21), 3));
-    assert_eq!(expected.len(), w * h * 3);
-    assert!(decode_all_u8(&m) == expected, "{name}: texel by texel, 8 bits");
-    let times_257: Vec<u8> =
-        expected.iter().flat_map(|&c| (u16::from(c) * 257).to_le_bytes()).collect();
-    assert!(decode_all_u16(&m) == times_257, "{name}: texel by texel, 16 bits (each code · 257)");
-    // A rectangle that starts and ends inside MCUs (16 × 16 texels each).
-    let (x0, y0, rw, rh) = (5usize, 3usize, 26usize, 17usize);
-    let cut: Vec<u8> = (y0..y0 + rh)
-        .flat_map(|y| expected[(y * w + x0) * 3..(y * w + x0 + rw) * 3].to_vec())
-        .collect();
-    for kernel in Kernel::ALL.into_iter().filter(|k| k.is_available()) {
-        let d = Decoder::with_kernel(&m, kernel).unwrap();
-        let mut out = vec![0u8; w * h * 3];
-        d.decode_region_u8(&m, 0, (0, 0, 37, 21), ChannelMask::ALL, &mut out, 0).unwrap();
-        assert!(out == expected, "{name}, {kernel:?}: the whole mip as a region");
-        let mut out = vec![0u8; rw * rh * 3];
-        let rect = (x0 as u32, y0 as u32, rw as u32, rh as u32);
-        d.decode_region_u8(&m, 0, rect, ChannelMask::ALL, &mut out, 0).unwrap();
-        assert!(out == cut, "{name}, {kernel:?}: a rectangle across MCUs");
-        let mut green = vec![0u8; rw * rh];
-        d.decode_region_u8(&m, 0, rect, ChannelMask::single(1), &mut green, 0).unwrap();
-        let cut_green: Vec<u8> = cut.iter().skip(1).step_by(3).copied().collect();
-        assert!(green == cut_green, "{name}, {kernel:?}: the green channel of the rectangle");
-        for y in 0..h {
-            let mut row = vec![0u8; w * 3];
-            d.decode_span_u8(&m, 0, y as i64, 0, w, ChannelMask::ALL, &mut row).unwrap();
-            assert!(row[..] == expected[y * w * 3..(y + 1) * w * 3], "{name}, {kernel:?}: row {y}");
+    for name in ["pattern_420_37x21", "pattern_422_37x21"] {
+        let dir = fixtures_dir().join("jpeg");
+        let nmat = std::fs::read(dir.join(format!("{name}.nmat"))).unwrap();
+        let expected = std::fs::read(dir.join(format!("{name}.u8"))).unwrap();
+        let m = Container::parse(&nmat).unwrap();
+        let (w, h) = (37usize, 21usize);
+        assert_eq!((m.mip_count(), m.mip_size(0), m.channel_count()), (1, (37, 21), 3));
+        assert_eq!(expected.len(), w * h * 3);
+        assert!(decode_all_u8(&m) == expected, "{name}: texel by texel, 8 bits");
+        let times_257: Vec<u8> =
+            expected.iter().flat_map(|&c| (u16::from(c) * 257).to_le_bytes()).collect();
+        assert!(
+            decode_all_u16(&m) == times_257,
+            "{name}: texel by texel, 16 bits (each code · 257)"
+        );
+        // A rectangle that starts and ends inside MCUs (16 × 16 texels at 4:2:0, 16 × 8 at 4:2:2).
+        let (x0, y0, rw, rh) = (5usize, 3usize, 26usize, 17usize);
+        let cut: Vec<u8> = (y0..y0 + rh)
+            .flat_map(|y| expected[(y * w + x0) * 3..(y * w + x0 + rw) * 3].to_vec())
+            .collect();
+        for kernel in Kernel::ALL.into_iter().filter(|k| k.is_available()) {
+            let d = Decoder::with_kernel(&m, kernel).unwrap();
+            let mut out = vec![0u8; w * h * 3];
+            d.decode_region_u8(&m, 0, (0, 0, 37, 21), ChannelMask::ALL, &mut out, 0).unwrap();
+            assert!(out == expected, "{name}, {kernel:?}: the whole mip as a region");
+            let mut out = vec![0u8; rw * rh * 3];
+            let rect = (x0 as u32, y0 as u32, rw as u32, rh as u32);
+            d.decode_region_u8(&m, 0, rect, ChannelMask::ALL, &mut out, 0).unwrap();
+            assert!(out == cut, "{name}, {kernel:?}: a rectangle across MCUs");
+            let mut green = vec![0u8; rw * rh];
+            d.decode_region_u8(&m, 0, rect, ChannelMask::single(1), &mut green, 0).unwrap();
+            let cut_green: Vec<u8> = cut.iter().skip(1).step_by(3).copied().collect();
+            assert!(green == cut_green, "{name}, {kernel:?}: the green channel of the rectangle");
+            for y in 0..h {
+                let mut row = vec![0u8; w * 3];
+                d.decode_span_u8(&m, 0, y as i64, 0, w, ChannelMask::ALL, &mut row).unwrap();
+                assert!(
+                    row[..] == expected[y * w * 3..(y + 1) * w * 3],
+                    "{name}, {kernel:?}: row {y}"
+                );
+            }
         }
     }
 }
