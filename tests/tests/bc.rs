@@ -431,3 +431,35 @@ fn constant_channels_transcode_to_their_value() {
         assert_eq!(decoded.constant_code(), None, "{semantic:?} {component} decoded");
     }
 }
+
+/// BC1's single-colour endpoints (the table `nmat-wgpu` embeds), found here by trying every pair:
+/// for each 8-bit value, the pair `[a, b]` of 5- or 6-bit endpoints whose point — `a` expanded,
+/// `round(a · 255 / max)`, where `a = b`, else the 1/3 point `round((2a + b) · 255 / (3 · max))`
+/// — is nearest the value; on a tie the lower point, then `a = b`, then the smallest `a`, then
+/// the smallest `b`.
+#[test]
+fn bc1_single_colour_endpoints_are_the_nearest_pairs() {
+    use nmat_core::bc::bc1_single_colour_endpoints;
+    for (k, max) in [(0usize, 31i64), (1, 63)] {
+        let round_div = |n: i64, d: i64| (2 * n + d) / (2 * d);
+        for value in 0..=255i64 {
+            let mut best = None;
+            for a in 0..=max {
+                for b in 0..=max {
+                    let point = if a == b {
+                        round_div(a * 255, max)
+                    } else {
+                        round_div((2 * a + b) * 255, 3 * max)
+                    };
+                    let key = ((point - value).abs(), point, a != b, a, b);
+                    if best.is_none_or(|k| key < k) {
+                        best = Some(key);
+                    }
+                }
+            }
+            let (_, _, _, a, b) = best.unwrap();
+            let got = bc1_single_colour_endpoints(value as u8)[k];
+            assert_eq!(got, [a as u8, b as u8], "{max}: value {value}");
+        }
+    }
+}
