@@ -249,7 +249,9 @@ fn bc1_beats_the_plain_endpoints_and_stays_opaque() {
         let (c0, c1) = (q(hi).max(q(lo)), q(hi).min(q(lo)));
         plain += u64::from(bc1::tests_fit_error(&pixels, c0, c1));
     }
-    assert!(ours * 10 < plain * 8, "ours {ours}, plain {plain}");
+    // 0.612 of the plain endpoints' error on 2026-12-04; 0.84 without the least-squares
+    // refinement, 0.70–0.77 with its sums broken (mutants).
+    assert!(ours * 100 < plain * 65, "ours {ours}, plain {plain}");
 }
 
 #[test]
