@@ -20,6 +20,10 @@ pub fn fixtures_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures")
 }
 
+/// The committed JPEG fixtures of `tests/fixtures/jpeg/` (its README): 4:2:0 with restart
+/// markers, 4:2:2 without; each a `.jpg`, the `.nmat` it indexes to and djpeg's decode, `.u8`.
+pub const JPEG_FIXTURES: [&str; 2] = ["pattern_420_37x21", "pattern_422_37x21"];
+
 /// 64-bit FNV-1a: a stable, dependency-free hash for golden outputs.
 pub fn fnv1a(bytes: impl IntoIterator<Item = u8>) -> u64 {
     bytes

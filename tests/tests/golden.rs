@@ -177,8 +177,8 @@ fn packed_fixtures_are_reproducible_and_unpack_to_their_twins() {
 #[test]
 fn the_committed_jpeg_materials_decode_like_djpeg_on_every_path() {
     use nmat_core::{Decoder, Kernel};
-    for name in ["pattern_420_37x21", "pattern_422_37x21"] {
-        let dir = fixtures_dir().join("jpeg");
+    let dir = fixtures_dir().join("jpeg");
+    for name in nmat_tests::JPEG_FIXTURES {
         let nmat = std::fs::read(dir.join(format!("{name}.nmat"))).unwrap();
         let expected = std::fs::read(dir.join(format!("{name}.u8"))).unwrap();
         let m = Container::parse(&nmat).unwrap();
