@@ -49,10 +49,14 @@ fn random_materials_pack_and_unpack_to_the_same_bytes() {
             Err(Error::BadArgument { argument: Argument::Output, .. })
         ));
         // Parsing a packed file says what to do, with the memory it needs.
+        let refusal = Container::parse(&packed).err();
         assert_eq!(
-            Container::parse(&packed).err(),
+            refusal,
             Some(Error::Unsupported { field: Field::Packed, index: 0, value: bytes.len() as u64 })
         );
+        let message = refusal.map(|e| e.to_string()).unwrap_or_default();
+        let needs = format!("unpack it first into {} bytes", bytes.len());
+        assert!(message.contains("packed .nmat") && message.contains(&needs), "{message}");
         // Packing is idempotent; an unpacked file unpacks to itself without a copy.
         assert_eq!(pack(&packed).unwrap(), packed);
         assert!(matches!(
