@@ -697,22 +697,67 @@ fn encode_mode5(pixels: &[[u8; 4]; BLOCK_PIXELS], valid: u16) -> Candidate {
 /// with alpha 255 (an RGB texture); with `alpha` true, blocks whose valid pixels all have alpha
 /// 255 are encoded as opaque, the others with alpha (modes 5 and 6).
 pub fn encode_bc7(pixels: &[[u8; 4]; BLOCK_PIXELS], valid: u16, alpha: bool) -> [u8; 16] {
+    choose(pixels, valid, alpha).pack()
+}
+
+/// The candidate [`encode_bc7`] packs.
+fn choose(pixels: &[[u8; 4]; BLOCK_PIXELS], valid: u16, alpha: bool) -> Candidate {
     let translucent =
         alpha && pixels.iter().enumerate().any(|(i, p)| counts(valid, i) && p[3] != 255);
     if valid == 0 {
-        return encode_mode6(&[[0, 0, 0, 255]; BLOCK_PIXELS], super::ALL_VALID, false).pack();
+        return encode_mode6(&[[0, 0, 0, 255]; BLOCK_PIXELS], super::ALL_VALID, false);
     }
     if translucent {
         let (a, b) = (encode_mode6(pixels, valid, true), encode_mode5(pixels, valid));
-        return if b.error < a.error { b.pack() } else { a.pack() };
+        return if b.error < a.error { b } else { a };
     }
-    let mut best = Some(encode_mode6(pixels, valid, false));
-    if best.is_some_and(|b| b.error > 0) {
+    let mut best = encode_mode6(pixels, valid, false);
+    if best.error > 0 {
+        let mut found = Some(best);
         let two = rank_partitions(pixels, valid, 2, 64);
-        encode_subsets(pixels, valid, 1, &two, &mut best);
-        encode_subsets(pixels, valid, 3, two.get(..2).unwrap_or(&[]), &mut best);
+        encode_subsets(pixels, valid, 1, &two, &mut found);
+        encode_subsets(pixels, valid, 3, two.get(..2).unwrap_or(&[]), &mut found);
         let three = rank_partitions(pixels, valid, 3, 64);
-        encode_subsets(pixels, valid, 2, three.get(..2).unwrap_or(&[]), &mut best);
+        encode_subsets(pixels, valid, 2, three.get(..2).unwrap_or(&[]), &mut found);
+        best = found.unwrap_or(best);
     }
-    best.map_or([0; 16], Candidate::pack)
+    best
+}
+
+/// [`encode_bc7`]'s block and the squared error its search computed for it (over RGB, or RGBA
+/// for a block encoded with alpha).
+#[cfg(test)]
+pub(super) fn tests_encode(
+    pixels: &[[u8; 4]; BLOCK_PIXELS],
+    valid: u16,
+    alpha: bool,
+) -> ([u8; 16], u64) {
+    let c = choose(pixels, valid, alpha);
+    (c.pack(), c.error)
+}
+
+/// The least squared error over RGB of an opaque block when every partition of modes 1, 2 and
+/// 3 is encoded in full (the encoder ranks them and encodes the best few), and mode 6.
+#[cfg(test)]
+pub(super) fn tests_every_partition_error(pixels: &[[u8; 4]; BLOCK_PIXELS], valid: u16) -> u64 {
+    let every: [usize; 64] = core::array::from_fn(|p| p);
+    let mut best = Some(encode_mode6(pixels, valid, false));
+    for mode in [1, 3, 2] {
+        encode_subsets(pixels, valid, mode, &every, &mut best);
+    }
+    best.map_or(u64::MAX, |b| b.error)
+}
+
+/// The anchor pixel of each subset ([`anchors`]).
+#[cfg(test)]
+pub(super) fn tests_anchors(subsets: usize, partition: usize) -> [usize; 3] {
+    anchors(subsets, partition)
+}
+
+/// The 8-bit value of the stored component [`Precision::quantize`] picks for `target`, in
+/// endpoints of `bits` bits, with p-bit `p` when `pbit`.
+#[cfg(test)]
+pub(super) fn tests_quantized(bits: u32, pbit: bool, p: u32, target: i32) -> u32 {
+    let q = Precision { bits: [bits; 4], pbits: pbit.then_some(&ENDPOINT_PBITS[..]) };
+    q.value(0, q.quantize(0, target, p), p)
 }

@@ -358,6 +358,15 @@ fn bc7_alpha_and_invalid_pixels() {
         }
         assert_eq!(encode_bc7(&px, valid, true), encode_bc7(&other, valid, true));
         assert_eq!(encode_bc7(&px, valid, false), encode_bc7(&other, valid, false));
+        // Opaque where it counts, transparent elsewhere: the block of an RGB texture.
+        let mut hidden = px.map(|[r, g, b, _]| [r, g, b, 255]);
+        let rgb = encode_bc7(&hidden, valid, false);
+        hidden
+            .iter_mut()
+            .enumerate()
+            .filter(|&(i, _)| !counts(valid, i))
+            .for_each(|(_, p)| p[3] = 0);
+        assert_eq!(encode_bc7(&hidden, valid, true), rgb);
     }
     assert!(seven < split, "BC7 with alpha {seven}, BC1 + BC4 {split}");
 }
@@ -383,4 +392,153 @@ fn principal_ends_are_the_extremes_along_the_spread() {
     assert_eq!(ends(&alpha, 4), Some((0, 5)));
     // No spread: none.
     assert_eq!(principal_ends(&[[7, 7, 7, 0]; 5], 3), None);
+}
+
+/// BC7's endpoint quantizer picks, for every 8-bit target and every precision the encoder
+/// uses (4–8 bits, with and without a p-bit of either value), a stored value whose expansion
+/// is as near the target as any: checked against every stored value, expanded as the format
+/// defines it (the `n`-bit pattern repeated from its top bit until 8 bits are filled).
+#[test]
+fn bc7_endpoints_quantize_to_the_nearest_expansion() {
+    let widened = |v: u32, n: u32| -> u32 {
+        (0..8).fold(0, |acc, j| (acc << 1) | ((v >> (n - 1 - j % n)) & 1))
+    };
+    for bits in 4..=8u32 {
+        for (pbit, choices) in [(false, &[0u32][..]), (true, &[0, 1][..])] {
+            let n = bits + u32::from(pbit);
+            if n > 8 {
+                continue;
+            }
+            for &p in choices {
+                let reach = || (0..1u32 << bits).map(|q| widened((q << u32::from(pbit)) | p, n));
+                for target in -3..=258i32 {
+                    let t = target.clamp(0, 255) as u32;
+                    let best = reach().map(|v| v.abs_diff(t)).min().unwrap();
+                    let got = bc7::tests_quantized(bits, pbit, p, target);
+                    assert!(reach().any(|v| v == got), "{bits} bits, p-bit {pbit} {p}: {got}");
+                    assert_eq!(got.abs_diff(t), best, "{bits} bits, p-bit {pbit} {p}, {target}");
+                }
+            }
+        }
+    }
+}
+
+/// BC7 ranks the partitions of each mode by the error of one colour per subset and encodes the
+/// best few in full: against every partition of every mode encoded in full, on texture-like
+/// blocks (RGB; some with a sharp edge, whose subsets matter most).
+#[test]
+fn bc7_partitions_ranked_are_near_every_partition_tried() {
+    let mut rng = Rng(0xB77);
+    let (mut ours, mut every) = (0u64, 0u64);
+    for k in 0..200 {
+        let mut px = rgba_block(&mut rng);
+        if k % 2 == 0 {
+            // An edge: another colour beyond a line through the block.
+            let (c, slope) = ([rng.byte(), rng.byte(), rng.byte(), 255], rng.next() % 5);
+            for (i, p) in px.iter_mut().enumerate() {
+                if (i % 4) as u64 * 2 + (i / 4) as u64 * slope > 5 {
+                    *p = c;
+                }
+            }
+        }
+        let e = bc7_error(&px, ALL_VALID, &encode_bc7(&px, ALL_VALID, false), 3);
+        let o = bc7::tests_every_partition_error(&px, ALL_VALID);
+        ours += u64::from(e);
+        every += o;
+        assert!(u64::from(e) >= o, "every partition tried is the larger search: {px:?}");
+    }
+    // 1.56 when written (2026-12-04; partitions 0–3 alone, unranked: 1.79). The ranking misses
+    // the best partition of many blocks, mostly in modes 2 and 3, which encode only the best
+    // two (every partition of mode 1 encoded: 1.36) — a lead for the search, which the GPU's
+    // encoder would have to follow byte for byte. The bound holds the ranking to today's.
+    assert!(ours * 100 <= every * 165, "ranked {ours}, every partition {every}");
+}
+
+/// Blocks for the BC7 index tests: texture-like RGB, flat, and with alpha, some with pixels
+/// outside the texture.
+fn bc7_test_blocks() -> impl Iterator<Item = ([[u8; 4]; 16], u16, bool)> {
+    let mut rng = Rng(0xB7B7);
+    (0..600).map(move |k| {
+        let mut px = rgba_block(&mut rng);
+        if k % 3 == 1 {
+            let a = rng.texture_block();
+            px.iter_mut().zip(a).for_each(|(p, a)| p[3] = a);
+        }
+        if k % 7 == 0 {
+            let c = px[0];
+            px.iter_mut().for_each(|p| *p = c);
+        }
+        let valid = if k % 5 == 0 { valid_mask((k % 2) as u32, 0, 6, 7) } else { ALL_VALID };
+        (px, valid, k % 3 != 0)
+    })
+}
+
+/// The squared error the encoder's search computed for the block it chose is the block's
+/// error as decoded: the palette it measured candidates on (endpoints expanded with their
+/// p-bits, interpolated) is the decoder's, for every mode it writes.
+#[test]
+fn bc7_search_measures_the_block_it_writes() {
+    let mut modes = [0u32; 8];
+    for (px, valid, alpha) in bc7_test_blocks() {
+        let (block, claimed) = bc7::tests_encode(&px, valid, alpha);
+        let comps = if alpha { 4 } else { 3 };
+        assert_eq!(u64::from(bc7_error(&px, valid, &block, comps)), claimed, "{px:?} {valid:#x}");
+        modes[block[0].trailing_zeros() as usize] += 1;
+    }
+    // Every mode the encoder writes was met: 1, 2, 3, 5, 6.
+    for m in [1, 2, 3, 5, 6] {
+        assert!(modes[m] > 0, "mode {m} never chosen: {modes:?}");
+    }
+}
+
+/// Every pixel of a BC7 block takes the palette entry nearest it: no other index (written into
+/// the block's bits and decoded) brings that pixel nearer. The index fields are the block's last
+/// bits (Table.M: 2–4 bits a pixel, one fewer at each subset's anchor; mode 5's alpha indices
+/// last), so this asks only the decoder.
+#[test]
+fn bc7_pixels_take_their_nearest_palette_entry() {
+    let mut changed = 0u32;
+    for (px, valid, alpha) in bc7_test_blocks() {
+        let block = encode_bc7(&px, valid, alpha);
+        let mode = block[0].trailing_zeros();
+        // (subsets, partition bits, index bits, secondary index bits) of the modes written.
+        let (subsets, partition_bits, ib, ib2) = match mode {
+            1 => (2, 6, 3, 0),
+            2 => (3, 6, 2, 0),
+            3 => (2, 6, 2, 0),
+            5 => (1, 0, 2, 2),
+            6 => (1, 0, 4, 0),
+            _ => panic!("mode {mode} written"),
+        };
+        let word = u128::from_le_bytes(block);
+        let partition = ((word >> (mode + 1)) & ((1 << partition_bits) - 1)) as usize;
+        let anchors = bc7::tests_anchors(subsets, partition);
+        // (pixel, first bit, bits) of every index field, in the block's order.
+        let mut fields = [(0usize, 0u32, 0u32); 32];
+        let mut count = 0;
+        let mut at = 128 - (16 * ib - subsets as u32) - if ib2 > 0 { 16 * ib2 - 1 } else { 0 };
+        for (bits, first) in [(ib, &anchors[..subsets]), (ib2, &[0][..])] {
+            for i in (0..16).filter(|_| bits > 0) {
+                let n = bits - u32::from(first.contains(&i));
+                fields[count] = (i, at, n);
+                count += 1;
+                at += n;
+            }
+        }
+        assert_eq!(at, 128, "mode {mode}");
+        let comps = if alpha { 4 } else { 3 };
+        let err = |b: u128, i: usize| -> u32 {
+            let got = decode_bc7(&b.to_le_bytes())[i];
+            (0..comps).map(|c| sq(px[i][c], got[c])).sum()
+        };
+        for &(i, at, n) in fields[..count].iter().filter(|&&(i, _, _)| counts(valid, i)) {
+            let now = err(word, i);
+            for k in 0..1u128 << n {
+                let other = (word & !(((1 << n) - 1) << at)) | (k << at);
+                assert!(err(other, i) >= now, "pixel {i}, index {k} of mode {mode}: {px:?}");
+                changed += u32::from(other != word);
+            }
+        }
+    }
+    assert!(changed > 10_000, "{changed} other indices tried");
 }
