@@ -116,8 +116,54 @@ fn the_dispatch_runs_the_kernel_it_is_given() {
         assert_eq!(Kernel::best(), best);
     }
     for kernel in Kernel::ALL.into_iter().filter(|k| k.is_available()) {
-        assert!(kernel.probe(100).is_some(), "{kernel:?} probe");
+        // The probe's value depends on its products, so on how many rounds ran.
+        let value = |rounds| kernel.probe(rounds).unwrap();
+        let (one, two, three) = (value(1), value(2), value(3));
+        assert!(one != two && two != three && one != three, "{kernel:?} probe {one} {two} {three}");
     }
+    for kernel in Kernel::ALL.into_iter().filter(|k| !k.is_available()) {
+        assert_eq!(kernel.probe(1), None, "{kernel:?}");
+    }
+}
+
+/// The names `span_profile` and the docs use (docs/PERFORMANCE.md), one per kernel; the products
+/// of a probe round follow the probes' code (the scalar one's 8 chains of one multiply-add) and
+/// the instructions' widths (AVX-512 twice AVX2's lanes, `sdot` twice `smlal`'s products).
+#[test]
+fn kernels_have_their_names_and_widths() {
+    let names = Kernel::ALL.map(Kernel::name);
+    assert_eq!(names, ["scalar", "neon", "neon-dotprod", "avx2", "avx512-vnni"]);
+    let macs = |k: Kernel| k.probe_macs_per_round();
+    assert_eq!(macs(Kernel::Scalar), 8);
+    assert_eq!(macs(Kernel::Avx512Vnni), 2 * macs(Kernel::Avx2));
+    assert_eq!(macs(Kernel::NeonDot), 2 * macs(Kernel::Neon));
+    assert!(Kernel::ALL.into_iter().skip(1).all(|k| macs(k) > 8));
+}
+
+/// On x86-64 Linux the kernels available are those whose instructions `/proc/cpuinfo` lists
+/// (asked the way the kernel choice does not), and [`Kernel::best`] is the fastest of them: a
+/// CPU check that said no would leave every test above comparing the scalar kernel with itself.
+#[cfg(all(target_arch = "x86_64", target_os = "linux", feature = "std"))]
+#[test]
+fn x86_kernels_are_those_the_cpu_lists() {
+    extern crate std;
+    let info = std::fs::read_to_string("/proc/cpuinfo").unwrap();
+    let flags: Vec<&str> =
+        info.lines().find(|l| l.starts_with("flags")).unwrap().split_whitespace().collect();
+    let has = |flag: &str| flags.contains(&flag);
+    let vnni = has("avx512f") && has("avx512bw") && has("avx512_vnni");
+    assert!(Kernel::Scalar.is_available());
+    assert_eq!(Kernel::Avx2.is_available(), has("avx2"));
+    assert_eq!(Kernel::Avx512Vnni.is_available(), vnni);
+    assert!(!Kernel::Neon.is_available() && !Kernel::NeonDot.is_available());
+    let best = if vnni {
+        Kernel::Avx512Vnni
+    } else if has("avx2") {
+        Kernel::Avx2
+    } else {
+        Kernel::Scalar
+    };
+    assert_eq!(Kernel::best(), best);
 }
 
 struct Rng(u64);
