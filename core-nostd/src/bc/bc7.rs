@@ -597,13 +597,14 @@ fn rank_partitions(
     best.map(|(_, p)| p)
 }
 
-/// Encodes `pixels` in a mode of subsets (mode 0–3, 7), for each partition given.
+/// Encodes `pixels` in a mode of subsets (mode 0–3, 7), for each partition given, into `best`
+/// where a partition does better than it.
 fn encode_subsets(
     pixels: &[[u8; 4]; BLOCK_PIXELS],
     valid: u16,
     mode: usize,
     partitions: &[usize],
-    best: &mut Option<Candidate>,
+    best: &mut Candidate,
 ) {
     let m = at(&MODES, mode);
     let pbits: Option<&'static [[u32; 2]]> = if m.endpoint_pbits {
@@ -640,12 +641,12 @@ fn encode_subsets(
                 }
             }
             c.error += fit.error;
-            if best.is_some_and(|b| c.error >= b.error) {
+            if c.error >= best.error {
                 break;
             }
         }
-        if best.is_none_or(|b| c.error < b.error) {
-            *best = Some(c);
+        if c.error < best.error {
+            *best = c;
         }
     }
 }
@@ -713,13 +714,11 @@ fn choose(pixels: &[[u8; 4]; BLOCK_PIXELS], valid: u16, alpha: bool) -> Candidat
     }
     let mut best = encode_mode6(pixels, valid, false);
     if best.error > 0 {
-        let mut found = Some(best);
         let two = rank_partitions(pixels, valid, 2, 64);
-        encode_subsets(pixels, valid, 1, &two, &mut found);
-        encode_subsets(pixels, valid, 3, two.get(..2).unwrap_or(&[]), &mut found);
+        encode_subsets(pixels, valid, 1, &two, &mut best);
+        encode_subsets(pixels, valid, 3, two.get(..2).unwrap_or(&[]), &mut best);
         let three = rank_partitions(pixels, valid, 3, 64);
-        encode_subsets(pixels, valid, 2, three.get(..2).unwrap_or(&[]), &mut found);
-        best = found.unwrap_or(best);
+        encode_subsets(pixels, valid, 2, three.get(..2).unwrap_or(&[]), &mut best);
     }
     best
 }
@@ -741,11 +740,11 @@ pub(super) fn tests_encode(
 #[cfg(test)]
 pub(super) fn tests_every_partition_error(pixels: &[[u8; 4]; BLOCK_PIXELS], valid: u16) -> u64 {
     let every: [usize; 64] = core::array::from_fn(|p| p);
-    let mut best = Some(encode_mode6(pixels, valid, false));
+    let mut best = encode_mode6(pixels, valid, false);
     for mode in [1, 3, 2] {
         encode_subsets(pixels, valid, mode, &every, &mut best);
     }
-    best.map_or(u64::MAX, |b| b.error)
+    best.error
 }
 
 /// The anchor pixel of each subset ([`anchors`]).
