@@ -80,6 +80,10 @@ fn gpu_encoders_write_the_cores_bytes_for_any_block() {
     let (device, queue) = device();
     let ctx = Context::new(&device);
     let blocks = hard_blocks(8 * 11 * 40);
+    // BC7's modes and, for modes 4 and 5, rotations (0–3) and mode 4's selector among the
+    // blocks compared: each branch of the encoder is met.
+    let mut modes = [0u32; 8];
+    let mut rotations = [[0u32; 2]; 4];
     for format in GPU_FORMATS {
         let gpu = ctx.encode_blocks(&device, &queue, format, &blocks).unwrap();
         let size = format.block_bytes();
@@ -88,8 +92,18 @@ fn gpu_encoders_write_the_cores_bytes_for_any_block() {
             let mut want = [0u8; 16];
             bc::encode_block(format, pixels, *valid, &mut want);
             assert_eq!(got, &want[..size], "{format:?} block {k} (valid {valid:#06x}): {pixels:?}");
+            if matches!(format, BcFormat::Bc7Rgb | BcFormat::Bc7Rgba) {
+                let mode = want[0].trailing_zeros() as usize;
+                modes[mode.min(7)] += 1;
+                if mode == 4 || mode == 5 {
+                    let fields = usize::from(want[0]) >> (mode + 1);
+                    rotations[fields & 3][if mode == 4 { (fields >> 2) & 1 } else { 0 }] += 1;
+                }
+            }
         }
     }
+    assert!(modes[..7].iter().all(|&n| n > 0), "BC7 modes {modes:?}");
+    assert!(rotations[1..].iter().flatten().all(|&n| n > 0), "rotations {rotations:?}");
     assert!(ctx.encode_blocks(&device, &queue, BcFormat::Bc1, &[]).unwrap().is_empty());
 }
 

@@ -6,12 +6,16 @@
 //!
 //! The decoder reads every mode. The encoder writes, for blocks whose alpha is 255 everywhere
 //! (and for every block of an RGB texture): mode 6 (one subset, 4-bit indices), mode 1 (two
-//! subsets, 3-bit indices) and mode 3 (two subsets, 2-bit indices, finer endpoints), and mode 2
-//! (three subsets, 2-bit indices); for blocks with alpha: mode 6 (colour and alpha together) and
-//! mode 5 (alpha with its own indices). Partitions are ranked by the squared error of one colour
-//! per subset, and the best few are encoded in full. Each subset's endpoints start at the pixels at
-//! both ends of its principal axis, every p-bit choice is tried, and least squares refines them for
-//! the chosen indices (twice). The candidate with the least squared error over the texture's
+//! subsets, 3-bit indices) and mode 3 (two subsets, 2-bit indices, finer endpoints), mode 2
+//! (three subsets, 2-bit indices) and mode 0 (three subsets of the first 16 partitions, 3-bit
+//! indices, coarse endpoints), and modes 5 and 4, where one colour channel, rotated into the
+//! alpha slot, has indices of its own (mode 5 for each channel, 2-bit indices both; mode 4, with
+//! one 2-bit and one 3-bit index a pixel either way round, for the channel mode 5 did best
+//! with); for blocks with alpha: mode 6 (colour and alpha together) and mode 5 (alpha with its
+//! own indices). Partitions are ranked by the squared error of one colour per subset, and the
+//! best few are encoded in full. Each subset's endpoints start at the pixels at both ends of its
+//! principal axis, every p-bit choice is tried, and least squares refines them for the chosen
+//! indices (twice). The candidate with the least squared error over the texture's
 //! channels wins. Integer arithmetic only.
 
 use super::{BLOCK_PIXELS, counts, principal_ends};
@@ -462,6 +466,10 @@ impl Subset<'_> {
 struct Candidate {
     mode: usize,
     partition: usize,
+    /// Modes 4 and 5: the colour channel (1–3: R, G, B) stored in the alpha slot, 0 for none.
+    rotation: u32,
+    /// Mode 4: 1 when colour takes the 3-bit indices (`index2`) and alpha the 2-bit ones.
+    selector: u32,
     /// Stored endpoints per subset (RGBA; alpha as the mode stores it) and p-bits.
     ends: [[[u32; 4]; 2]; 3],
     pbits: [[u32; 2]; 3],
@@ -477,7 +485,13 @@ impl Candidate {
         let m = at(&MODES, self.mode);
         let anchor = anchors(m.subsets, self.partition);
         let top = 1u8 << (m.index_bits - 1);
-        let colour = if m.index2_bits > 0 { 0..3 } else { 0..4 };
+        // The components each index array interpolates: with two arrays, `index` holds colour's
+        // and `index2` alpha's, or the other way round when the selector is set.
+        let (first, second) = match (m.index2_bits, self.selector) {
+            (0, _) => (0..4, 0..0),
+            (_, 0) => (0..3, 3..4),
+            _ => (3..4, 0..3),
+        };
         for s in 0..m.subsets {
             let a = at(&anchor, s);
             if at(&self.index, a) & top == 0 {
@@ -492,7 +506,7 @@ impl Candidate {
                 }
             }
             if let Some([e0, e1]) = self.ends.get_mut(s) {
-                for c in colour.clone() {
+                for c in first.clone() {
                     if let (Some(a), Some(b)) = (e0.get_mut(c), e1.get_mut(c)) {
                         core::mem::swap(a, b);
                     }
@@ -506,7 +520,11 @@ impl Candidate {
             let max = (1u8 << m.index2_bits) - 1;
             self.index2.iter_mut().for_each(|k| *k = max - *k);
             if let Some([e0, e1]) = self.ends.get_mut(0) {
-                core::mem::swap(&mut e0[3], &mut e1[3]);
+                for c in second {
+                    if let (Some(a), Some(b)) = (e0.get_mut(c), e1.get_mut(c)) {
+                        core::mem::swap(a, b);
+                    }
+                }
             }
         }
     }
@@ -522,8 +540,8 @@ impl Candidate {
         };
         put(1 << self.mode, self.mode as u32 + 1);
         put(self.partition as u32, m.partition_bits);
-        put(0, m.rotation_bits);
-        put(0, m.selector_bits);
+        put(self.rotation, m.rotation_bits);
+        put(self.selector, m.selector_bits);
         let comps = if m.alpha_bits > 0 { 4 } else { 3 };
         for c in 0..comps {
             let bits = if c == 3 { m.alpha_bits } else { m.color_bits };
@@ -619,6 +637,8 @@ fn encode_subsets(
         let mut c = Candidate {
             mode,
             partition,
+            rotation: 0,
+            selector: 0,
             ends: [[[0; 4]; 2]; 3],
             pbits: [[0; 2]; 3],
             index: [0; BLOCK_PIXELS],
@@ -665,6 +685,8 @@ fn encode_mode6(pixels: &[[u8; 4]; BLOCK_PIXELS], valid: u16, alpha: bool) -> Ca
     Candidate {
         mode: 6,
         partition: 0,
+        rotation: 0,
+        selector: 0,
         ends: [ends, [[0; 4]; 2], [[0; 4]; 2]],
         pbits: [fit.pbits, [0; 2], [0; 2]],
         index: fit.index,
@@ -673,23 +695,52 @@ fn encode_mode6(pixels: &[[u8; 4]; BLOCK_PIXELS], valid: u16, alpha: bool) -> Ca
     }
 }
 
-/// Mode 5: one subset, 7-bit colour and 8-bit alpha endpoints, each with its own 2-bit indices.
-fn encode_mode5(pixels: &[[u8; 4]; BLOCK_PIXELS], valid: u16) -> Candidate {
-    let colour = Subset { pixels, mask: valid, comps: &RGB }
-        .fit(&Precision { bits: [7; 4], pbits: None }, 2);
-    let alpha = Subset { pixels, mask: valid, comps: &ALPHA }
-        .fit(&Precision { bits: [8; 4], pbits: None }, 2);
+/// Modes 4 and 5: one subset, colour and alpha each with indices of their own; mode 5: 7-bit
+/// colour and 8-bit alpha endpoints, 2-bit indices for both; mode 4: 5-bit colour and 6-bit
+/// alpha, 2-bit indices for one and 3-bit for the other (colour's 3-bit with `selector` 1).
+/// With `rotation` r (1–3) the block stores colour channel r − 1 in the alpha slot and alpha (255:
+/// an opaque block) in that channel's place, which the decoder swaps back.
+fn encode_separate(
+    pixels: &[[u8; 4]; BLOCK_PIXELS],
+    valid: u16,
+    mode: usize,
+    rotation: u32,
+    selector: u32,
+) -> Candidate {
+    let m = at(&MODES, mode);
+    let mut stored = *pixels;
+    if rotation > 0 {
+        let r = rotation as usize - 1;
+        for p in &mut stored {
+            if let Some(&v) = p.get(r) {
+                p[3] = v;
+            }
+            if let Some(v) = p.get_mut(r) {
+                *v = 255;
+            }
+        }
+    }
+    let (colour_index, alpha_index) =
+        if selector == 0 { (m.index_bits, m.index2_bits) } else { (m.index2_bits, m.index_bits) };
+    let colour = Subset { pixels: &stored, mask: valid, comps: &RGB }
+        .fit(&Precision { bits: [m.color_bits; 4], pbits: None }, colour_index);
+    let alpha = Subset { pixels: &stored, mask: valid, comps: &ALPHA }
+        .fit(&Precision { bits: [m.alpha_bits; 4], pbits: None }, alpha_index);
     let mut ends = colour.ends;
     for (e, a) in ends.iter_mut().zip(&alpha.ends) {
         e[3] = a[0];
     }
+    let (index, index2) =
+        if selector == 0 { (colour.index, alpha.index) } else { (alpha.index, colour.index) };
     Candidate {
-        mode: 5,
+        mode,
         partition: 0,
+        rotation,
+        selector,
         ends: [ends, [[0; 4]; 2], [[0; 4]; 2]],
         pbits: [[0; 2]; 3],
-        index: colour.index,
-        index2: alpha.index,
+        index,
+        index2,
         error: colour.error + alpha.error,
     }
 }
@@ -709,7 +760,7 @@ fn choose(pixels: &[[u8; 4]; BLOCK_PIXELS], valid: u16, alpha: bool) -> Candidat
         return encode_mode6(&[[0, 0, 0, 255]; BLOCK_PIXELS], super::ALL_VALID, false);
     }
     if translucent {
-        let (a, b) = (encode_mode6(pixels, valid, true), encode_mode5(pixels, valid));
+        let (a, b) = (encode_mode6(pixels, valid, true), encode_separate(pixels, valid, 5, 0, 0));
         return if b.error < a.error { b } else { a };
     }
     let mut best = encode_mode6(pixels, valid, false);
@@ -719,6 +770,27 @@ fn choose(pixels: &[[u8; 4]; BLOCK_PIXELS], valid: u16, alpha: bool) -> Candidat
         encode_subsets(pixels, valid, 3, two.get(..2).unwrap_or(&[]), &mut best);
         let three = rank_partitions(pixels, valid, 3, 64);
         encode_subsets(pixels, valid, 2, three.get(..2).unwrap_or(&[]), &mut best);
+        // Mode 0 has the first 16 three-subset partitions only.
+        let three = rank_partitions(pixels, valid, 3, 16);
+        encode_subsets(pixels, valid, 0, three.get(..2).unwrap_or(&[]), &mut best);
+        // One channel with indices of its own: mode 5 for each channel, mode 4 (both index
+        // precisions) for the channel mode 5 did best with.
+        let mut rotation = (u64::MAX, 1);
+        for r in 1..=3 {
+            let c = encode_separate(pixels, valid, 5, r, 0);
+            if c.error < rotation.0 {
+                rotation = (c.error, r);
+            }
+            if c.error < best.error {
+                best = c;
+            }
+        }
+        for selector in 0..2 {
+            let c = encode_separate(pixels, valid, 4, rotation.1, selector);
+            if c.error < best.error {
+                best = c;
+            }
+        }
     }
     best
 }
@@ -735,14 +807,15 @@ pub(super) fn tests_encode(
     (c.pack(), c.error)
 }
 
-/// The least squared error over RGB of an opaque block when every partition of modes 1, 2 and
-/// 3 is encoded in full (the encoder ranks them and encodes the best few), and mode 6.
+/// The least squared error over RGB of an opaque block when, besides the encoder's own search,
+/// every partition of modes 0–3 is encoded in full (the encoder ranks them and encodes the best
+/// few).
 #[cfg(test)]
 pub(super) fn tests_every_partition_error(pixels: &[[u8; 4]; BLOCK_PIXELS], valid: u16) -> u64 {
     let every: [usize; 64] = core::array::from_fn(|p| p);
-    let mut best = encode_mode6(pixels, valid, false);
-    for mode in [1, 3, 2] {
-        encode_subsets(pixels, valid, mode, &every, &mut best);
+    let mut best = choose(pixels, valid, false);
+    for (mode, count) in [(1, 64), (3, 64), (2, 64), (0, 16)] {
+        encode_subsets(pixels, valid, mode, every.get(..count).unwrap_or(&[]), &mut best);
     }
     best.error
 }

@@ -17,7 +17,7 @@
 //!
 //! Which file holds what: `bc1.rs` (BC1: principal-axis endpoints, least-squares refinement,
 //! exact single-colour matches), `bc4.rs` (BC4 and BC5: endpoint search in both palette modes),
-//! `bc7.rs` (BC7: the decoder for every mode, the encoder in modes 1, 2, 3, 5 and 6),
+//! `bc7.rs` (BC7: the decoder for every mode, the encoder in modes 0–6),
 //! `layout.rs` (which material channels go into which BC texture). Whole regions of a material
 //! are transcoded by `Decoder::transcode_blocks` (feature `alloc`).
 //!

@@ -1,5 +1,5 @@
 // The BC7 block encoder, byte-identical with nmat-core's `bc::encode_bc7` (core-nostd/src/bc/bc7.rs):
-// modes 6, 1, 3 and 2 for opaque blocks, 6 and 5 for blocks with alpha; the same partitions ranked
+// modes 6, 1, 3, 2, 0, 5 and 4 for opaque blocks, 6 and 5 for blocks with alpha; the same partitions ranked
 // the same way, the same endpoint fits (principal axis, every p-bit choice, least squares twice),
 // the same palettes, rules on ties and packing. Integer arithmetic only; the least-squares step's
 // 41-bit numerators and 33-bit divisors are computed exactly in 32-bit pieces. It follows bc.wgsl
@@ -460,6 +460,10 @@ fn bc7_set_fit(mask: u32, first: u32, dims: u32, bits: u32, kind: u32, index_bit
 struct Candidate {
     mode: u32,
     part: u32,
+    // Modes 4 and 5: the colour channel (1–3) stored in the alpha slot; mode 4: 1 when colour
+    // takes the 3-bit indices (`index2`).
+    rotation: u32,
+    selector: u32,
     // Stored endpoints per subset (RGBA; alpha as the mode stores it) and p-bits.
     ends: array<vec4<u32>, 6>,
     pbits: array<vec2<u32>, 3>,
@@ -472,6 +476,8 @@ fn bc7_empty(mode: u32, part: u32) -> Candidate {
     var c: Candidate;
     c.mode = mode;
     c.part = part;
+    c.rotation = 0u;
+    c.selector = 0u;
     for (var k = 0u; k < 6u; k++) {
         c.ends[k] = vec4<u32>(0u);
     }
@@ -486,12 +492,12 @@ fn bc7_empty(mode: u32, part: u32) -> Candidate {
     return c;
 }
 
-// The 4 partitions (of 64) with the least squared error when each subset is its mean colour,
-// best first (the lower partition on a tie), four per word (`rank_partitions`).
-fn bc7_rank(valid: u32, subsets: u32) -> u32 {
+// The 4 partitions (of the first `count`) with the least squared error when each subset is its
+// mean colour, best first (the lower partition on a tie), four per word (`rank_partitions`).
+fn bc7_rank(valid: u32, subsets: u32, count: u32) -> u32 {
     var cost = vec4<i32>(0x7FFFFFFF);
     var order = vec4<u32>(0u);
-    for (var part = 0u; part < 64u; part++) {
+    for (var part = 0u; part < count; part++) {
         var n = vec3<i32>(0);
         var sum: array<vec3<i32>, 3>;
         var sq = vec3<i32>(0);
@@ -557,16 +563,21 @@ fn bc7_pack(candidate: Candidate) -> vec4<u32> {
     var index_bits = 2u;
     var index2_bits = 0u;
     switch (c.mode) {
+        case 0u: { subsets = 3u; partition_bits = 4u; colour_bits = 4u; kind = PBITS_ENDPOINT; index_bits = 3u; }
         case 1u: { subsets = 2u; partition_bits = 6u; colour_bits = 6u; kind = PBITS_SHARED; index_bits = 3u; }
         case 2u: { subsets = 3u; partition_bits = 6u; colour_bits = 5u; }
         case 3u: { subsets = 2u; partition_bits = 6u; kind = PBITS_ENDPOINT; }
+        case 4u: { rotation_bits = 2u; colour_bits = 5u; alpha_bits = 6u; index2_bits = 3u; }
         case 5u: { rotation_bits = 2u; alpha_bits = 8u; index2_bits = 2u; }
         default: { alpha_bits = 7u; kind = PBITS_ENDPOINT; index_bits = 4u; }
     }
     // An anchor's index is stored without its top bit: where it is set, swap the subset's
-    // endpoints (colour only when alpha has its own indices) and invert its indices.
+    // endpoints (of the components the indices interpolate: all, colour — or, with the selector
+    // set, alpha — when alpha has indices of its own) and invert its indices.
     let top = 1u << (index_bits - 1u);
-    let swapped = select(4u, 3u, index2_bits > 0u);
+    let two = index2_bits > 0u;
+    let first = select(0u, 3u, two && c.selector == 1u);
+    let last = select(4u, 3u, two && c.selector == 0u);
     for (var s = 0u; s < subsets; s++) {
         if ((c.index[bc7_anchor(subsets, c.part, s)] & top) == 0u) {
             continue;
@@ -576,26 +587,30 @@ fn bc7_pack(candidate: Candidate) -> vec4<u32> {
                 c.index[i] = 2u * top - 1u - c.index[i];
             }
         }
-        for (var k = 0u; k < swapped; k++) {
+        for (var k = first; k < last; k++) {
             let a = c.ends[2u * s][k];
             c.ends[2u * s][k] = c.ends[2u * s + 1u][k];
             c.ends[2u * s + 1u][k] = a;
         }
         c.pbits[s] = c.pbits[s].yx;
     }
-    if (index2_bits > 0u && (c.index2[0] & (1u << (index2_bits - 1u))) != 0u) {
+    if (two && (c.index2[0] & (1u << (index2_bits - 1u))) != 0u) {
         for (var i = 0u; i < 16u; i++) {
             c.index2[i] = (1u << index2_bits) - 1u - c.index2[i];
         }
-        let a = c.ends[0].w;
-        c.ends[0].w = c.ends[1].w;
-        c.ends[1].w = a;
+        // The components `index` does not interpolate.
+        for (var k = select(3u, 0u, c.selector == 1u); k < select(4u, 3u, c.selector == 1u); k++) {
+            let a = c.ends[0][k];
+            c.ends[0][k] = c.ends[1][k];
+            c.ends[1][k] = a;
+        }
     }
     bits7 = vec4<u32>(0u);
     pos7 = 0u;
     bc7_put(1u << c.mode, c.mode + 1u);
     bc7_put(c.part, partition_bits);
-    bc7_put(0u, rotation_bits);
+    bc7_put(c.rotation, rotation_bits);
+    bc7_put(c.selector, select(0u, 1u, c.mode == 4u));
     let comps = select(3u, 4u, alpha_bits > 0u);
     for (var k = 0u; k < comps; k++) {
         let bits = select(colour_bits, alpha_bits, k == 3u);
@@ -621,13 +636,25 @@ fn bc7_pack(candidate: Candidate) -> vec4<u32> {
     return bits7;
 }
 
+// Pixel `p` with colour channel `rotation` - 1 (1–3) moved to the alpha slot and 255 in its place
+// (an opaque block's alpha, which the decoder swaps back); `p` itself for rotation 0.
+fn bc7_rotated(p: u32, rotation: u32) -> u32 {
+    if (rotation == 0u) {
+        return p;
+    }
+    let shift = 8u * (rotation - 1u);
+    return ((p | (255u << shift)) & 0x00FFFFFFu) | (((p >> shift) & 255u) << 24u);
+}
+
 // The block in `px` as BC7 (`encode_bc7`): with `alpha` false the pixels' alpha is ignored and
 // every pixel decodes with alpha 255; with `alpha` true, blocks whose valid pixels all have
 // alpha 255 are encoded as opaque, the others with alpha. The core's candidates in its order —
 // an opaque block: mode 6, then (unless exact) mode 1 on the 4 best two-subset partitions, mode 3
-// on the 2 best, mode 2 on the 2 best three-subset ones; a block with alpha: mode 6, then mode
-// 5's colour and alpha — are fitted one after the other through a single call of `bc7_fit`
-// (a shader compiler inlines every call: one call keeps the shader a fraction of the size).
+// on the 2 best, mode 2 on the 2 best three-subset ones, mode 0 on the 2 best of the first 16,
+// mode 5 with each colour channel rotated into the alpha slot, mode 4 (both selectors) with the
+// channel mode 5 did best with; a block with alpha: mode 6, then mode 5's colour and alpha — are
+// fitted one after the other through a single call of `bc7_fit` (a shader compiler inlines every
+// call: one call keeps the shader a fraction of the size).
 fn encode_bc7(valid_in: u32, alpha: bool) -> vec4<u32> {
     var translucent = false;
     for (var i = 0u; i < 16u; i++) {
@@ -641,25 +668,31 @@ fn encode_bc7(valid_in: u32, alpha: bool) -> vec4<u32> {
         }
         valid = 0xFFFFu;
     }
+    // The pixels as given: modes 4 and 5 fit them rotated.
+    let source = px;
     var best = bc7_empty(6u, 0u);
     var c = bc7_empty(6u, 0u);
     var mode = 6u;
     var t = 0u; // the partition's rank among those tried
-    var s = 0u; // the subset, or mode 5's colour (0) and alpha (1)
+    var s = 0u; // the subset, or modes 4 and 5's colour (0) and alpha (1)
     var ranked = 0u;
+    // Mode 5's least error and its rotation, for mode 4.
+    var rotated_error = 0xFFFFFFFFu;
+    var rotation = 1u;
     loop {
         var subsets = 1u;
         var bits = 7u;
         var kind = PBITS_NONE;
         var index_bits = 2u;
         switch (mode) {
+            case 0u: { subsets = 3u; bits = 4u; kind = PBITS_ENDPOINT; index_bits = 3u; }
             case 1u: { subsets = 2u; bits = 6u; kind = PBITS_SHARED; index_bits = 3u; }
             case 2u: { subsets = 3u; bits = 5u; }
             case 3u: { subsets = 2u; kind = PBITS_ENDPOINT; }
             default: {}
         }
         if (subsets > 1u && t == 0u && s == 0u && mode != 3u) {
-            ranked = bc7_rank(valid, subsets);
+            ranked = bc7_rank(valid, subsets, select(64u, 16u, mode == 0u));
         }
         var mask = valid;
         var part = 0u;
@@ -680,6 +713,11 @@ fn encode_bc7(valid_in: u32, alpha: bool) -> vec4<u32> {
         } else if (mode == 5u) {
             // Colour: 7 bits; alpha: 8 bits, indices of its own.
             bc7_set_fit(mask, 3u * s, 3u - 2u * s, 7u + s, PBITS_NONE, 2u);
+        } else if (mode == 4u) {
+            // Colour: 5 bits; alpha: 6 bits; 2-bit indices for one, 3-bit for the other (colour's
+            // 3-bit with the selector set).
+            let wide = (s == 0u) == (c.selector == 1u);
+            bc7_set_fit(mask, 3u * s, 3u - 2u * s, 5u + s, PBITS_NONE, select(2u, 3u, wide));
         } else {
             bc7_set_fit(mask, 0u, 3u, bits, kind, index_bits);
         }
@@ -707,25 +745,57 @@ fn encode_bc7(valid_in: u32, alpha: bool) -> vec4<u32> {
             mode = 1u;
             continue;
         }
-        if (mode == 5u) {
+        if (mode == 5u || mode == 4u) {
+            // `index` holds the 2-bit indices: colour's, or alpha's with the selector set.
+            let second = (s == 0u) == (c.selector == 1u);
+            if (second) {
+                c.index2 = fit.index;
+            } else {
+                c.index = fit.index;
+            }
             if (s == 0u) {
                 c.ends[0] = fit.ends[0];
                 c.ends[1] = fit.ends[1];
-                c.index = fit.index;
                 c.error = fit.error;
                 s = 1u;
                 continue;
             }
             c.ends[0].w = fit.ends[0].x;
             c.ends[1].w = fit.ends[1].x;
-            c.index2 = fit.index;
             c.error += fit.error;
             if (c.error < best.error) {
                 best = c;
             }
-            break;
+            if (translucent) {
+                break;
+            }
+            s = 0u;
+            var next = bc7_empty(mode, 0u);
+            if (mode == 5u) {
+                if (c.error < rotated_error) {
+                    rotated_error = c.error;
+                    rotation = c.rotation;
+                }
+                if (c.rotation < 3u) {
+                    next.rotation = c.rotation + 1u;
+                } else {
+                    next.mode = 4u;
+                    next.rotation = rotation;
+                }
+            } else if (c.selector == 0u) {
+                next.rotation = c.rotation;
+                next.selector = 1u;
+            } else {
+                break;
+            }
+            mode = next.mode;
+            c = next;
+            for (var i = 0u; i < 16u; i++) {
+                px[i] = bc7_rotated(source[i], c.rotation);
+            }
+            continue;
         }
-        // Modes 1, 3 and 2: subset s of partition `part`.
+        // Modes 1, 3, 2 and 0: subset s of partition `part`.
         c.ends[2u * s] = fit.ends[0];
         c.ends[2u * s + 1u] = fit.ends[1];
         c.pbits[s] = fit.pbits;
@@ -748,10 +818,17 @@ fn encode_bc7(valid_in: u32, alpha: bool) -> vec4<u32> {
             continue;
         }
         t = 0u;
-        if (mode == 2u) {
-            break;
+        if (mode == 0u) {
+            // Then mode 5, red in the alpha slot first.
+            mode = 5u;
+            c = bc7_empty(5u, 0u);
+            c.rotation = 1u;
+            for (var i = 0u; i < 16u; i++) {
+                px[i] = bc7_rotated(source[i], 1u);
+            }
+            continue;
         }
-        mode = select(2u, 3u, mode == 1u);
+        mode = select(select(0u, 2u, mode == 3u), 3u, mode == 1u);
     }
     return bc7_pack(best);
 }
