@@ -166,17 +166,14 @@ struct Fit {
     error: u32,
 }
 
-fn bc7_component(i: u32, k: u32) -> i32 {
-    return i32((px[i] >> (8u * (fit_first + k))) & 255u);
-}
-
-// The member's fitted components (0 past dims).
+// The member's fitted components (0 past dims). Without loops, here and in the other functions
+// a fit calls per pixel: lavapipe, the CI's Vulkan driver, stops a shader's loops once a batch of
+// invocations has run 65 535 iterations together (docs/GPU.md, "Known problems"), and a block's
+// search runs some 35 fits.
 fn bc7_point(i: u32) -> vec4<i32> {
-    var p = vec4<i32>(0);
-    for (var k = 0u; k < fit_dims; k++) {
-        p[k] = bc7_component(i, k);
-    }
-    return p;
+    let p = px[i] >> (8u * fit_first);
+    let all = vec4<i32>(vec4<u32>(p, p >> 8u, p >> 16u, p >> 24u) & vec4<u32>(255u));
+    return select(vec4<i32>(0), all, vec4<u32>(0u, 1u, 2u, 3u) < vec4<u32>(fit_dims));
 }
 
 // The members at both ends of the principal axis of the fitted components, as 8-bit targets
@@ -199,9 +196,10 @@ fn bc7_axis_ends() -> array<vec4<i32>, 2> {
     for (var i = 0u; i < 16u; i++) {
         if (counts(fit_mask, i)) {
             let d = n * bc7_point(i) - sum;
-            for (var r = 0u; r < 4u; r++) {
-                cov[r] += d[r] * d;
-            }
+            cov[0] += d.x * d;
+            cov[1] += d.y * d;
+            cov[2] += d.z * d;
+            cov[3] += d.w * d;
         }
     }
     var widest = 0u;
@@ -217,26 +215,19 @@ fn bc7_axis_ends() -> array<vec4<i32>, 2> {
     var s = vec4<i32>(0);
     for (var iteration = 0u; iteration <= 8u; iteration++) {
         // s = v scaled down below 2^16.
-        var scale = 0u;
-        for (var c = 0u; c < 4u; c++) {
-            scale = max(scale, bit_length64(v[c]));
-        }
+        let scale = max(max(bit_length64(v[0]), bit_length64(v[1])),
+            max(bit_length64(v[2]), bit_length64(v[3])));
         if (scale == 0u) {
             return ends;
         }
         let shift = select(0u, scale - 16u, scale > 16u);
-        for (var c = 0u; c < 4u; c++) {
-            s[c] = shr64(v[c], shift);
-        }
+        s = vec4<i32>(shr64(v[0], shift), shr64(v[1], shift), shr64(v[2], shift), shr64(v[3], shift));
         if (iteration == 8u) {
             break;
         }
         for (var r = 0u; r < 4u; r++) {
-            var acc = vec2<u32>(0u);
-            for (var c = 0u; c < 4u; c++) {
-                acc = add64(acc, imul64(cov[r][c], s[c]));
-            }
-            v[r] = acc;
+            v[r] = add64(add64(imul64(cov[r].x, s.x), imul64(cov[r].y, s.y)),
+                add64(imul64(cov[r].z, s.z), imul64(cov[r].w, s.w)));
         }
     }
     // |projection| ≤ 4 · 15·255 · 2^16 < 2^31.
@@ -278,10 +269,9 @@ fn bc7_assign(ends: array<vec4<u32>, 2>, pbits: vec2<u32>) -> Fit {
     let entries = 1u << fit_index_bits;
     var palette: array<vec4<i32>, 16>;
     for (var k = 0u; k < entries; k++) {
-        let w = bc7_weight(fit_index_bits, k);
-        for (var c = 0u; c < 4u; c++) {
-            palette[k][c] = i32(bc7_interpolate(u32(e0[c]), u32(e1[c]), w));
-        }
+        // bc7_interpolate of every component.
+        let w = i32(bc7_weight(fit_index_bits, k));
+        palette[k] = ((64 - w) * e0 + w * e1 + vec4<i32>(32)) >> vec4<u32>(6u);
     }
     let d = e1 - e0;
     let dd = dot(d, d);
@@ -296,12 +286,14 @@ fn bc7_assign(ends: array<vec4<u32>, 2>, pbits: vec2<u32>) -> Fit {
         if (dd != 0) {
             let t = dot(p - e0, d);
             let wt = u32(clamp(nmat_floor_div(t * 64 + dd / 2, dd), 0, 64));
-            var k = entries - 1u;
-            for (var j = 0u; j < entries; j++) {
-                if (bc7_weight(fit_index_bits, j) >= wt) {
-                    k = j;
-                    break;
-                }
+            // The first entry whose weight is at least wt: ⌈wt · (entries − 1) / 64⌉, one step
+            // down, then one up (exact for every wt of 0–64 and each weight table).
+            var k = (wt * (entries - 1u) + 63u) / 64u;
+            if (k > 0u && bc7_weight(fit_index_bits, k - 1u) >= wt) {
+                k -= 1u;
+            }
+            if (bc7_weight(fit_index_bits, k) < wt) {
+                k += 1u;
             }
             let below = select(0u, k - 1u, k > 0u);
             guess = select(k, below, wt - bc7_weight(fit_index_bits, below)
@@ -310,15 +302,20 @@ fn bc7_assign(ends: array<vec4<u32>, 2>, pbits: vec2<u32>) -> Fit {
         let dg = p - palette[guess];
         var best_k = guess;
         var best_e = u32(dot(dg, dg));
-        for (var j = 0u; j < 2u; j++) {
-            if ((j == 0u && guess == 0u) || (j == 1u && guess + 1u >= entries)) {
-                continue;
-            }
-            let k = select(guess + 1u, guess - 1u, j == 0u);
-            let dk = p - palette[k];
+        // The neighbours below, then above (the lower on a tie).
+        if (guess > 0u) {
+            let dk = p - palette[guess - 1u];
             let e = u32(dot(dk, dk));
-            if (e < best_e || (e == best_e && k < best_k)) {
-                best_k = k;
+            if (e <= best_e) {
+                best_k = guess - 1u;
+                best_e = e;
+            }
+        }
+        if (guess + 1u < entries) {
+            let dk = p - palette[guess + 1u];
+            let e = u32(dot(dk, dk));
+            if (e < best_e) {
+                best_k = guess + 1u;
                 best_e = e;
             }
         }
