@@ -310,43 +310,57 @@ struct Fit {
     error: u64,
 }
 
-/// The pixels of a fit: which ones (`mask`), which components, and how they are stored.
-struct Subset<'a> {
-    pixels: &'a [[u8; 4]; BLOCK_PIXELS],
-    mask: u16,
-    comps: &'a [usize],
+/// The pixels of a fit: the fitted components of each member (the pixels of a mask), gathered
+/// once for the fit's rounds.
+struct Subset {
+    /// The members' fitted components, 0 past the fitted ones, in pixel order.
+    points: [[i64; 4]; BLOCK_PIXELS],
+    /// Each member's pixel.
+    pixel: [usize; BLOCK_PIXELS],
+    members: usize,
+    dims: usize,
 }
 
-impl Subset<'_> {
-    fn members(&self) -> impl Iterator<Item = (usize, &[u8; 4])> + '_ {
-        self.pixels.iter().enumerate().filter(|&(i, _)| counts(self.mask, i))
+impl Subset {
+    /// Components `comps` (of R, G, B, A) of the pixels in `mask`.
+    fn new(pixels: &[[u8; 4]; BLOCK_PIXELS], mask: u16, comps: &[usize]) -> Subset {
+        let mut s = Subset {
+            points: [[0; 4]; BLOCK_PIXELS],
+            pixel: [0; BLOCK_PIXELS],
+            members: 0,
+            dims: comps.len(),
+        };
+        for (i, p) in pixels.iter().enumerate().filter(|&(i, _)| counts(mask, i)) {
+            if let (Some(q), Some(at_pixel)) =
+                (s.points.get_mut(s.members), s.pixel.get_mut(s.members))
+            {
+                *q = core::array::from_fn(|k| comps.get(k).map_or(0, |&c| i64::from(at(p, c))));
+                *at_pixel = i;
+                s.members += 1;
+            }
+        }
+        s
     }
 
-    fn component(&self, px: &[u8; 4], k: usize) -> i64 {
-        i64::from(at(px, at(self.comps, k)))
+    /// Each member's pixel and fitted components.
+    fn members(&self) -> impl Iterator<Item = (usize, &[i64; 4])> + '_ {
+        let n = self.members;
+        self.pixel.iter().copied().zip(&self.points).take(n)
     }
 
     /// The pixels at both ends of the principal axis of the fitted components, as 8-bit targets;
     /// the first pixel twice when they do not spread.
     fn axis_ends(&self) -> [[i32; 4]; 2] {
-        let dims = self.comps.len();
-        let mut points = [[0i64; 4]; BLOCK_PIXELS];
-        let mut n = 0;
-        for (_, p) in self.members() {
-            if let Some(q) = points.get_mut(n) {
-                *q = core::array::from_fn(|k| if k < dims { self.component(p, k) } else { 0 });
-                n += 1;
-            }
-        }
-        let target = |k: usize| -> [i32; 4] { at(&points, k).map(|v| v as i32) };
-        let (lo, hi) = principal_ends(points.get(..n).unwrap_or(&[]), dims).unwrap_or((0, 0));
+        let target = |k: usize| -> [i32; 4] { at(&self.points, k).map(|v| v as i32) };
+        let points = self.points.get(..self.members).unwrap_or(&[]);
+        let (lo, hi) = principal_ends(points, self.dims).unwrap_or((0, 0));
         [target(lo), target(hi)]
     }
 
     /// The nearest palette entry of every member (the lowest index on a tie) and the squared
     /// error, for stored endpoints `ends` with p-bits `pbits`.
     fn assign(&self, q: &Precision, index_bits: u32, ends: &[[u32; 4]; 2], pbits: [u32; 2]) -> Fit {
-        let dims = self.comps.len();
+        let dims = self.dims;
         let e: [[i64; 4]; 2] = core::array::from_fn(|k| {
             core::array::from_fn(|c| {
                 if c < dims { i64::from(q.value(c, at(&at(ends, k), c), at(&pbits, k))) } else { 0 }
@@ -354,12 +368,12 @@ impl Subset<'_> {
         });
         let [e0, e1] = e;
         let w = weights(index_bits);
-        let palette: [[i64; 4]; 16] = core::array::from_fn(|k| {
-            let wk = at(w, k);
-            core::array::from_fn(|c| {
-                i64::from(interpolate(at(&e0, c) as u32, at(&e1, c) as u32, wk))
-            })
-        });
+        let mut palette = [[0i64; 4]; 16];
+        for (entry, &wk) in palette.iter_mut().zip(w) {
+            for ((v, &a), &b) in entry.iter_mut().zip(&e0).zip(&e1) {
+                *v = i64::from(interpolate(a as u32, b as u32, wk));
+            }
+        }
         let entries = w.len();
         let d: [i64; 4] = core::array::from_fn(|c| at(&e1, c) - at(&e0, c));
         let dd: i64 = d.iter().map(|x| x * x).sum();
@@ -367,15 +381,14 @@ impl Subset<'_> {
         for (i, p) in self.members() {
             let err = |k: usize| -> i64 {
                 let entry = at(&palette, k);
-                (0..dims).map(|c| (self.component(p, c) - at(&entry, c)).pow(2)).sum()
+                p.iter().zip(&entry).map(|(v, e)| (v - e).pow(2)).sum()
             };
             // The entry nearest the pixel's projection on the endpoint line, then its
             // neighbours (the rounded palette is not exactly on the line).
             let guess = if dd == 0 {
                 0
             } else {
-                let t: i64 =
-                    (0..dims).map(|c| (self.component(p, c) - at(&e0, c)) * at(&d, c)).sum();
+                let t: i64 = p.iter().zip(&e0).zip(&d).map(|((v, e), d)| (v - e) * d).sum();
                 let wt = (t * 64 + dd / 2).div_euclid(dd).clamp(0, 64) as u32;
                 w.iter().position(|&x| x >= wt).map_or(entries - 1, |k| {
                     let below = k.saturating_sub(1);
@@ -411,12 +424,9 @@ impl Subset<'_> {
             aa += alpha * alpha;
             bb += beta * beta;
             ab += alpha * beta;
-            for c in 0..self.comps.len() {
-                let v = self.component(p, c);
-                if let (Some(xc), Some(yc)) = (x.get_mut(c), y.get_mut(c)) {
-                    *xc += alpha * v;
-                    *yc += beta * v;
-                }
+            for ((xc, yc), v) in x.iter_mut().zip(&mut y).zip(p) {
+                *xc += alpha * v;
+                *yc += beta * v;
             }
         }
         let det = aa * bb - ab * ab;
@@ -432,7 +442,7 @@ impl Subset<'_> {
     /// The best endpoints for these pixels: from the principal axis, every p-bit choice, then
     /// least squares twice.
     fn fit(&self, q: &Precision, index_bits: u32) -> Fit {
-        if self.mask == 0 {
+        if self.members == 0 {
             return Fit::default();
         }
         let mut targets = self.axis_ends();
@@ -441,7 +451,7 @@ impl Subset<'_> {
             for &pbits in q.pbits.unwrap_or(&NO_PBITS) {
                 let ends: [[u32; 4]; 2] = core::array::from_fn(|k| {
                     core::array::from_fn(|c| {
-                        if c < self.comps.len() {
+                        if c < self.dims {
                             q.quantize(c, at(&at(&targets, k), c), at(&pbits, k))
                         } else {
                             0
@@ -650,7 +660,7 @@ fn encode_subsets(
                 .filter(|&i| subset_of(m.subsets, partition, i) == s)
                 .fold(0u16, |mask, i| mask | (1 << i))
                 & valid;
-            let fit = Subset { pixels, mask, comps: &RGB }.fit(&q, m.index_bits);
+            let fit = Subset::new(pixels, mask, &RGB).fit(&q, m.index_bits);
             if let (Some(e), Some(p)) = (c.ends.get_mut(s), c.pbits.get_mut(s)) {
                 *e = fit.ends;
                 *p = fit.pbits;
@@ -677,7 +687,7 @@ fn encode_mode6(pixels: &[[u8; 4]; BLOCK_PIXELS], valid: u16, alpha: bool) -> Ca
     let (comps, pbits): (&[usize], &'static [[u32; 2]]) =
         if alpha { (&RGBA, &ENDPOINT_PBITS) } else { (&RGB, &OPAQUE_PBITS) };
     let q = Precision { bits: [7; 4], pbits: Some(pbits) };
-    let fit = Subset { pixels, mask: valid, comps }.fit(&q, 4);
+    let fit = Subset::new(pixels, valid, comps).fit(&q, 4);
     let mut ends = fit.ends;
     if !alpha {
         ends.iter_mut().for_each(|e| e[3] = 127);
@@ -722,9 +732,9 @@ fn encode_separate(
     }
     let (colour_index, alpha_index) =
         if selector == 0 { (m.index_bits, m.index2_bits) } else { (m.index2_bits, m.index_bits) };
-    let colour = Subset { pixels: &stored, mask: valid, comps: &RGB }
+    let colour = Subset::new(&stored, valid, &RGB)
         .fit(&Precision { bits: [m.color_bits; 4], pbits: None }, colour_index);
-    let alpha = Subset { pixels: &stored, mask: valid, comps: &ALPHA }
+    let alpha = Subset::new(&stored, valid, &ALPHA)
         .fit(&Precision { bits: [m.alpha_bits; 4], pbits: None }, alpha_index);
     let mut ends = colour.ends;
     for (e, a) in ends.iter_mut().zip(&alpha.ends) {
