@@ -732,6 +732,9 @@ fn encode_separate(
     }
     let (colour_index, alpha_index) =
         if selector == 0 { (m.index_bits, m.index2_bits) } else { (m.index2_bits, m.index_bits) };
+    // A rotated block's slot holds 255 on every pixel, so it decodes as 255: both endpoints
+    // quantize to the top code (its expansion 255), and least squares returns 255 exactly for a
+    // constant (its numerators are 255 times the determinant).
     let colour = Subset::new(&stored, valid, &RGB)
         .fit(&Precision { bits: [m.color_bits; 4], pbits: None }, colour_index);
     let alpha = Subset::new(&stored, valid, &ALPHA)

@@ -1,11 +1,12 @@
-// The BC7 block encoder, byte-identical with nmat-core's `bc::encode_bc7` (core-nostd/src/bc/bc7.rs):
-// modes 6, 1, 3, 2, 0, 5 and 4 for opaque blocks, 6 and 5 for blocks with alpha; the same partitions ranked
-// the same way, the same endpoint fits (principal axis, every p-bit choice, least squares twice),
-// the same palettes, rules on ties and packing. Integer arithmetic only; the least-squares step's
-// 41-bit numerators and 33-bit divisors are computed exactly in 32-bit pieces. It follows bc.wgsl
-// (its `px`, `counts` and 64-bit helpers) and has entry points of its own, so the pipelines of the
-// other formats do not carry it: `encode_codes_bc7` and `encode_pixels_bc7`, as bc.wgsl's
-// `encode_codes` and `encode_pixels` with params.format = 7 (RGB) or 8 (RGBA).
+// The BC7 block encoder, byte-identical with nmat-core's `bc::encode_bc7`
+// (core-nostd/src/bc/bc7.rs): modes 6, 1, 3, 2, 0, 5 and 4 for opaque blocks, 6 and 5 for blocks
+// with alpha; the same partitions ranked the same way, the same endpoint fits (principal axis,
+// every p-bit choice, least squares twice), the same palettes, rules on ties and packing.
+// Integer arithmetic only; the least-squares step's 41-bit numerators and 33-bit divisors are
+// computed exactly in 32-bit pieces. It follows bc.wgsl (its `px`, `counts` and 64-bit helpers)
+// and has entry points of its own, so the pipelines of the other formats do not carry it:
+// `encode_codes_bc7` and `encode_pixels_bc7`, as bc.wgsl's `encode_codes` and `encode_pixels`
+// with params.format = 7 (RGB) or 8 (RGBA).
 
 // Two-subset partitions (bit i: pixel i in subset 1), three-subset ones (bits 2i, 2i + 1), and
 // the anchors of subset 1 (two subsets) and of subsets 1 and 2 (three): the format's tables P2,
@@ -92,10 +93,6 @@ fn bc7_expand(v: u32, bits: u32) -> u32 {
         return v;
     }
     return (v << (8u - bits)) | (v >> select(0u, 2u * bits - 8u, 2u * bits > 8u));
-}
-
-fn bc7_interpolate(a: u32, b: u32, w: u32) -> u32 {
-    return ((64u - w) * a + w * b + 32u) >> 6u;
 }
 
 // ---- how a fit stores its endpoints ----
@@ -269,7 +266,7 @@ fn bc7_assign(ends: array<vec4<u32>, 2>, pbits: vec2<u32>) -> Fit {
     let entries = 1u << fit_index_bits;
     var palette: array<vec4<i32>, 16>;
     for (var k = 0u; k < entries; k++) {
-        // bc7_interpolate of every component.
+        // Each component interpolated as the format defines it (weights out of 64, rounded).
         let w = i32(bc7_weight(fit_index_bits, k));
         palette[k] = ((64 - w) * e0 + w * e1 + vec4<i32>(32)) >> vec4<u32>(6u);
     }
