@@ -590,16 +590,16 @@ const ALPHA: [usize; 1] = [3];
 /// Partitions of a mode's table tried in full, best first by the one-colour-per-subset error.
 const TRIED_PARTITIONS: usize = 4;
 
-/// The `TRIED_PARTITIONS` partitions (of the first `count`) with the least squared error when
-/// each subset is its mean colour, best first (the lower partition on a tie).
+/// The `TRIED_PARTITIONS` partitions of the 64 with the least squared error when each subset is
+/// its mean colour, best first (the lower partition on a tie); and the same of the first 16 (mode
+/// 0's), from the same pass.
 fn rank_partitions(
     pixels: &[[u8; 4]; BLOCK_PIXELS],
     valid: u16,
     subsets: usize,
-    count: usize,
-) -> [usize; TRIED_PARTITIONS] {
-    let mut best = [(i64::MAX, 0usize); TRIED_PARTITIONS];
-    for partition in 0..count {
+) -> [[usize; TRIED_PARTITIONS]; 2] {
+    let mut best = [[(i64::MAX, 0usize); TRIED_PARTITIONS]; 2];
+    for partition in 0..64 {
         let mut stats = [(0i64, [0i64; 3], 0i64); 3];
         for (i, p) in pixels.iter().enumerate().filter(|&(i, _)| counts(valid, i)) {
             if let Some((n, sum, sq)) = stats.get_mut(subset_of(subsets, partition, i)) {
@@ -615,14 +615,16 @@ fn rank_partitions(
             .filter(|(n, _, _)| *n > 0)
             .map(|(n, sum, sq)| sq - sum.iter().map(|s| s * s / n).sum::<i64>())
             .sum();
-        if let Some(slot) = best.iter().position(|&(c, _)| cost < c) {
-            best.copy_within(slot..TRIED_PARTITIONS - 1, slot + 1);
-            if let Some(b) = best.get_mut(slot) {
-                *b = (cost, partition);
+        for best in best.iter_mut().take(if partition < 16 { 2 } else { 1 }) {
+            if let Some(slot) = best.iter().position(|&(c, _)| cost < c) {
+                best.copy_within(slot..TRIED_PARTITIONS - 1, slot + 1);
+                if let Some(b) = best.get_mut(slot) {
+                    *b = (cost, partition);
+                }
             }
         }
     }
-    best.map(|(_, p)| p)
+    best.map(|ranked| ranked.map(|(_, p)| p))
 }
 
 /// Encodes `pixels` in a mode of subsets (mode 0–3, 7), for each partition given, into `best`
@@ -778,14 +780,13 @@ fn choose(pixels: &[[u8; 4]; BLOCK_PIXELS], valid: u16, alpha: bool) -> Candidat
     }
     let mut best = encode_mode6(pixels, valid, false);
     if best.error > 0 {
-        let two = rank_partitions(pixels, valid, 2, 64);
+        let [two, _] = rank_partitions(pixels, valid, 2);
         encode_subsets(pixels, valid, 1, &two, &mut best);
         encode_subsets(pixels, valid, 3, two.get(..2).unwrap_or(&[]), &mut best);
-        let three = rank_partitions(pixels, valid, 3, 64);
+        let [three, first16] = rank_partitions(pixels, valid, 3);
         encode_subsets(pixels, valid, 2, three.get(..2).unwrap_or(&[]), &mut best);
         // Mode 0 has the first 16 three-subset partitions only.
-        let three = rank_partitions(pixels, valid, 3, 16);
-        encode_subsets(pixels, valid, 0, three.get(..2).unwrap_or(&[]), &mut best);
+        encode_subsets(pixels, valid, 0, first16.get(..2).unwrap_or(&[]), &mut best);
         // One channel with indices of its own: mode 5 for each channel, mode 4 (both index
         // precisions) for the channel mode 5 did best with.
         let mut rotation = (u64::MAX, 1);

@@ -486,12 +486,13 @@ fn bc7_empty(mode: u32, part: u32) -> Candidate {
     return c;
 }
 
-// The 4 partitions (of the first `count`) with the least squared error when each subset is its
-// mean colour, best first (the lower partition on a tie), four per word (`rank_partitions`).
-fn bc7_rank(valid: u32, subsets: u32, count: u32) -> u32 {
-    var cost = vec4<i32>(0x7FFFFFFF);
-    var order = vec4<u32>(0u);
-    for (var part = 0u; part < count; part++) {
+// The 4 partitions of the 64 with the least squared error when each subset is its mean colour,
+// best first (the lower partition on a tie), four per word; and in .y the same of the first 16
+// (mode 0's), from the same pass (`rank_partitions`).
+fn bc7_rank(valid: u32, subsets: u32) -> vec2<u32> {
+    var cost = array<vec4<i32>, 2>(vec4<i32>(0x7FFFFFFF), vec4<i32>(0x7FFFFFFF));
+    var order = array<vec4<u32>, 2>(vec4<u32>(0u), vec4<u32>(0u));
+    for (var part = 0u; part < 64u; part++) {
         var n = vec3<i32>(0);
         var sum: array<vec3<i32>, 3>;
         var sq = vec3<i32>(0);
@@ -511,19 +512,24 @@ fn bc7_rank(valid: u32, subsets: u32, count: u32) -> u32 {
                 total += sq[s] - (m.x + m.y + m.z);
             }
         }
-        for (var slot = 0u; slot < 4u; slot++) {
-            if (total < cost[slot]) {
-                for (var j = 3u; j > slot; j--) {
-                    cost[j] = cost[j - 1u];
-                    order[j] = order[j - 1u];
+        for (var r = 0u; r < select(1u, 2u, part < 16u); r++) {
+            for (var slot = 0u; slot < 4u; slot++) {
+                if (total < cost[r][slot]) {
+                    for (var j = 3u; j > slot; j--) {
+                        cost[r][j] = cost[r][j - 1u];
+                        order[r][j] = order[r][j - 1u];
+                    }
+                    cost[r][slot] = total;
+                    order[r][slot] = part;
+                    break;
                 }
-                cost[slot] = total;
-                order[slot] = part;
-                break;
             }
         }
     }
-    return order.x | (order.y << 8u) | (order.z << 16u) | (order.w << 24u);
+    let all = order[0];
+    let first16 = order[1];
+    return vec2<u32>(all.x | (all.y << 8u) | (all.z << 16u) | (all.w << 24u),
+        first16.x | (first16.y << 8u) | (first16.z << 16u) | (first16.w << 24u));
 }
 
 // ---- packing ----
@@ -670,6 +676,7 @@ fn encode_bc7(valid_in: u32, alpha: bool) -> vec4<u32> {
     var t = 0u; // the partition's rank among those tried
     var s = 0u; // the subset, or modes 4 and 5's colour (0) and alpha (1)
     var ranked = 0u;
+    var ranked16 = 0u; // mode 0's, from mode 2's ranking
     // Mode 5's least error and its rotation, for mode 4.
     var rotated_error = 0xFFFFFFFFu;
     var rotation = 1u;
@@ -685,8 +692,13 @@ fn encode_bc7(valid_in: u32, alpha: bool) -> vec4<u32> {
             case 3u: { subsets = 2u; kind = PBITS_ENDPOINT; }
             default: {}
         }
-        if (subsets > 1u && t == 0u && s == 0u && mode != 3u) {
-            ranked = bc7_rank(valid, subsets, select(64u, 16u, mode == 0u));
+        if (t == 0u && s == 0u && (mode == 1u || mode == 2u)) {
+            let both = bc7_rank(valid, subsets);
+            ranked = both.x;
+            ranked16 = both.y;
+        }
+        if (t == 0u && s == 0u && mode == 0u) {
+            ranked = ranked16;
         }
         var mask = valid;
         var part = 0u;
