@@ -142,6 +142,11 @@ pub(crate) fn with_parameters(source: &str, immediates: bool) -> String {
     }
 }
 
+/// The BC7 encoder's shader: the main one (whose decoder and helpers it calls) and bc7.wgsl.
+pub(crate) fn bc7_source() -> String {
+    format!("{}\n{}", shader_source(), include_str!("shaders/bc7.wgsl"))
+}
+
 /// The shader: BC1's single-colour table from the core, the decoder, the BC encoders.
 pub(crate) fn shader_source() -> String {
     let table: Vec<String> = (0..=255u8)
@@ -277,10 +282,11 @@ impl Context {
         let mut bc7 = self.bc7.lock().unwrap_or_else(|e| e.into_inner());
         let Bc7Pipelines { module, pipelines } = &mut *bc7;
         let module = module.get_or_insert_with(|| {
-            let source = format!("{}\n{}", shader_source(), include_str!("shaders/bc7.wgsl"));
             device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some("nmat bc7"),
-                source: wgpu::ShaderSource::Wgsl(with_parameters(&source, self.immediates).into()),
+                source: wgpu::ShaderSource::Wgsl(
+                    with_parameters(&bc7_source(), self.immediates).into(),
+                ),
             })
         });
         let entry = if codes { "encode_codes_bc7" } else { "encode_pixels_bc7" };

@@ -764,8 +764,8 @@ mod tests {
         check::<CacheDecodeParams>("NmatCacheDecode");
     }
 
-    /// Every shader the crate builds without a material (the main decode shader, the JPEG
-    /// passes, the tile cache's passes and decode, the sampling and cache sampling modules)
+    /// Every shader the crate builds without a material (the main decode shader, the BC7
+    /// encoder, the JPEG passes, the tile cache's passes and decode, the sampling and cache sampling modules)
     /// parses and validates in naga with the generated declarations (a constant a shader reads
     /// that layout.rs does not generate fails here, on any machine; the tiled and matrix
     /// kernels are validated per material in their own tests and on every device).
@@ -774,6 +774,7 @@ mod tests {
         let bindings = crate::SampleBindings { group: 0, first_binding: 0 };
         let sources = [
             ("main", crate::context::shader_source()),
+            ("bc7", crate::context::bc7_source()),
             ("jpeg", jpeg_wgsl()),
             ("cache passes", crate::cache::passes_source(1)),
             ("cache resolve", crate::cache::resolve_source(crate::cache::MAX_CACHE_MATERIALS)),

@@ -290,3 +290,128 @@ fn the_largest_texture_decodes_as_on_the_cpu() {
         assert_eq!(region, cpu_corner, "{kernel:?}: mip 0's far corner");
     }
 }
+
+/// The decoder's integer steps, run alone on the GPU over edge and random operands, against
+/// their definitions on the CPU: requantization (`Requant::apply`, saturated to i16, §6.6),
+/// hardGELU (`hard_gelu_q`), the floor division the BC encoders' least squares and hardGELU
+/// take, and the wrap addressing of an index (`rem_euclid`, §6.1). Written after wgpu's OpenGL
+/// backend on Mesa 22.3 computed WGSL's signed `%` otherwise (a floor division of a negative
+/// multiple one too small, `−264` wrapped into 78 texels as 70): the shaders take no remainder
+/// of signed integers since (a unit test asks naga), and this shows it on whatever adapter runs
+/// the tests.
+#[test]
+fn the_decoders_integer_steps_equal_their_definitions_on_the_gpu() {
+    use wgpu::util::DeviceExt;
+    let (device, queue) = device();
+    // The sampling module declares the steps (its material bindings in group 1 go unused).
+    let source = format!(
+        "{}\n{}",
+        nmat_wgpu::SampleBindings { group: 1, first_binding: 0 }.module(),
+        "@group(0) @binding(0) var<storage, read> cases: array<array<u32, 8>>;
+         @group(0) @binding(1) var<storage, read_write> results: array<vec4<u32>>;
+         @compute @workgroup_size(64)
+         fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+             let i = id.x + 65535u * 64u * id.y;
+             if (i >= arrayLength(&cases)) { return; }
+             let c = cases[i];
+             results[i] = vec4<u32>(
+                 bitcast<u32>(nmat_requantize(bitcast<i32>(c[0]), c[1], c[2])),
+                 bitcast<u32>(nmat_hard_gelu(bitcast<i32>(c[3]), c[4])),
+                 bitcast<u32>(nmat_floor_div(bitcast<i32>(c[5]), bitcast<i32>(c[6]))),
+                 nmat_address(bitcast<i32>(c[5]), c[7], false));
+         }",
+    );
+    // [acc, multiplier, shift, z, f, n (also the index to wrap), d, size]
+    let mut cases: Vec<[u32; 8]> = Vec::new();
+    let mut rng = nmat_tests::generate::Rng::new(44);
+    let edges =
+        [0, 1, -1, 2, -2, 3, -3, 255, -256, 32767, -32768, 65536, -65537, i32::MAX, i32::MIN];
+    let sizes = [1u32, 2, 3, 5, 24, 40, 78, 96, 255, 1000, 16383, 16384];
+    for k in 0..400_000usize {
+        let r = [rng.next_u64(), rng.next_u64(), rng.next_u64()];
+        let edge = |j: u64| edges[(j % edges.len() as u64) as usize];
+        let acc = if k % 4 == 0 { edge(r[0]) } else { r[0] as i32 >> (r[0] >> 59) };
+        // A multiplier as the format makes them, in [2^30, 2^31) or 0, and any shift of 1..=62.
+        let multiplier =
+            if r[1].is_multiple_of(17) { 0 } else { (1u32 << 30) | (r[1] >> 34) as u32 };
+        let shift = 1 + ((r[1] >> 8) % 62) as u32;
+        // hardGELU takes an i16 in any Q-format of 1..=14 fractional bits.
+        let z = if k % 4 == 1 {
+            edge(r[1] >> 3).clamp(-32768, 32767)
+        } else {
+            (r[2] >> 48) as i16 as i32
+        };
+        let f = 1 + ((r[2] >> 8) % 14) as u32;
+        // Divisors of both signs; numerators of both signs, a quarter of them exact multiples.
+        let d = match (r[2] >> 20) as i32 >> ((r[2] >> 12) % 31) {
+            0 => 3,
+            -1 => -7, // (i32::MIN / −1 overflows; the shaders never divide so)
+            d => d,
+        };
+        let n = match k % 4 {
+            0 => edge(r[2] >> 40).max(i32::MIN + 1),
+            1 => ((r[0] >> 40) as i32 >> ((r[0] >> 16) % 31)).wrapping_mul(d),
+            _ => (r[0] >> 32) as i32 >> ((r[0] >> 24) % 32),
+        };
+        let size = sizes[(r[1] >> 40) as usize % sizes.len()];
+        cases.push([acc as u32, multiplier, shift, z as u32, f, n as u32, d as u32, size]);
+    }
+    let words: Vec<u8> = cases.iter().flatten().flat_map(|w| w.to_le_bytes()).collect();
+    let input = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: None,
+        contents: &words,
+        usage: wgpu::BufferUsages::STORAGE,
+    });
+    let output = common::buffer(
+        &device,
+        16 * cases.len() as u64,
+        wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        None,
+    );
+    let pipeline = common::compute_pipeline(&device, &source, None);
+    let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: None,
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &[
+            wgpu::BindGroupEntry { binding: 0, resource: input.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 1, resource: output.as_entire_binding() },
+        ],
+    });
+    let mut encoder = device.create_command_encoder(&Default::default());
+    {
+        let mut pass = encoder.begin_compute_pass(&Default::default());
+        pass.set_pipeline(&pipeline);
+        pass.set_bind_group(0, &group, &[]);
+        let groups = (cases.len() as u32).div_ceil(64);
+        pass.dispatch_workgroups(groups.min(65535), groups.div_ceil(65535), 1);
+    }
+    let got = common::submit_and_read(&device, &queue, encoder, &output);
+    let mut wrong = [0usize; 4];
+    for (k, case) in cases.iter().enumerate() {
+        let [acc, multiplier, shift, z, f, n, d, size] = *case;
+        let (acc, z, n, d) = (acc as i32, z as i32, i64::from(n as i32), i64::from(d as i32));
+        let requant = nmat_core::Requant { multiplier: multiplier as i32, shift };
+        // floor(n / d) by Euclidean division of a positive divisor.
+        let floor = if d > 0 { n.div_euclid(d) } else { (-n).div_euclid(-d) };
+        let want = [
+            requant.apply(acc).clamp(-32768, 32767) as i32,
+            i32::from(nmat_core::internals::hard_gelu_q(z as i16, f as u8)),
+            floor as i32,
+            n.rem_euclid(i64::from(size)) as i32,
+        ];
+        for (j, &w) in want.iter().enumerate() {
+            let at = 16 * k + 4 * j;
+            let g = i32::from_le_bytes(got[at..at + 4].try_into().unwrap());
+            if g != w {
+                if wrong[j] < 3 {
+                    eprintln!("step {j} of case {case:?}: the GPU gives {g}, the definition {w}");
+                }
+                wrong[j] += 1;
+            }
+        }
+    }
+    assert_eq!(
+        wrong, [0; 4],
+        "cases of 400 000 that differ: requantization, hardGELU, floor division, wrap"
+    );
+}

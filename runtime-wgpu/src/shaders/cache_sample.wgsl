@@ -57,7 +57,12 @@ fn nmat_cache_address(i: i32, size: u32, clamp_mode: bool) -> u32 {
     if (clamp_mode) {
         return u32(clamp(i, 0, s - 1));
     }
-    return u32(((i % s) + s) % s);
+    // i modulo s of unsigned operands (texel.wgsl's nmat_wrap, which this module does not
+    // include: GLSL leaves `%` of a negative operand undefined).
+    if (i < 0) {
+        return size - 1u - u32(-(i + 1)) % size;
+    }
+    return u32(i) % size;
 }
 
 // Texel (x, y) of `mip` addressed like `Material::decode_texel_u8` (wrap or clamp, the mip

@@ -230,7 +230,12 @@ fn descale(v: i32, n: u32) -> i32 {
 fn address(v: i32, size: u32) -> u32 {
     let s = i32(size);
     if (jdesc[JDESC_ADDRESS_MODE] == 0u) {
-        return u32(((v % s) + s) % s);
+        // v modulo s of unsigned operands (as texel.wgsl's nmat_wrap: GLSL leaves `%` of a
+        // negative operand undefined).
+        if (v < 0) {
+            return size - 1u - u32(-(v + 1)) % size;
+        }
+        return u32(v) % size;
     }
     return u32(clamp(v, 0, s - 1));
 }

@@ -25,7 +25,8 @@ fn nmat_weight(i: u32) -> i32 {
 // Index i of an axis of `size` cells, wrapped or clamped (§6.2). A GPU divides in many
 // instructions, so the wrap takes one add or subtract over [−size, 2 · size), which holds every
 // cell a footprint reads (nmat_footprint: −1 … size) and the texels of a region; the remainder
-// only further out (sizes are at most 16 384, so 2 · size is an i32).
+// only further out (sizes are at most 16 384, so 2 · size is an i32), of unsigned operands
+// (nmat_wrap).
 fn nmat_address(i: i32, size: u32, clamp_mode: bool) -> u32 {
     let s = i32(max(size, 1u));
     if (clamp_mode) {
@@ -34,7 +35,18 @@ fn nmat_address(i: i32, size: u32, clamp_mode: bool) -> u32 {
     if (i >= -s && i < 2 * s) {
         return u32(select(select(i, i - s, i >= s), i + s, i < 0));
     }
-    return u32(((i % s) + s) % s);
+    return nmat_wrap(i, u32(s));
+}
+
+// i modulo s (in [0, s), s ≥ 1) with a remainder of unsigned integers only: GLSL leaves `%` of
+// a negative operand undefined and naga writes WGSL's `%` into it unchanged, so on wgpu's
+// OpenGL backend a signed remainder differs from WGSL's (docs/GPU.md, "Known problems"). For
+// i < 0 it is s − 1 − (−(i + 1)) mod s, and −(i + 1) is an i32 for every i.
+fn nmat_wrap(i: i32, s: u32) -> u32 {
+    if (i < 0) {
+        return s - 1u - u32(-(i + 1)) % s;
+    }
+    return u32(i) % s;
 }
 
 // floor(x / 2^k) position of a texel centre on a grid, in 1/256 cell (§6.2), without 64 bits:
@@ -193,9 +205,12 @@ fn nmat_requantize(acc: i32, mult: u32, shift: u32) -> i32 {
     return bitcast<i32>(lo);
 }
 
+// floor(n / d), d ≠ 0: the quotient truncated toward zero, one less where it was rounded up (n
+// not a multiple of d, operands of opposite signs). No `%` (see nmat_wrap); q · d cannot
+// overflow, its magnitude being at most |n|.
 fn nmat_floor_div(n: i32, d: i32) -> i32 {
     let q = n / d;
-    return select(q, q - 1, (n % d != 0) && (n < 0));
+    return select(q, q - 1, q * d != n && (n < 0) != (d < 0));
 }
 
 fn nmat_hard_gelu(z: i32, f: u32) -> i32 {

@@ -226,8 +226,17 @@ pub fn device_with_f16() -> (wgpu::Device, wgpu::Queue) {
     pollster::block_on(adapter.request_device(&descriptor)).unwrap()
 }
 
+/// Whether `copy_texture_to_buffer` reads a compressed texture on `device`: not on wgpu's GL
+/// backend, which does not implement it (gfx-rs/wgpu#8614: it logs "Not implemented yet:
+/// compressed texture copy to buffer" and leaves the buffer as it was).
+#[allow(dead_code)]
+pub fn reads_compressed_textures(device: &wgpu::Device) -> bool {
+    device.adapter_info().backend != wgpu::Backend::Gl
+}
+
 /// Level `level` of the BC texture `texture` (`blocks` of `block_bytes` bytes), read back block
-/// row by block row without padding.
+/// row by block row without padding; `None` where the device cannot copy it into a buffer
+/// ([`reads_compressed_textures`]).
 #[allow(dead_code)]
 pub fn read_level(
     device: &wgpu::Device,
@@ -236,7 +245,10 @@ pub fn read_level(
     level: u32,
     blocks: nmat_core::BlockRegion,
     block_bytes: usize,
-) -> Vec<u8> {
+) -> Option<Vec<u8>> {
+    if !reads_compressed_textures(device) {
+        return None;
+    }
     let row = blocks.width as usize * block_bytes;
     let pitch = (row as u64).next_multiple_of(u64::from(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT));
     let back = device.create_buffer(&wgpu::BufferDescriptor {
@@ -271,7 +283,114 @@ pub fn read_level(
     back.map_async(wgpu::MapMode::Read, .., |r| r.unwrap());
     device.poll(wgpu::PollType::wait_indefinitely()).unwrap();
     let got = back.get_mapped_range(..).unwrap().to_vec();
-    got.chunks(pitch as usize).flat_map(|r| r[..row].to_vec()).collect()
+    Some(got.chunks(pitch as usize).flat_map(|r| r[..row].to_vec()).collect())
+}
+
+/// Level `level` of the BC texture `texture` holds the blocks `want` (of `format`), byte for
+/// byte where the device reads compressed textures back; elsewhere (wgpu's GL backend) its
+/// texture unit reads every texel of the level as `nmat_core::bc::decode_block` decodes `want`,
+/// within 2 steps (hardware BC decoders may round interpolated colours differently by a step),
+/// sRGB textures encoded back to sRGB first. Fails naming `what`.
+#[allow(dead_code)]
+pub fn assert_bc_level(
+    (device, queue): (&wgpu::Device, &wgpu::Queue),
+    texture: &wgpu::Texture,
+    level: u32,
+    bc: &nmat_core::bc::BcTexture,
+    want: &[u8],
+    what: impl std::fmt::Display,
+) {
+    let (w, h) = ((texture.width() >> level).max(1), (texture.height() >> level).max(1));
+    let blocks = nmat_core::BlockRegion { x: 0, y: 0, width: w.div_ceil(4), height: h.div_ceil(4) };
+    let block_bytes = bc.format.block_bytes();
+    match read_level(device, queue, texture, level, blocks, block_bytes) {
+        Some(got) => assert_same_bytes(&got, want, what),
+        None => {
+            let worst = texture_unit_steps_off(device, queue, texture, level, bc, want);
+            assert!(worst <= 2, "{what}: the texture unit reads {worst} steps off");
+        }
+    }
+}
+
+/// The most steps by which the texture unit's reading of level `level` of `texture` (each
+/// component × 255 rounded; an sRGB texture's colour encoded back to sRGB) differs from
+/// `nmat_core::bc::decode_block` of the blocks `want`, over the level's texels and `bc`'s
+/// components.
+#[allow(dead_code)]
+pub fn texture_unit_steps_off(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    texture: &wgpu::Texture,
+    level: u32,
+    bc: &nmat_core::bc::BcTexture,
+    want: &[u8],
+) -> u8 {
+    let (w, h) = ((texture.width() >> level).max(1), (texture.height() >> level).max(1));
+    let source = "@group(0) @binding(0) var t: texture_2d<f32>;
+        @group(0) @binding(1) var<storage, read_write> out: array<vec4<f32>>;
+        @group(0) @binding(2) var<uniform> level: vec4<u32>;
+        @compute @workgroup_size(8, 8)
+        fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+            let size = textureDimensions(t, level.x);
+            if (id.x < size.x && id.y < size.y) {
+                out[id.y * size.x + id.x] = textureLoad(t, vec2<i32>(id.xy), i32(level.x));
+            }
+        }";
+    let pipeline = compute_pipeline(device, source, None);
+    let out = buffer(
+        device,
+        u64::from(w) * u64::from(h) * 16,
+        wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        None,
+    );
+    let uniform = wgpu::util::DeviceExt::create_buffer_init(
+        device,
+        &wgpu::util::BufferInitDescriptor {
+            label: None,
+            contents: &[level, 0, 0, 0].map(u32::to_le_bytes).concat(),
+            usage: wgpu::BufferUsages::UNIFORM,
+        },
+    );
+    let view = texture.create_view(&Default::default());
+    let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: None,
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &[
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: wgpu::BindingResource::TextureView(&view),
+            },
+            wgpu::BindGroupEntry { binding: 1, resource: out.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 2, resource: uniform.as_entire_binding() },
+        ],
+    });
+    let mut encoder = device.create_command_encoder(&Default::default());
+    {
+        let mut pass = encoder.begin_compute_pass(&Default::default());
+        pass.set_pipeline(&pipeline);
+        pass.set_bind_group(0, &bind, &[]);
+        pass.dispatch_workgroups(w.div_ceil(8), h.div_ceil(8), 1);
+    }
+    queue.submit([encoder.finish()]);
+    let bytes = nmat_wgpu::read_buffer(device, queue, &out).unwrap();
+    // The sRGB encoding of a linear value (IEC 61966-2-1).
+    let encode =
+        |v: f32| if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
+    let block_bytes = bc.format.block_bytes();
+    let mut worst = 0;
+    for (i, texel) in bytes.chunks(16).enumerate() {
+        let (x, y) = (i as u32 % w, i as u32 / w);
+        let b = ((y / 4) * w.div_ceil(4) + x / 4) as usize * block_bytes;
+        let block = &want[b..b + block_bytes];
+        let decoded = nmat_core::bc::decode_block(bc.format, block)[((y % 4) * 4 + x % 4) as usize];
+        for k in 0..bc.format.components() {
+            let v = f32::from_le_bytes(texel[4 * k..4 * k + 4].try_into().unwrap());
+            let v = if bc.srgb && k < 3 { encode(v) } else { v };
+            let read = (v * 255.0).round().clamp(0.0, 255.0) as u8;
+            worst = worst.max(read.abs_diff(decoded[k]));
+        }
+    }
+    worst
 }
 
 /// The compute pipeline of `source`'s `main` (a test's own WGSL), with `layout` or, without one,
