@@ -39,22 +39,27 @@ struct Gpu {
     device: wgpu::Device,
     queue: wgpu::Queue,
     ctx: Context,
-    emulated: Context,
-    emulated_storage: Context,
+    /// The two emulated matrix kernels; `None` on wgpu's GL backend, which has no f16.
+    emulated: Option<(Context, Context)>,
 }
 
 impl Gpu {
     fn new() -> Gpu {
         let (mut device, mut queue) = device();
-        if !device.features().contains(wgpu::Features::SHADER_F16) {
-            (device, queue) = device_with_f16();
+        let mut f16 = device.features().contains(wgpu::Features::SHADER_F16);
+        if !f16 && let Some(with_f16) = device_with_f16() {
+            (device, queue) = with_f16;
+            f16 = true;
         }
         let ctx = Context::new(&device);
-        let emulated = Context::new(&device);
-        emulated.emulate_matrix_for_testing(false, false);
-        let emulated_storage = Context::new(&device);
-        emulated_storage.emulate_matrix_for_testing(false, true);
-        Gpu { device, queue, ctx, emulated, emulated_storage }
+        let emulated = f16.then(|| {
+            let emulated = Context::new(&device);
+            emulated.emulate_matrix_for_testing(false, false);
+            let emulated_storage = Context::new(&device);
+            emulated_storage.emulate_matrix_for_testing(false, true);
+            (emulated, emulated_storage)
+        });
+        Gpu { device, queue, ctx, emulated }
     }
 
     /// `m` through every kernel: each upload with the `Context` that decodes it. Each kernel's
@@ -67,17 +72,19 @@ impl Gpu {
                 .into_iter()
                 .map(|gm| (&self.ctx, gm))
                 .collect();
-        match self.emulated.upload_with(&self.device, &self.queue, m, Some(Kernel::Matrix)) {
-            Ok(gm) => uploads.push((&self.emulated, gm)),
-            Err(GpuError::Kernel { kernel: Kernel::Matrix, reason })
-                if reason.contains(MATRIX_TOO_LARGE) =>
-            {
-                eprintln!("{name}: the emulated matrix kernel refused it: {reason}");
-                let matrix = Some(Kernel::Matrix);
-                let gm = self.emulated_storage.upload_with(&self.device, &self.queue, m, matrix);
-                uploads.push((&self.emulated_storage, gm.unwrap()));
+        if let Some((emulated, emulated_storage)) = &self.emulated {
+            match emulated.upload_with(&self.device, &self.queue, m, Some(Kernel::Matrix)) {
+                Ok(gm) => uploads.push((emulated, gm)),
+                Err(GpuError::Kernel { kernel: Kernel::Matrix, reason })
+                    if reason.contains(MATRIX_TOO_LARGE) =>
+                {
+                    eprintln!("{name}: the emulated matrix kernel refused it: {reason}");
+                    let matrix = Some(Kernel::Matrix);
+                    let gm = emulated_storage.upload_with(&self.device, &self.queue, m, matrix);
+                    uploads.push((emulated_storage, gm.unwrap()));
+                }
+                Err(e) => panic!("{name}, emulated matrix kernel: {e}"),
             }
-            Err(e) => panic!("{name}, emulated matrix kernel: {e}"),
         }
         for (_, gm) in &uploads {
             assert_eq!(gm.tile_kernel(), gm.kernel(), "{name}: the tile entry's probe differs");
