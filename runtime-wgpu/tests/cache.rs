@@ -281,24 +281,14 @@ fn run_lookup_shader(
     let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
     let out = buffer(device, 64 * lookups.len() as u64, usage, None);
     let [a, b] = entries;
-    let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: None,
-        layout: &pipeline.get_bind_group_layout(0),
-        entries: &[
-            a,
-            b,
-            wgpu::BindGroupEntry { binding: 2, resource: input.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 3, resource: out.as_entire_binding() },
-        ],
-    });
-    let mut encoder = device.create_command_encoder(&Default::default());
-    {
-        let mut pass = encoder.begin_compute_pass(&Default::default());
-        pass.set_pipeline(&pipeline);
-        pass.set_bind_group(0, &group, &[]);
-        pass.dispatch_workgroups((lookups.len() as u32).div_ceil(workgroup), 1, 1);
-    }
-    to_words(&submit_and_read(device, queue, encoder, &out))
+    let entries = [
+        a,
+        b,
+        wgpu::BindGroupEntry { binding: 2, resource: input.as_entire_binding() },
+        wgpu::BindGroupEntry { binding: 3, resource: out.as_entire_binding() },
+    ];
+    let groups = ((lookups.len() as u32).div_ceil(workgroup), 1);
+    to_words(&common::run_compute((device, queue), &pipeline, &entries, groups, &out))
 }
 
 #[test]

@@ -376,23 +376,13 @@ fn the_decoders_integer_steps_equal_their_definitions_on_the_gpu() {
         None,
     );
     let pipeline = common::compute_pipeline(&device, &source, None);
-    let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: None,
-        layout: &pipeline.get_bind_group_layout(0),
-        entries: &[
-            wgpu::BindGroupEntry { binding: 0, resource: input.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 1, resource: output.as_entire_binding() },
-        ],
-    });
-    let mut encoder = device.create_command_encoder(&Default::default());
-    {
-        let mut pass = encoder.begin_compute_pass(&Default::default());
-        pass.set_pipeline(&pipeline);
-        pass.set_bind_group(0, &group, &[]);
-        let groups = (cases.len() as u32).div_ceil(64);
-        pass.dispatch_workgroups(groups.min(65535), groups.div_ceil(65535), 1);
-    }
-    let got = common::submit_and_read(&device, &queue, encoder, &output);
+    let entries = [
+        wgpu::BindGroupEntry { binding: 0, resource: input.as_entire_binding() },
+        wgpu::BindGroupEntry { binding: 1, resource: output.as_entire_binding() },
+    ];
+    let groups = (cases.len() as u32).div_ceil(64);
+    let groups = (groups.min(65535), groups.div_ceil(65535));
+    let got = common::run_compute((&device, &queue), &pipeline, &entries, groups, &output);
     let mut wrong = [0usize; 4];
     for (k, case) in cases.iter().enumerate() {
         let [acc, multiplier, shift, z, f, n, d, size] = *case;

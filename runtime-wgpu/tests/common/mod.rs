@@ -359,27 +359,13 @@ pub fn texture_unit_steps_off(
         },
     );
     let view = texture.create_view(&Default::default());
-    let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: None,
-        layout: &pipeline.get_bind_group_layout(0),
-        entries: &[
-            wgpu::BindGroupEntry {
-                binding: 0,
-                resource: wgpu::BindingResource::TextureView(&view),
-            },
-            wgpu::BindGroupEntry { binding: 1, resource: out.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 2, resource: uniform.as_entire_binding() },
-        ],
-    });
-    let mut encoder = device.create_command_encoder(&Default::default());
-    {
-        let mut pass = encoder.begin_compute_pass(&Default::default());
-        pass.set_pipeline(&pipeline);
-        pass.set_bind_group(0, &bind, &[]);
-        pass.dispatch_workgroups(w.div_ceil(8), h.div_ceil(8), 1);
-    }
-    queue.submit([encoder.finish()]);
-    let bytes = nmat_wgpu::read_buffer(device, queue, &out).unwrap();
+    let entries = [
+        wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&view) },
+        wgpu::BindGroupEntry { binding: 1, resource: out.as_entire_binding() },
+        wgpu::BindGroupEntry { binding: 2, resource: uniform.as_entire_binding() },
+    ];
+    let groups = (w.div_ceil(8), h.div_ceil(8));
+    let bytes = run_compute((device, queue), &pipeline, &entries, groups, &out);
     // The sRGB encoding of a linear value (IEC 61966-2-1).
     let encode =
         |v: f32| if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
@@ -420,4 +406,29 @@ pub fn compute_pipeline(
         compilation_options: Default::default(),
         cache: None,
     })
+}
+
+/// Runs `pipeline` (its bind group 0 made of `entries`) over `groups` workgroups (x, y), submits
+/// the work and returns the bytes of `out` after it.
+#[allow(dead_code)]
+pub fn run_compute(
+    (device, queue): (&wgpu::Device, &wgpu::Queue),
+    pipeline: &wgpu::ComputePipeline,
+    entries: &[wgpu::BindGroupEntry<'_>],
+    (x, y): (u32, u32),
+    out: &wgpu::Buffer,
+) -> Vec<u8> {
+    let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: None,
+        layout: &pipeline.get_bind_group_layout(0),
+        entries,
+    });
+    let mut encoder = device.create_command_encoder(&Default::default());
+    {
+        let mut pass = encoder.begin_compute_pass(&Default::default());
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, &group, &[]);
+        pass.dispatch_workgroups(x, y, 1);
+    }
+    submit_and_read(device, queue, encoder, out)
 }
