@@ -765,10 +765,11 @@ mod tests {
     }
 
     /// Every shader the crate builds without a material (the main decode shader, the BC7
-    /// encoder, the JPEG passes, the tile cache's passes and decode, the sampling and cache sampling modules)
-    /// parses and validates in naga with the generated declarations (a constant a shader reads
-    /// that layout.rs does not generate fails here, on any machine; the tiled and matrix
-    /// kernels are validated per material in their own tests and on every device).
+    /// encoder, the JPEG passes, the tile cache's passes and decode, the sampling and cache
+    /// sampling modules) parses and validates in naga with the generated declarations (a
+    /// constant a shader reads that layout.rs does not generate fails here, on any machine; the
+    /// tiled and matrix kernels are validated per material in their own tests and on every
+    /// device) and takes no remainder of signed integers (`naga_check::signed_remainders`).
     #[test]
     fn every_shader_validates_with_the_generated_layout() {
         let bindings = crate::SampleBindings { group: 0, first_binding: 0 };

@@ -70,7 +70,8 @@ mod tests {
             fn wrap(i: i32, s: i32) -> i32 { return ((i % s) + s) % s; }
             fn lanes(v: vec2<i32>) -> vec2<i32> { return v % vec2<i32>(3); }
             fn fine(i: u32) -> u32 { return i % 7u; }
-            @compute @workgroup_size(1) fn main() { _ = wrap(-3, 2) + lanes(vec2(1)).x; _ = fine(3u); }";
+            @compute @workgroup_size(1)
+            fn main() { _ = wrap(-3, 2) + lanes(vec2(1)).x; _ = fine(3u); }";
         let err = super::validate_with(source, naga::valid::Capabilities::all()).unwrap_err();
         assert!(err.ends_with("in wrap, lanes"), "{err}");
         let unsigned = "fn fine(i: u32) -> u32 { return i % 7u; }
