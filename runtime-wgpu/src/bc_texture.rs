@@ -64,6 +64,9 @@ impl Context {
         gm: &GpuMaterial,
         targets: &[(&BcTexture, &wgpu::Texture)],
     ) -> Result<(), GpuError> {
+        if device.adapter_info().backend == wgpu::Backend::Gl {
+            return Err(GpuError::Texture { reason: GL_COMPRESSED_COPIES });
+        }
         for &(texture, target) in targets {
             check_target(gm, texture, target)?;
             texture_params(gm, texture)?;
@@ -161,6 +164,14 @@ impl Context {
         Ok(made)
     }
 }
+
+/// Why [`Context::record_bc_textures`] refuses wgpu's GL backend: it copies a buffer into a
+/// compressed texture with `glCompressedTexSubImage2D`, which in OpenGL ES takes tightly packed
+/// rows only (no row length for compressed data), while a copy's rows are padded to 256 bytes
+/// (wgpu 30 on Mesa's llvmpipe: the level stays empty). `Queue::write_texture` of the blocks
+/// of `Context::submit_transcode_textures`, with unpadded rows, fills such a texture there.
+const GL_COMPRESSED_COPIES: &str = "wgpu's GL backend copies no padded rows into a compressed \
+     texture; write the blocks of submit_transcode_textures with Queue::write_texture instead";
 
 /// Checks that `target` can take the whole chain of `texture` of `gm` as
 /// [`Context::record_bc_textures`] writes it.

@@ -333,7 +333,7 @@ fn check_transcode(
     let textures = nmat_core::bc::default_layout(m);
     assert!(!textures.is_empty());
     let has_bc = device.features().contains(wgpu::Features::TEXTURE_COMPRESSION_BC);
-    let made = if into_textures && has_bc {
+    let made = if into_textures && has_bc && common::copies_into_bc_textures(device) {
         context.create_bc_textures(device, queue, &gm, &textures).unwrap()
     } else {
         Vec::new()
@@ -344,8 +344,11 @@ fn check_transcode(
             let want = common::cpu_blocks(&cpu, m, texture, mip);
             common::assert_same_bytes(&gpu, &want, format!("{name}: {texture:?} mip {mip}"));
             if let Some(made) = made.get(t) {
+                let region = nmat_core::BlockRegion::mip(m, mip);
+                let block_bytes = texture.format.block_bytes();
+                let level = common::read_level(device, queue, made, mip, region, block_bytes);
                 let what = format!("{name}: {texture:?} mip {mip} in a BC texture");
-                common::assert_bc_level((device, queue), made, mip, texture, &want, what);
+                common::assert_same_bytes(&level, &want, what);
             }
         }
     }

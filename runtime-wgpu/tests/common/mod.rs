@@ -233,17 +233,15 @@ pub fn device_with_f16() -> Option<(wgpu::Device, wgpu::Queue)> {
     Some(pollster::block_on(adapter.request_device(&descriptor)).unwrap())
 }
 
-/// Whether `copy_texture_to_buffer` reads a compressed texture on `device`: not on wgpu's GL
-/// backend, which does not implement it (gfx-rs/wgpu#8614: it logs "Not implemented yet:
-/// compressed texture copy to buffer" and leaves the buffer as it was).
+/// Whether buffers copy into compressed textures on `device`: not on wgpu's GL backend, where
+/// `Context::record_bc_textures` refuses (docs/GPU.md, "Known problems").
 #[allow(dead_code)]
-pub fn reads_compressed_textures(device: &wgpu::Device) -> bool {
+pub fn copies_into_bc_textures(device: &wgpu::Device) -> bool {
     device.adapter_info().backend != wgpu::Backend::Gl
 }
 
 /// Level `level` of the BC texture `texture` (`blocks` of `block_bytes` bytes), read back block
-/// row by block row without padding; `None` where the device cannot copy it into a buffer
-/// ([`reads_compressed_textures`]).
+/// row by block row without padding.
 #[allow(dead_code)]
 pub fn read_level(
     device: &wgpu::Device,
@@ -252,10 +250,7 @@ pub fn read_level(
     level: u32,
     blocks: nmat_core::BlockRegion,
     block_bytes: usize,
-) -> Option<Vec<u8>> {
-    if !reads_compressed_textures(device) {
-        return None;
-    }
+) -> Vec<u8> {
     let row = blocks.width as usize * block_bytes;
     let pitch = (row as u64).next_multiple_of(u64::from(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT));
     let back = device.create_buffer(&wgpu::BufferDescriptor {
@@ -290,39 +285,12 @@ pub fn read_level(
     back.map_async(wgpu::MapMode::Read, .., |r| r.unwrap());
     device.poll(wgpu::PollType::wait_indefinitely()).unwrap();
     let got = back.get_mapped_range(..).unwrap().to_vec();
-    Some(got.chunks(pitch as usize).flat_map(|r| r[..row].to_vec()).collect())
-}
-
-/// Level `level` of the BC texture `texture` holds the blocks `want` (of `format`), byte for
-/// byte where the device reads compressed textures back; elsewhere (wgpu's GL backend) its
-/// texture unit reads every texel of the level as `nmat_core::bc::decode_block` decodes `want`,
-/// within 2 steps (hardware BC decoders may round interpolated colours differently by a step),
-/// sRGB textures encoded back to sRGB first. Fails naming `what`.
-#[allow(dead_code)]
-pub fn assert_bc_level(
-    (device, queue): (&wgpu::Device, &wgpu::Queue),
-    texture: &wgpu::Texture,
-    level: u32,
-    bc: &nmat_core::bc::BcTexture,
-    want: &[u8],
-    what: impl std::fmt::Display,
-) {
-    let (w, h) = ((texture.width() >> level).max(1), (texture.height() >> level).max(1));
-    let blocks = nmat_core::BlockRegion { x: 0, y: 0, width: w.div_ceil(4), height: h.div_ceil(4) };
-    let block_bytes = bc.format.block_bytes();
-    match read_level(device, queue, texture, level, blocks, block_bytes) {
-        Some(got) => assert_same_bytes(&got, want, what),
-        None => {
-            let worst = texture_unit_steps_off(device, queue, texture, level, bc, want);
-            assert!(worst <= 2, "{what}: the texture unit reads {worst} steps off");
-        }
-    }
+    got.chunks(pitch as usize).flat_map(|r| r[..row].to_vec()).collect()
 }
 
 /// The most steps by which the texture unit's reading of level `level` of `texture` (each
-/// component × 255 rounded; an sRGB texture's colour encoded back to sRGB) differs from
-/// `nmat_core::bc::decode_block` of the blocks `want`, over the level's texels and `bc`'s
-/// components.
+/// component × 255 rounded) differs from `nmat_core::bc::decode_block` of the blocks `want`,
+/// over the level's texels and `bc`'s components (a texture that is not sRGB).
 #[allow(dead_code)]
 pub fn texture_unit_steps_off(
     device: &wgpu::Device,
@@ -366,9 +334,6 @@ pub fn texture_unit_steps_off(
     ];
     let groups = (w.div_ceil(8), h.div_ceil(8));
     let bytes = run_compute((device, queue), &pipeline, &entries, groups, &out);
-    // The sRGB encoding of a linear value (IEC 61966-2-1).
-    let encode =
-        |v: f32| if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
     let block_bytes = bc.format.block_bytes();
     let mut worst = 0;
     for (i, texel) in bytes.chunks(16).enumerate() {
@@ -378,7 +343,6 @@ pub fn texture_unit_steps_off(
         let decoded = nmat_core::bc::decode_block(bc.format, block)[((y % 4) * 4 + x % 4) as usize];
         for k in 0..bc.format.components() {
             let v = f32::from_le_bytes(texel[4 * k..4 * k + 4].try_into().unwrap());
-            let v = if bc.srgb && k < 3 { encode(v) } else { v };
             let read = (v * 255.0).round().clamp(0.0, 255.0) as u8;
             worst = worst.max(read.abs_diff(decoded[k]));
         }
