@@ -288,68 +288,6 @@ pub fn read_level(
     got.chunks(pitch as usize).flat_map(|r| r[..row].to_vec()).collect()
 }
 
-/// The most steps by which the texture unit's reading of level `level` of `texture` (each
-/// component × 255 rounded) differs from `nmat_core::bc::decode_block` of the blocks `want`,
-/// over the level's texels and `bc`'s components (a texture that is not sRGB).
-#[allow(dead_code)]
-pub fn texture_unit_steps_off(
-    device: &wgpu::Device,
-    queue: &wgpu::Queue,
-    texture: &wgpu::Texture,
-    level: u32,
-    bc: &nmat_core::bc::BcTexture,
-    want: &[u8],
-) -> u8 {
-    let (w, h) = ((texture.width() >> level).max(1), (texture.height() >> level).max(1));
-    let source = "@group(0) @binding(0) var t: texture_2d<f32>;
-        @group(0) @binding(1) var<storage, read_write> out: array<vec4<f32>>;
-        @group(0) @binding(2) var<uniform> level: vec4<u32>;
-        @compute @workgroup_size(8, 8)
-        fn main(@builtin(global_invocation_id) id: vec3<u32>) {
-            let size = textureDimensions(t, level.x);
-            if (id.x < size.x && id.y < size.y) {
-                out[id.y * size.x + id.x] = textureLoad(t, vec2<i32>(id.xy), i32(level.x));
-            }
-        }";
-    let pipeline = compute_pipeline(device, source, None);
-    let out = buffer(
-        device,
-        u64::from(w) * u64::from(h) * 16,
-        wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-        None,
-    );
-    let uniform = wgpu::util::DeviceExt::create_buffer_init(
-        device,
-        &wgpu::util::BufferInitDescriptor {
-            label: None,
-            contents: &[level, 0, 0, 0].map(u32::to_le_bytes).concat(),
-            usage: wgpu::BufferUsages::UNIFORM,
-        },
-    );
-    let view = texture.create_view(&Default::default());
-    let entries = [
-        wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&view) },
-        wgpu::BindGroupEntry { binding: 1, resource: out.as_entire_binding() },
-        wgpu::BindGroupEntry { binding: 2, resource: uniform.as_entire_binding() },
-    ];
-    let groups = (w.div_ceil(8), h.div_ceil(8));
-    let bytes = run_compute((device, queue), &pipeline, &entries, groups, &out);
-    let block_bytes = bc.format.block_bytes();
-    let mut worst = 0;
-    for (i, texel) in bytes.chunks(16).enumerate() {
-        let (x, y) = (i as u32 % w, i as u32 / w);
-        let b = ((y / 4) * w.div_ceil(4) + x / 4) as usize * block_bytes;
-        let block = &want[b..b + block_bytes];
-        let decoded = nmat_core::bc::decode_block(bc.format, block)[((y % 4) * 4 + x % 4) as usize];
-        for k in 0..bc.format.components() {
-            let v = f32::from_le_bytes(texel[4 * k..4 * k + 4].try_into().unwrap());
-            let read = (v * 255.0).round().clamp(0.0, 255.0) as u8;
-            worst = worst.max(read.abs_diff(decoded[k]));
-        }
-    }
-    worst
-}
-
 /// The compute pipeline of `source`'s `main` (a test's own WGSL), with `layout` or, without one,
 /// the layout wgpu derives from the shader.
 #[allow(dead_code)]
