@@ -135,6 +135,11 @@ impl Context {
     /// ([`Context::record_bc_textures`]) and submits that work; the textures are ready for any
     /// work submitted after this call (nothing is waited for). The device needs
     /// `Features::TEXTURE_COMPRESSION_BC` (`GpuError::Texture` without it).
+    ///
+    /// On wgpu's GL backend, which copies no buffer into a compressed texture right (the reason
+    /// `record_bc_textures` refuses it), the blocks of every mip are transcoded on the GPU as
+    /// [`Context::submit_transcode_textures`] does, read back, and written into the levels
+    /// with `Queue::write_texture`: the same textures, but this call waits for the GPU there.
     pub fn create_bc_textures(
         &self,
         device: &wgpu::Device,
@@ -156,6 +161,10 @@ impl Context {
         }
         let made: Vec<wgpu::Texture> =
             descriptors.iter().map(|d| device.create_texture(d)).collect();
+        if device.adapter_info().backend == wgpu::Backend::Gl {
+            self.write_bc_levels(device, queue, gm, textures, &made)?;
+            return Ok(made);
+        }
         let targets: Vec<(&BcTexture, &wgpu::Texture)> = textures.iter().zip(&made).collect();
         let mut encoder = device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nmat BC") });
@@ -163,15 +172,61 @@ impl Context {
         queue.submit([encoder.finish()]);
         Ok(made)
     }
+
+    /// Fills every level of `made` (textures of `textures`, as [`Context::create_bc_textures`]
+    /// makes them) with the blocks of [`Context::submit_transcode_textures`] through
+    /// `Queue::write_texture`, whose rows are not padded: the way wgpu's GL backend fills a
+    /// compressed texture. Every mip is submitted before the first is waited for.
+    fn write_bc_levels(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        gm: &GpuMaterial,
+        textures: &[BcTexture],
+        made: &[wgpu::Texture],
+    ) -> Result<(), GpuError> {
+        let levels = made.first().map_or(0, wgpu::Texture::mip_level_count);
+        let pending = (0..levels)
+            .map(|mip| self.submit_transcode_textures(device, queue, gm, textures, mip))
+            .collect::<Result<Vec<_>, _>>()?;
+        for (mip, pending) in (0..levels).zip(pending) {
+            let blocks = gm.blocks(mip).ok_or(GpuError::Blocks {
+                mip,
+                region: BlockRegion { x: 0, y: 0, width: 0, height: 0 },
+            })?;
+            for ((texture, target), bytes) in textures.iter().zip(made).zip(pending.wait(device)?) {
+                let layout = wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(blocks.width * texture.format.block_bytes() as u32),
+                    rows_per_image: Some(blocks.height),
+                };
+                let extent = wgpu::Extent3d {
+                    width: 4 * blocks.width,
+                    height: 4 * blocks.height,
+                    depth_or_array_layers: 1,
+                };
+                let at = wgpu::TexelCopyTextureInfo {
+                    texture: target,
+                    mip_level: mip,
+                    origin: wgpu::Origin3d::ZERO,
+                    aspect: wgpu::TextureAspect::All,
+                };
+                queue.write_texture(at, &bytes, layout, extent);
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Why [`Context::record_bc_textures`] refuses wgpu's GL backend: it copies a buffer into a
 /// compressed texture with `glCompressedTexSubImage2D`, which in OpenGL ES takes tightly packed
 /// rows only (no row length for compressed data), while a copy's rows are padded to 256 bytes
 /// (wgpu 30 on Mesa's llvmpipe: the level stays empty). `Queue::write_texture` of the blocks
-/// of `Context::submit_transcode_textures`, with unpadded rows, fills such a texture there.
+/// of `Context::submit_transcode_textures`, with unpadded rows, fills such a texture there (as
+/// [`Context::create_bc_textures`] does on that backend).
 const GL_COMPRESSED_COPIES: &str = "wgpu's GL backend copies no padded rows into a compressed \
-     texture; write the blocks of submit_transcode_textures with Queue::write_texture instead";
+     texture; use create_bc_textures, or write the blocks of submit_transcode_textures with \
+     Queue::write_texture";
 
 /// Checks that `target` can take the whole chain of `texture` of `gm` as
 /// [`Context::record_bc_textures`] writes it.

@@ -41,7 +41,8 @@ pub enum GpuError {
     /// A texture [`Context::record_map_to_texture`] cannot write (dimension, usage, format,
     /// mip level, room at the origin), or a BC texture [`Context::record_bc_textures`] cannot fill
     /// (format, usage, size, levels; a material whose mip 0 no BC texture can have; a device
-    /// without BC textures, or on wgpu's GL backend, which cannot copy into them).
+    /// without BC textures; recording on wgpu's GL backend, which copies no padded rows into
+    /// them — [`Context::create_bc_textures`] fills them there another way).
     Texture { reason: &'static str },
     /// A JPEG material's section larger than one storage binding of the device (or 2^28 bytes,
     /// so that bit positions fit 32 bits).

@@ -333,7 +333,7 @@ fn check_transcode(
     let textures = nmat_core::bc::default_layout(m);
     assert!(!textures.is_empty());
     let has_bc = device.features().contains(wgpu::Features::TEXTURE_COMPRESSION_BC);
-    let made = if into_textures && has_bc && common::copies_into_bc_textures(device) {
+    let made = if into_textures && has_bc && common::copies_bc_textures(device) {
         context.create_bc_textures(device, queue, &gm, &textures).unwrap()
     } else {
         Vec::new()

@@ -233,10 +233,11 @@ pub fn device_with_f16() -> Option<(wgpu::Device, wgpu::Queue)> {
     Some(pollster::block_on(adapter.request_device(&descriptor)).unwrap())
 }
 
-/// Whether buffers copy into compressed textures on `device`: not on wgpu's GL backend, where
-/// `Context::record_bc_textures` refuses (docs/GPU.md, "Known problems").
+/// Whether buffers copy into compressed textures and back on `device`: not on wgpu's GL
+/// backend, which copies no padded rows into them (`Context::record_bc_textures` refuses it)
+/// and none out of them (gfx-rs/wgpu#8614; docs/GPU.md, "Known problems").
 #[allow(dead_code)]
-pub fn copies_into_bc_textures(device: &wgpu::Device) -> bool {
+pub fn copies_bc_textures(device: &wgpu::Device) -> bool {
     device.adapter_info().backend != wgpu::Backend::Gl
 }
 
