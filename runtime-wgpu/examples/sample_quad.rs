@@ -1,8 +1,8 @@
 //! Inference on sample: a fragment shader that includes nmat's WGSL module
 //! (`nmat_wgpu::SampleBindings::module`) decodes a material where it draws it. The example renders
-//! a quad headlessly into an `Rgba32Float` texture, once per filter, reads the pixels back and
-//! compares every one with `Material::sample` on the CPU (integer precision); it fails if any
-//! differs by more than f32 rounding.
+//! a quad headlessly into an `Rgba32Uint` texture (the bits of the f32 values), once per filter,
+//! reads the pixels back and compares every one with `Material::sample` on the CPU (integer
+//! precision); it fails if any differs by more than f32 rounding.
 //!
 //! ```text
 //! cargo run -p nmat-wgpu --example sample_quad [MATERIAL.nmat]
@@ -74,8 +74,9 @@ fn noise(p: vec2<u32>) -> vec3<f32> {
     return (vec3<f32>(k % vec3<u32>(16u)) + 0.5) * 0.0625;
 }
 
+// The target holds the values' bits (see FORMAT).
 @fragment
-fn shade(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<f32> {
+fn shade(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<u32> {
     let uv = view.origin + pos.xy * view.scale;
     let mask = ((1u << view.count) - 1u) << view.first;
     let s = nmat_sample(uv, view.lod, noise(vec2<u32>(pos.xy)), view.mode, mask);
@@ -83,7 +84,7 @@ fn shade(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<f32> {
     for (var k = 0u; k < view.count; k++) {
         out[k] = s[view.first + k];
     }
-    return out;
+    return bitcast<vec4<u32>>(out);
 }
 "#;
 
@@ -100,7 +101,11 @@ pub struct Quad {
     bindings: SampleBindings,
 }
 
-const FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
+/// The render target: the f32 values' bits as `u32`s, which every backend renders to and reads
+/// back unchanged; OpenGL ES renders into `Rgba32Float` only with `EXT_color_buffer_float`
+/// (wgpu's GL backend on Mesa's llvmpipe refuses it: "not renderable"). An engine renders into
+/// whatever its frame uses.
+const FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Uint;
 
 impl Quad {
     pub fn new(device: &wgpu::Device) -> Quad {
