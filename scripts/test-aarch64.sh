@@ -8,14 +8,10 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 target=aarch64-unknown-linux-gnu
 rustup target list --installed | grep -qx "$target" || rustup target add "$target" >/dev/null
+. scripts/lib.sh
 if ! command -v qemu-aarch64 >/dev/null || ! command -v aarch64-linux-gnu-gcc >/dev/null; then
-  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
-    echo "installing qemu-user and gcc-aarch64-linux-gnu (apt): the ARM tests run under emulation" >&2
-    apt-get update -qq && apt-get install -y -qq qemu-user gcc-aarch64-linux-gnu >/dev/null
-  else
-    echo "the ARM tests need qemu-aarch64 and aarch64-linux-gnu-gcc: sudo apt-get install qemu-user gcc-aarch64-linux-gnu" >&2
-    exit 1
-  fi
+  need_packages "the ARM tests run under emulation (qemu-aarch64, aarch64-linux-gnu-gcc)" \
+    qemu-user gcc-aarch64-linux-gnu
 fi
 # The cross linker and the emulator for this target only, so nothing else (a native ARM host, the
 # Android and iOS builds) sees them.
