@@ -28,7 +28,13 @@ for line in sys.stdin:
 strip "$out/nmat" "$out"/tests/*
 # Compressed to fit what a run carries (64 MiB with the loaders); scripts/gpu-run.sh unpacks them.
 gzip -9 "$out/nmat" "$out"/tests/*
-for f in "$@"; do cp "$f" "$out/materials/"; done
+# Numbered, so that gpu-run.sh takes them in the order given (the first neural one is measured
+# first and most).
+i=0
+for f in "$@"; do
+  i=$((i + 1))
+  cp "$f" "$out/materials/$(printf '%02d' "$i")-$(basename "$f")"
+done
 pwd > "$out/build-root"
 du -sh "$out"
 ls "$out/tests"

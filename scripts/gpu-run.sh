@@ -1,18 +1,29 @@
 #!/usr/bin/env bash
 # Runs on the lent GPU what scripts/gpu-prepare.sh built (docs/GPU.md, "On a lent GPU"): unpacks the
-# Vulkan loaders of .gl/, warms the GPU up, runs every nmat-wgpu test executable with the
-# cooperative-matrix and dot4 kernels required, then `nmat bench --gpu --region 1024` on each
-# carried material, `nmat walk --gpu` at 1080p and `nmat transcode` on the GPU and the CPU. Every
-# step under a timeout (a shader can hang); outputs in $OUT (default /tmp/gpu-run). Exit status:
-# the number of steps that failed.
+# Vulkan loaders of .gl/, warms the GPU up, then, the figures issue-style targets need first:
+# `nmat bench --gpu --region 1024` on the first carried material, `nmat walk --gpu` at 1080p,
+# `nmat transcode` on the GPU and the CPU, every nmat-wgpu test executable with the
+# cooperative-matrix and dot4 kernels required, the other materials' benches and the kernels'
+# variants. Every step under a timeout (a shader can hang), and all of them within BUDGET seconds
+# (default 540, under a lent machine's 600 s a command: a step that would start later is skipped,
+# one that would end later gets the time left), so that summary.txt is always written; outputs in
+# $OUT (default /tmp/gpu-run). Exit status: the number of steps that failed or were skipped.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 out=${OUT:-/tmp/gpu-run}
 mkdir -p "$out"
 failed=0
+budget=${BUDGET:-540}
 step() { # NAME SECONDS COMMAND...: runs it, output in $out/NAME.txt, and says how it ended
   local name=$1 limit=$2
   shift 2
+  local left=$((budget - SECONDS))
+  if [ "$left" -lt 10 ]; then
+    echo "$name: skipped, $budget s spent" | tee -a "$out/summary.txt"
+    failed=$((failed + 1))
+    return
+  fi
+  [ "$limit" -le "$left" ] || limit=$left
   local start=$SECONDS
   timeout "$limit" "$@" > "$out/$name.txt" 2>&1
   local rc=$?
@@ -40,43 +51,70 @@ nvidia-smi > "$out/nvidia-smi.txt" 2>&1
 # reads slow).
 step demo 300 .devcarry/nmat demo -o "$out/demo"
 step warm-up 300 .devcarry/nmat bench "$out/demo/demo.nmat" --gpu --runs 1
+# The materials, neural and JPEG (a file name containing `jpeg`), in the order given to
+# gpu-prepare.sh (it numbers them).
+neural=() jpeg=()
+for m in .devcarry/materials/*.nmat; do
+  [ -f "$m" ] || continue
+  case "$(basename "$m")" in *jpeg*) jpeg+=("$m") ;; *) neural+=("$m") ;; esac
+done
+bench() { # MATERIAL: every kernel the device runs at a 1024² region, requests and nmat_sample
+  step "bench-$(basename "$1" .nmat)" 200 .devcarry/nmat bench "$1" --gpu --region 1024 --runs 5
+}
+[ "${#neural[@]}" -gt 0 ] && bench "${neural[0]}"
+# A frame through the GPU tile cache (mark, decode and resolve timed apart: docs/PERFORMANCE.md,
+# "The same walk on the GPU") with up to four carried neural materials; BC transcoding of the
+# first neural material on the GPU against the CPU on every core (the same files, compared), its
+# default layout and every map in BC7. (WALK_SIZE and WALK_FRAMES make the walk smaller for a dry
+# run on a software adapter.)
+walk_size=${WALK_SIZE:-1920x1080} walk_frames=${WALK_FRAMES:-30}
+if [ "${#neural[@]}" -gt 0 ]; then
+  step walk 200 .devcarry/nmat walk "${neural[@]:0:4}" --gpu --threads "$(nproc)" \
+    --size "$walk_size" --frames "$walk_frames" --direct-every 15 --csv "$out/walk.csv"
+  step transcode-gpu 60 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-gpu" --gpu
+  step transcode-cpu 60 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-cpu"
+  step transcode-same 30 diff -r "$out/transcode-gpu" "$out/transcode-cpu"
+  # Every map in BC7: the encoder where a GPU should gain most on the CPU.
+  step transcode-bc7-gpu 60 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-bc7-gpu" \
+    --format bc7 --gpu
+  step transcode-bc7-cpu 120 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-bc7-cpu" \
+    --format bc7
+  step transcode-bc7-same 30 diff -r "$out/transcode-bc7-gpu" "$out/transcode-bc7-cpu"
+fi
 # The tests fail where a fast kernel is missing (REQUIRE_KERNELS=0: note it and go on, e.g. on
-# lavapipe, which has no cooperative matrices).
+# lavapipe, which has no cooperative matrices). --nocapture: what the tests print (the adapter,
+# the pipeline cache's size and timings, the kernels rejected) is kept in each test's file.
 if [ "${REQUIRE_KERNELS:-1}" = 1 ]; then
   export NMAT_REQUIRE_MATRIX=1 NMAT_REQUIRE_DOT4=1
 fi
-# --nocapture: what the tests print (the adapter, the pipeline cache's size and timings, the
-# kernels rejected) is kept in each test's file.
 for t in .devcarry/tests/*; do
-  step "test-$(basename "$t")" 300 "$t" --test-threads 1 --nocapture
+  step "test-$(basename "$t")" 120 "$t" --test-threads 1 --nocapture
 done
-for m in .devcarry/materials/*.nmat; do
-  [ -f "$m" ] || continue
-  step "bench-$(basename "$m" .nmat)" 300 .devcarry/nmat bench "$m" --gpu --region 1024 --runs 5
+for m in "${neural[@]:1}" "${jpeg[@]}"; do
+  bench "$m"
 done
+if [ "${#jpeg[@]}" -gt 0 ]; then
+  step walk-jpeg 200 .devcarry/nmat walk "${jpeg[@]:0:4}" --gpu --threads "$(nproc)" \
+    --size "$walk_size" --frames "$walk_frames" --direct-every 0 --csv "$out/walk-jpeg.csv"
+fi
 # The tiled kernels with fewer texels per workgroup (more workgroups per core) on the first
 # neural material: does occupancy hold them back? (docs/GPU.md, "The kernels, and how upload
 # picks one")
-for m in .devcarry/materials/*.nmat; do
-  case "$m" in *jpeg*) continue ;; esac
-  [ -f "$m" ] || continue
+if [ "${#neural[@]}" -gt 0 ]; then
   for p in 16 32; do
-    NMAT_WGPU_TILED_TEXELS=$p step "bench-texels-$p" 120 .devcarry/nmat bench "$m" --gpu \
-      --region 1024 --runs 3
+    NMAT_WGPU_TILED_TEXELS=$p step "bench-texels-$p" 120 .devcarry/nmat bench "${neural[0]}" \
+      --gpu --region 1024 --runs 3
   done
-  break
-done
+fi
 # The matrix kernel's layouts on the first neural material, each a `--kernel matrix` bench (its
 # rows and parts only): the products' round trip split or paired (with the pads that keep 4
 # subgroups in 48 KiB), two texel blocks a subgroup, more batches, and the weights read from a
 # storage buffer instead of staged (which frees workgroup memory: more workgroups per core, two
 # texel blocks a subgroup, or one-subgroup workgroups that stage nothing) (docs/GPU.md, "The
 # matrix kernel"; the bench's kernel line gives the texels a workgroup each layout got).
-for m in .devcarry/materials/*.nmat; do
-  case "$m" in *jpeg*) continue ;; esac
-  [ -f "$m" ] || continue
+if [ "${#neural[@]}" -gt 0 ]; then
   while read -r name vars; do
-    step "matrix-$name" 120 env $vars .devcarry/nmat bench "$m" --gpu --kernel matrix \
+    step "matrix-$name" 120 env $vars .devcarry/nmat bench "${neural[0]}" --gpu --kernel matrix \
       --region 1024 --runs 3 < /dev/null
   done <<'LAYOUTS'
 split NMAT_WGPU_MATRIX_SUMS=split
@@ -91,35 +129,6 @@ storage-blocks-2 NMAT_WGPU_MATRIX_WEIGHTS=storage NMAT_WGPU_MATRIX=4,2,4
 storage-1x2 NMAT_WGPU_MATRIX_WEIGHTS=storage NMAT_WGPU_MATRIX=1,2,8
 storage-2x2 NMAT_WGPU_MATRIX_WEIGHTS=storage NMAT_WGPU_MATRIX=2,2,8
 LAYOUTS
-  break
-done
-# A frame through the GPU tile cache (mark, decode and resolve timed apart: docs/PERFORMANCE.md,
-# "The same walk on the GPU") with up to four carried neural materials, and with the JPEG ones;
-# BC transcoding of the first neural material on the GPU against the CPU on every core (the same
-# files, compared), its default layout and every map in BC7.
-# (WALK_SIZE and WALK_FRAMES make the walk smaller for a dry run on a software adapter.)
-walk_size=${WALK_SIZE:-1920x1080} walk_frames=${WALK_FRAMES:-30}
-neural=() jpeg=()
-for m in .devcarry/materials/*.nmat; do
-  [ -f "$m" ] || continue
-  case "$(basename "$m")" in *jpeg*) jpeg+=("$m") ;; *) neural+=("$m") ;; esac
-done
-if [ "${#neural[@]}" -gt 0 ]; then
-  step walk 300 .devcarry/nmat walk "${neural[@]:0:4}" --gpu --threads "$(nproc)" \
-    --size "$walk_size" --frames "$walk_frames" --direct-every 15 --csv "$out/walk.csv"
-  step transcode-gpu 120 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-gpu" --gpu
-  step transcode-cpu 120 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-cpu"
-  step transcode-same 30 diff -r "$out/transcode-gpu" "$out/transcode-cpu"
-  # Every map in BC7: the encoder where a GPU should gain most on the CPU.
-  step transcode-bc7-gpu 120 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-bc7-gpu" \
-    --format bc7 --gpu
-  step transcode-bc7-cpu 300 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-bc7-cpu" \
-    --format bc7
-  step transcode-bc7-same 30 diff -r "$out/transcode-bc7-gpu" "$out/transcode-bc7-cpu"
 fi
-if [ "${#jpeg[@]}" -gt 0 ]; then
-  step walk-jpeg 300 .devcarry/nmat walk "${jpeg[@]:0:4}" --gpu --threads "$(nproc)" \
-    --size "$walk_size" --frames "$walk_frames" --direct-every 0 --csv "$out/walk-jpeg.csv"
-fi
-echo "failed steps: $failed" | tee -a "$out/summary.txt"
+echo "failed or skipped steps: $failed" | tee -a "$out/summary.txt"
 exit "$failed"
