@@ -176,7 +176,8 @@ impl Context {
     /// Fills every level of `made` (textures of `textures`, as [`Context::create_bc_textures`]
     /// makes them) with the blocks of [`Context::submit_transcode_textures`] through
     /// `Queue::write_texture`, whose rows are not padded: the way wgpu's GL backend fills a
-    /// compressed texture. Every mip is submitted before the first is waited for.
+    /// compressed texture. A mip goes in bands of block rows as in `record_bc_textures`, every
+    /// band of a mip submitted before the first is waited for.
     fn write_bc_levels(
         &self,
         device: &wgpu::Device,
@@ -186,32 +187,42 @@ impl Context {
         made: &[wgpu::Texture],
     ) -> Result<(), GpuError> {
         let levels = made.first().map_or(0, wgpu::Texture::mip_level_count);
-        let pending = (0..levels)
-            .map(|mip| self.submit_transcode_textures(device, queue, gm, textures, mip))
-            .collect::<Result<Vec<_>, _>>()?;
-        for (mip, pending) in (0..levels).zip(pending) {
-            let blocks = gm.blocks(mip).ok_or(GpuError::Blocks {
-                mip,
-                region: BlockRegion { x: 0, y: 0, width: 0, height: 0 },
-            })?;
-            for ((texture, target), bytes) in textures.iter().zip(made).zip(pending.wait(device)?) {
-                let layout = wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(blocks.width * texture.format.block_bytes() as u32),
-                    rows_per_image: Some(blocks.height),
-                };
-                let extent = wgpu::Extent3d {
-                    width: 4 * blocks.width,
-                    height: 4 * blocks.height,
-                    depth_or_array_layers: 1,
-                };
-                let at = wgpu::TexelCopyTextureInfo {
-                    texture: target,
-                    mip_level: mip,
-                    origin: wgpu::Origin3d::ZERO,
-                    aspect: wgpu::TextureAspect::All,
-                };
-                queue.write_texture(at, &bytes, layout, extent);
+        for mip in 0..levels {
+            let Some(all) = gm.blocks(mip) else { break };
+            let row_bytes: u64 =
+                textures.iter().map(|t| u64::from(all.width) * t.format.block_bytes() as u64).sum();
+            let band_rows =
+                (self.pass_bytes(device) / row_bytes.max(1)).clamp(1, u64::from(all.height)) as u32;
+            let bands = (0..all.height)
+                .step_by(band_rows as usize)
+                .map(|first| {
+                    let band =
+                        BlockRegion { y: first, height: band_rows.min(all.height - first), ..all };
+                    Ok((band, self.submit_transcode_band(device, queue, gm, textures, mip, band)?))
+                })
+                .collect::<Result<Vec<_>, GpuError>>()?;
+            for (band, pending) in bands {
+                for ((texture, target), bytes) in
+                    textures.iter().zip(made).zip(pending.wait(device)?)
+                {
+                    let layout = wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(band.width * texture.format.block_bytes() as u32),
+                        rows_per_image: Some(band.height),
+                    };
+                    let extent = wgpu::Extent3d {
+                        width: 4 * band.width,
+                        height: 4 * band.height,
+                        depth_or_array_layers: 1,
+                    };
+                    let at = wgpu::TexelCopyTextureInfo {
+                        texture: target,
+                        mip_level: mip,
+                        origin: wgpu::Origin3d { x: 0, y: 4 * band.y, z: 0 },
+                        aspect: wgpu::TextureAspect::All,
+                    };
+                    queue.write_texture(at, &bytes, layout, extent);
+                }
             }
         }
         Ok(())

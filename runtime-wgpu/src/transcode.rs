@@ -387,6 +387,20 @@ impl Context {
             mip,
             region: BlockRegion { x: 0, y: 0, width: 0, height: 0 },
         })?;
+        self.submit_transcode_band(device, queue, gm, textures, mip, region)
+    }
+
+    /// [`Context::submit_transcode_textures`] for the blocks of `region` (of `mip`) only, each
+    /// texture's rows of the region without padding.
+    pub(crate) fn submit_transcode_band(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        gm: &GpuMaterial,
+        textures: &[BcTexture],
+        mip: u32,
+        region: BlockRegion,
+    ) -> Result<PendingTextures, GpuError> {
         // Each texture's blocks at a word boundary of one buffer.
         let mut spans = Vec::new();
         let mut len = 0u64;
