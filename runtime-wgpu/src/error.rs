@@ -75,6 +75,9 @@ pub enum GpuError {
     /// calls, and the timings of [`crate::measure`]. Refused rather than left blocking; in a
     /// browser, decode on the CPU (`nmat_core`) for now.
     CannotWait,
+    /// Text given to [`Context::remember_kernel_choices`] that is not what
+    /// [`Context::kernel_choices`] writes: `line` (from 1) is the first line at fault.
+    KernelChoices { line: usize, reason: &'static str },
 }
 
 impl std::fmt::Display for GpuError {
@@ -145,6 +148,9 @@ impl std::fmt::Display for GpuError {
                  a neural material, wait, is_finished, decode_*, transcode_* and timings are not \
                  supported there; decode on the CPU)"
             ),
+            GpuError::KernelChoices { line, reason } => {
+                write!(f, "kernel choices, line {line}: {reason}")
+            }
             GpuError::Kernel { kernel, reason } => {
                 write!(f, "the {} kernel does not run on this device: {reason}", kernel.name())
             }

@@ -44,7 +44,7 @@
 //! texel per invocation, each row's sum written out, the same two products; matrix: tensor
 //! cores through wgpu's cooperative matrices, where the device has them), the fastest by
 //! measurement among those whose codes on a probe of the material equal the CPU's; all give the
-//! same codes. To decode where a material is drawn, an engine includes the decoder in its
+//! same codes ([`Context::kernel_choices`] keeps what it measured for a later run). To decode where a material is drawn, an engine includes the decoder in its
 //! own shaders: [`SampleBindings::module`] is a WGSL module with `nmat_sample(uv, lod, rnd, mode,
 //! channels)` (the CPU's filters) and `nmat_texel`, bound with [`GpuMaterial::sample_entries`]
 //! (example `sample_quad`). Only downlevel limits are needed: 32-bit integers only (no `f16`,
@@ -63,6 +63,7 @@
 
 mod bc_texture;
 mod cache;
+mod choices;
 mod context;
 mod decode;
 mod device;

@@ -53,6 +53,7 @@ impl Kernel {
         matches!(self, Kernel::Dot4 | Kernel::UnrolledDot4)
     }
 
+    /// How people read it ("tiled dot4"): log lines, errors, `nmat bench --gpu`'s rows.
     pub fn name(self) -> &'static str {
         match self {
             Kernel::Matrix => "matrix",
@@ -62,6 +63,25 @@ impl Kernel {
             Kernel::UnrolledDot4 => "unrolled dot4",
             Kernel::Reference => "reference",
         }
+    }
+
+    /// Its name in text nmat reads back ([`crate::Context::kernel_choices`]) and on the command
+    /// line (`nmat bench --gpu --kernel`): `reference`, `unrolled-i32`, `unrolled-dot4`, `i32`,
+    /// `dot4`, `matrix`.
+    pub fn id(self) -> &'static str {
+        match self {
+            Kernel::Matrix => "matrix",
+            Kernel::Dot4 => "dot4",
+            Kernel::Int32 => "i32",
+            Kernel::UnrolledInt32 => "unrolled-i32",
+            Kernel::UnrolledDot4 => "unrolled-dot4",
+            Kernel::Reference => "reference",
+        }
+    }
+
+    /// The kernel whose [`Kernel::id`] is `id`.
+    pub fn from_id(id: &str) -> Option<Kernel> {
+        Kernel::ALL.into_iter().find(|k| k.id() == id)
     }
 }
 

@@ -6,7 +6,7 @@
 // Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
 #![allow(clippy::unwrap_used)]
 
-use nmat_core::{ChannelMask, Container, Material};
+use nmat_core::{Body, ChannelMask, Container, Material};
 use nmat_tests::generate::{generate, golden_configs};
 use nmat_tests::{decode_all_u8, fixtures_dir};
 use nmat_wgpu::{Context, GpuError, Kernel, TexelRequest};
@@ -252,6 +252,79 @@ fn a_kernel_that_differs_from_the_cpu_on_the_probe_is_not_used() {
         }
     }
     assert!(runs >= 3, "{runs} kernels run here");
+}
+
+/// Kernel choices kept between runs (`kernel_choices` / `remember_kernel_choices`): a choice
+/// remembered for the material's shape, written as the docs say (the layer widths, then the
+/// channel count), is the kernel `upload` uses — here a kernel other than the one it picks by
+/// itself — and decodes as the CPU; it is written back out; a choice made on another adapter
+/// is not taken; a remembered kernel whose probe fails is not used (the upload falls back);
+/// text that is not such a text is refused, naming its line, and taken in no part.
+#[test]
+fn remembered_kernel_choices_are_used_where_they_were_made() {
+    let (device, queue) = device();
+    let bytes = std::fs::read(fixtures_dir().join("ntc_rgb_64.nmat")).unwrap();
+    let m = Container::parse(&bytes).unwrap();
+    let cpu = decode_all_u8(&m);
+    let Body::Neural(n) = m.body() else { panic!("a neural fixture") };
+    let widths: Vec<(usize, usize)> =
+        n.mlp().layers().iter().map(|l| (l.inputs(), l.outputs())).collect();
+    let shape = format!("{widths:?} {}", m.channel_count());
+    let own = Context::new(&device).upload(&device, &queue, &m).unwrap().kernel();
+    let other = Kernel::ALL
+        .into_iter()
+        .find(|&k| {
+            k != own && Context::new(&device).upload_with(&device, &queue, &m, Some(k)).is_ok()
+        })
+        .unwrap();
+    let header = Context::new(&device).kernel_choices(&device);
+    let header = header.lines().next().unwrap();
+    let text = format!("{header}\n{}\t{shape}\n", other.id());
+
+    let ctx = Context::new(&device);
+    assert_eq!(ctx.remember_kernel_choices(&device, &text).unwrap(), 1);
+    let gm = ctx.upload(&device, &queue, &m).unwrap();
+    assert_eq!(gm.kernel(), other, "the remembered kernel, not {own:?}");
+    let gpu = ctx.decode_chain(&device, &queue, &gm, ChannelMask::ALL).unwrap();
+    assert_same_bytes(&gpu, &cpu, format!("remembered {other:?}"));
+    assert_eq!(ctx.kernel_choices(&device), text);
+
+    // Made on another adapter (or driver, or version): nothing taken.
+    let elsewhere = Context::new(&device);
+    let foreign =
+        format!("nmat-wgpu kernel choices 0.0.0 on another GPU\n{}\t{shape}\n", other.id());
+    assert_eq!(elsewhere.remember_kernel_choices(&device, &foreign).unwrap(), 0);
+    assert_eq!(elsewhere.upload(&device, &queue, &m).unwrap().kernel(), own);
+
+    // Remembered, but its probe differs from the CPU: not used.
+    let broken = Context::new(&device);
+    broken.remember_kernel_choices(&device, &text).unwrap();
+    broken.break_kernel_for_testing(other);
+    let gm = broken.upload(&device, &queue, &m).unwrap();
+    assert_ne!(gm.kernel(), other);
+    assert_eq!(gm.rejected(), [(other, "its codes on the probe differ from the CPU's")]);
+    let gpu = broken.decode_chain(&device, &queue, &gm, ChannelMask::ALL).unwrap();
+    assert_same_bytes(&gpu, &cpu, format!("{:?} after the remembered {other:?}", gm.kernel()));
+
+    // Not such a text: refused, naming the line, nothing taken (line 2 is good, 3 is not).
+    let good = format!("{}\t{shape}", other.id());
+    for (bad, line, reason) in [
+        ("# my kernels\n".to_string(), 1, "first line"),
+        (format!("{header}\n{good}\ntiled dot4\t{shape}\n"), 3, "not a kernel's name"),
+        (format!("{header}\n{good}\ndot4 {shape}\n"), 3, "a tab"),
+        (format!("{header}\n{good}\ndot4\t\n"), 3, "no network shape"),
+    ] {
+        let ctx = Context::new(&device);
+        match ctx.remember_kernel_choices(&device, &bad) {
+            Err(e @ GpuError::KernelChoices { line: at, .. }) => {
+                assert_eq!(at, line, "{bad:?}: {e}");
+                assert!(e.to_string().contains(&format!("line {line}: ")), "{e}");
+                assert!(e.to_string().contains(reason), "{e}");
+            }
+            other => panic!("{bad:?}: {other:?}"),
+        }
+        assert_eq!(ctx.kernel_choices(&device), format!("{header}\n"), "{bad:?}");
+    }
 }
 
 /// No hang: a probe decode that has not finished when the upload's wait for it ends is reported

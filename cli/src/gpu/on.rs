@@ -112,18 +112,40 @@ pub fn bench_table(
     runs: usize,
     kernel: Option<GpuKernelArg>,
 ) -> Result<()> {
-    let kernel = kernel.map(|k| match k {
+    super::bench::table(m, region, runs, kernel.map(kernel_of))
+}
+
+/// The kernel `--kernel` names (its value is the kernel's `Kernel::id`).
+fn kernel_of(arg: GpuKernelArg) -> Kernel {
+    match arg {
         GpuKernelArg::Reference => Kernel::Reference,
         GpuKernelArg::UnrolledI32 => Kernel::UnrolledInt32,
         GpuKernelArg::UnrolledDot4 => Kernel::UnrolledDot4,
         GpuKernelArg::I32 => Kernel::Int32,
         GpuKernelArg::Dot4 => Kernel::Dot4,
         GpuKernelArg::Matrix => Kernel::Matrix,
-    });
-    super::bench::table(m, region, runs, kernel)
+    }
 }
 
 /// `nmat walk --gpu`: the walk through nmat-wgpu's tile cache.
 pub fn walk(opts: &WalkOptions, materials: &[Material<'_>], mips: bool) -> Result<Walk> {
     super::walk::walk(opts, materials, mips)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::ValueEnum;
+
+    /// `--kernel`'s values are the names nmat-wgpu writes and reads (`Kernel::id`), one per
+    /// kernel.
+    #[test]
+    fn kernel_arguments_are_the_kernels_ids() {
+        let args = GpuKernelArg::value_variants();
+        assert_eq!(args.len(), Kernel::ALL.len());
+        for arg in args {
+            let value = arg.to_possible_value().map(|v| v.get_name().to_owned());
+            assert_eq!(value.as_deref(), Some(kernel_of(*arg).id()), "{arg:?}");
+        }
+    }
 }
