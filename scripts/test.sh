@@ -16,7 +16,8 @@ indexed-JPEG test, ninja runs the build file of the build test" \
 # A private XDG_RUNTIME_DIR and GALLIVM_PERF=nopt (set GALLIVM_PERF to keep another value).
 mesa_environment
 cargo test --workspace --locked "$@"
-# The CLI's GPU paths exist only in a `--features gpu` build: run its GPU tests there too. With
-# `--workspace` the dependencies keep the features they were just built with, so only the `nmat`
-# crate is compiled again (`-p nmat` alone would rebuild some 40 dependencies).
-cargo test --workspace --features nmat/gpu --locked --test cli gpu
+# The CLI's GPU paths exist only in a `--features gpu` build: run its GPU tests there too (the
+# integration tests and the binary's own, whose names all contain `gpu`). With `--workspace` the
+# dependencies keep the features they were just built with, so only the `nmat` crate is compiled
+# again (`-p nmat` alone would rebuild some 40 dependencies).
+cargo test --workspace --features nmat/gpu --locked --test cli --bin nmat gpu
