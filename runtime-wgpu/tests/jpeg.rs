@@ -320,7 +320,9 @@ fn requests_sharing_mcus_decode_alike_in_one_round_or_many() {
 
 /// Every mip of `m` transcoded on the GPU in the default layout, all textures of a mip in one
 /// call, equals the CPU's blocks; with `into_textures` (where the device has BC textures) the
-/// levels of whole BC textures made by `create_bc_textures` too.
+/// levels of whole BC textures made by `create_bc_textures` too (on wgpu's GL backend, which
+/// reads no compressed texture back, as the texture unit reads them: within 2 steps of the
+/// core's block decoder).
 fn check_transcode(
     context: &Context,
     (device, queue): (&wgpu::Device, &wgpu::Queue),
@@ -333,7 +335,7 @@ fn check_transcode(
     let textures = nmat_core::bc::default_layout(m);
     assert!(!textures.is_empty());
     let has_bc = device.features().contains(wgpu::Features::TEXTURE_COMPRESSION_BC);
-    let made = if into_textures && has_bc && common::copies_bc_textures(device) {
+    let made = if into_textures && has_bc {
         context.create_bc_textures(device, queue, &gm, &textures).unwrap()
     } else {
         Vec::new()
@@ -344,11 +346,17 @@ fn check_transcode(
             let want = common::cpu_blocks(&cpu, m, texture, mip);
             common::assert_same_bytes(&gpu, &want, format!("{name}: {texture:?} mip {mip}"));
             if let Some(made) = made.get(t) {
-                let region = nmat_core::BlockRegion::mip(m, mip);
-                let block_bytes = texture.format.block_bytes();
-                let level = common::read_level(device, queue, made, mip, region, block_bytes);
                 let what = format!("{name}: {texture:?} mip {mip} in a BC texture");
-                common::assert_same_bytes(&level, &want, what);
+                if common::copies_bc_textures(device) {
+                    let region = nmat_core::BlockRegion::mip(m, mip);
+                    let block_bytes = texture.format.block_bytes();
+                    let level = common::read_level(device, queue, made, mip, region, block_bytes);
+                    common::assert_same_bytes(&level, &want, what);
+                } else {
+                    let worst =
+                        common::steps_off((device, queue), made, mip, texture.format, &want);
+                    assert!(worst <= 2, "{what}: the texture unit reads {worst} steps off");
+                }
             }
         }
     }

@@ -335,3 +335,59 @@ pub fn run_compute(
     }
     submit_and_read(device, queue, encoder, out)
 }
+
+/// The most steps by which the texture unit's reading of level `level` of `texture`
+/// (`textureLoad`, each component × 255 rounded, after sRGB encoding for an sRGB texture)
+/// differs from `nmat_core::bc::decode_block` of the blocks `want` of `format`, over the level's texels
+/// and the format's components.
+#[allow(dead_code)]
+pub fn steps_off(
+    (device, queue): (&wgpu::Device, &wgpu::Queue),
+    texture: &wgpu::Texture,
+    level: u32,
+    format: nmat_core::bc::BcFormat,
+    want: &[u8],
+) -> u8 {
+    let (w, h) = ((texture.width() >> level).max(1), (texture.height() >> level).max(1));
+    let source = "@group(0) @binding(0) var t: texture_2d<f32>;
+        @group(0) @binding(1) var<storage, read_write> out: array<vec4<f32>>;
+        @compute @workgroup_size(8, 8)
+        fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+            let size = textureDimensions(t, 0);
+            if (id.x < size.x && id.y < size.y) {
+                out[id.y * size.x + id.x] = textureLoad(t, vec2<i32>(id.xy), 0);
+            }
+        }";
+    let pipeline = compute_pipeline(device, source, None);
+    let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
+    let out = buffer(device, u64::from(w) * u64::from(h) * 16, usage, None);
+    let view = texture.create_view(&wgpu::TextureViewDescriptor {
+        base_mip_level: level,
+        mip_level_count: Some(1),
+        ..Default::default()
+    });
+    let entries = [
+        wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&view) },
+        wgpu::BindGroupEntry { binding: 1, resource: out.as_entire_binding() },
+    ];
+    let groups = (w.div_ceil(8), h.div_ceil(8));
+    let bytes = run_compute((device, queue), &pipeline, &entries, groups, &out);
+    let srgb = texture.format().is_srgb();
+    let block_bytes = format.block_bytes();
+    let mut worst = 0;
+    for (i, texel) in bytes.chunks(16).enumerate() {
+        let (x, y) = (i as u32 % w, i as u32 / w);
+        let b = ((y / 4) * w.div_ceil(4) + x / 4) as usize * block_bytes;
+        let decoded = nmat_core::bc::decode_block(format, &want[b..b + block_bytes]);
+        for k in 0..format.components() {
+            let mut v = f32::from_le_bytes(texel[4 * k..4 * k + 4].try_into().unwrap());
+            // The sRGB transfer function (alpha is stored linear).
+            if srgb && k < 3 {
+                v = if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
+            }
+            let read = (v * 255.0).round().clamp(0.0, 255.0) as u8;
+            worst = worst.max(read.abs_diff(decoded[((y % 4) * 4 + x % 4) as usize][k]));
+        }
+    }
+    worst
+}
