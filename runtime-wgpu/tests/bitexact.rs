@@ -294,7 +294,12 @@ fn remembered_kernel_choices_are_used_where_they_were_made() {
     let foreign =
         format!("nmat-wgpu kernel choices 0.0.0 on another GPU\n{}\t{shape}\n", other.id());
     assert_eq!(elsewhere.remember_kernel_choices(&device, &foreign).unwrap(), 0);
-    assert_eq!(elsewhere.upload(&device, &queue, &m).unwrap().kernel(), own);
+    assert_eq!(elsewhere.kernel_choices(&device), format!("{header}\n"));
+    if device.adapter_info().device_type == wgpu::DeviceType::Cpu {
+        // Nothing measured here: the upload picks as it does by itself. (A GPU measures
+        // again, and may rank kernels of close speeds otherwise.)
+        assert_eq!(elsewhere.upload(&device, &queue, &m).unwrap().kernel(), own);
+    }
 
     // Remembered, but its probe differs from the CPU: not used.
     let broken = Context::new(&device);
