@@ -26,7 +26,8 @@ fn identity(device: &wgpu::Device) -> String {
 }
 
 impl Context {
-    /// The kernel [`Context::upload`] measured fastest for each network shape on `device`, as
+    /// The kernel [`Context::upload`] measured fastest for each network shape on `device` (or
+    /// was given by [`Context::remember_kernel_choices`]), as
     /// text an engine saves between runs (next to its pipeline cache's data) and gives to
     /// [`Context::remember_kernel_choices`] in a later run, so that `upload` there prepares and
     /// probes that kernel alone and measures nothing. The first line names nmat-wgpu's version,
@@ -47,8 +48,9 @@ impl Context {
 
     /// Takes the choices of an earlier run ([`Context::kernel_choices`]'s text): a later
     /// [`Context::upload`] of a material of a listed shape tries that kernel first and, where
-    /// its probe passes, uses it without timing the others (where it fails, the others are
-    /// tried as always: a remembered choice is never taken on trust). Returns how many choices
+    /// its probe passes, uses it without timing the others (where it fails, the next kernel in
+    /// [`Kernel::ALL`] from its end whose probe passes, untimed: a remembered choice is never
+    /// taken on trust). Returns how many choices
     /// were taken: all the text lists, or none where it was written by another version of
     /// nmat-wgpu or on another adapter or driver (logged), whose timings say nothing about this
     /// one. A text that is not such a text is `GpuError::KernelChoices`, naming the line, and
