@@ -336,12 +336,50 @@ pub fn run_compute(
     submit_and_read(device, queue, encoder, out)
 }
 
+/// Level `level` of the BC texture `texture` holds the blocks `want` (of `format`): byte for
+/// byte where the device copies compressed textures back ([`copies_bc_textures`]); elsewhere
+/// (wgpu's GL backend) as its texture unit reads them ([`assert_texture_unit_reads`]). Fails
+/// naming `what`.
+#[allow(dead_code)]
+pub fn assert_bc_level(
+    (device, queue): (&wgpu::Device, &wgpu::Queue),
+    texture: &wgpu::Texture,
+    level: u32,
+    format: nmat_core::bc::BcFormat,
+    want: &[u8],
+    what: &str,
+) {
+    if !copies_bc_textures(device) {
+        assert_texture_unit_reads((device, queue), texture, level, format, want, what);
+        return;
+    }
+    let (w, h) = ((texture.width() >> level).max(1), (texture.height() >> level).max(1));
+    let blocks = nmat_core::BlockRegion { x: 0, y: 0, width: w.div_ceil(4), height: h.div_ceil(4) };
+    let got = read_level(device, queue, texture, level, blocks, format.block_bytes());
+    assert_same_bytes(&got, want, what);
+}
+
+/// The texture unit reads level `level` of `texture` as `nmat_core::bc::decode_block` decodes
+/// the blocks `want` (of `format`), within 2 steps ([`steps_off`]: hardware BC decoders may
+/// round interpolated colours differently by a step). Fails naming `what`.
+#[allow(dead_code)]
+pub fn assert_texture_unit_reads(
+    (device, queue): (&wgpu::Device, &wgpu::Queue),
+    texture: &wgpu::Texture,
+    level: u32,
+    format: nmat_core::bc::BcFormat,
+    want: &[u8],
+    what: &str,
+) {
+    let worst = steps_off((device, queue), texture, level, format, want);
+    assert!(worst <= 2, "{what}: the texture unit reads {worst} steps off");
+}
+
 /// The most steps by which the texture unit's reading of level `level` of `texture`
 /// (`textureLoad`, each component × 255 rounded, after sRGB encoding for an sRGB texture)
 /// differs from `nmat_core::bc::decode_block` of the blocks `want` of `format`, over the level's texels
 /// and the format's components.
-#[allow(dead_code)]
-pub fn steps_off(
+fn steps_off(
     (device, queue): (&wgpu::Device, &wgpu::Queue),
     texture: &wgpu::Texture,
     level: u32,
