@@ -80,8 +80,7 @@ impl Context {
             let pitches: Vec<u64> =
                 these.iter().map(|(bc, _)| aligned_row_pitch(bc.format, all.width)).collect();
             let row_bytes: u64 = pitches.iter().sum();
-            let band_rows =
-                (self.pass_bytes(device) / row_bytes.max(1)).clamp(1, u64::from(all.height)) as u32;
+            let band_rows = self.band_rows(device, row_bytes, all.height);
             let staging = kept_buffer(
                 &self.bc_staging,
                 device,
@@ -191,8 +190,7 @@ impl Context {
             let Some(all) = gm.blocks(mip) else { break };
             let row_bytes: u64 =
                 textures.iter().map(|t| u64::from(all.width) * t.format.block_bytes() as u64).sum();
-            let band_rows =
-                (self.pass_bytes(device) / row_bytes.max(1)).clamp(1, u64::from(all.height)) as u32;
+            let band_rows = self.band_rows(device, row_bytes, all.height);
             let bands = (0..all.height)
                 .step_by(band_rows as usize)
                 .map(|first| {

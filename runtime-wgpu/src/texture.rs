@@ -87,8 +87,7 @@ impl Context {
         // and stored in bands of rows whose codes fit one pass.
         self.region_params(gm, mip, rect, mask)?;
         let row_codes = u64::from(width) * u64::from(count);
-        let band_rows =
-            (self.pass_bytes(device) / row_codes.max(1)).clamp(1, u64::from(height.max(1))) as u32;
+        let band_rows = self.band_rows(device, row_codes, height);
         let codes = row_codes * u64::from(band_rows.min(height));
         let buffer = self.texture_codes(device, codes.next_multiple_of(4).max(4));
         for first in (0..height).step_by(band_rows as usize) {

@@ -260,8 +260,7 @@ impl Context {
         // In bands of block rows whose codes fit one pass (a 4096² mip of nine channels is
         // 151 MB of codes, more than a downlevel device binds at once).
         let channels = u64::from(decoded.count_ones());
-        let band_rows = (self.pass_bytes(device) / (u64::from(width) * 4 * channels).max(1))
-            .clamp(1, u64::from(region.height)) as u32;
+        let band_rows = self.band_rows(device, u64::from(width) * 4 * channels, region.height);
         for first in (0..region.height).step_by(band_rows as usize) {
             let rows = band_rows.min(region.height - first);
             let band_y = y + 4 * first;
@@ -299,6 +298,12 @@ impl Context {
         let limit = device.limits().max_storage_buffer_binding_size.min(PASS_BYTES);
         let asked = *self.pass_bytes.lock().unwrap_or_else(|e| e.into_inner());
         asked.map_or(limit, |asked| asked.min(limit))
+    }
+
+    /// How many of `rows` rows of `row_bytes` bytes one pass takes: as many as
+    /// [`Context::pass_bytes`] holds, at least one.
+    pub(crate) fn band_rows(&self, device: &wgpu::Device, row_bytes: u64, rows: u32) -> u32 {
+        (self.pass_bytes(device) / row_bytes.max(1)).clamp(1, u64::from(rows.max(1))) as u32
     }
 
     /// Makes every later pass of the transcoding calls decode and stage at most `bytes` (at
