@@ -79,11 +79,11 @@ impl Context {
             }
             taken.push((shape.to_owned(), kernel));
         }
-        if first != identity(device) {
+        let here = identity(device);
+        if first != here {
             log::info!(
                 "nmat-wgpu: kernel choices made elsewhere are not used here ({first:?}, not \
-                 {:?})",
-                identity(device)
+                 {here:?})"
             );
             return Ok(0);
         }
