@@ -13,9 +13,9 @@ use nmat_core::{ChannelMask, Filter, FrameStats, Material, TILE_SIZE, TileKey};
 use wgpu::util::DeviceExt;
 
 use crate::gpu::{
-    Bound, KeptBinds, check_output, check_requests, dispatch, dispatch_bound, read_back,
-    read_buffer, read_buffer_within, spread, storage_entry, try_pipeline, uniform_buffer,
-    uniform_entry,
+    Bound, KeptBinds, Waits, check_output, check_requests, dispatch, dispatch_bound, read_back,
+    read_back_async, read_buffer, read_buffer_async, read_buffer_within, spread, storage_entry,
+    try_pipeline, uniform_buffer, uniform_entry,
 };
 use crate::jpeg::JpegMap;
 use crate::layout::{
@@ -547,20 +547,21 @@ impl Context {
     /// the CPU does; without one (the tile cache then decodes its tiles one texel per
     /// invocation) where it does not, or where the device refuses the entry, logged like a
     /// kernel whose probe fails.
-    pub(crate) fn with_tile_decoder(
+    pub(crate) async fn with_tile_decoder(
         &self,
         device: &wgpu::Device,
         queue: &wgpu::Queue,
         m: &Material<'_>,
         gm: GpuMaterial,
         entry: Option<TileEntry>,
+        waits: Waits,
     ) -> Result<GpuMaterial, GpuError> {
         let Some(entry) = entry else { return Ok(gm) };
-        let checked = match self.tile_pipeline(device, &entry) {
+        let checked = match self.tile_pipeline(device, &entry).await {
             None => Err("the device refused it"),
             Some(pipeline) => {
                 let decoder = TileDecoder { pipeline, per_tile: entry.per_tile };
-                match self.probe_tile_decoder(device, queue, m, &gm, &decoder) {
+                match self.probe_tile_decoder(device, queue, m, &gm, &decoder, waits).await {
                     Ok(Some(true)) => Ok(decoder),
                     Ok(Some(false)) => Err("its codes on the probe tiles differ from the CPU's"),
                     Ok(None) => {
@@ -587,7 +588,7 @@ impl Context {
     /// The pipeline of a kernel's tile entry, built once per material shape (keyed apart from
     /// the kernel's own pipeline: same source, another entry); `None` where the device refuses
     /// it. Broken on purpose after [`Context::break_tile_decoders_for_testing`].
-    fn tile_pipeline(
+    async fn tile_pipeline(
         &self,
         device: &wgpu::Device,
         entry: &TileEntry,
@@ -599,24 +600,21 @@ impl Context {
                 source.replace("out_codes[first + w] = word;", "out_codes[first + w] = word ^ 1u;");
         }
         let key = format!("{source}// {}\n", entry.entry);
-        let mut cache = self.tiled.lock().unwrap_or_else(|e| e.into_inner());
-        let pipeline = cache
-            .entry(key)
-            .or_insert_with_key(|key| self.pipeline(device, key, entry.entry).map(Arc::new));
-        pipeline.clone()
+        self.kept_pipeline(device, key, entry.entry).await
     }
 
     /// Whether `decoder` decodes [`probe_tiles`] of `m` (uploaded as `gm`) as the CPU does:
     /// every texel and channel of each tile into its own slot of a fresh buffer, through a queue
-    /// laid out as the cache's, then read back (waits for the device as long as for a kernel's
-    /// probe; `None` where it had not finished).
-    fn probe_tile_decoder(
+    /// laid out as the cache's, then read back (blocking, waits for the device as long as for
+    /// a kernel's probe: `None` where it had not finished; or awaited).
+    async fn probe_tile_decoder(
         &self,
         device: &wgpu::Device,
         queue: &wgpu::Queue,
         m: &Material<'_>,
         gm: &GpuMaterial,
         decoder: &TileDecoder,
+        waits: Waits,
     ) -> Result<Option<bool>, GpuError> {
         let tiles = probe_tiles(m);
         let n = m.channel_count() as u32;
@@ -653,9 +651,11 @@ impl Context {
         let groups = u64::from(decoder.per_tile) * tiles.len() as u64;
         dispatch_bound(&mut encoder, &decoder.pipeline, &bind, groups);
         queue.submit([encoder.finish()]);
-        let Some(got) = read_buffer_within(device, queue, &out, self.probe_wait(device))? else {
-            return Ok(None);
+        let got = match waits {
+            Waits::Block => read_buffer_within(device, queue, &out, self.probe_wait(device))?,
+            Waits::Await => Some(read_buffer_async(device, queue, &out).await?),
         };
+        let Some(got) = got else { return Ok(None) };
         let want: Vec<u8> = tiles.iter().flat_map(|&key| cpu_tile_codes(m, key)).collect();
         Ok(Some(got == want))
     }
@@ -923,6 +923,20 @@ impl GpuTileCache {
     /// calls so far.
     pub fn read_stats(&self, device: &wgpu::Device) -> Result<FrameStats, GpuError> {
         let bytes = read_back(device, &self.stats, COUNTER_BYTES)?;
+        Ok(self.stats_of(&bytes))
+    }
+
+    /// [`GpuTileCache::read_stats`] without blocking (e.g. on WebGPU in a browser): ready once
+    /// the device has run that frame's submission and been polled (the browser's event loop,
+    /// or natively the caller's `Device::poll`). Await it before submitting the next
+    /// `record_end_frame`, which copies into the same buffer.
+    pub async fn read_stats_async(&self) -> Result<FrameStats, GpuError> {
+        let bytes = read_back_async(&self.stats, COUNTER_BYTES).await?;
+        Ok(self.stats_of(&bytes))
+    }
+
+    /// The counters in `bytes` (the stats buffer's), with the frames begun so far.
+    fn stats_of(&self, bytes: &[u8]) -> FrameStats {
         let w: Vec<u32> =
             bytes.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
         let mut head = [0u32; CacheHeader::WORDS];
@@ -930,7 +944,7 @@ impl GpuTileCache {
             *to = from;
         }
         let c: CacheHeader = bytemuck::cast(head);
-        Ok(FrameStats {
+        FrameStats {
             frame: self.frame.load(Ordering::Relaxed),
             marked: c.marked,
             hits: c.hits,
@@ -939,7 +953,7 @@ impl GpuTileCache {
             evicted: c.evicted,
             overflowed: c.overflowed,
             resolve_misses: c.resolve_misses,
-        })
+        }
     }
 
     /// Every tile the cache holds and its codes (submits a copy and blocks on the device; for

@@ -2,7 +2,8 @@
 //! transcode and encode entry point of the main shader shares.
 
 use crate::gpu::{
-    Bound, KeptBinds, WORKGROUP, storage_entry, try_pipeline, uniform_buffer, uniform_entry,
+    Bound, KeptBinds, WORKGROUP, Waits, checked_pipeline, now, storage_entry, uniform_buffer,
+    uniform_entry,
 };
 use crate::layout::{JpegParams, ShaderLayout};
 use crate::submit::Pool;
@@ -380,20 +381,41 @@ impl Context {
     /// The pipeline of `entry` in `source` (a shader of the decode kernels' layout, declaring its
     /// parameters at binding 4) in this context's layout — with the matrix kernel's weights as
     /// group 1 where the source declares them (`matrix::WEIGHTS_BINDING`); `None` where the
-    /// device refuses it.
+    /// device refuses it, as it answers now (`gpu::try_pipeline`).
     pub(crate) fn pipeline(
         &self,
         device: &wgpu::Device,
         source: &str,
         entry: &str,
     ) -> Option<wgpu::ComputePipeline> {
+        now(self.checked_pipeline(device, source, entry, Waits::Block)).flatten()
+    }
+
+    /// [`Context::pipeline`] once the device has answered on it (`Waits::Await`), or with the
+    /// answer it has now (`gpu::checked_pipeline`).
+    pub(crate) fn checked_pipeline(
+        &self,
+        device: &wgpu::Device,
+        source: &str,
+        entry: &str,
+        waits: Waits,
+    ) -> impl Future<Output = Option<wgpu::ComputePipeline>> + use<> {
         let layout = if source.contains(crate::matrix::WEIGHTS_BINDING) {
-            self.weights_pipeline_layout.as_ref()?
+            self.weights_pipeline_layout.as_ref()
         } else {
-            &self.pipeline_layout
+            Some(&self.pipeline_layout)
         };
         let source = with_parameters(source, self.immediates);
-        try_pipeline(device, &source, entry, (Some(layout), self.pipeline_cache.as_ref()))
+        let built = layout.map(|layout| {
+            let layout_and_cache = (Some(layout), self.pipeline_cache.as_ref());
+            checked_pipeline(device, &source, entry, layout_and_cache, waits)
+        });
+        async move {
+            match built {
+                Some(pipeline) => pipeline.await,
+                None => None,
+            }
+        }
     }
 
     /// Whether dispatches take their parameters as immediates ([`immediates_usable`]): then a

@@ -72,8 +72,9 @@ pub enum GpuError {
     /// buffer's mapping completes only once control is back in the browser's event loop. The
     /// calls that wait: [`Context::upload`] of a neural material (it reads back each kernel's
     /// probe), `wait` and `is_finished` of work in flight, the `decode_*` and `transcode_*`
-    /// calls, and the timings of [`crate::measure`]. Refused rather than left blocking; in a
-    /// browser, decode on the CPU (`nmat_core`) for now.
+    /// calls, the tile cache's `read_stats`, and the timings of [`crate::measure`]. Refused
+    /// rather than left blocking; in a browser use the calls that never block:
+    /// [`Context::upload_async`], `submit_*` then `wait_async`, `read_stats_async`.
     CannotWait,
     /// Text given to [`Context::remember_kernel_choices`] that is not what
     /// [`Context::kernel_choices`] writes: `line` (from 1) is the first line at fault.
@@ -144,9 +145,9 @@ impl std::fmt::Display for GpuError {
             ),
             GpuError::CannotWait => write!(
                 f,
-                "this call waits for the device, which WebGPU in a browser cannot do (uploading \
-                 a neural material, wait, is_finished, decode_*, transcode_* and timings are not \
-                 supported there; decode on the CPU)"
+                "this call waits for the device, which WebGPU in a browser cannot do (upload, \
+                 wait, is_finished, decode_*, transcode_*, read_stats and timings block; use \
+                 upload_async, submit_* then wait_async, read_stats_async)"
             ),
             GpuError::KernelChoices { line, reason } => {
                 write!(f, "kernel choices, line {line}: {reason}")

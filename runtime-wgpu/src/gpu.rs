@@ -130,6 +130,16 @@ pub fn read_buffer(
     read_back(device, &copy_for_reading(device, queue, source), source.size())
 }
 
+/// [`read_buffer`] without blocking: the copy is submitted now, its mapping awaited
+/// ([`read_back_async`]).
+pub(crate) async fn read_buffer_async(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    source: &wgpu::Buffer,
+) -> Result<Vec<u8>, GpuError> {
+    read_back_async(&copy_for_reading(device, queue, source), source.size()).await
+}
+
 /// A mappable copy of `source` (a `COPY_SRC` buffer), submitted.
 fn copy_for_reading(
     device: &wgpu::Device,
@@ -180,6 +190,81 @@ pub(crate) fn read_back_after(
         .ok_or_else(|| GpuError::Map("the wait ended before the device".into()))
 }
 
+/// How a call gets the device's answers (a probe's codes, a shader's validation): by blocking
+/// until they come (the synchronous calls, which a browser refuses), or by awaiting them (the
+/// `_async` calls, which never block: the answers come when the device is polled, by the
+/// browser's event loop or the caller's `Device::poll`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Waits {
+    Block,
+    Await,
+}
+
+/// `future` polled once (with a waker that does nothing): its output where it is ready at once,
+/// else `None` (the future is dropped). The synchronous calls run their `async` logic through it:
+/// with [`Waits::Block`] every answer they await is ready when asked for.
+pub(crate) fn now<F: Future>(future: F) -> Option<F::Output> {
+    let mut future = std::pin::pin!(future);
+    let mut cx = std::task::Context::from_waker(std::task::Waker::noop());
+    match future.as_mut().poll(&mut cx) {
+        std::task::Poll::Ready(output) => Some(output),
+        std::task::Poll::Pending => None,
+    }
+}
+
+/// What a mapping's callback left: its outcome once it ran, and the waker of the task awaiting it.
+#[derive(Default)]
+struct MapState {
+    outcome: Option<Result<(), wgpu::BufferAsyncError>>,
+    waker: Option<std::task::Waker>,
+}
+
+/// The outcome of a `map_async`, awaited: ready once its callback has run (in a poll of the
+/// device: the browser's event loop, or the caller's `Device::poll` natively).
+struct Mapping(std::sync::Arc<Mutex<MapState>>);
+
+impl Future for Mapping {
+    type Output = Result<(), wgpu::BufferAsyncError>;
+
+    fn poll(
+        self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Self::Output> {
+        let mut state = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        match state.outcome.take() {
+            Some(outcome) => std::task::Poll::Ready(outcome),
+            None => {
+                state.waker = Some(cx.waker().clone());
+                std::task::Poll::Pending
+            }
+        }
+    }
+}
+
+/// The first `bytes` of `buffer` (a `MAP_READ` buffer that submitted work writes), mapped
+/// without blocking: the future is ready once the device has run that work and been polled.
+/// Dropping it before then leaves the buffer mapping (not to be reused).
+pub(crate) async fn read_back_async(
+    buffer: &wgpu::Buffer,
+    bytes: u64,
+) -> Result<Vec<u8>, GpuError> {
+    let state = std::sync::Arc::new(Mutex::new(MapState::default()));
+    let callback_state = std::sync::Arc::clone(&state);
+    buffer.map_async(wgpu::MapMode::Read, ..bytes, move |outcome| {
+        let mut state = callback_state.lock().unwrap_or_else(|e| e.into_inner());
+        state.outcome = Some(outcome);
+        if let Some(waker) = state.waker.take() {
+            waker.wake();
+        }
+    });
+    Mapping(state).await.map_err(|e| GpuError::Map(e.to_string()))?;
+    let view = buffer.get_mapped_range(..bytes).map_err(|e| GpuError::Map(e.to_string()))?;
+    let bytes = view.to_vec();
+    drop(view);
+    buffer.unmap();
+    Ok(bytes)
+}
+
 /// Whether the calls that wait for the device can on `backend`: on every backend but WebGPU in a
 /// browser, whose polls return at once and whose mappings complete only in the browser's event
 /// loop (a wait there would never end).
@@ -191,10 +276,25 @@ pub(crate) fn waits_on(backend: wgpu::Backend) -> bool {
 /// waits for the device asks this first. Only a WebAssembly build has the browser's backend:
 /// elsewhere there is nothing to ask (and no `AdapterInfo` to copy on every wait).
 pub(crate) fn check_can_wait(device: &wgpu::Device) -> Result<(), GpuError> {
-    if cfg!(target_arch = "wasm32") && !waits_on(device.adapter_info().backend) {
+    let browser = cfg!(target_arch = "wasm32") && !waits_on(device.adapter_info().backend);
+    if browser || REFUSE_WAITS.get() {
         return Err(GpuError::CannotWait);
     }
     Ok(())
+}
+
+std::thread_local! {
+    /// Whether the calls that wait for the device refuse to on this thread, as in a browser
+    /// ([`refuse_waits_on_this_thread_for_testing`]).
+    static REFUSE_WAITS: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Makes every call that waits for the device return [`GpuError::CannotWait`] on the calling
+/// thread (`true`), as on WebGPU in a browser, or wait again (`false`): so that a native test
+/// can see that the asynchronous calls never block. For tests only.
+#[doc(hidden)]
+pub fn refuse_waits_on_this_thread_for_testing(refuse: bool) {
+    REFUSE_WAITS.set(refuse);
 }
 
 /// Whether the queue has run `submission`, waiting at most `timeout` for it (zero: asks without
@@ -242,13 +342,31 @@ pub(crate) fn read_back_within(
 }
 
 /// The compute pipeline of `entry` in `source` (with `layout`, or the one wgpu derives), or
-/// `None` where the device refuses it (a shader language feature it lacks, a limit).
+/// `None` where the device refuses it (a shader language feature it lacks, a limit), as the
+/// device answers now ([`checked_pipeline`] with [`Waits::Block`]).
 pub(crate) fn try_pipeline(
     device: &wgpu::Device,
     source: &str,
     entry: &str,
-    (layout, cache): (Option<&wgpu::PipelineLayout>, Option<&wgpu::PipelineCache>),
+    layout_and_cache: (Option<&wgpu::PipelineLayout>, Option<&wgpu::PipelineCache>),
 ) -> Option<wgpu::ComputePipeline> {
+    now(checked_pipeline(device, source, entry, layout_and_cache, Waits::Block)).flatten()
+}
+
+/// The compute pipeline of `entry` in `source`, created (and its error scopes popped) when this
+/// is called, once the device has said whether it took the shader: `None` where it refused it.
+/// wgpu's native backends answer at once. WebGPU in a browser answers later: with
+/// [`Waits::Await`] the future waits for that answer (an optional pipeline, such as a faster
+/// kernel, is used only once it is known good); with [`Waits::Block`] it is ready at once and
+/// an answer still pending takes the pipeline (one nmat cannot do without: its errors then
+/// reach the device's error handler, as any wgpu call's).
+pub(crate) fn checked_pipeline(
+    device: &wgpu::Device,
+    source: &str,
+    entry: &str,
+    (layout, cache): (Option<&wgpu::PipelineLayout>, Option<&wgpu::PipelineCache>),
+    waits: Waits,
+) -> impl Future<Output = Option<wgpu::ComputePipeline>> + use<> {
     let internal = device.push_error_scope(wgpu::ErrorFilter::Internal);
     let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
     let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -263,15 +381,17 @@ pub(crate) fn try_pipeline(
         compilation_options: Default::default(),
         cache,
     });
-    // wgpu's native backends report a scope at once; a pending answer counts as refused.
-    let mut clean = true;
-    for scope in [validation, internal] {
-        let mut error = std::pin::pin!(scope.pop());
-        let waker = std::task::Waker::noop();
-        let answer = error.as_mut().poll(&mut std::task::Context::from_waker(waker));
-        clean &= matches!(answer, std::task::Poll::Ready(None));
+    // Popped now, innermost first; their answers taken below.
+    let (validation, internal) = (validation.pop(), internal.pop());
+    async move {
+        let refused = match waits {
+            Waits::Await => validation.await.is_some() | internal.await.is_some(),
+            Waits::Block => {
+                matches!(now(validation), Some(Some(_))) | matches!(now(internal), Some(Some(_)))
+            }
+        };
+        (!refused).then_some(pipeline)
     }
-    clean.then_some(pipeline)
 }
 
 /// A bind group of the decode kernels' layout (context.rs) and the dispatch's parameters where

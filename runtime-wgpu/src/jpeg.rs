@@ -11,7 +11,7 @@ use std::sync::Arc;
 use nmat_core::internals::huffman_decoding;
 use nmat_core::{Jpeg, Material};
 
-use crate::gpu::{MAX_GROUPS, dispatch_bound};
+use crate::gpu::{MAX_GROUPS, Waits, dispatch_bound};
 use crate::layout::{
     self, HuffmanRecord, JpegHeader, JpegMapRecord, JpegParams, JpegStreamRecord, MipSize, Params,
     ShaderLayout,
@@ -203,21 +203,36 @@ impl Context {
         &self,
         device: &wgpu::Device,
     ) -> Result<Arc<JpegPipelines>, GpuError> {
-        let mut slot = self.jpeg.lock().unwrap_or_else(|e| e.into_inner());
-        if slot.is_none() {
-            let source = crate::layout::jpeg_wgsl();
-            let entry = |name| self.pipeline(device, &source, name);
-            let names = ["jpeg_main", "jpeg_clear", "jpeg_mark", "jpeg_resolve", "jpeg_reset"];
-            if let [Some(decode), Some(clear), Some(mark), Some(resolve), Some(reset)] =
-                names.map(entry)
-            {
-                *slot = Some(Arc::new(JpegPipelines { decode, clear, mark, resolve, reset }));
-            }
+        let built = self.jpeg.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        match built {
+            Some(pipelines) => Ok(pipelines),
+            None => crate::gpu::now(self.build_jpeg_pipelines(device, Waits::Block))
+                .unwrap_or(Err(jpeg_refused())),
         }
-        slot.clone().ok_or(GpuError::Kernel {
-            kernel: crate::Kernel::Reference,
-            reason: "the device refused the JPEG decode shader",
-        })
+    }
+
+    /// The JPEG pipelines built and kept, unless they are already: once the device has answered
+    /// on each (`Waits::Await`: `Context::upload_async`), or with the answers it has now.
+    pub(crate) async fn build_jpeg_pipelines(
+        &self,
+        device: &wgpu::Device,
+        waits: Waits,
+    ) -> Result<Arc<JpegPipelines>, GpuError> {
+        let built = self.jpeg.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        if let Some(pipelines) = built {
+            return Ok(pipelines);
+        }
+        let source = crate::layout::jpeg_wgsl();
+        let names = ["jpeg_main", "jpeg_clear", "jpeg_mark", "jpeg_resolve", "jpeg_reset"];
+        let [decode, clear, mark, resolve, reset] =
+            names.map(|name| self.checked_pipeline(device, &source, name, waits));
+        let all = (decode.await, clear.await, mark.await, resolve.await, reset.await);
+        let (Some(decode), Some(clear), Some(mark), Some(resolve), Some(reset)) = all else {
+            return Err(jpeg_refused());
+        };
+        let pipelines = Arc::new(JpegPipelines { decode, clear, mark, resolve, reset });
+        let mut slot = self.jpeg.lock().unwrap_or_else(|e| e.into_inner());
+        Ok(slot.get_or_insert(pipelines).clone())
     }
 
     /// Records the decode of `params` (a rectangle or requests, checked by the caller, the
@@ -351,5 +366,13 @@ impl Context {
         });
         *slot = Some((buffer.clone(), shape));
         Ok((buffer, shape))
+    }
+}
+
+/// The device refused the JPEG decode shader (or left it unanswered).
+fn jpeg_refused() -> GpuError {
+    GpuError::Kernel {
+        kernel: crate::Kernel::Reference,
+        reason: "the device refused the JPEG decode shader",
     }
 }

@@ -1,6 +1,6 @@
 //! `nmat-wgpu`: batch decoding of `.nmat` materials on any GPU wgpu reaches (Vulkan, Metal,
-//! D3D12, OpenGL ES; not yet WebGPU in a browser, [`GpuError::CannotWait`]), bit-exact with
-//! `nmat_core`'s integer decoder: the same 8-bit codes as every CPU kernel and the C API.
+//! D3D12, OpenGL ES, and WebGPU in a browser through the calls that never block), bit-exact
+//! with `nmat_core`'s integer decoder: the same 8-bit codes as every CPU kernel and the C API.
 //!
 //! The caller owns the device and queue (engines do); a [`Context`] caches the pipelines;
 //! [`Context::upload`] puts a material's packed latent words (as stored in the file), its int8
@@ -26,6 +26,22 @@
 //! let requests = [TexelRequest { x: 3, y: 5, mip: 0 }, TexelRequest { x: 9, y: 1, mip: 2 }];
 //! let codes = context.decode_requests(&device, &queue, &gpu, &requests, ChannelMask::ALL)?;
 //! # let _ = (mip0, codes); Ok(()) }
+//! ```
+//!
+//! Where nothing may block (WebGPU in a browser, whose blocking calls return
+//! [`GpuError::CannotWait`]; an engine's render thread), [`Context::upload_async`] and
+//! [`PendingDecode::wait_async`] (also on BC transcodes and the tile cache's counters) return
+//! futures, ready once the device has run the work and been polled (by the browser's event
+//! loop; natively by the caller's `Device::poll`):
+//!
+//! ```no_run
+//! # async fn web(ctx: &nmat_wgpu::Context, device: &wgpu::Device, queue: &wgpu::Queue,
+//! #              material: &nmat_core::Material<'_>) -> Result<Vec<u8>, nmat_wgpu::GpuError> {
+//! let gpu = ctx.upload_async(device, queue, material).await?;
+//! let all = nmat_core::ChannelMask::ALL;
+//! let pending = ctx.submit_region(device, queue, &gpu, 0, (0, 0, 64, 64), all)?;
+//! pending.wait_async().await
+//! # }
 //! ```
 //!
 //! For throughput keep several decodes in flight: submit regions with
@@ -90,7 +106,7 @@ pub use context::{Context, IMMEDIATE_BYTES, immediates_usable};
 pub use decode::TexelRequest;
 pub use device::default_device;
 pub use error::GpuError;
-pub use gpu::read_buffer;
+pub use gpu::{read_buffer, refuse_waits_on_this_thread_for_testing};
 pub use matrix::{FEATURES as MATRIX_FEATURES, usable as matrix_usable};
 pub use sample::SampleBindings;
 pub use submit::PendingDecode;

@@ -1,7 +1,7 @@
 //! Submit-then-map decodes: the buffers they reuse (a pool per [`Context`]) and the
 //! [`PendingDecode`] that maps the result.
 
-use crate::gpu::{Bound, dispatch_bound, finished_within, read_back_after};
+use crate::gpu::{Bound, dispatch_bound, finished_within, read_back_after, read_back_async};
 use crate::layout::{Params, ShaderLayout};
 use crate::upload::GpuBody;
 use crate::{Context, GpuError, GpuMaterial};
@@ -141,6 +141,23 @@ impl PendingDecode {
         bytes.truncate(self.len);
         self.give_back();
         Ok(bytes)
+    }
+
+    /// [`PendingDecode::wait`] without blocking, e.g. on WebGPU in a browser (where `wait`
+    /// returns [`GpuError::CannotWait`]): the future is ready with the codes once the device has
+    /// run the decode and been polled — by the browser's event loop, or natively by the
+    /// caller's `Device::poll` (`PollType::Poll` once a frame never blocks). Dropped before then,
+    /// its buffers are not reused.
+    pub async fn wait_async(mut self) -> Result<Vec<u8>, GpuError> {
+        // Kept out of the pool until the codes are mapped: a future dropped while its buffer
+        // is mapping must not hand that buffer to another decode.
+        let scratch = self.scratch.take();
+        let bytes = (self.len as u64).next_multiple_of(4).max(4);
+        let mut codes = read_back_async(&self.readback, bytes).await?;
+        codes.truncate(self.len);
+        self.scratch = scratch;
+        self.give_back();
+        Ok(codes)
     }
 
     /// Whether the device has run this decode, waiting at most `wait` for it: with

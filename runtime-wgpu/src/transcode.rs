@@ -5,7 +5,9 @@
 //! be copied into a BC texture. The encoders are `bc.wgsl` and `bc7.wgsl`, ports of
 //! `nmat_core::bc`.
 
-use crate::gpu::{MAX_GROUPS, check_output, dispatch_bound, finished_within, read_back_after};
+use crate::gpu::{
+    MAX_GROUPS, check_output, dispatch_bound, finished_within, read_back_after, read_back_async,
+};
 use crate::layout::Params;
 use crate::{Context, GpuError, GpuMaterial};
 use nmat_core::bc::{BLOCK_PIXELS, BcFormat, BcTexture};
@@ -51,6 +53,14 @@ impl PendingBlocks {
         bytes.truncate(self.len);
         Ok(bytes)
     }
+
+    /// [`PendingBlocks::wait`] without blocking, as [`crate::PendingDecode::wait_async`]: ready
+    /// with the blocks once the device has run the transcoding and been polled.
+    pub async fn wait_async(self) -> Result<Vec<u8>, GpuError> {
+        let mut bytes = read_back_async(&self.readback, self.readback.size()).await?;
+        bytes.truncate(self.len);
+        Ok(bytes)
+    }
 }
 
 /// The BC blocks of one mip of several textures, submitted to the queue in one submission
@@ -73,12 +83,19 @@ impl PendingTextures {
     /// submitted after it) and returns each texture's, in the order asked.
     pub fn wait(self, device: &wgpu::Device) -> Result<Vec<Vec<u8>>, GpuError> {
         let bytes = self.blocks.wait(device)?;
-        Ok(self
-            .spans
-            .iter()
-            .map(|&(at, n)| bytes[at as usize..(at + n) as usize].to_vec())
-            .collect())
+        Ok(split_spans(&bytes, &self.spans))
     }
+
+    /// [`PendingTextures::wait`] without blocking ([`PendingBlocks::wait_async`]).
+    pub async fn wait_async(self) -> Result<Vec<Vec<u8>>, GpuError> {
+        let bytes = self.blocks.wait_async().await?;
+        Ok(split_spans(&bytes, &self.spans))
+    }
+}
+
+/// Each texture's blocks out of one mip's: the bytes of each span (offset, length).
+fn split_spans(bytes: &[u8], spans: &[(u64, u64)]) -> Vec<Vec<u8>> {
+    spans.iter().map(|&(at, n)| bytes[at as usize..(at + n) as usize].to_vec()).collect()
 }
 
 /// The wgpu texture format that samples a [`BcTexture`]'s blocks (BC1 as `Bc1RgbaUnorm`, whose

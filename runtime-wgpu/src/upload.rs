@@ -4,6 +4,7 @@
 
 use crate::cache::{TileDecoder, TileEntry};
 use crate::features::Features;
+use crate::gpu::{Waits, now};
 use crate::layout::words_to_bytes;
 use crate::layout::{
     self, ChannelRange, GridRecord, LayerRecord, LevelRecord, NeuralHeader, Quantizer, RequantRow,
@@ -30,8 +31,9 @@ impl Context {
     /// decode one texel per invocation ([`GpuMaterial::tile_kernel`], logged). Pipelines are
     /// shared by materials of the same network shape and latent layout (the grids' channels
     /// and bits per code, the levels' terms: the input features are generated for it). Waits
-    /// for the probe decodes (a few
-    /// milliseconds on a GPU).
+    /// for the probe decodes (a few milliseconds on a GPU); [`Context::upload_async`] awaits
+    /// them instead (WebGPU in a browser, where this returns [`GpuError::CannotWait`] for a
+    /// neural material).
     pub fn upload(
         &self,
         device: &wgpu::Device,
@@ -51,6 +53,55 @@ impl Context {
         m: &Material<'_>,
         kernel: Option<Kernel>,
     ) -> Result<GpuMaterial, GpuError> {
+        // Blocking, every answer the upload awaits is there when asked for.
+        now(self.upload_waiting(device, queue, m, kernel, Waits::Block)).unwrap_or_else(|| {
+            Err(GpuError::Map("the device left a check of the upload unanswered".into()))
+        })
+    }
+
+    /// [`Context::upload`] without blocking, for WebGPU in a browser (where the blocking calls
+    /// return [`GpuError::CannotWait`]) or an engine that keeps its thread free: the same buffers
+    /// and the same checks of each kernel against the CPU on the probe, with the device's answers
+    /// (the probes' codes, whether it took each kernel's shader) awaited. The future is ready
+    /// once the device has answered, which happens when it is polled: by the browser's event
+    /// loop, or natively by the caller's `Device::poll` (e.g. `PollType::Poll` once a frame, or
+    /// a thread that polls). No kernel is timed (timing waits for the device): the kernel
+    /// chosen is the one [`Context::remember_kernel_choices`] or an earlier [`Context::upload`]
+    /// in this `Context` measured fastest for the network's shape, else the first exact one in
+    /// [`Kernel::ALL`] from its end, as on a software adapter; [`Context::upload_with_async`]
+    /// names one. Nothing times out: a probe that never finishes leaves the future pending.
+    /// A JPEG material's decode pipelines are built here too (once per `Context`), so that its
+    /// decodes can be recorded at once afterwards.
+    pub async fn upload_async(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        m: &Material<'_>,
+    ) -> Result<GpuMaterial, GpuError> {
+        self.upload_with_async(device, queue, m, None).await
+    }
+
+    /// [`Context::upload_async`] with the kernel chosen by the caller, as
+    /// [`Context::upload_with`].
+    pub async fn upload_with_async(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        m: &Material<'_>,
+        kernel: Option<Kernel>,
+    ) -> Result<GpuMaterial, GpuError> {
+        self.upload_waiting(device, queue, m, kernel, Waits::Await).await
+    }
+
+    /// The upload, blocking for the device's answers or awaiting them (`waits`).
+    async fn upload_waiting(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        m: &Material<'_>,
+        kernel: Option<Kernel>,
+        waits: Waits,
+    ) -> Result<GpuMaterial, GpuError> {
         let n = match m.body() {
             Body::Neural(n) => n,
             Body::Jpeg(j) => {
@@ -61,6 +112,9 @@ impl Context {
                         reason: "a JPEG material has no network",
                     });
                 }
+                if waits == Waits::Await {
+                    self.build_jpeg_pipelines(device, waits).await?;
+                }
                 let scratch = *self.jpeg_scratch.lock().unwrap_or_else(|e| e.into_inner());
                 let (desc, section, maps) = jpeg::upload_words(device, m, j, scratch)?;
                 fits_one_binding(device, "descriptors", &desc)?;
@@ -70,101 +124,71 @@ impl Context {
                 return Ok(GpuMaterial::new(m, (desc, section), Kernel::Reference, body, None));
             }
         };
-        // Every kernel is checked on a probe read back from the device: where no call can wait
-        // for it, say so here (a probe's failure would read as the kernel's).
-        crate::gpu::check_can_wait(device)?;
+        if waits == Waits::Block {
+            // Every kernel is checked on a probe read back from the device: where no call can
+            // wait for it, say so here (a probe's failure would read as the kernel's).
+            crate::gpu::check_can_wait(device)?;
+        }
         // The input features for the material's layout, generated once: unchecked in the
         // kernels' sources, checked for the sampling module (features.rs).
         let features = Features::new(n);
-        let (unchecked, checked) = (features.wgsl(false), Arc::<str>::from(features.wgsl(true)));
+        let checked = Arc::<str>::from(features.wgsl(true));
         let (desc, latents) = network_words(m, n, features.key())?;
         fits_one_binding(device, "latents", &latents)?;
         fits_one_binding(device, "descriptors", &desc)?;
         let latents = storage_init(device, "nmat latents", &latents);
-        let probe = Probe::new(m);
+        let trial = Trial {
+            ctx: self,
+            device,
+            queue,
+            m: (m, n),
+            desc,
+            latents,
+            features: (features.wgsl(false), checked),
+            probe: Probe::new(m),
+            tables: Default::default(),
+            wait: (waits, self.probe_wait(device)),
+        };
         let mut rejected = Vec::new();
-        let wait = self.probe_wait(device);
-        // A kernel whose probe did not finish in time (the queue may still be running it).
-        let hung = std::cell::Cell::new(None);
-        // The kernels but the reference one read the tiled kernels' tables, and so may the
-        // sampling module made for the material (its network unrolled on them): the descriptor
-        // with them and that network, made once per kind of table (with 128 · Σ w in the bias
-        // for the dot4 kernels, without for the others) for all the candidates.
-        let tables: [std::cell::OnceCell<WithTables>; 2] = Default::default();
-        let with_tables = |dot4: bool| {
-            tables[usize::from(dot4)].get_or_init(|| {
-                let sample = unrolled::SampleNetwork::new((m, n), dot4);
-                let key = sample.as_ref().map_or([0, 0], |s| s.key());
-                let mut desc = desc.clone();
-                tiled::append_tables(&mut desc, n, dot4, key);
-                (desc, sample.map(|s| Arc::<str>::from(s.wgsl())))
-            })
-        };
-        // `kernel`, prepared and checked against the CPU on the probe.
-        let mut exact = |kernel: Kernel| -> Result<(GpuMaterial, Option<TileEntry>), &'static str> {
-            let (tiled, tile_entry, weights) = self.prepare(device, (m, n), kernel, &unchecked)?;
-            let (mut desc, network) = match kernel {
-                Kernel::Reference => (desc.clone(), None),
-                _ => with_tables(kernel.dot4()).clone(),
-            };
-            if *self.fault.lock().unwrap_or_else(|e| e.into_inner()) == Some(kernel) {
-                break_last_row(&mut desc);
-            }
-            if fits_one_binding(device, "descriptors", &desc).is_err() {
-                return Err("its descriptors with tables exceed one storage binding of the device");
-            }
-            let desc = storage_init(device, "nmat desc", &desc);
-            let body = GpuBody::Neural(tiled);
-            let gm =
-                GpuMaterial::new(m, (desc, latents.clone()), kernel, body, Some(checked.clone()));
-            let gm = GpuMaterial { network, weights, ..gm };
-            let codes = self
-                .submit_requests(device, queue, &gm, &probe.requests, ChannelMask::ALL)
-                .and_then(|pending| pending.wait_within(device, wait));
-            match codes {
-                Ok(Some(codes)) if codes == probe.codes => Ok((gm, tile_entry)),
-                Ok(Some(_)) => {
-                    let reason = "its codes on the probe differ from the CPU's";
-                    log::warn!("nmat-wgpu: the {} kernel is not used: {reason}", kernel.name());
-                    rejected.push((kernel, reason));
-                    Err(reason)
-                }
-                Ok(None) => {
-                    hung.set(Some(kernel));
-                    Err("its probe did not finish in time")
-                }
-                Err(_) => Err("the probe decode failed"),
-            }
-        };
-        let seconds = wait.as_secs() as u32;
+        let seconds = trial.wait.1.as_secs() as u32;
         if let Some(kernel) = kernel {
-            let chosen = exact(kernel);
-            if hung.get().is_some() {
-                return Err(GpuError::Hung { kernel, seconds });
-            }
-            let (gm, entry) = chosen.map_err(|reason| GpuError::Kernel { kernel, reason })?;
-            return self.with_tile_decoder(device, queue, m, gm, entry);
+            let (gm, entry) = match trial.exact(kernel).await {
+                Ok(chosen) => chosen,
+                Err(Refusal::Hung) => return Err(GpuError::Hung { kernel, seconds }),
+                Err(Refusal::Differs(reason) | Refusal::Cannot(reason)) => {
+                    return Err(GpuError::Kernel { kernel, reason });
+                }
+            };
+            return self.with_tile_decoder(device, queue, m, gm, entry, waits).await;
         }
         let software = device.adapter_info().device_type == wgpu::DeviceType::Cpu;
         let key = shape_key(m, n);
         let known = self.choices.lock().unwrap_or_else(|e| e.into_inner()).get(&key).copied();
         // The kernel measured fastest for this shape first, the others only where it fails
-        // this material's probe; without a measurement, all that pass, to measure.
+        // this material's probe; without a measurement, all that pass, to measure (where the
+        // upload can wait for timings).
+        let measure = !software && known.is_none() && waits == Waits::Block;
         let order =
             known.into_iter().chain(Kernel::ALL.into_iter().rev().filter(|&k| Some(k) != known));
         let mut candidates = Vec::new();
         for kernel in order {
-            let candidate = exact(kernel);
-            if let Some(kernel) = hung.get() {
-                // Later probes would queue behind it: stop, and say which.
-                log::warn!("nmat-wgpu: the {} kernel's probe did not finish", kernel.name());
-                return Err(GpuError::Hung { kernel, seconds });
-            }
-            if let Ok(candidate) = candidate {
-                candidates.push(candidate);
-                if software || known.is_some() {
-                    break;
+            match trial.exact(kernel).await {
+                Ok(candidate) => {
+                    candidates.push(candidate);
+                    if !measure {
+                        break;
+                    }
                 }
+                Err(Refusal::Hung) => {
+                    // Later probes would queue behind it: stop, and say which.
+                    log::warn!("nmat-wgpu: the {} kernel's probe did not finish", kernel.name());
+                    return Err(GpuError::Hung { kernel, seconds });
+                }
+                Err(Refusal::Differs(reason)) => {
+                    log::warn!("nmat-wgpu: the {} kernel is not used: {reason}", kernel.name());
+                    rejected.push((kernel, reason));
+                }
+                Err(Refusal::Cannot(_)) => {}
             }
         }
         let chosen = if candidates.len() > 1 {
@@ -185,7 +209,8 @@ impl Context {
             })?
         };
         let (gm, entry) = chosen;
-        self.with_tile_decoder(device, queue, m, GpuMaterial { rejected, ..gm }, entry)
+        let gm = GpuMaterial { rejected, ..gm };
+        self.with_tile_decoder(device, queue, m, gm, entry, waits).await
     }
 
     /// How long [`Context::upload`] waits for a probe decode on `device`: [`PROBE_WAIT`] (ten
@@ -243,9 +268,9 @@ impl Context {
         }
         let features = Features::new(n);
         let (mut desc, latents) = network_words(m, n, features.key())?;
-        let (tiled, _, weights) = self
-            .prepare_part(device, (m, n), kernel, part, &features.wgsl(false))
-            .map_err(refused)?;
+        let prepared = now(self.prepare_part(device, (m, n), kernel, part, &features.wgsl(false)))
+            .unwrap_or(Err("the device left its check of the shader unanswered"));
+        let (tiled, _, weights) = prepared.map_err(refused)?;
         tiled::append_tables(&mut desc, n, kernel.dot4(), [0, 0]);
         let desc = storage_init(device, "nmat desc (timing)", &desc);
         let latents = storage_init(device, "nmat latents (timing)", &latents);
@@ -258,18 +283,19 @@ impl Context {
     /// generated input features) and its texels per workgroup (`None`: the reference kernel),
     /// and the entry of its source that can decode the tile cache's new tiles; or why the device
     /// cannot run it.
-    fn prepare(
+    async fn prepare(
         &self,
         device: &wgpu::Device,
         m: (&Material<'_>, &Neural<'_>),
         kernel: Kernel,
         features: &str,
     ) -> Result<Prepared, &'static str> {
-        self.prepare_part(device, m, kernel, measure::Part::Whole, features)
+        self.prepare_part(device, m, kernel, measure::Part::Whole, features).await
     }
 
-    /// [`Context::prepare`] for `part` of the kernel's work.
-    fn prepare_part(
+    /// [`Context::prepare`] for `part` of the kernel's work (the device's answer on a new
+    /// pipeline awaited).
+    async fn prepare_part(
         &self,
         device: &wgpu::Device,
         (m, n): (&Material<'_>, &Neural<'_>),
@@ -308,19 +334,35 @@ impl Context {
         let tiles = tiles.filter(|_| part == measure::Part::Whole);
         let tile_entry =
             tiles.map(|(entry, per_tile)| TileEntry { source: source.clone(), entry, per_tile });
-        let mut cache = self.tiled.lock().unwrap_or_else(|e| e.into_inner());
-        let pipeline = cache
-            .entry(source.clone())
-            .or_insert_with_key(|source| self.pipeline(device, source, entry).map(Arc::new));
+        let pipeline = self.kept_pipeline(device, source.clone(), entry).await;
         let refused = match kernel {
             Kernel::Dot4 | Kernel::UnrolledDot4 => {
                 "the device refused the shader (its WGSL may lack dot4I8Packed)"
             }
             _ => "the device refused the shader",
         };
-        let pipeline = pipeline.clone().ok_or(refused)?;
+        let pipeline = pipeline.ok_or(refused)?;
         let weights = storage_weights.map(|w| self.matrix_weights(device, &w));
         Ok((Some((pipeline, texels)), tile_entry, weights))
+    }
+
+    /// The pipeline of `entry` in `source` kept in this context's cache of kernel pipelines
+    /// (keyed by the source), else built and kept, refusals too: a kernel's pipeline is
+    /// optional, so the device's answer on it is awaited (`Waits::Await`; at once natively).
+    pub(crate) async fn kept_pipeline(
+        &self,
+        device: &wgpu::Device,
+        source: String,
+        entry: &str,
+    ) -> Option<Arc<wgpu::ComputePipeline>> {
+        let kept = self.tiled.lock().unwrap_or_else(|e| e.into_inner()).get(&source).cloned();
+        if let Some(pipeline) = kept {
+            return pipeline;
+        }
+        let built = self.checked_pipeline(device, &source, entry, Waits::Await).await;
+        let built = built.map(Arc::new);
+        let mut cache = self.tiled.lock().unwrap_or_else(|e| e.into_inner());
+        cache.entry(source).or_insert(built).clone()
     }
 
     /// The bind group of a matrix kernel's weights in a storage buffer (f16 bits, laid out by
@@ -597,6 +639,91 @@ impl Probe {
             codes.extend_from_slice(&texel[..n]);
         }
         Probe { requests, codes }
+    }
+}
+
+/// What a kernel is tried on at upload: the material, its buffers and descriptor words, the
+/// probe, and how the probe's codes are waited for.
+struct Trial<'a> {
+    ctx: &'a Context,
+    device: &'a wgpu::Device,
+    queue: &'a wgpu::Queue,
+    m: (&'a Material<'a>, &'a Neural<'a>),
+    /// The descriptor without the tiled kernels' tables, and the latents' buffer.
+    desc: Vec<u32>,
+    latents: wgpu::Buffer,
+    /// The generated input features: unchecked (the kernels' sources), checked (the sampling
+    /// module's).
+    features: (String, Arc<str>),
+    probe: Probe,
+    /// The descriptor with the tiled kernels' tables and the sampling module's network
+    /// unrolled on them, made once per kind of table (with 128 · Σ w in the bias for the dot4
+    /// kernels, without for the others) for all the candidates.
+    tables: [std::sync::OnceLock<WithTables>; 2],
+    /// Blocking (at most the duration for each probe) or awaiting.
+    wait: (Waits, Duration),
+}
+
+/// Why a kernel tried at upload is not used.
+enum Refusal {
+    /// Its codes on the probe differ from the CPU's (logged and listed by
+    /// [`GpuMaterial::rejected`]).
+    Differs(&'static str),
+    /// Its probe did not finish within the wait.
+    Hung,
+    /// The device cannot run it, or its probe decode failed.
+    Cannot(&'static str),
+}
+
+impl Trial<'_> {
+    /// `kernel`, prepared and checked against the CPU on the probe.
+    async fn exact(&self, kernel: Kernel) -> Result<(GpuMaterial, Option<TileEntry>), Refusal> {
+        let Trial { ctx, device, m: (m, n), .. } = *self;
+        let (tiled, tile_entry, weights) =
+            ctx.prepare(device, (m, n), kernel, &self.features.0).await.map_err(Refusal::Cannot)?;
+        let (mut desc, network) = match kernel {
+            Kernel::Reference => (self.desc.clone(), None),
+            _ => self.with_tables(kernel.dot4()).clone(),
+        };
+        if *ctx.fault.lock().unwrap_or_else(|e| e.into_inner()) == Some(kernel) {
+            break_last_row(&mut desc);
+        }
+        if fits_one_binding(device, "descriptors", &desc).is_err() {
+            let reason = "its descriptors with tables exceed one storage binding of the device";
+            return Err(Refusal::Cannot(reason));
+        }
+        let desc = storage_init(device, "nmat desc", &desc);
+        let body = GpuBody::Neural(tiled);
+        let checked = Some(self.features.1.clone());
+        let gm = GpuMaterial::new(m, (desc, self.latents.clone()), kernel, body, checked);
+        let gm = GpuMaterial { network, weights, ..gm };
+        let failed = Refusal::Cannot("the probe decode failed");
+        let pending = ctx
+            .submit_requests(device, self.queue, &gm, &self.probe.requests, ChannelMask::ALL)
+            .map_err(|_| failed)?;
+        let codes = match self.wait {
+            (Waits::Block, wait) => pending.wait_within(device, wait),
+            (Waits::Await, _) => pending.wait_async().await.map(Some),
+        };
+        match codes {
+            Ok(Some(codes)) if codes == self.probe.codes => Ok((gm, tile_entry)),
+            Ok(Some(_)) => Err(Refusal::Differs("its codes on the probe differ from the CPU's")),
+            Ok(None) => Err(Refusal::Hung),
+            Err(_) => Err(Refusal::Cannot("the probe decode failed")),
+        }
+    }
+
+    /// The descriptor with the tiled kernels' tables (`dot4`: with 128 · Σ w in the bias) and
+    /// the sampling module's network unrolled on them.
+    fn with_tables(&self, dot4: bool) -> &WithTables {
+        let (m, n) = self.m;
+        self.tables[usize::from(dot4)].get_or_init(|| {
+            let sample = unrolled::SampleNetwork::new((m, n), dot4);
+            let key = sample.as_ref().map_or([0, 0], |s| s.key());
+            let mut desc = self.desc.clone();
+            tiled::append_tables(&mut desc, n, dot4, key);
+            (desc, sample.map(|s| Arc::<str>::from(s.wgsl())))
+        })
     }
 }
 

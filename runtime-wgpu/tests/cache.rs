@@ -20,7 +20,7 @@ use nmat_tests::generate::Rng;
 use nmat_wgpu::{CacheLookup, Context, GpuError, GpuTileCache, Kernel, SampleBindings};
 
 mod common;
-use common::{buffer, device, submit_and_read};
+use common::{buffer, device, run_as_a_browser, submit_and_read};
 
 fn fixture_bytes() -> Vec<Vec<u8>> {
     ["ntc_rgb_64.nmat", "ntc_pbr10_96x80_clamp.nmat", "jpeg/pattern_420_37x21.nmat"]
@@ -126,7 +126,10 @@ fn gpu_frame_with(
     assert_eq!(written, 16 * u64::from(count));
     cache.record_end_frame(&mut encoder);
     let values = to_words(&submit_and_read(device, queue, encoder, out));
-    (cache.read_stats(device).unwrap(), values)
+    let stats = cache.read_stats(device).unwrap();
+    let (again, _) = run_as_a_browser(device, cache.read_stats_async());
+    assert_eq!(again.unwrap(), stats, "read_stats_async");
+    (stats, values)
 }
 
 /// One frame through the CPU cache (marking each lookup): counters, tiles marked, values.

@@ -11,8 +11,8 @@ use wgpu::BufferUsages as U;
 
 mod common;
 use common::{
-    assert_same_bytes, buffer, cpu_blocks, cpu_codes, device, random_requests, submit_and_read,
-    trained_material,
+    assert_same_bytes, buffer, cpu_blocks, cpu_codes, device, random_requests, run_as_a_browser,
+    submit_and_read, trained_material,
 };
 
 fn rect(mip: u32, (x0, y0, w, h): (u32, u32, u32, u32)) -> Vec<TexelRequest> {
@@ -310,4 +310,86 @@ fn pipelines_come_from_the_engines_cache() {
     let start = std::time::Instant::now();
     assert_eq!(decode(&Context::with_pipeline_cache(&device, restored)).unwrap(), want);
     eprintln!("again from the cache's data: {:.2?}", start.elapsed());
+}
+
+fn assert_send<T: Send>(_: &T) {}
+
+/// The calls a browser can make (WebGPU, where every blocking call is refused): `upload_async`
+/// and the pending results' `wait_async`, driven without a single blocking wait, with every
+/// call that blocks refused on this thread as in a browser. Each returns pending first, is
+/// woken by the device's answer, and gives what the blocking calls give: the same kernel and
+/// tile kernel on a software adapter (neither is timed there), the CPU's codes and blocks; a
+/// kernel whose codes differ is refused on its probe, and a JPEG material decodes too.
+#[test]
+fn async_calls_decode_exactly_without_blocking() {
+    let (device, queue) = device();
+    let bytes = golden("ntc_pbr10_96x80_clamp");
+    let m = Container::parse(&bytes).unwrap();
+    let blocking = Context::new(&device).upload(&device, &queue, &m).unwrap();
+    nmat_wgpu::refuse_waits_on_this_thread_for_testing(true);
+    let ctx = Context::new(&device);
+    assert!(matches!(ctx.upload(&device, &queue, &m), Err(GpuError::CannotWait)));
+    let upload = ctx.upload_async(&device, &queue, &m);
+    assert_send(&upload);
+    let (gm, polls) = run_as_a_browser(&device, upload);
+    let gm = gm.unwrap();
+    assert!(polls > 0, "upload_async was ready at once: it blocked");
+    if device.adapter_info().device_type == wgpu::DeviceType::Cpu {
+        assert_eq!(gm.kernel(), blocking.kernel());
+    }
+    assert_eq!(gm.tile_kernel(), gm.kernel(), "the tile entry's probe, awaited");
+    assert!(gm.rejected().is_empty(), "{:?}", gm.rejected());
+    let (r, mask) = ((5, 3, 70, 61), ChannelMask::ALL);
+    let pending = ctx.submit_region(&device, &queue, &gm, 0, r, mask).unwrap();
+    let codes = pending.wait_async();
+    assert_send(&codes);
+    let (codes, polls) = run_as_a_browser(&device, codes);
+    assert!(polls > 0, "wait_async was ready at once");
+    assert_same_bytes(&codes.unwrap(), &cpu_codes(&m, &rect(0, r), mask), "region");
+    let pending = ctx.submit_region(&device, &queue, &gm, 0, r, mask).unwrap();
+    assert!(matches!(pending.wait(&device), Err(GpuError::CannotWait)));
+    // Its buffers went back to the pool: the next decode reuses them, codes intact.
+    let reqs = random_requests(7, 300, 400, m.mip_count() + 1);
+    let pending = ctx.submit_requests(&device, &queue, &gm, &reqs, mask).unwrap();
+    let (codes, _) = run_as_a_browser(&device, pending.wait_async());
+    assert_same_bytes(&codes.unwrap(), &cpu_codes(&m, &reqs, mask), "requests");
+    let textures = [
+        BcTexture { format: BcFormat::Bc1, channels: [0, 1, 2, 0], srgb: false },
+        BcTexture { format: BcFormat::Bc4, channels: [3, 0, 0, 0], srgb: false },
+    ];
+    let pending = ctx.submit_transcode_textures(&device, &queue, &gm, &textures, 1).unwrap();
+    let (got, polls) = run_as_a_browser(&device, pending.wait_async());
+    assert!(polls > 0, "PendingTextures::wait_async was ready at once");
+    let cpu = nmat_core::Decoder::new(&m);
+    for (texture, blocks) in textures.iter().zip(&got.unwrap()) {
+        assert_same_bytes(blocks, &cpu_blocks(&cpu, &m, texture, 1), texture.format.name());
+    }
+    // A kernel whose codes differ is refused on its awaited probe, and a tile entry whose
+    // codes differ leaves the tiles to one texel per invocation.
+    let broken = Context::new(&device);
+    broken.break_kernel_for_testing(gm.kernel());
+    broken.break_tile_decoders_for_testing();
+    let named = broken.upload_with_async(&device, &queue, &m, Some(gm.kernel()));
+    match run_as_a_browser(&device, named).0 {
+        Err(GpuError::Kernel { kernel, reason }) => {
+            assert_eq!(kernel, gm.kernel());
+            assert!(reason.contains("differ"), "{reason}");
+        }
+        other => panic!("a broken kernel was not refused: {:?}", other.map(|g| g.kernel())),
+    }
+    let other = run_as_a_browser(&device, broken.upload_async(&device, &queue, &m)).0.unwrap();
+    assert_ne!(other.kernel(), gm.kernel());
+    assert_eq!(other.rejected().iter().map(|r| r.0).collect::<Vec<_>>(), [gm.kernel()]);
+    assert_eq!(other.tile_kernel(), nmat_wgpu::Kernel::Reference);
+    // A JPEG material (its decode pipelines built in the upload).
+    let set = nmat_encode::demo::bricks(32);
+    let jpeg = nmat_encode::jpeg::encode_jpeg(&set, &Default::default()).unwrap().bytes;
+    let jm = Container::parse(&jpeg).unwrap();
+    let (jgm, _) = run_as_a_browser(&device, ctx.upload_async(&device, &queue, &jm));
+    let jgm = jgm.unwrap();
+    let r = (0, 0, 32, 32);
+    let pending = ctx.submit_region(&device, &queue, &jgm, 0, r, mask).unwrap();
+    let (codes, _) = run_as_a_browser(&device, pending.wait_async());
+    assert_same_bytes(&codes.unwrap(), &cpu_codes(&jm, &rect(0, r), mask), "JPEG region");
+    nmat_wgpu::refuse_waits_on_this_thread_for_testing(false);
 }

@@ -429,3 +429,42 @@ fn steps_off(
     }
     worst
 }
+
+/// Runs `future` as a browser's event loop would: polled only when its waker was called, the
+/// device polled without blocking (`PollType::Poll`, which runs the mappings' callbacks) in
+/// between; nothing here waits for the device. Returns the output and how often the future was
+/// polled before it was ready. A future that blocked inside would be ready at its first poll;
+/// one that forgot its waker would never be polled again (fails after 300 s).
+#[allow(dead_code)]
+pub fn run_as_a_browser<F: std::future::Future>(
+    device: &wgpu::Device,
+    future: F,
+) -> (F::Output, usize) {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::task::{Poll, Wake, Waker};
+    struct Woken(AtomicBool);
+    impl Wake for Woken {
+        fn wake(self: Arc<Self>) {
+            self.0.store(true, Ordering::SeqCst);
+        }
+    }
+    let woken = Arc::new(Woken(AtomicBool::new(true)));
+    let waker = Waker::from(Arc::clone(&woken));
+    let mut cx = std::task::Context::from_waker(&waker);
+    let mut future = std::pin::pin!(future);
+    let start = std::time::Instant::now();
+    let mut polls = 0;
+    loop {
+        if woken.0.swap(false, Ordering::SeqCst) {
+            if let Poll::Ready(output) = future.as_mut().poll(&mut cx) {
+                return (output, polls);
+            }
+            polls += 1;
+        } else {
+            assert!(start.elapsed().as_secs() < 300, "not ready after 300 s ({polls} polls)");
+            device.poll(wgpu::PollType::Poll).unwrap();
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+    }
+}
