@@ -69,7 +69,9 @@ impl Context {
     /// chosen is the one [`Context::remember_kernel_choices`] or an earlier [`Context::upload`]
     /// in this `Context` measured fastest for the network's shape, else the first exact one in
     /// [`Kernel::ALL`] from its end, as on a software adapter; [`Context::upload_with_async`]
-    /// names one. Nothing times out: a probe that never finishes leaves the future pending.
+    /// names one. Nothing times out: a probe that never finishes leaves the future pending (to
+    /// give up, drop it, e.g. when a timer of the caller's fires first; the device's queue may
+    /// stay busy, as after [`GpuError::Hung`]).
     /// A JPEG material's decode pipelines are built here too (once per `Context`), so that its
     /// decodes can be recorded at once afterwards.
     pub async fn upload_async(
