@@ -71,9 +71,14 @@ walk_size=${WALK_SIZE:-1920x1080} walk_frames=${WALK_FRAMES:-30}
 if [ "${#neural[@]}" -gt 0 ]; then
   step walk 200 .devcarry/nmat walk "${neural[@]:0:4}" --gpu --threads "$(nproc)" \
     --size "$walk_size" --frames "$walk_frames" --direct-every 15 --csv "$out/walk.csv"
-  step transcode-gpu 60 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-gpu" --gpu
+  step transcode-gpu 60 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-gpu" --gpu \
+    --kernel-choices "$out/kernel-choices.txt"
   step transcode-cpu 60 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-cpu"
   step transcode-same 30 diff -r "$out/transcode-gpu" "$out/transcode-cpu"
+  # Again with the kernel choices the first run wrote: what they save on the upload (stderr,
+  # "material uploaded in", against transcode-gpu.txt's).
+  step transcode-gpu-again 60 .devcarry/nmat transcode "${neural[0]}" \
+    -o "$out/transcode-gpu-again" --gpu --kernel-choices "$out/kernel-choices.txt"
   # Every map in BC7: the encoder where a GPU should gain most on the CPU.
   step transcode-bc7-gpu 60 .devcarry/nmat transcode "${neural[0]}" -o "$out/transcode-bc7-gpu" \
     --format bc7 --gpu

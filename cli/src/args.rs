@@ -500,6 +500,12 @@ pub struct DecodeArgs {
     /// cargo build --release -p nmat --features gpu
     #[arg(long, conflicts_with = "float")]
     pub gpu: bool,
+    /// With --gpu: keep the kernels nmat-wgpu measured fastest on this GPU in FILE (read where
+    /// it exists, written after the upload where they changed; choices made on another
+    /// adapter, driver or nmat version are replaced), so that later runs measure nothing. A
+    /// remembered kernel is still checked against the CPU (docs/GPU.md).
+    #[arg(long, value_name = "FILE", requires = "gpu")]
+    pub kernel_choices: Option<PathBuf>,
     /// Replace files that already exist in the output folder (by default nmat refuses, so the
     /// source maps are never overwritten with their decodes).
     #[arg(long)]
@@ -540,6 +546,12 @@ pub struct TranscodeArgs {
     /// cargo build --release -p nmat --features gpu
     #[arg(long)]
     pub gpu: bool,
+    /// With --gpu: keep the kernels nmat-wgpu measured fastest on this GPU in FILE (read where
+    /// it exists, written after the upload where they changed; choices made on another
+    /// adapter, driver or nmat version are replaced), so that later runs measure nothing. A
+    /// remembered kernel is still checked against the CPU (docs/GPU.md).
+    #[arg(long, value_name = "FILE", requires = "gpu")]
+    pub kernel_choices: Option<PathBuf>,
     /// Replace files that already exist in the output folder.
     #[arg(long)]
     pub force: bool,

@@ -1001,6 +1001,83 @@ fn decode_gpu_writes_the_cpus_files() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `decode --gpu --kernel-choices FILE`: the file is written after the upload (this adapter's
+/// first line; a software adapter measures nothing), and read in a later run, where the choice it
+/// lists for the material's network decides the kernel (still probed: the files equal the
+/// integer decoder's) and nothing is written back; a file that is not kernel choices (a material,
+/// a line without a tab) is refused naming it (and the line), left as it was, nothing decoded;
+/// a missing folder is refused before anything runs. Where the binary has the `gpu` feature.
+#[test]
+fn decode_gpu_keeps_kernel_choices_in_a_file() {
+    let dir = temp_dir("kernel-choices");
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures");
+    let fixture = fixture.join("ntc_pbr10_96x80_clamp.nmat");
+    let f = fixture.to_str().unwrap();
+    let choices = dir.join("choices.txt");
+    let run = |out: &str, file: &Path| {
+        let out = dir.join(out);
+        let args = ["decode", f, "-o", out.to_str().unwrap(), "--gpu", "--kernel-choices"];
+        nmat(&[&args[..], &[file.to_str().unwrap()]].concat())
+    };
+    let o = run("first", &choices);
+    if built_without_gpu(&o, &dir) {
+        return;
+    }
+    assert!(o.status.success(), "{}", text(&o));
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(err.contains(&format!("kernel choices written to {}", choices.display())), "{err}");
+    let written = std::fs::read_to_string(&choices).unwrap();
+    assert!(written.starts_with("nmat-wgpu kernel choices "), "{written}");
+    // A choice for the fixture's network: a kernel other than the one chosen without it.
+    let bytes = std::fs::read(&fixture).unwrap();
+    let m = nmat_core::Container::parse(&bytes).unwrap();
+    let nmat_core::Body::Neural(n) = m.body() else { panic!("a neural fixture") };
+    let widths: Vec<(usize, usize)> =
+        n.mlp().layers().iter().map(|l| (l.inputs(), l.outputs())).collect();
+    let (id, name) = if err.contains("the tiled i32 kernel") {
+        ("reference", "reference")
+    } else {
+        ("i32", "tiled i32")
+    };
+    let listed = format!("{written}{id}\t{widths:?} {}\n", m.channel_count());
+    std::fs::write(&choices, &listed).unwrap();
+    let o = run("second", &choices);
+    assert!(o.status.success(), "{}", text(&o));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("1 kernel choice(s) taken from"), "{err}");
+    assert!(err.contains(&format!("the {name} kernel decodes it")), "{err}");
+    assert!(!err.contains("written to"), "{err}");
+    assert_eq!(std::fs::read_to_string(&choices).unwrap(), listed);
+    let int = dir.join("int");
+    let o = nmat(&["decode", f, "-o", int.to_str().unwrap(), "--int"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let names = files_in(&int);
+    assert_eq!(files_in(&dir.join("second")), names);
+    for file in &names {
+        let got = std::fs::read(dir.join("second").join(file)).unwrap();
+        assert!(got == std::fs::read(int.join(file)).unwrap(), "{file} differs");
+    }
+    // Not kernel choices: refused, left as they were, nothing decoded.
+    let bad = dir.join("bad.txt");
+    let bad_text = format!("{written}i32 without a tab\n");
+    std::fs::write(&bad, &bad_text).unwrap();
+    for (k, (file, why)) in
+        [(fixture.as_path(), "UTF-8"), (bad.as_path(), "line 2")].iter().enumerate()
+    {
+        let before = std::fs::read(file).unwrap();
+        let o = run(&format!("refused{k}"), file);
+        let out = text(&o);
+        assert!(!o.status.success() && out.contains("--kernel-choices"), "{out}");
+        assert!(out.contains(&file.display().to_string()) && out.contains(why), "{out}");
+        assert_eq!(std::fs::read(file).unwrap(), before, "{}", file.display());
+        assert!(!dir.join(format!("refused{k}")).exists(), "{out}");
+    }
+    let o = run("nofolder", &dir.join("missing").join("choices.txt"));
+    assert!(!o.status.success() && text(&o).contains("no folder"), "{}", text(&o));
+    assert!(!dir.join("missing").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn fuzz_regression_inputs_of_the_cli_target_never_panic() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/regressions/cli");

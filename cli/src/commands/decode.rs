@@ -47,7 +47,7 @@ pub fn run(args: DecodeArgs) -> Result<()> {
     let written = with_decode_progress("decode", plan.cost(&m), |progress| {
         output::write_all_or_nothing(&args.output, |dir| {
             if args.gpu {
-                crate::gpu::decode_maps(&m, &plan, dir, progress)
+                crate::gpu::decode_maps(&m, &plan, dir, progress, args.kernel_choices.as_deref())
             } else {
                 let with = output::DecodeWith { float, batch: None };
                 output::write_maps(&m, &plan, dir, with, progress)

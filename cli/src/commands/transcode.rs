@@ -65,7 +65,8 @@ pub fn run(args: TranscodeArgs) -> Result<()> {
     }
     let start = Instant::now();
     let decoder = nmat_core::Decoder::new(&m);
-    let gpu = if args.gpu { Some(crate::gpu::transcoder(&m)?) } else { None };
+    let choices = args.kernel_choices.as_deref();
+    let gpu = if args.gpu { Some(crate::gpu::transcoder(&m, choices)?) } else { None };
     // One decode of the chain for the GPU's textures, one for all the others on the CPU.
     let chain = output::cost_of_mips(&m, 0..m.mip_count());
     let on_gpu =

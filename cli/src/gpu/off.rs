@@ -19,6 +19,7 @@ pub fn decode_maps(
     _: &output::DecodePlan,
     _: &Path,
     _: &mut dyn FnMut(u64),
+    _: Option<&Path>,
 ) -> Result<Vec<PathBuf>> {
     Err(NO_GPU_BUILD.into())
 }
@@ -27,7 +28,7 @@ pub fn encodes(_: BcFormat) -> bool {
     false
 }
 
-pub fn transcoder(_: &Material<'_>) -> Result<Levels> {
+pub fn transcoder(_: &Material<'_>, _: Option<&Path>) -> Result<Levels> {
     Err(NO_GPU_BUILD.into())
 }
 

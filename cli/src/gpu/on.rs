@@ -11,14 +11,16 @@ use nmat_core::bc::BcFormat;
 use nmat_wgpu::Kernel;
 use std::path::{Path, PathBuf};
 
-/// `nmat decode --gpu`: the maps of `plan` decoded on the GPU and written to `dir`.
+/// `nmat decode --gpu`: the maps of `plan` decoded on the GPU and written to `dir` (kernel
+/// choices kept in `choices`, `--kernel-choices`).
 pub fn decode_maps(
     m: &Material<'_>,
     plan: &output::DecodePlan,
     dir: &Path,
     progress: &mut dyn FnMut(u64),
+    choices: Option<&Path>,
 ) -> Result<Vec<PathBuf>> {
-    let (device, queue, ctx, gm) = device::upload(m, "decoding")?;
+    let (device, queue, ctx, gm) = device::upload(m, "decoding", choices)?;
     // Every mip submitted before the first is waited for (each wait waits for its own
     // submission only): the GPU decodes the next mips while the previous ones are written.
     let all = nmat_core::ChannelMask::ALL;
@@ -43,9 +45,10 @@ pub fn encodes(format: BcFormat) -> bool {
     nmat_wgpu::encodes(format)
 }
 
-/// `nmat transcode --gpu`: the transcoder of `m`'s textures on the GPU.
-pub fn transcoder(m: &Material<'_>) -> Result<Levels> {
-    let (device, queue, ctx, gm) = device::upload(m, "transcoding")?;
+/// `nmat transcode --gpu`: the transcoder of `m`'s textures on the GPU (kernel choices kept in
+/// `choices`, `--kernel-choices`).
+pub fn transcoder(m: &Material<'_>, choices: Option<&Path>) -> Result<Levels> {
+    let (device, queue, ctx, gm) = device::upload(m, "transcoding", choices)?;
     Ok(Box::new(move |textures, progress| {
         let on_gpu: Vec<_> = textures.iter().copied().filter(|t| encodes(t.format)).collect();
         let mut levels: Vec<Vec<Vec<u8>>> = vec![Vec::new(); on_gpu.len()];
