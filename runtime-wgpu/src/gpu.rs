@@ -358,8 +358,8 @@ pub(crate) fn try_pipeline(
 /// wgpu's native backends answer at once. WebGPU in a browser answers later: with
 /// [`Waits::Await`] the future waits for that answer (an optional pipeline, such as a faster
 /// kernel, is used only once it is known good); with [`Waits::Block`] it is ready at once and
-/// an answer still pending takes the pipeline (one nmat cannot do without: its errors then
-/// reach the device's error handler, as any wgpu call's).
+/// an answer still pending takes the pipeline (one nmat cannot do without; were it invalid, a
+/// pass that used it would be a validation error, reported by the device as any wgpu call's).
 pub(crate) fn checked_pipeline(
     device: &wgpu::Device,
     source: &str,
