@@ -130,9 +130,10 @@ pub fn read_buffer(
     read_back(device, &copy_for_reading(device, queue, source), source.size())
 }
 
-/// [`read_buffer`] without blocking: the copy is submitted now, its mapping awaited
-/// ([`read_back_async`]).
-pub(crate) async fn read_buffer_async(
+/// [`read_buffer`] without blocking (e.g. on WebGPU in a browser): the copy is submitted now;
+/// the future is ready once the device has run it and been polled (the browser's event loop,
+/// or natively the caller's `Device::poll`). For tests and tools.
+pub async fn read_buffer_async(
     device: &wgpu::Device,
     queue: &wgpu::Queue,
     source: &wgpu::Buffer,

@@ -106,7 +106,7 @@ pub use context::{Context, IMMEDIATE_BYTES, immediates_usable};
 pub use decode::TexelRequest;
 pub use device::default_device;
 pub use error::GpuError;
-pub use gpu::{read_buffer, refuse_waits_on_this_thread_for_testing};
+pub use gpu::{read_buffer, read_buffer_async, refuse_waits_on_this_thread_for_testing};
 pub use matrix::{FEATURES as MATRIX_FEATURES, usable as matrix_usable};
 pub use sample::SampleBindings;
 pub use submit::PendingDecode;

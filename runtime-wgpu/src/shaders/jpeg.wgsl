@@ -41,6 +41,8 @@ fn mip_height(mip: u32) -> u32 {
 // samples; and the IDCT's intermediate rows.
 var<workgroup> blocks: array<i32, 384>;
 var<workgroup> ws: array<i32, 384>;
+// The request pass's list count and this workgroup's MCU key, shared uniformly (jpeg_main).
+var<workgroup> listed_mcu: vec2<u32>;
 
 const ZIGZAG = array<u32, 64>(
     0u, 1u, 8u, 16u, 9u, 2u, 3u, 10u, 17u, 24u, 32u, 25u, 18u, 11u, 4u, 5u, 12u, 19u, 26u, 33u,
@@ -320,11 +322,23 @@ fn jpeg_main(
             return;
         }
     } else if (params.mode == 3u) {
-        // The listed MCU g, into its slot.
-        if (g >= atomicLoad(&out_codes[0])) {
+        // The listed MCU g, into its slot. The list's count and the MCU's key are read by one
+        // invocation and handed to all through workgroupUniformLoad: WGSL counts an atomic's
+        // value as non-uniform, and the barriers below need uniform control flow (Tint, the
+        // browser's compiler, refuses the shader otherwise; naga did not check).
+        if (lid == 0u) {
+            let listed = atomicLoad(&out_codes[0]);
+            var key = 0u;
+            if (g < listed) {
+                key = atomicLoad(&out_codes[params.list_at + g]);
+            }
+            listed_mcu = vec2<u32>(listed, key);
+        }
+        let listed = workgroupUniformLoad(&listed_mcu);
+        if (g >= listed.x) {
             return;
         }
-        let key = atomicLoad(&out_codes[params.list_at + g]);
+        let key = listed.y;
         mip = key >> 26u;
         mx = key & 0x1FFFu;
         my = (key >> 13u) & 0x1FFFu;

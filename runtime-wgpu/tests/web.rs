@@ -1,0 +1,210 @@
+//! nmat-wgpu in a browser: WebGPU through wgpu's browser backend, where no call may block. Built
+//! for `wasm32-unknown-unknown` only and run by `scripts/test-web.sh` (wasm-bindgen-test in a
+//! headless Chromium); natively this file is empty (`tests/record.rs` runs the same calls as a
+//! browser would). Every code and block against the CPU's.
+#![cfg(target_arch = "wasm32")]
+// Test code: an unwrap that fails fails the test (clippy.toml allows it only inside #[test]).
+#![allow(clippy::unwrap_used)]
+
+use nmat_core::bc::{BcFormat, BcTexture};
+use nmat_core::{ChannelMask, Container, Filter, Material, Precision, SampleRequest, TileCache};
+use nmat_wgpu::{CacheLookup, Context, GpuError, Kernel};
+use wasm_bindgen_test::{console_log, wasm_bindgen_test, wasm_bindgen_test_configure};
+
+wasm_bindgen_test_configure!(run_in_browser);
+
+/// Neural golden fixtures (3 channels, wrap; 10 channels, clamp) and the JPEG one (4:2:0,
+/// 37 × 21).
+const RGB: &[u8] = include_bytes!("../../tests/fixtures/ntc_rgb_64.nmat");
+const NEURAL: &[u8] = include_bytes!("../../tests/fixtures/ntc_pbr10_96x80_clamp.nmat");
+const JPEG: &[u8] = include_bytes!("../../tests/fixtures/jpeg/pattern_420_37x21.nmat");
+
+/// The CPU's codes of mip `mip`, row by row, every channel.
+fn cpu_mip(m: &Material<'_>, mip: u32) -> Vec<u8> {
+    let (w, h) = m.mip_size(mip);
+    let mut out = Vec::new();
+    let mut texel = [0u8; 16];
+    for y in 0..h {
+        for x in 0..w {
+            let n = m
+                .decode_texel_u8(i64::from(x), i64::from(y), mip, ChannelMask::ALL, &mut texel)
+                .unwrap();
+            out.extend_from_slice(&texel[..n]);
+        }
+    }
+    out
+}
+
+/// Every mip of `gm` decoded on the GPU (submitted, then awaited) equals the CPU's.
+async fn assert_every_mip(
+    ctx: &Context,
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    m: &Material<'_>,
+    gm: &nmat_wgpu::GpuMaterial,
+    what: &str,
+) {
+    for mip in 0..m.mip_count() {
+        let (w, h) = m.mip_size(mip);
+        let pending = ctx.submit_region(device, queue, gm, mip, (0, 0, w, h), ChannelMask::ALL);
+        let codes = pending.unwrap().wait_async().await.unwrap();
+        assert!(codes == cpu_mip(m, mip), "{what}: mip {mip} differs from the CPU's");
+    }
+}
+
+/// The adapter is the browser's WebGPU; the blocking calls say so at once; `upload_async` checks
+/// every kernel the browser runs against the CPU (their shaders' validation answered later
+/// there, as a promise) and the chosen and each named kernel decode every mip as the CPU does;
+/// BC blocks and a JPEG material too.
+#[wasm_bindgen_test]
+async fn the_calls_that_never_block_decode_exactly_in_a_browser() {
+    let (device, queue, info) = nmat_wgpu::default_device().await.expect("a WebGPU adapter");
+    console_log!(
+        "adapter: {} ({:?}, {:?}, {})",
+        info.name,
+        info.backend,
+        info.device_type,
+        info.driver
+    );
+    assert_eq!(info.backend, wgpu::Backend::BrowserWebGpu);
+    let m = Container::parse(NEURAL).unwrap();
+    let ctx = Context::new(&device);
+    assert!(matches!(ctx.upload(&device, &queue, &m), Err(GpuError::CannotWait)));
+    let gm = ctx.upload_async(&device, &queue, &m).await.unwrap();
+    console_log!(
+        "upload_async chose the {} kernel (tiles: {})",
+        gm.kernel().name(),
+        gm.tile_kernel().name()
+    );
+    assert!(gm.rejected().is_empty(), "{:?}", gm.rejected());
+    assert_every_mip(&ctx, &device, &queue, &m, &gm, gm.kernel().name()).await;
+    let pending = ctx.submit_region(&device, &queue, &gm, 0, (0, 0, 8, 8), ChannelMask::ALL);
+    assert!(matches!(pending.unwrap().wait(&device), Err(GpuError::CannotWait)));
+    for kernel in Kernel::ALL {
+        match ctx.upload_with_async(&device, &queue, &m, Some(kernel)).await {
+            Ok(gm) => {
+                assert_eq!(gm.kernel(), kernel);
+                assert_every_mip(&ctx, &device, &queue, &m, &gm, kernel.name()).await;
+                console_log!("the {} kernel: every mip as the CPU's", kernel.name());
+            }
+            Err(GpuError::Kernel { reason, .. }) if !reason.contains("differ") => {
+                console_log!("the {} kernel does not run here: {reason}", kernel.name());
+            }
+            Err(e) => panic!("{}: {e}", kernel.name()),
+        }
+    }
+    // BC1 and BC4 of mip 0, against the CPU's transcoder.
+    let textures = [
+        BcTexture { format: BcFormat::Bc1, channels: [0, 1, 2, 0], srgb: false },
+        BcTexture { format: BcFormat::Bc4, channels: [3, 0, 0, 0], srgb: false },
+    ];
+    let pending = ctx.submit_transcode_textures(&device, &queue, &gm, &textures, 0).unwrap();
+    let got = pending.wait_async().await.unwrap();
+    let cpu = nmat_core::Decoder::new(&m);
+    let region = nmat_core::BlockRegion::mip(&m, 0);
+    for (texture, blocks) in textures.iter().zip(&got) {
+        let row = region.width as usize * texture.format.block_bytes();
+        let mut want = vec![0u8; row * region.height as usize];
+        cpu.transcode_blocks(&m, texture, 0, region, &mut want, row).unwrap();
+        assert!(*blocks == want, "{} blocks differ from the CPU's", texture.format.name());
+    }
+    // A JPEG material.
+    let jm = Container::parse(JPEG).unwrap();
+    let jgm = ctx.upload_async(&device, &queue, &jm).await.unwrap();
+    assert_every_mip(&ctx, &device, &queue, &jm, &jgm, "JPEG").await;
+}
+
+/// The tile cache in a browser, over a neural material of each addressing and the JPEG one:
+/// one frame of 300 lookups (every filter, across the edges and past both ends of the chains)
+/// marked, decoded and resolved on the GPU (its passes' pipelines, built without waiting
+/// there, compiled by the browser), with the CPU cache's counters (`read_stats_async`) and
+/// values (to f32 rounding).
+#[wasm_bindgen_test]
+async fn the_tile_cache_resolves_as_the_cpus_in_a_browser() {
+    let (device, queue, _) = nmat_wgpu::default_device().await.expect("a WebGPU adapter");
+    let materials: Vec<Material<'_>> =
+        [RGB, NEURAL, JPEG].iter().map(|b| Container::parse(b).unwrap()).collect();
+    let ctx = Context::new(&device);
+    let mut gpus = Vec::new();
+    for m in &materials {
+        gpus.push(ctx.upload_async(&device, &queue, m).await.unwrap());
+    }
+    let cache = ctx.create_tile_cache(&device, &gpus.iter().collect::<Vec<_>>(), 512).unwrap();
+    let refs: Vec<&Material<'_>> = materials.iter().collect();
+    let mut cpu = TileCache::with_capacity(&refs, 512).unwrap();
+    // Dyadic coordinates: the GPU's f32 footprints and the CPU's f64 ones pick the same texels.
+    let mut r = nmat_tests::generate::Rng::new(11);
+    let lookups: Vec<(usize, SampleRequest)> = (0..300)
+        .map(|_| {
+            let i = r.range(0, 2) as usize;
+            let filter = [Filter::Nearest, Filter::Bilinear, Filter::Trilinear, Filter::Stochastic]
+                [r.range(0, 3) as usize];
+            let mut dyadic = |lo: i64, hi: i64, scale: f32| r.range(lo, hi) as f32 / scale;
+            let req = SampleRequest {
+                u: dyadic(-300, 1300, 1024.0),
+                v: dyadic(-300, 1300, 1024.0),
+                lod: dyadic(-2, 4 * i64::from(materials[i].mip_count()) + 2, 4.0),
+                filter,
+                precision: Precision::Integer,
+                random: [dyadic(0, 255, 256.0), dyadic(0, 255, 256.0), dyadic(0, 255, 256.0)],
+                channels: ChannelMask::ALL,
+            };
+            (i, req)
+        })
+        .collect();
+    cpu.begin_frame();
+    for (i, req) in &lookups {
+        cpu.mark(*i, req).unwrap();
+    }
+    cpu.decode_missing().unwrap();
+    let mut want = Vec::new();
+    for (i, req) in &lookups {
+        let mut v = [0f32; 16];
+        cpu.resolve(*i, req, &mut v).unwrap();
+        want.push(v);
+    }
+    let cpu_stats = cpu.end_frame();
+    // The GPU's frame, recorded into one encoder.
+    let items: Vec<CacheLookup> =
+        lookups.iter().map(|(i, req)| CacheLookup::new(*i as u32, req)).collect();
+    let bytes = CacheLookup::bytes(&items);
+    let buffer = |size: u64, usage| {
+        device.create_buffer(&wgpu::BufferDescriptor {
+            label: None,
+            size,
+            usage,
+            mapped_at_creation: false,
+        })
+    };
+    let input =
+        buffer(bytes.len() as u64, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST);
+    queue.write_buffer(&input, 0, &bytes);
+    let count = lookups.len() as u32;
+    let out =
+        buffer(64 * u64::from(count), wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC);
+    let mut encoder = device.create_command_encoder(&Default::default());
+    cache.record_begin_frame(&mut encoder);
+    cache.record_mark(&device, &mut encoder, (&input, 0, count)).unwrap();
+    cache.record_decode_missing(&mut encoder);
+    cache
+        .record_resolve(&device, &mut encoder, (&input, 0, count), ChannelMask::ALL, (&out, 0))
+        .unwrap();
+    cache.record_end_frame(&mut encoder);
+    queue.submit([encoder.finish()]);
+    let values = nmat_wgpu::read_buffer_async(&device, &queue, &out).await.unwrap();
+    assert_eq!(cache.read_stats_async().await.unwrap(), cpu_stats);
+    console_log!("a frame: {cpu_stats:?}");
+    for (k, ((i, req), want)) in lookups.iter().zip(&want).enumerate() {
+        let m = &materials[*i];
+        for (c, (ch, want)) in m.channels().iter().zip(want).enumerate() {
+            let at = 4 * (16 * k + c);
+            let got =
+                f32::from_le_bytes([values[at], values[at + 1], values[at + 2], values[at + 3]]);
+            let width = (ch.range_max - ch.range_min).abs().max(1e-6);
+            assert!(
+                (got - want).abs() / width <= 1e-5,
+                "lookup {k} ({req:?}, material {i}), channel {c}: {got} vs {want}"
+            );
+        }
+    }
+}
