@@ -567,7 +567,7 @@ pub(crate) fn wgsl_record_reader<T: ShaderLayout>(
     prefix: &str,
 ) -> String {
     let mut s = wgsl_struct::<T>(name);
-    let _ = writeln!(s, "fn {reader}(at: u32) -> {name} {{\n    var r: {name};");
+    let _ = writeln!(s, "fn {reader}(at: u32) -> {name} {{\n    var r = {name}();");
     for &(field, _, words) in T::FIELDS.iter().filter(|f| f.0 != "pad") {
         let at = format!("at + {prefix}_{}", field.to_uppercase());
         if words == 1 {

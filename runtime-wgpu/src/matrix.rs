@@ -385,8 +385,10 @@ impl Shape {
         let ws = kpad + self.pads.1;
         if self.emulated {
             for tb in 0..blocks {
-                let _ =
-                    writeln!(s, "    var h{tb}: EmuAccumulators;\n    var l{tb}: EmuAccumulators;");
+                let _ = writeln!(
+                    s,
+                    "    var h{tb} = EmuAccumulators();\n    var l{tb} = EmuAccumulators();"
+                );
             }
             let _ = writeln!(s, "    for (var kb = 0u; kb < {}u; kb++) {{", kpad / 16);
             let _ = writeln!(s, "    for (var ob = 0u; ob < {row_blocks}u; ob++) {{");

@@ -13,6 +13,15 @@ pub fn validate_with(
     let info = naga::valid::Validator::new(flags, capabilities)
         .validate(&module)
         .map_err(|e| e.emit_to_string(source))?;
+    let bare = uninitialized_vars(source);
+    if !bare.is_empty() {
+        return Err(format!(
+            "a function-scope `var` without an initializer (WGSL zeroes it each time the \
+             declaration runs, but Chromium's WebGPU kept its value from the loop's previous \
+             iteration: write `var x = T();`): {}",
+            bare.join("; ")
+        ));
+    }
     let signed = signed_remainders(&module, &info);
     if !signed.is_empty() {
         return Err(format!(
@@ -23,6 +32,24 @@ pub fn validate_with(
         ));
     }
     Ok((module, info))
+}
+
+/// The function-scope `var` declarations of `source` (indented lines, not `var<…>`) without an
+/// initializer: `var x: T;`. WGSL gives such a variable its zero value each time the
+/// declaration is executed, but Chromium's WebGPU (Tint, on SwiftShader; 2026-12-05) did not
+/// for one declared inside a loop — the BC7 encoder's per-partition sums carried over from the
+/// previous partition, and 451 of 480 blocks of a material differed from the CPU's — so every
+/// shader the crate builds spells the zero out (`var x = T();`).
+pub fn uninitialized_vars(source: &str) -> Vec<String> {
+    source
+        .lines()
+        .filter(|line| line.starts_with(char::is_whitespace))
+        .filter_map(|line| {
+            let code = line.split("//").next().unwrap_or_default().trim();
+            let rest = code.strip_prefix("var ")?;
+            (rest.contains(':') && !rest.contains('=') && rest.ends_with(';')).then(|| code.into())
+        })
+        .collect()
 }
 
 /// [`validate_with`] every capability a device may have; panics naming `what` where naga
@@ -74,8 +101,29 @@ mod tests {
             fn main() { _ = wrap(-3, 2) + lanes(vec2(1)).x; _ = fine(3u); }";
         let err = super::validate_with(source, naga::valid::Capabilities::all()).unwrap_err();
         assert!(err.ends_with("in wrap, lanes"), "{err}");
-        let unsigned = "fn fine(i: u32) -> u32 { return i % 7u; }
+        let unsigned = "fn fine(i: u32) -> u32 { var r = 0u; r = i % 7u; return r; }
             @compute @workgroup_size(1) fn main() { _ = fine(3u); }";
         assert!(super::validate_with(unsigned, naga::valid::Capabilities::all()).is_ok());
+    }
+
+    /// A function-scope `var` without an initializer is refused, naming it (in a loop too); one
+    /// with an initializer, and module-scope ones, are not.
+    #[test]
+    fn function_scope_vars_without_an_initializer_are_refused() {
+        let source = "var<private> kept: u32;
+            fn sums() -> u32 {
+                var total = 0u;
+                for (var i = 0u; i < 4u; i++) {
+                    var sum: array<u32, 3>; // zeroed by WGSL, not by every compiler
+                    sum[i % 3u] += i;
+                    total += sum[0];
+                }
+                return total + kept;
+            }
+            @compute @workgroup_size(1) fn main() { _ = sums(); }";
+        let err = super::validate_with(source, naga::valid::Capabilities::all()).unwrap_err();
+        assert!(err.ends_with("var sum: array<u32, 3>;"), "{err}");
+        let fixed = source.replace("var sum: array<u32, 3>;", "var sum = array<u32, 3>();");
+        assert!(super::validate_with(&fixed, naga::valid::Capabilities::all()).is_ok());
     }
 }

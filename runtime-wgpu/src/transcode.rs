@@ -459,6 +459,22 @@ impl Context {
         format: BcFormat,
         blocks: &[([[u8; 4]; BLOCK_PIXELS], u16)],
     ) -> Result<Vec<u8>, GpuError> {
+        if blocks.is_empty() {
+            shader_format(format)?;
+            return Ok(Vec::new());
+        }
+        self.submit_encode_blocks(device, queue, format, blocks)?.wait(device)
+    }
+
+    /// [`Context::encode_blocks`] submitted, not waited for: [`PendingBlocks::wait`] (or
+    /// `wait_async`, which never blocks) returns the blocks.
+    pub fn submit_encode_blocks(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        format: BcFormat,
+        blocks: &[([[u8; 4]; BLOCK_PIXELS], u16)],
+    ) -> Result<PendingBlocks, GpuError> {
         let params_format = shader_format(format)?;
         let count = blocks.len() as u64;
         let too_large = GpuError::TooLarge {
@@ -471,16 +487,15 @@ impl Context {
         if groups > u64::from(MAX_GROUPS).pow(2) || input_bytes > max_binding {
             return Err(too_large);
         }
-        if blocks.is_empty() {
-            return Ok(Vec::new());
-        }
-        let words: Vec<u8> = blocks
+        let mut words: Vec<u8> = blocks
             .iter()
             .flat_map(|(pixels, valid)| {
                 let pixel_words = pixels.iter().map(|p| u32::from_le_bytes(*p));
                 pixel_words.chain([u32::from(*valid)]).flat_map(u32::to_le_bytes)
             })
             .collect();
+        // No block: nothing is dispatched, but a binding cannot be empty.
+        words.resize(words.len().max(17 * 4), 0);
         let input = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("nmat pixels"),
             contents: &words,
@@ -503,7 +518,7 @@ impl Context {
         encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, readback.size());
         let submission = queue.submit([encoder.finish()]);
         let len = (count * block_bytes) as usize;
-        PendingBlocks { blocks: out, readback, len, submission }.wait(device)
+        Ok(PendingBlocks { blocks: out, readback, len, submission })
     }
 }
 

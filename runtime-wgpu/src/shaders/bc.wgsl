@@ -93,7 +93,7 @@ struct Palette1 {
 fn palette1(c0: u32, c1: u32) -> Palette1 {
     let a = vec3<u32>((c0 >> 11u) & 31u, (c0 >> 5u) & 63u, c0 & 31u);
     let b = vec3<u32>((c1 >> 11u) & 31u, (c1 >> 5u) & 63u, c1 & 31u);
-    var r: Palette1;
+    var r = Palette1();
     r.p[0] = vec3<u32>(expand5(a.x), expand6(a.y), expand5(a.z));
     r.p[1] = vec3<u32>(expand5(b.x), expand6(b.y), expand5(b.z));
     if (c0 > c1) {
@@ -158,7 +158,7 @@ struct Ends {
 // The valid pixels at the low and the high end of the principal axis (`principal_ends` of the
 // core with 3 coordinates): the first wins a tie at the low end, the last at the high end.
 fn principal_ends3(valid: u32) -> Ends {
-    var missing: Ends;
+    var missing = Ends();
     missing.ok = false;
     var n = 0;
     var sum = vec3<i32>(0);
@@ -169,7 +169,7 @@ fn principal_ends3(valid: u32) -> Ends {
         }
     }
     // |deviation| ≤ 15·255 and |covariance| ≤ 16 · (15·255)² < 2^28: both fit an i32.
-    var cov: array<vec3<i32>, 3>;
+    var cov = array<vec3<i32>, 3>();
     for (var i = 0u; i < 16u; i++) {
         if (counts(valid, i)) {
             let d = n * rgb(px[i]) - sum;
@@ -202,7 +202,7 @@ fn principal_ends3(valid: u32) -> Ends {
         }
     }
     // |projection| ≤ 3 · 15·255 · 2^16 < 2^31.
-    var r: Ends;
+    var r = Ends();
     r.ok = true;
     var lo_p = 0;
     var hi_p = 0;
@@ -252,7 +252,7 @@ fn refine1(valid: u32, indices: u32) -> Refined {
         x += alpha * rgb(px[i]);
         y += beta * rgb(px[i]);
     }
-    var r: Refined;
+    var r = Refined();
     let det = aa * bb - ab * ab;
     r.ok = det != 0;
     if (!r.ok) {
@@ -271,9 +271,9 @@ fn encode_bc1(valid: u32) -> vec4<u32> {
     }
     let first = rgb(px[firstTrailingBit(valid)]);
     let ends = principal_ends3(valid);
-    var c0: u32;
-    var c1: u32;
-    var indices: u32;
+    var c0 = u32();
+    var c1 = u32();
+    var indices = u32();
     if (!ends.ok || all(rgb(px[ends.lo]) == rgb(px[ends.hi]))) {
         // One colour: per channel the core's single-colour endpoints, in the better order.
         let t = vec3<u32>(BC1_SINGLE[first.x], BC1_SINGLE[first.y], BC1_SINGLE[first.z]);
@@ -377,7 +377,7 @@ fn indices4(valid: u32, a0: u32, a1: u32) {
     if (a0 > a1) {
         order = ASCENDING_EIGHT;
     }
-    var sorted: array<u32, 8>;
+    var sorted = array<u32, 8>();
     for (var j = 0u; j < 8u; j++) {
         sorted[j] = p[order[j]];
     }
@@ -416,7 +416,7 @@ fn refine4(valid: u32, eight: bool) -> Pair {
         x += alpha * i32(vals[i]);
         y += beta * i32(vals[i]);
     }
-    var r: Pair;
+    var r = Pair();
     let det = aa * bb - ab * ab;
     r.ok = det != 0;
     if (r.ok) {

@@ -189,7 +189,7 @@ fn bc7_axis_ends() -> array<vec4<i32>, 2> {
     }
     var ends = array<vec4<i32>, 2>(bc7_point(first), bc7_point(first));
     // |deviation| ≤ 15·255 and |covariance| ≤ 16 · (15·255)² < 2^28: both fit an i32.
-    var cov: array<vec4<i32>, 4>;
+    var cov = array<vec4<i32>, 4>();
     for (var i = 0u; i < 16u; i++) {
         if (counts(fit_mask, i)) {
             let d = n * bc7_point(i) - sum;
@@ -205,7 +205,7 @@ fn bc7_axis_ends() -> array<vec4<i32>, 2> {
             widest = c;
         }
     }
-    var v: array<vec2<u32>, 4>;
+    var v = array<vec2<u32>, 4>();
     for (var c = 0u; c < 4u; c++) {
         v[c] = wide(cov[widest][c]);
     }
@@ -253,7 +253,7 @@ fn bc7_axis_ends() -> array<vec4<i32>, 2> {
 // The nearest palette entry of every member (the lowest index on a tie) and the squared error,
 // for stored endpoints `ends` with p-bits `pbits` (`Subset::assign`).
 fn bc7_assign(ends: array<vec4<u32>, 2>, pbits: vec2<u32>) -> Fit {
-    var fit: Fit;
+    var fit = Fit();
     fit.ends = ends;
     fit.pbits = pbits;
     fit.error = 0u;
@@ -264,7 +264,7 @@ fn bc7_assign(ends: array<vec4<u32>, 2>, pbits: vec2<u32>) -> Fit {
         e1[c] = i32(bc7_value(fit_bits, fit_kind, ends[1][c], pbits.y));
     }
     let entries = 1u << fit_index_bits;
-    var palette: array<vec4<i32>, 16>;
+    var palette = array<vec4<i32>, 16>();
     for (var k = 0u; k < entries; k++) {
         // Each component interpolated as the format defines it (weights out of 64, rounded).
         let w = i32(bc7_weight(fit_index_bits, k));
@@ -382,7 +382,7 @@ fn bc7_refine(fit: Fit) -> Targets {
         x += alpha * p;
         y += beta * p;
     }
-    var r: Targets;
+    var r = Targets();
     let det = sub64(imul64(aa, bb), imul64(ab, ab));
     r.ok = det.x != 0u || det.y != 0u;
     if (!r.ok) {
@@ -402,7 +402,7 @@ fn bc7_refine(fit: Fit) -> Targets {
 // The best endpoints for the fit's pixels (`Subset::fit`): from the principal axis, every p-bit
 // choice, then least squares twice.
 fn bc7_fit() -> Fit {
-    var best: Fit;
+    var best = Fit();
     best.error = 0u;
     best.pbits = vec2<u32>(0u);
     best.ends = array<vec4<u32>, 2>(vec4<u32>(0u), vec4<u32>(0u));
@@ -467,7 +467,7 @@ struct Candidate {
 }
 
 fn bc7_empty(mode: u32, part: u32) -> Candidate {
-    var c: Candidate;
+    var c = Candidate();
     c.mode = mode;
     c.part = part;
     c.rotation = 0u;
@@ -494,7 +494,7 @@ fn bc7_rank(valid: u32, subsets: u32) -> vec2<u32> {
     var order = array<vec4<u32>, 2>(vec4<u32>(0u), vec4<u32>(0u));
     for (var part = 0u; part < 64u; part++) {
         var n = vec3<i32>(0);
-        var sum: array<vec3<i32>, 3>;
+        var sum = array<vec3<i32>, 3>();
         var sq = vec3<i32>(0);
         for (var i = 0u; i < 16u; i++) {
             if (counts(valid, i)) {

@@ -98,8 +98,8 @@ fn nmat_sample(
     }
     // The lookup's levels (two for a trilinear lookup between two mips) and its texels: four a
     // level, one where the lookup reads a single texel.
-    var first: NmatLevel;
-    var second: NmatLevel;
+    var first = NmatLevel();
+    var second = NmatLevel();
     var taps = 4u;
     if (mode == NMAT_BILINEAR) {
         first = nmat_bilinear_level(uv, nearest, 1.0);
@@ -141,7 +141,7 @@ fn nmat_sample(
         let wy = select(1.0 - at.y.frac, at.y.frac, dy == 1u);
         nmat_tap(at.x.first + i32(dx), at.y.first + i32(dy), at.mip, at.weight * wx * wy, mask);
     }
-    var out: array<f32, 16>;
+    var out = array<f32, 16>();
     for (var c = 0u; c < 16u; c++) {
         if (((mask >> c) & 1u) != 0u) {
             let unit = clamp(nmat_acc[c], 0.0, 1.0);

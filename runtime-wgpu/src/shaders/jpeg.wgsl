@@ -251,7 +251,7 @@ fn put(byte: u32, code: u32) {
 
 // The `count` channels' codes of this map at texel (x, y) of the MCU (samples in `blocks`).
 fn texel_codes(x: u32, y: u32, count: u32, lh: u32, lv: u32) -> array<u32, 3> {
-    var codes: array<u32, 3>;
+    var codes = array<u32, 3>();
     if (count == 1u) {
         codes[0] = u32(blocks[8u * y + x]);
     } else {
@@ -361,7 +361,7 @@ fn jpeg_main(
     let b = lid / 8u;
     let k = lid % 8u;
     if (b < n_blocks) {
-        var x: array<i32, 8>;
+        var x = array<i32, 8>();
         for (var i = 0u; i < 8u; i++) {
             x[i] = blocks[64u * b + 8u * i + k];
         }
@@ -372,7 +372,7 @@ fn jpeg_main(
     }
     workgroupBarrier();
     if (b < n_blocks) {
-        var x: array<i32, 8>;
+        var x = array<i32, 8>();
         for (var i = 0u; i < 8u; i++) {
             x[i] = ws[64u * b + 8u * k + i];
         }
@@ -388,7 +388,7 @@ fn jpeg_main(
         for (var w = lid; w < params.slot_words; w += 64u) {
             var word = 0u;
             var t = 0xFFFFFFFFu;
-            var codes: array<u32, 3>;
+            var codes = array<u32, 3>();
             for (var i = 0u; i < 4u; i++) {
                 let b = 4u * w + i;
                 if (b / count >= mw * mh) {
@@ -437,7 +437,7 @@ struct JpegRequest {
 }
 
 fn jpeg_request(g: u32) -> JpegRequest {
-    var q: JpegRequest;
+    var q = JpegRequest();
     let map = jdesc[JDESC_MAPS_AT] + JMAP_WORDS * params.map;
     q.first = jdesc[map + JMAP_FIRST_CHANNEL];
     q.count = jdesc[map + JMAP_CHANNEL_COUNT];
@@ -494,7 +494,7 @@ fn jpeg_resolve(
     let mw = 8u * q.lh;
     let t = (q.ty % (8u * q.lv)) * mw + q.tx % mw;
     let at = 4u * (params.scratch_at + slot * params.slot_words) + t * q.count;
-    var codes: array<u32, 3>;
+    var codes = array<u32, 3>();
     for (var c = 0u; c < q.count; c++) {
         codes[c] = sbyte(at + c);
     }

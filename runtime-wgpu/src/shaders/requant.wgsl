@@ -60,7 +60,7 @@ fn nmat_requant_with(acc_in: i32, row: NmatRequantRow) -> i32 {
     }
     let lo = p.y + add.y;
     let hi = p.x + add.x + select(0u, 1u, lo < p.y);
-    var r: u32;
+    var r = u32();
     if (s < 32u) {
         r = (lo >> s) | (hi << (32u - s));
     } else {

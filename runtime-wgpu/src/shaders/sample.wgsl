@@ -38,7 +38,7 @@ fn nmat_valid_channels(channels: u32) -> u32 {
 fn nmat_texel(xy: vec2<i32>, mip: u32, channels: u32) -> array<u32, 16> {
     let mask = nmat_valid_channels(channels);
     nmat_decode(xy.x, xy.y, mip, mask);
-    var out: array<u32, 16>;
+    var out = array<u32, 16>();
     for (var c = 0u; c < 16u; c++) {
         if (((mask >> c) & 1u) != 0u) {
             out[c] = nmat_codes[c];

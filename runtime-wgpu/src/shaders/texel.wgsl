@@ -56,7 +56,7 @@ fn nmat_wrap(i: i32, s: u32) -> u32 {
 fn nmat_grid_pos(x: u32, mip_size: u32, grid_size: u32) -> i32 {
     let q = (2u * x + 1u) * grid_size;
     let m = max(mip_size, 1u);
-    var p: u32;
+    var p = u32();
     if ((m & (m - 1u)) == 0u) {
         let k = countTrailingZeros(m);
         p = 128u * (q >> k) + ((128u * (q & (m - 1u))) >> k);
@@ -107,7 +107,7 @@ fn nmat_footprint(r: NmatGrid, x: u32, y: u32, mw: u32, mh: u32, clamp_mode: boo
     let py = nmat_grid_pos(y, mh, r.height);
     let ix = px >> 8u;
     let iy = py >> 8u;
-    var f: NmatFootprint;
+    var f = NmatFootprint();
     f.x0 = nmat_address(ix, r.width, clamp_mode);
     f.x1 = nmat_address(ix + 1, r.width, clamp_mode);
     f.y0 = nmat_address(iy, r.height, clamp_mode);
@@ -186,8 +186,8 @@ fn nmat_requantize(acc: i32, mult: u32, shift: u32) -> i32 {
         p = vec2<u32>(p.x + (1u << (shift - 33u)), p.y);
     }
     // Arithmetic shift right of the signed 64-bit value.
-    var hi: i32;
-    var lo: u32;
+    var hi = i32();
+    var lo = u32();
     let shi = bitcast<i32>(p.x);
     if (shift < 32u) {
         lo = (p.y >> shift) | (p.x << (32u - shift));

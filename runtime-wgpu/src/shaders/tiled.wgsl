@@ -43,7 +43,7 @@ fn layer(lid: u32, l: u32, kw: u32, row_groups: u32, src: u32, last: bool) {
             continue;
         }
         let acc = mac4(src, t0, weights_at + o0 * kw, kw);
-        var v: array<vec4<i32>, 4>;
+        var v = array<vec4<i32>, 4>();
         for (var r = 0u; r < 4u; r++) {
             let row = nmat_requant_table(rows_at + NMAT_REQUANT_WORDS * (o0 + r));
             for (var j = 0u; j < 4u; j++) {

@@ -35,8 +35,8 @@ fn put_features(t: u32, inputs: u32) {
 
 // Σ_k w[o0 + r][k] · x[k][t0 + j] − 128 · Σ_k w[o0 + r][k] for the 4 × 4 tile (r, j).
 fn mac4(src: u32, t0: u32, w0: u32, kw: u32) -> array<vec4<i32>, 4> {
-    var high: array<vec4<i32>, 4>;
-    var low: array<vec4<i32>, 4>;
+    var high = array<vec4<i32>, 4>();
+    var low = array<vec4<i32>, 4>();
     let base = src * (WMAX / 4u) * P + t0;
     for (var j = 0u; j < kw; j++) {
         let i = base + j * P;
@@ -50,7 +50,7 @@ fn mac4(src: u32, t0: u32, w0: u32, kw: u32) -> array<vec4<i32>, 4> {
                 dot4I8Packed(w, l.z), dot4I8Packed(w, l.w));
         }
     }
-    var acc: array<vec4<i32>, 4>;
+    var acc = array<vec4<i32>, 4>();
     for (var r = 0u; r < 4u; r++) {
         acc[r] = (high[r] << vec4<u32>(8u)) + low[r];
     }

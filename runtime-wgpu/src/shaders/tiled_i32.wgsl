@@ -13,7 +13,7 @@ fn put_features(t: u32, inputs: u32) {
 // Σ_k w[o0 + r][k] · x[k][t0 + j] for the 4 × 4 tile (r, j), `kw` words of 4 weights per row
 // from nmat_desc[w0] (rows kw words apart).
 fn mac4(src: u32, t0: u32, w0: u32, kw: u32) -> array<vec4<i32>, 4> {
-    var acc: array<vec4<i32>, 4>;
+    var acc = array<vec4<i32>, 4>();
     let base = src * WMAX * P + t0;
     for (var j = 0u; j < kw; j++) {
         let i = base + 4u * j * P;
