@@ -312,13 +312,10 @@ async fn the_shaders_an_engine_takes_compile_and_decode_in_a_browser() {
             for x in 0..w as usize {
                 let texel = &got[y * pitch as usize + 4 * x..][..4];
                 let codes = &all[(y * w as usize + x) * n + first..][..count];
-                for c in 0..4 {
+                for (c, &got) in texel.iter().enumerate() {
                     let want = codes.get(c).copied().unwrap_or(if c == 3 { 255 } else { 0 });
-                    assert_eq!(
-                        texel[c], want,
-                        "{:?} map, texel ({x}, {y}), component {c}",
-                        map.semantic
-                    );
+                    let semantic = map.semantic;
+                    assert_eq!(got, want, "{semantic:?} map, texel ({x}, {y}), component {c}");
                 }
             }
         }
