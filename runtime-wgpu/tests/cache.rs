@@ -12,15 +12,13 @@
 use std::collections::BTreeMap;
 
 use nmat_core::{
-    ChannelMask, Container, Filter, FrameStats, Material, Precision, SampleRequest, TileCache,
-    TileKey,
+    ChannelMask, Container, Filter, FrameStats, Material, SampleRequest, TileCache, TileKey,
 };
 use nmat_tests::fixtures_dir;
-use nmat_tests::generate::Rng;
 use nmat_wgpu::{CacheLookup, Context, GpuError, GpuTileCache, Kernel, SampleBindings};
 
 mod common;
-use common::{buffer, device, run_as_a_browser, submit_and_read};
+use common::{buffer, device, lookups, run_as_a_browser, submit_and_read};
 
 fn fixture_bytes() -> Vec<Vec<u8>> {
     ["ntc_rgb_64.nmat", "ntc_pbr10_96x80_clamp.nmat", "jpeg/pattern_420_37x21.nmat"]
@@ -45,30 +43,6 @@ fn gpu_cache(
     let gpus: Vec<_> = materials.iter().map(|m| ctx.upload(device, queue, m).unwrap()).collect();
     let cache = ctx.create_tile_cache(device, &gpus.iter().collect::<Vec<_>>(), slots).unwrap();
     (gpus, cache)
-}
-
-/// `count` lookups over the materials: u, v in multiples of 1/1024 across the edges, lod in
-/// quarters past both ends of the chain, every filter, dyadic random numbers.
-fn lookups(materials: &[Material<'_>], seed: u64, count: usize) -> Vec<(usize, SampleRequest)> {
-    let mut r = Rng::new(seed);
-    (0..count)
-        .map(|_| {
-            let i = r.range(0, materials.len() as i64 - 1) as usize;
-            let filter = [Filter::Nearest, Filter::Bilinear, Filter::Trilinear, Filter::Stochastic]
-                [r.range(0, 3) as usize];
-            let mut dyadic = |lo: i64, hi: i64, scale: f32| r.range(lo, hi) as f32 / scale;
-            let req = SampleRequest {
-                u: dyadic(-300, 1300, 1024.0),
-                v: dyadic(-300, 1300, 1024.0),
-                lod: dyadic(-2, 4 * i64::from(materials[i].mip_count()) + 2, 4.0),
-                filter,
-                precision: Precision::Integer,
-                random: [dyadic(0, 255, 256.0), dyadic(0, 255, 256.0), dyadic(0, 255, 256.0)],
-                channels: ChannelMask::ALL,
-            };
-            (i, req)
-        })
-        .collect()
 }
 
 fn to_words(bytes: &[u8]) -> Vec<u32> {

@@ -7,11 +7,14 @@
 #![allow(clippy::unwrap_used)]
 
 use nmat_core::bc::{BcFormat, BcTexture};
-use nmat_core::{ChannelMask, Container, Filter, Material, Precision, SampleRequest, TileCache};
+use nmat_core::{ChannelMask, Container, Material, TileCache};
 use nmat_wgpu::{CacheLookup, Context, GpuError, Kernel};
 use wasm_bindgen_test::{console_log, wasm_bindgen_test, wasm_bindgen_test_configure};
 
 wasm_bindgen_test_configure!(run_in_browser);
+
+mod common;
+use common::lookups;
 
 /// Neural golden fixtures (3 channels, wrap; 10 channels, clamp) and the JPEG one (4:2:0,
 /// 37 × 21).
@@ -133,25 +136,7 @@ async fn the_tile_cache_resolves_as_the_cpus_in_a_browser() {
     let refs: Vec<&Material<'_>> = materials.iter().collect();
     let mut cpu = TileCache::with_capacity(&refs, 512).unwrap();
     // Dyadic coordinates: the GPU's f32 footprints and the CPU's f64 ones pick the same texels.
-    let mut r = nmat_tests::generate::Rng::new(11);
-    let lookups: Vec<(usize, SampleRequest)> = (0..300)
-        .map(|_| {
-            let i = r.range(0, 2) as usize;
-            let filter = [Filter::Nearest, Filter::Bilinear, Filter::Trilinear, Filter::Stochastic]
-                [r.range(0, 3) as usize];
-            let mut dyadic = |lo: i64, hi: i64, scale: f32| r.range(lo, hi) as f32 / scale;
-            let req = SampleRequest {
-                u: dyadic(-300, 1300, 1024.0),
-                v: dyadic(-300, 1300, 1024.0),
-                lod: dyadic(-2, 4 * i64::from(materials[i].mip_count()) + 2, 4.0),
-                filter,
-                precision: Precision::Integer,
-                random: [dyadic(0, 255, 256.0), dyadic(0, 255, 256.0), dyadic(0, 255, 256.0)],
-                channels: ChannelMask::ALL,
-            };
-            (i, req)
-        })
-        .collect();
+    let lookups = lookups(&materials, 11, 300);
     cpu.begin_frame();
     for (i, req) in &lookups {
         cpu.mark(*i, req).unwrap();

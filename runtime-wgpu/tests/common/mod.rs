@@ -468,3 +468,33 @@ pub fn run_as_a_browser<F: std::future::Future>(
         }
     }
 }
+
+/// `count` lookups over the materials: u, v in multiples of 1/1024 across the edges, lod in
+/// quarters past both ends of the chain, every filter, dyadic random numbers.
+#[allow(dead_code)]
+pub fn lookups(
+    materials: &[nmat_core::Material<'_>],
+    seed: u64,
+    count: usize,
+) -> Vec<(usize, nmat_core::SampleRequest)> {
+    use nmat_core::{ChannelMask, Filter, Precision, SampleRequest};
+    let mut r = nmat_tests::generate::Rng::new(seed);
+    (0..count)
+        .map(|_| {
+            let i = r.range(0, materials.len() as i64 - 1) as usize;
+            let filter = [Filter::Nearest, Filter::Bilinear, Filter::Trilinear, Filter::Stochastic]
+                [r.range(0, 3) as usize];
+            let mut dyadic = |lo: i64, hi: i64, scale: f32| r.range(lo, hi) as f32 / scale;
+            let req = SampleRequest {
+                u: dyadic(-300, 1300, 1024.0),
+                v: dyadic(-300, 1300, 1024.0),
+                lod: dyadic(-2, 4 * i64::from(materials[i].mip_count()) + 2, 4.0),
+                filter,
+                precision: Precision::Integer,
+                random: [dyadic(0, 255, 256.0), dyadic(0, 255, 256.0), dyadic(0, 255, 256.0)],
+                channels: ChannelMask::ALL,
+            };
+            (i, req)
+        })
+        .collect()
+}
