@@ -198,7 +198,8 @@ async fn the_tile_cache_resolves_as_the_cpus_in_a_browser() {
 /// the sampling modules (`nmat_sample` for any material and specialised to one, the tile
 /// cache's lookup for the engine's shaders) in a compute shader, validated by the browser's
 /// compiler; every map of a material decoded into an `Rgba8Unorm` storage texture; blocks of
-/// any pixels in BC1, BC4, BC5 and BC7 (RGB, RGBA), and a material's BC7 texture. (Before its
+/// any pixels in BC1, BC4, BC5 and BC7 (RGB, RGBA), a material's BC7 texture, and wgpu BC
+/// textures of its whole chain (`create_bc_textures`, every level copied back). (Before its
 /// shaders spelt out their zero initializers, the BC7 blocks differed here: 451 of the
 /// material's 480, and a single colour's partition.)
 #[wasm_bindgen_test]
@@ -331,6 +332,50 @@ async fn the_shaders_an_engine_takes_compile_and_decode_in_a_browser() {
             let mut want = vec![0u8; size];
             nmat_core::bc::encode_block(format, pixels, *valid, &mut want);
             assert_eq!(got[size * k..size * (k + 1)], want[..], "{} block {k}", format.name());
+        }
+    }
+    // wgpu BC textures of the whole chain in the default layout, every level read back.
+    let layout = nmat_core::bc::default_layout(&m);
+    let textures = ctx.create_bc_textures(&device, &queue, &gm, &layout).unwrap();
+    let cpu = nmat_core::Decoder::new(&m);
+    for (texture, bc) in textures.iter().zip(&layout) {
+        for level in 0..m.mip_count() {
+            let blocks = nmat_core::BlockRegion::mip(&m, level);
+            let row = blocks.width as usize * bc.format.block_bytes();
+            let pitch = (row as u32).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+            let back = device.create_buffer(&wgpu::BufferDescriptor {
+                label: None,
+                size: u64::from(pitch * blocks.height),
+                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            });
+            let mut encoder = device.create_command_encoder(&Default::default());
+            encoder.copy_texture_to_buffer(
+                wgpu::TexelCopyTextureInfo {
+                    texture,
+                    mip_level: level,
+                    origin: wgpu::Origin3d::ZERO,
+                    aspect: wgpu::TextureAspect::All,
+                },
+                wgpu::TexelCopyBufferInfo {
+                    buffer: &back,
+                    layout: wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(pitch),
+                        rows_per_image: Some(blocks.height),
+                    },
+                },
+                wgpu::Extent3d {
+                    width: 4 * blocks.width,
+                    height: 4 * blocks.height,
+                    depth_or_array_layers: 1,
+                },
+            );
+            queue.submit([encoder.finish()]);
+            let got = nmat_wgpu::read_buffer_async(&device, &queue, &back).await.unwrap();
+            let got: Vec<u8> = got.chunks(pitch as usize).flat_map(|r| r[..row].to_vec()).collect();
+            let want = common::cpu_blocks(&cpu, &m, bc, level);
+            assert!(got == want, "{} texture, level {level}: blocks differ", bc.format.name());
         }
     }
     // BC7 of the albedo, against the CPU's encoder.
