@@ -14,7 +14,7 @@ use wasm_bindgen_test::{console_log, wasm_bindgen_test, wasm_bindgen_test_config
 wasm_bindgen_test_configure!(run_in_browser);
 
 mod common;
-use common::{cpu_blocks, lookups};
+use common::{copy_level, cpu_blocks, lookups, unpadded_rows};
 
 /// Neural golden fixtures (3 channels, wrap; 10 channels, clamp) and the JPEG one (4:2:0,
 /// 37 × 21).
@@ -338,39 +338,11 @@ async fn the_shaders_an_engine_takes_compile_and_decode_in_a_browser() {
     for (texture, bc) in textures.iter().zip(&layout) {
         for level in 0..m.mip_count() {
             let blocks = nmat_core::BlockRegion::mip(&m, level);
-            let row = blocks.width as usize * bc.format.block_bytes();
-            let pitch = (row as u32).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
-            let back = device.create_buffer(&wgpu::BufferDescriptor {
-                label: None,
-                size: u64::from(pitch * blocks.height),
-                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
-                mapped_at_creation: false,
-            });
-            let mut encoder = device.create_command_encoder(&Default::default());
-            encoder.copy_texture_to_buffer(
-                wgpu::TexelCopyTextureInfo {
-                    texture,
-                    mip_level: level,
-                    origin: wgpu::Origin3d::ZERO,
-                    aspect: wgpu::TextureAspect::All,
-                },
-                wgpu::TexelCopyBufferInfo {
-                    buffer: &back,
-                    layout: wgpu::TexelCopyBufferLayout {
-                        offset: 0,
-                        bytes_per_row: Some(pitch),
-                        rows_per_image: Some(blocks.height),
-                    },
-                },
-                wgpu::Extent3d {
-                    width: 4 * blocks.width,
-                    height: 4 * blocks.height,
-                    depth_or_array_layers: 1,
-                },
-            );
-            queue.submit([encoder.finish()]);
+            let size = bc.format.block_bytes();
+            let usage = wgpu::BufferUsages::COPY_SRC;
+            let (back, pitch) = copy_level(&device, &queue, (texture, level), blocks, size, usage);
             let got = nmat_wgpu::read_buffer_async(&device, &queue, &back).await.unwrap();
-            let got: Vec<u8> = got.chunks(pitch as usize).flat_map(|r| r[..row].to_vec()).collect();
+            let got = unpadded_rows(&got, pitch, blocks.width as usize * size);
             let want = cpu_blocks(&cpu, &m, bc, level);
             assert!(got == want, "{} texture, level {level}: blocks differ", bc.format.name());
         }

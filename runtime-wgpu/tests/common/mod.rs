@@ -252,12 +252,31 @@ pub fn read_level(
     blocks: nmat_core::BlockRegion,
     block_bytes: usize,
 ) -> Vec<u8> {
+    let usage = wgpu::BufferUsages::MAP_READ;
+    let (back, pitch) = copy_level(device, queue, (texture, level), blocks, block_bytes, usage);
+    back.map_async(wgpu::MapMode::Read, .., |r| r.unwrap());
+    device.poll(wgpu::PollType::wait_indefinitely()).unwrap();
+    let got = back.get_mapped_range(..).unwrap().to_vec();
+    unpadded_rows(&got, pitch, blocks.width as usize * block_bytes)
+}
+
+/// A new buffer (`usage` and `COPY_DST`) holding level `level` of a BC texture of `blocks`,
+/// its rows padded to `COPY_BYTES_PER_ROW_ALIGNMENT` (the pitch, returned); the copy submitted.
+#[allow(dead_code)]
+pub fn copy_level(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    (texture, level): (&wgpu::Texture, u32),
+    blocks: nmat_core::BlockRegion,
+    block_bytes: usize,
+    usage: wgpu::BufferUsages,
+) -> (wgpu::Buffer, usize) {
     let row = blocks.width as usize * block_bytes;
-    let pitch = (row as u64).next_multiple_of(u64::from(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT));
+    let pitch = row.next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT as usize);
     let back = device.create_buffer(&wgpu::BufferDescriptor {
         label: None,
-        size: pitch * u64::from(blocks.height),
-        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        size: (pitch * blocks.height as usize) as u64,
+        usage: usage | wgpu::BufferUsages::COPY_DST,
         mapped_at_creation: false,
     });
     let mut encoder = device.create_command_encoder(&Default::default());
@@ -283,10 +302,13 @@ pub fn read_level(
         },
     );
     queue.submit([encoder.finish()]);
-    back.map_async(wgpu::MapMode::Read, .., |r| r.unwrap());
-    device.poll(wgpu::PollType::wait_indefinitely()).unwrap();
-    let got = back.get_mapped_range(..).unwrap().to_vec();
-    got.chunks(pitch as usize).flat_map(|r| r[..row].to_vec()).collect()
+    (back, pitch)
+}
+
+/// The first `row` bytes of each `pitch` of `padded`.
+#[allow(dead_code)]
+pub fn unpadded_rows(padded: &[u8], pitch: usize, row: usize) -> Vec<u8> {
+    padded.chunks(pitch).flat_map(|r| r[..row].to_vec()).collect()
 }
 
 /// The compute pipeline of `source`'s `main` (a test's own WGSL), with `layout` or, without one,
