@@ -259,11 +259,16 @@ pub(crate) async fn read_back_async(
         }
     });
     Mapping(state).await.map_err(|e| GpuError::Map(e.to_string()))?;
+    mapped_bytes(buffer, bytes)
+}
+
+/// The first `bytes` of `buffer`, mapped for reading: copied out, then the buffer unmapped.
+fn mapped_bytes(buffer: &wgpu::Buffer, bytes: u64) -> Result<Vec<u8>, GpuError> {
     let view = buffer.get_mapped_range(..bytes).map_err(|e| GpuError::Map(e.to_string()))?;
-    let bytes = view.to_vec();
+    let out = view.to_vec();
     drop(view);
     buffer.unmap();
-    Ok(bytes)
+    Ok(out)
 }
 
 /// Whether the calls that wait for the device can on `backend`: on every backend but WebGPU in a
@@ -335,11 +340,7 @@ pub(crate) fn read_back_within(
     rx.recv()
         .map_err(|e| GpuError::Map(e.to_string()))?
         .map_err(|e| GpuError::Map(e.to_string()))?;
-    let view = buffer.get_mapped_range(..bytes).map_err(|e| GpuError::Map(e.to_string()))?;
-    let bytes = view.to_vec();
-    drop(view);
-    buffer.unmap();
-    Ok(Some(bytes))
+    mapped_bytes(buffer, bytes).map(Some)
 }
 
 /// The compute pipeline of `entry` in `source` (with `layout`, or the one wgpu derives), or

@@ -203,12 +203,9 @@ impl Context {
         &self,
         device: &wgpu::Device,
     ) -> Result<Arc<JpegPipelines>, GpuError> {
-        let built = self.jpeg.lock().unwrap_or_else(|e| e.into_inner()).clone();
-        match built {
-            Some(pipelines) => Ok(pipelines),
-            None => crate::gpu::now(self.build_jpeg_pipelines(device, Waits::Block))
-                .unwrap_or(Err(jpeg_refused())),
-        }
+        // Built and kept by the first call; with `Waits::Block` ready at once.
+        crate::gpu::now(self.build_jpeg_pipelines(device, Waits::Block))
+            .unwrap_or(Err(jpeg_refused()))
     }
 
     /// The JPEG pipelines built and kept, unless they are already: once the device has answered
